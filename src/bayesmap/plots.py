@@ -1,0 +1,560 @@
+"""Figures: the true map with a scan, and the posterior wall probability (optionally its standard deviation).
+
+Everything is drawn on a :class:`matplotlib.figure.Figure` with the Agg canvas (never ``pyplot``), so it works
+headless, in threads and in tests. Every plotting function returns the Figure; :func:`save_figure` writes it as
+PNG or SVG, whole or not at all.
+
+Conventions: ``walls[i, j]`` / ``posterior[i, j]`` is cell ``(i, j)`` with ``i`` along x and ``j`` along y, so
+images are drawn transposed (``imshow(P.T, origin="lower", extent=grid.extent)``): x horizontal, y vertical, in
+world coordinates. Axis labels say "cells" on the tutorial's unit grid (resolution 1, origin ``(-0.5, -0.5)``)
+and "m" otherwise.
+
+Artists carry a ``gid`` so that callers and tests can find them: ``"walls"`` (the true walls: a
+PatchCollection of cells, or an image on large maps), ``"truth"`` (outline of the true walls on a posterior: a PathPatch, one MOVETO/LINETO pair per edge),
+``"posterior"`` and ``"std"`` (the heatmaps), ``"gridlines"``, ``"rays"`` (a LineCollection, one segment per
+ray from its origin to its reading endpoint), ``"sensor"`` (a scatter of the sensor position(s)),
+``"readings"`` and ``"max_range_readings"`` (scatters of the reading endpoints).
+"""
+
+from __future__ import annotations
+
+from io import BytesIO
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection, PatchCollection
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch, PathPatch, Rectangle
+from matplotlib.path import Path as MplPath
+from matplotlib.ticker import MaxNLocator
+
+from bayesmap.errors import BayesmapError
+from bayesmap.grid import Grid, write_atomic
+
+__all__ = ["plot_map", "plot_posterior", "save_figure"]
+
+# Grid lines are drawn when neither side of the grid has more cells than this.
+MAX_GRIDLINE_CELLS = 60
+# Above this many wall cells, walls are drawn as one image plus an outline instead of one rectangle per cell.
+MAX_WALL_PATCHES = 2000
+# Images with at most this many cells per side are drawn with "nearest" (crisp cells); larger ones are
+# antialiased so that one-cell walls do not vanish when the image is downsampled to screen pixels.
+MAX_NEAREST_CELLS = 256
+
+WALL_COLOR = "#2b2b2b"
+WALL_EDGE_COLOR = "#8c8c8c"
+TRUTH_COLOR = "#d62728"
+SENSOR_COLOR = "#e31a1c"
+RAY_COLOR = "#1f78b4"
+READING_COLOR = "#1f78b4"
+MAX_RANGE_COLOR = "#7f7f7f"
+GRIDLINE_COLOR = "#c8c8c8"
+COLORBAR_GAP_INCHES = 0.15
+
+SAVE_FORMATS = {".png": "png", ".svg": "svg"}
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Validation
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _check_grid(grid) -> Grid:
+    if not isinstance(grid, Grid):
+        raise BayesmapError(f"grid must be a bayesmap.grid.Grid, got {type(grid).__name__}")
+    return grid
+
+
+def _check_cells(values, grid: Grid, what: str, unit_interval: bool = False) -> np.ndarray:
+    """A per-cell array of shape ``grid.shape`` as finite float64 (in [0, 1] if ``unit_interval``)."""
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise BayesmapError(f"{what} must be an array of numbers of shape {grid.shape}") from None
+    if arr.shape != grid.shape:
+        raise BayesmapError(f"{what} has shape {arr.shape}, but the grid has shape {grid.shape}")
+    bad = ~np.isfinite(arr)
+    if unit_interval:
+        bad |= (arr < -1e-6) | (arr > 1 + 1e-6)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        rule = "a probability in [0, 1]" if unit_interval else "finite"
+        raise BayesmapError(f"{what}[{i}, {j}] is {arr[i, j]!r}: every value must be {rule}")
+    return np.clip(arr, 0.0, 1.0) if unit_interval else arr
+
+
+def _check_point(xy, what: str) -> np.ndarray:
+    try:
+        arr = np.asarray(xy, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise BayesmapError(f"{what} must be two numbers (x, y), got {xy!r}") from None
+    if arr.shape != (2,) or not np.all(np.isfinite(arr)):
+        raise BayesmapError(f"{what} must be two finite numbers (x, y), got {xy!r} (shape {arr.shape})")
+    return arr
+
+
+def _check_vector(values, what: str) -> np.ndarray:
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise BayesmapError(f"{what} must be a 1-D array of numbers") from None
+    if arr.ndim != 1:
+        raise BayesmapError(f"{what} must be a 1-D array, got shape {arr.shape}")
+    bad = np.flatnonzero(~np.isfinite(arr))
+    if len(bad):
+        raise BayesmapError(f"{what}[{bad[0]}] is {arr[bad[0]]!r}: values must be finite")
+    return arr
+
+
+def _check_scan(pos, beam_angles, readings, origins, max_range_mask):
+    """Validate a scan; returns ``(pos or None, origins (K, 2) or None, endpoints (K, 2) or None, mask (K,))``."""
+    pos = None if pos is None else _check_point(pos, "pos")
+    if (beam_angles is None) != (readings is None):
+        given, missing = ("beam_angles", "readings") if readings is None else ("readings", "beam_angles")
+        raise BayesmapError(f"{given} given without {missing}: pass both (one angle per reading) or neither")
+    if beam_angles is None:
+        if origins is not None or max_range_mask is not None:
+            raise BayesmapError("origins and max_range_mask need beam_angles and readings")
+        return pos, None, None, None
+    angles = _check_vector(beam_angles, "beam_angles")
+    ranges = _check_vector(readings, "readings")
+    if angles.shape != ranges.shape:
+        raise BayesmapError(
+            f"readings has shape {ranges.shape} but beam_angles has shape {angles.shape}: need one angle per reading"
+        )
+    if (ranges < 0).any():
+        k = int(np.flatnonzero(ranges < 0)[0])
+        raise BayesmapError(f"readings[{k}] is {ranges[k]!r}: readings must be >= 0 (meters)")
+    num = len(ranges)
+    if origins is None:
+        if pos is None:
+            raise BayesmapError("readings need a sensor position: pass pos (one pose) or origins (one per ray)")
+        starts = np.broadcast_to(pos, (num, 2))
+    else:
+        try:
+            starts = np.asarray(origins, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise BayesmapError(f"origins must be an array of numbers of shape ({num}, 2)") from None
+        if starts.shape != (num, 2):
+            raise BayesmapError(f"origins has shape {starts.shape}, expected ({num}, 2): one (x, y) per reading")
+        if not np.all(np.isfinite(starts)):
+            k = int(np.argwhere(~np.isfinite(starts))[0, 0])
+            raise BayesmapError(f"origins[{k}] is {starts[k].tolist()!r}: origins must be finite")
+    if max_range_mask is None:
+        mask = np.zeros(num, dtype=bool)
+    else:
+        raw = np.asarray(max_range_mask)
+        if raw.shape != (num,):
+            raise BayesmapError(f"max_range_mask has shape {raw.shape}, expected ({num},): one flag per reading")
+        if raw.dtype != bool:
+            raise BayesmapError(f"max_range_mask must be a bool array, got dtype {raw.dtype}")
+        mask = raw
+    endpoints = starts + ranges[:, None] * np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+    return pos, np.array(starts), endpoints, mask
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Drawing helpers
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _new_figure(figsize) -> Figure:
+    fig = Figure(figsize=figsize, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _is_unit_grid(grid: Grid) -> bool:
+    return grid.resolution == 1.0 and grid.origin == (-0.5, -0.5)
+
+
+def _setup_axes(ax, grid: Grid, title: str) -> None:
+    unit = "cells" if _is_unit_grid(grid) else "m"
+    xmin, xmax, ymin, ymax = grid.extent
+    ax.set_xlim(xmin, xmax)
+    ax.set_ylim(ymin, ymax)
+    ax.set_aspect("equal")
+    ax.set_xlabel(f"x ({unit})")
+    ax.set_ylabel(f"y ({unit})")
+    ax.set_title(title)
+    if unit == "cells":
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True, steps=[1, 2, 5, 10]))
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True, steps=[1, 2, 5, 10]))
+
+
+def _interpolation(grid: Grid) -> str:
+    return "nearest" if max(grid.shape) <= MAX_NEAREST_CELLS else "auto"
+
+
+def _draw_gridlines(ax, grid: Grid, alpha: float = 1.0) -> None:
+    if max(grid.shape) > MAX_GRIDLINE_CELLS:
+        return
+    xmin, xmax, ymin, ymax = grid.extent
+    xs = grid.origin[0] + grid.resolution * np.arange(grid.shape[0] + 1)
+    ys = grid.origin[1] + grid.resolution * np.arange(grid.shape[1] + 1)
+    segs = [((x, ymin), (x, ymax)) for x in xs] + [((xmin, y), (xmax, y)) for y in ys]
+    ax.add_collection(
+        LineCollection(segs, colors=GRIDLINE_COLOR, linewidths=0.5, alpha=alpha, zorder=1.5, gid="gridlines")
+    )
+
+
+def _boundary_segments(mask: np.ndarray, grid: Grid) -> np.ndarray:
+    """Line segments ``(S, 2, 2)`` (world coordinates) along the boundary of the cells where ``mask`` is True,
+    collinear neighbouring edges merged into one segment."""
+    m = np.pad(mask.astype(bool), 1)
+    ox, oy = grid.origin
+    res = grid.resolution
+    out = []
+    # edges on the vertical line x = ox + i*res, between cells (i-1, j) and (i, j): (nx+1, ny)
+    vertical = m[1:, 1:-1] != m[:-1, 1:-1]
+    # edges on the horizontal line y = oy + j*res, between cells (i, j-1) and (i, j): (ny+1, nx) after transpose
+    horizontal = (m[1:-1, 1:] != m[1:-1, :-1]).T
+    for edges, is_vertical in ((vertical, True), (horizontal, False)):
+        step = np.diff(np.pad(edges, ((0, 0), (1, 1))).astype(np.int8), axis=1)
+        line, start = np.nonzero(step == 1)
+        _, stop = np.nonzero(step == -1)
+        fixed = (ox if is_vertical else oy) + line * res
+        lo = (oy if is_vertical else ox) + start * res
+        hi = (oy if is_vertical else ox) + stop * res
+        if is_vertical:
+            seg = np.stack([np.stack([fixed, lo], -1), np.stack([fixed, hi], -1)], axis=1)
+        else:
+            seg = np.stack([np.stack([lo, fixed], -1), np.stack([hi, fixed], -1)], axis=1)
+        out.append(seg)
+    return np.concatenate(out, axis=0)
+
+
+def _outline(mask: np.ndarray, grid: Grid, **kwargs) -> PathPatch:
+    """The boundary of the cells where ``mask`` is True as one unfilled compound path (one MOVETO / LINETO pair per
+    merged edge): far faster to render than a LineCollection when the boundary has ~10^5 edges."""
+    segs = _boundary_segments(mask, grid)
+    codes = np.tile(np.array([MplPath.MOVETO, MplPath.LINETO], dtype=MplPath.code_type), len(segs))
+    vertices = segs.reshape(-1, 2) if len(segs) else np.zeros((0, 2))
+    return PathPatch(MplPath(vertices, codes), fill=False, capstyle="projecting", joinstyle="miter", **kwargs)
+
+
+def _draw_walls(ax, walls: np.ndarray, grid: Grid) -> None:
+    """True walls (``walls > 0.5``) as dark filled cells with a thin outline."""
+    wall = walls > 0.5
+    count = int(wall.sum())
+    if count <= MAX_WALL_PATCHES:
+        ox, oy = grid.origin
+        res = grid.resolution
+        cells = np.argwhere(wall)
+        rects = [Rectangle((ox + i * res, oy + j * res), res, res) for i, j in cells]
+        ax.add_collection(
+            PatchCollection(
+                rects,
+                facecolors=WALL_COLOR,
+                edgecolors=WALL_EDGE_COLOR,
+                linewidths=0.6,
+                zorder=2,
+                gid="walls",
+            )
+        )
+        return
+    rgba = np.zeros(wall.T.shape + (4,), dtype=np.uint8)
+    rgba[wall.T] = (43, 43, 43, 255)
+    ax.imshow(
+        rgba,
+        origin="lower",
+        extent=grid.extent,
+        interpolation=_interpolation(grid),
+        zorder=2,
+        gid="walls",
+    )
+    ax.add_patch(_outline(wall, grid, edgecolor=WALL_COLOR, linewidth=0.4, zorder=2.1, gid="walls_outline"))
+
+
+def _draw_truth(ax, truth: np.ndarray, grid: Grid) -> None:
+    """Outline of the true walls (red edges around the wall regions)."""
+    small = max(grid.shape) <= MAX_GRIDLINE_CELLS
+    ax.add_patch(
+        _outline(
+            truth > 0.5,
+            grid,
+            edgecolor=TRUTH_COLOR,
+            linewidth=1.4 if small else 0.5,
+            alpha=1.0 if small else 0.7,
+            zorder=3,
+            gid="truth",
+        )
+    )
+
+
+def _draw_scan(ax, grid: Grid, pos, starts, endpoints, mask, *, faint: bool) -> list:
+    """Rays, reading endpoints and the sensor; returns legend handles."""
+    handles = []
+    many = endpoints is not None and len(endpoints) > 400
+    if endpoints is not None:
+        ray_alpha = (0.25 if faint else 0.45) if not many else 0.12
+        ax.add_collection(
+            LineCollection(
+                np.stack([starts, endpoints], axis=1),
+                colors=RAY_COLOR,
+                linewidths=0.5 if faint else 0.7,
+                alpha=ray_alpha,
+                zorder=4,
+                gid="rays",
+            )
+        )
+        handles.append(Line2D([], [], color=RAY_COLOR, lw=0.8, alpha=0.6, label="ray"))
+        hit = endpoints[~mask]
+        size = 6 if many else (10 if faint else 14)
+        ax.scatter(
+            hit[:, 0],
+            hit[:, 1],
+            s=size,
+            c=READING_COLOR,
+            edgecolors="white" if not many else "none",
+            linewidths=0.3,
+            alpha=0.8 if faint else 1.0,
+            zorder=5,
+            gid="readings",
+            label="reading",
+        )
+        handles.append(
+            Line2D([], [], ls="none", marker="o", ms=4, color=READING_COLOR, mec="white", mew=0.3, label="reading")
+        )
+        if mask.any():
+            far = endpoints[mask]
+            ax.scatter(
+                far[:, 0],
+                far[:, 1],
+                s=size * 1.6,
+                facecolors="none",
+                edgecolors=MAX_RANGE_COLOR,
+                linewidths=0.8,
+                zorder=5,
+                gid="max_range_readings",
+                label="max-range reading",
+            )
+            handles.append(
+                Line2D([], [], ls="none", marker="o", ms=5, mfc="none", mec=MAX_RANGE_COLOR, label="max-range reading")
+            )
+    sensors = []
+    if pos is not None:
+        sensors.append(pos[None, :])
+    elif starts is not None:
+        sensors.append(np.unique(starts, axis=0))
+    if sensors:
+        pts = np.concatenate(sensors, axis=0)
+        label = "sensor" if len(pts) == 1 else "sensor poses"
+        ax.scatter(
+            pts[:, 0],
+            pts[:, 1],
+            s=60 if len(pts) == 1 else 12,
+            c=SENSOR_COLOR,
+            edgecolors="white",
+            linewidths=0.8 if len(pts) == 1 else 0.3,
+            zorder=6,
+            gid="sensor",
+            label=label,
+        )
+        handles.insert(
+            0, Line2D([], [], ls="none", marker="o", ms=7, color=SENSOR_COLOR, mec="white", mew=0.8, label=label)
+        )
+    return handles
+
+
+def _legend(ax, handles) -> None:
+    if not handles:
+        return
+    ax.legend(
+        handles=handles,
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.1),
+        ncol=len(handles) if len(handles) <= 4 else 3,
+        fontsize="small",
+        frameon=False,
+        handlelength=1.5,
+        columnspacing=1.2,
+    )
+
+
+def _fit_colorbars(fig: Figure, pairs) -> None:
+    """Lay the figure out once (constrained layout), then freeze the layout and give each colour bar the height
+    of its map axes as drawn (with equal aspect the map is often shorter than the slot the layout gave it)."""
+    fig.draw_without_rendering()
+    slots = [cbar.ax.get_position(original=True) for _, cbar in pairs]
+    fig.set_layout_engine("none")
+    for (ax, cbar), cpos in zip(pairs, slots):
+        ax.apply_aspect()
+        drawn = ax.get_position(original=False)
+        gap = COLORBAR_GAP_INCHES / fig.get_figwidth()
+        cbar.ax.set_position([drawn.x1 + gap, drawn.y0, cpos.width, drawn.height])
+
+
+def _figsize(grid: Grid, panels: int, colorbar: bool) -> tuple[float, float]:
+    """A figure size whose panels roughly follow the grid's aspect ratio (so colour bars match the axes)."""
+    nx, ny = grid.shape
+    aspect = min(max(ny / nx, 0.35), 2.5)  # height / width of one map
+    width = 5.0
+    height = width * aspect
+    if height > 6.5:
+        width, height = width * 6.5 / height, 6.5
+    extra_w = 1.2 if colorbar else 0.4
+    return (panels * (width + extra_w) + 0.4, height + 1.5)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Public API
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def plot_map(
+    grid,
+    walls=None,
+    pos=None,
+    beam_angles=None,
+    readings=None,
+    *,
+    origins=None,
+    max_range_mask=None,
+    title=None,
+    ax=None,
+) -> Figure:
+    """Draw the true map and a scan.
+
+    Args:
+        grid: the :class:`~bayesmap.grid.Grid`.
+        walls: ``(nx, ny)`` true map (cells > 0.5 are walls, drawn as dark filled cells), or None to show only
+            what the robot sees (the sensor, its rays and readings).
+        pos: ``(2,)`` sensor position, world coordinates (red dot); the origin of every ray unless ``origins``.
+        beam_angles: ``(K,)`` beam angles in radians (world frame).
+        readings: ``(K,)`` range readings (meters); ray ``k`` is drawn from its origin to
+            ``origin + readings[k] * (cos beam_angles[k], sin beam_angles[k])`` with a dot at the end.
+        origins: ``(K, 2)`` one origin per ray (scans from many poses); the distinct origins are drawn as sensor
+            poses when ``pos`` is None.
+        max_range_mask: ``(K,)`` bool; True marks max-range readings (no return), drawn as hollow grey markers.
+        title: the axes title; default "True map" or "What the robot sees" (``walls=None``).
+        ax: draw into this Axes instead of a new figure.
+
+    Returns:
+        The Figure (``ax``'s figure when ``ax`` is given).
+
+    Raises:
+        BayesmapError: on a wrong shape or a non-finite value (names it), or readings without angles or a pose.
+    """
+    grid = _check_grid(grid)
+    walls = None if walls is None else _check_cells(walls, grid, "walls")
+    pos, starts, endpoints, mask = _check_scan(pos, beam_angles, readings, origins, max_range_mask)
+    if ax is None:
+        fig = _new_figure(_figsize(grid, 1, colorbar=False))
+        ax = fig.add_subplot()
+    else:
+        try:
+            fig = ax.get_figure(root=True)
+        except TypeError:  # matplotlib < 3.10
+            fig = ax.figure
+    if title is None:
+        title = "True map" if walls is not None else "What the robot sees"
+    _setup_axes(ax, grid, title)
+    _draw_gridlines(ax, grid)
+    handles = []
+    if walls is not None:
+        _draw_walls(ax, walls, grid)
+        handles.append(Patch(facecolor=WALL_COLOR, edgecolor=WALL_EDGE_COLOR, label="wall"))
+    handles += _draw_scan(ax, grid, pos, starts, endpoints, mask, faint=False)
+    _legend(ax, handles)
+    return fig
+
+
+def plot_posterior(
+    grid,
+    posterior,
+    *,
+    truth=None,
+    pos=None,
+    beam_angles=None,
+    readings=None,
+    origins=None,
+    max_range_mask=None,
+    title=None,
+    std=False,
+) -> Figure:
+    """Draw the posterior wall probability per cell as a heatmap (white = free, black = wall).
+
+    Args:
+        grid: the :class:`~bayesmap.grid.Grid`.
+        posterior: ``(nx, ny)`` posterior probability that each cell is a wall, in [0, 1].
+        truth: ``(nx, ny)`` true map; its walls (cells > 0.5) are outlined in red.
+        pos, beam_angles, readings, origins, max_range_mask: the scan drawn on top, as in :func:`plot_map`
+            (thinner and semi-transparent).
+        title: the title of the probability panel; default "Posterior P(wall)".
+        std: also draw a second panel with the posterior standard deviation ``sqrt(p (1 - p))`` (0 to 0.5).
+
+    Returns:
+        The Figure: one map axes and one colour bar axes (two of each with ``std=True``). The heatmap is the
+        image with gid ``"posterior"``; its colour bar is labelled "P(wall)" and spans 0 to 1.
+
+    Raises:
+        BayesmapError: if ``posterior`` or ``truth`` does not have ``grid.shape``, ``posterior`` has a value
+            outside [0, 1], or the scan is malformed (see :func:`plot_map`).
+    """
+    grid = _check_grid(grid)
+    prob = _check_cells(posterior, grid, "posterior", unit_interval=True)
+    truth = None if truth is None else _check_cells(truth, grid, "truth")
+    pos, starts, endpoints, mask = _check_scan(pos, beam_angles, readings, origins, max_range_mask)
+    panels = [("posterior", prob, "Greys", 1.0, "P(wall)", title or "Posterior P(wall)")]
+    if std:
+        panels.append(
+            ("std", np.sqrt(prob * (1.0 - prob)), "viridis", 0.5, "std. dev. sqrt(p(1 - p))", "Posterior standard deviation")
+        )
+    fig = _new_figure(_figsize(grid, len(panels), colorbar=True))
+    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    pairs = []
+    for ax, (gid, values, cmap, vmax, label, panel_title) in zip(axes, panels):
+        _setup_axes(ax, grid, panel_title)
+        image = ax.imshow(
+            values.T,
+            origin="lower",
+            extent=grid.extent,
+            cmap=cmap,
+            vmin=0.0,
+            vmax=vmax,
+            interpolation=_interpolation(grid),
+            zorder=1,
+            gid=gid,
+        )
+        colorbar = fig.colorbar(image, ax=ax, label=label)
+        colorbar.ax.set_ylim(0.0, vmax)
+        pairs.append((ax, colorbar))
+        _draw_gridlines(ax, grid, alpha=0.35)
+        handles = []
+        if truth is not None:
+            _draw_truth(ax, truth, grid)
+            handles.append(Line2D([], [], color=TRUTH_COLOR, lw=1.4, label="true wall outline"))
+        handles += _draw_scan(ax, grid, pos, starts, endpoints, mask, faint=True)
+        _legend(ax, handles)
+    _fit_colorbars(fig, pairs)
+    return fig
+
+
+def save_figure(fig, path, *, overwrite: bool = False) -> Path:
+    """Save ``fig`` as PNG or SVG (chosen by the suffix of ``path``), whole or not at all.
+
+    The figure is rendered to bytes in memory first, then written with :func:`bayesmap.grid.write_atomic`.
+
+    Returns:
+        The path written.
+
+    Raises:
+        BayesmapError: if the suffix is not ``.png`` or ``.svg`` (names it), ``path`` exists and ``overwrite``
+            is False, or the folder cannot be written.
+    """
+    if not isinstance(fig, Figure):
+        raise BayesmapError(f"save_figure needs a matplotlib Figure, got {type(fig).__name__}")
+    path = Path(path)
+    fmt = SAVE_FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise BayesmapError(
+            f"cannot save a figure as {path.suffix or '(no suffix)'!r} ({str(path)!r}): use a .png or .svg file name"
+        )
+    if path.exists() and not overwrite:
+        raise BayesmapError(f"{str(path)!r} already exists (refusing to overwrite it)")
+    buffer = BytesIO()
+    fig.savefig(buffer, format=fmt, dpi=150 if fmt == "png" else "figure", bbox_inches="tight", pad_inches=0.1)
+    return write_atomic(path, buffer.getvalue(), overwrite=overwrite)
