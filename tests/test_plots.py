@@ -105,6 +105,21 @@ def test_plot_map_sensor_and_endpoints(grid, walls, scan):
     np.testing.assert_allclose(segs[0, 1], [16.5, 10.0], atol=1e-5)
 
 
+def test_sensor_at_an_asymmetric_position(grid, walls):
+    pos = np.array([4.0, 8.0])
+    a = np.asarray(angles(8), dtype=np.float64)
+    r = np.asarray(sensor_distances(walls, pos, angles(8)), dtype=np.float64)
+    figs = (plot_map(grid, walls, pos, a, r), plot_posterior(grid, blurred(walls), pos=pos, beam_angles=a, readings=r))
+    for fig in figs:
+        ax = fig.axes[0]
+        np.testing.assert_allclose(by_gid(ax, "sensor").get_offsets(), [pos])
+        np.testing.assert_allclose(by_gid(ax, "readings").get_offsets(), expected_endpoints(pos, a, r), atol=1e-9)
+    # from (4, 8) straight down (-y) the first wall is cell (4, 1) (map line i = 4 is ".X............XXX...."),
+    # whose top edge is at y = 1.5
+    assert a[6] == pytest.approx(3 * np.pi / 2)
+    assert r[6] == pytest.approx(6.5, abs=1e-5)
+
+
 def test_plot_map_without_walls_shows_only_the_scan(grid, scan):
     a, r = scan
     ax = plot_map(grid, None, POS, a, r).axes[0]
@@ -349,17 +364,21 @@ def test_plots_in_threads(tmp_path, grid, walls, scan):
 
 
 def test_large_grid_is_fast(tmp_path):
+    # CPU time of this process, not wall time: other processes on a busy machine must not make this fail
     grid = Grid((1000, 1000), resolution=0.1, origin=(-50.0, -50.0))
     rng = np.random.default_rng(0)
     truth = (rng.random(grid.shape) < 0.05).astype(np.float64)  # ~50k scattered wall cells: worst case outline
     post = np.clip(0.8 * truth + 0.1 + 0.05 * rng.standard_normal(grid.shape), 0.0, 1.0)
     a = np.linspace(-np.pi / 2, np.pi / 2, 180)
     r = rng.uniform(1.0, 30.0, 180)
-    start = time.perf_counter()
+    start = time.process_time()
     save_figure(
         plot_posterior(grid, post, truth=truth, pos=(0.0, 0.0), beam_angles=a, readings=r, std=True),
         tmp_path / "post.png",
     )
+    elapsed = time.process_time() - start
+    assert elapsed < 3.0, f"plotting and saving a 1000 x 1000 posterior took {elapsed:.1f} s"
+    start = time.process_time()
     save_figure(plot_map(grid, truth, (0.0, 0.0), a, r), tmp_path / "map.png")
-    elapsed = time.perf_counter() - start
-    assert elapsed < 6.0, f"plotting a 1000 x 1000 grid took {elapsed:.1f} s"
+    elapsed = time.process_time() - start
+    assert elapsed < 3.0, f"plotting and saving a 1000 x 1000 map took {elapsed:.1f} s"

@@ -10,10 +10,14 @@ world coordinates. Axis labels say "cells" on the tutorial's unit grid (resoluti
 and "m" otherwise.
 
 Artists carry a ``gid`` so that callers and tests can find them: ``"walls"`` (the true walls: a
-PatchCollection of cells, or an image on large maps), ``"truth"`` (outline of the true walls on a posterior: a PathPatch, one MOVETO/LINETO pair per edge),
-``"posterior"`` and ``"std"`` (the heatmaps), ``"gridlines"``, ``"rays"`` (a LineCollection, one segment per
-ray from its origin to its reading endpoint), ``"sensor"`` (a scatter of the sensor position(s)),
-``"readings"`` and ``"max_range_readings"`` (scatters of the reading endpoints).
+PatchCollection of cells, or an image plus a ``"walls_outline"`` path on maps with many wall cells), ``"truth"``
+(outline of the true walls on a posterior: a PathPatch, one MOVETO/LINETO pair per edge), ``"posterior"`` and
+``"std"`` (the heatmaps), ``"gridlines"``, ``"rays"`` (a LineCollection, one segment per ray from its origin to
+its reading endpoint), ``"sensor"`` (a scatter of the sensor position(s)), ``"readings"`` and
+``"max_range_readings"`` (scatters of the reading endpoints).
+
+Large grids (10^6 cells, 10^5 wall edges, hundreds of rays) plot and save in about a second: heatmaps and
+large wall sets are images, outlines are one compound path, rays one LineCollection.
 """
 
 from __future__ import annotations
@@ -51,6 +55,8 @@ RAY_COLOR = "#1f78b4"
 READING_COLOR = "#1f78b4"
 MAX_RANGE_COLOR = "#7f7f7f"
 GRIDLINE_COLOR = "#c8c8c8"
+# Above this many rays, rays are faded and reading dots shrunk in proportion.
+CROWDED_RAYS = 400
 COLORBAR_GAP_INCHES = 0.15
 
 SAVE_FORMATS = {".png": "png", ".svg": "svg"}
@@ -196,7 +202,8 @@ def _draw_gridlines(ax, grid: Grid, alpha: float = 1.0) -> None:
     ys = grid.origin[1] + grid.resolution * np.arange(grid.shape[1] + 1)
     segs = [((x, ymin), (x, ymax)) for x in xs] + [((xmin, y), (xmax, y)) for y in ys]
     ax.add_collection(
-        LineCollection(segs, colors=GRIDLINE_COLOR, linewidths=0.5, alpha=alpha, zorder=1.5, gid="gridlines")
+        LineCollection(segs, colors=GRIDLINE_COLOR, linewidths=0.5, alpha=alpha, zorder=1.5, gid="gridlines"),
+        autolim=False,
     )
 
 
@@ -265,13 +272,14 @@ def _draw_walls(ax, walls: np.ndarray, grid: Grid) -> None:
         zorder=2,
         gid="walls",
     )
-    ax.add_patch(_outline(wall, grid, edgecolor=WALL_COLOR, linewidth=0.4, zorder=2.1, gid="walls_outline"))
+    # add_artist, not add_patch: add_patch walks every vertex in Python to update the data limits
+    ax.add_artist(_outline(wall, grid, edgecolor=WALL_COLOR, linewidth=0.4, zorder=2.1, gid="walls_outline"))
 
 
 def _draw_truth(ax, truth: np.ndarray, grid: Grid) -> None:
     """Outline of the true walls (red edges around the wall regions)."""
     small = max(grid.shape) <= MAX_GRIDLINE_CELLS
-    ax.add_patch(
+    ax.add_artist(  # not add_patch: see _draw_walls
         _outline(
             truth > 0.5,
             grid,
@@ -287,9 +295,11 @@ def _draw_truth(ax, truth: np.ndarray, grid: Grid) -> None:
 def _draw_scan(ax, grid: Grid, pos, starts, endpoints, mask, *, faint: bool) -> list:
     """Rays, reading endpoints and the sensor; returns legend handles."""
     handles = []
-    many = endpoints is not None and len(endpoints) > 400
+    many = endpoints is not None and len(endpoints) > CROWDED_RAYS
     if endpoints is not None:
-        ray_alpha = (0.25 if faint else 0.45) if not many else 0.12
+        # with many rays (scans from many poses) fade the rays and shrink the dots so the map stays visible
+        crowd = min(1.0, CROWDED_RAYS / max(len(endpoints), 1))
+        ray_alpha = (0.25 if faint else 0.45) * max(crowd, 0.1)
         ax.add_collection(
             LineCollection(
                 np.stack([starts, endpoints], axis=1),
@@ -298,11 +308,12 @@ def _draw_scan(ax, grid: Grid, pos, starts, endpoints, mask, *, faint: bool) -> 
                 alpha=ray_alpha,
                 zorder=4,
                 gid="rays",
-            )
+            ),
+            autolim=False,
         )
         handles.append(Line2D([], [], color=RAY_COLOR, lw=0.8, alpha=0.6, label="ray"))
         hit = endpoints[~mask]
-        size = 6 if many else (10 if faint else 14)
+        size = (10.0 if faint else 14.0) * max(np.sqrt(crowd), 0.15)
         ax.scatter(
             hit[:, 0],
             hit[:, 1],
@@ -310,7 +321,7 @@ def _draw_scan(ax, grid: Grid, pos, starts, endpoints, mask, *, faint: bool) -> 
             c=READING_COLOR,
             edgecolors="white" if not many else "none",
             linewidths=0.3,
-            alpha=0.8 if faint else 1.0,
+            alpha=(0.8 if faint else 1.0) * (0.6 if many else 1.0),
             zorder=5,
             gid="readings",
             label="reading",
@@ -326,7 +337,7 @@ def _draw_scan(ax, grid: Grid, pos, starts, endpoints, mask, *, faint: bool) -> 
                 s=size * 1.6,
                 facecolors="none",
                 edgecolors=MAX_RANGE_COLOR,
-                linewidths=0.8,
+                linewidths=0.4 if many else 0.8,
                 zorder=5,
                 gid="max_range_readings",
                 label="max-range reading",
@@ -445,10 +456,7 @@ def plot_map(
         fig = _new_figure(_figsize(grid, 1, colorbar=False))
         ax = fig.add_subplot()
     else:
-        try:
-            fig = ax.get_figure(root=True)
-        except TypeError:  # matplotlib < 3.10
-            fig = ax.figure
+        fig = ax.get_figure(root=True)
     if title is None:
         title = "True map" if walls is not None else "What the robot sees"
     _setup_axes(ax, grid, title)
@@ -487,8 +495,10 @@ def plot_posterior(
         std: also draw a second panel with the posterior standard deviation ``sqrt(p (1 - p))`` (0 to 0.5).
 
     Returns:
-        The Figure: one map axes and one colour bar axes (two of each with ``std=True``). The heatmap is the
-        image with gid ``"posterior"``; its colour bar is labelled "P(wall)" and spans 0 to 1.
+        The Figure: ``fig.axes`` is ``[map, colour bar]`` (``[map, std map, colour bar, std colour bar]`` with
+        ``std=True``). The heatmap is the image with gid ``"posterior"``; its colour bar is labelled "P(wall)"
+        and spans 0 to 1. The layout is computed once and then frozen (so each colour bar is exactly as tall as
+        its map); resizing the figure afterwards keeps the relative positions.
 
     Raises:
         BayesmapError: if ``posterior`` or ``truth`` does not have ``grid.shape``, ``posterior`` has a value
@@ -501,7 +511,14 @@ def plot_posterior(
     panels = [("posterior", prob, "Greys", 1.0, "P(wall)", title or "Posterior P(wall)")]
     if std:
         panels.append(
-            ("std", np.sqrt(prob * (1.0 - prob)), "viridis", 0.5, "std. dev. sqrt(p(1 - p))", "Posterior standard deviation")
+            (
+                "std",
+                np.sqrt(prob * (1.0 - prob)),
+                "viridis",
+                0.5,
+                "std. dev. sqrt(p(1 - p))",
+                "Posterior standard deviation",
+            )
         )
     fig = _new_figure(_figsize(grid, len(panels), colorbar=True))
     axes = fig.subplots(1, len(panels), squeeze=False)[0]
