@@ -43,7 +43,8 @@ def test_single_site_gibbs_is_stuck_at_low_prior(tutorial_low_prior, sampler):
 
 @pytest.mark.parametrize("sampler", ["reference-block", "block"])
 def test_block_gibbs_recovers_at_low_prior(tutorial_low_prior, sampler):
-    wrong, _ = wrong_after(tutorial_low_prior, sampler, 100)
+    # the tutorial's block chain is right from sweep 7 on; 40 sweeps keep the reference affordable
+    wrong, _ = wrong_after(tutorial_low_prior, sampler, 40)
     assert wrong <= 2
 
 

@@ -1,0 +1,109 @@
+"""The command line: outputs, the real scan, and one-line errors with exit code 2."""
+
+import gzip
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from bayesmap.cli import main
+
+
+def run_cli(monkeypatch, capsys, *args):
+    monkeypatch.setattr(sys, "argv", ["bayesmap", *map(str, args)])
+    code = 0
+    try:
+        main()
+    except SystemExit as exc:
+        code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_infer_on_a_map_file_writes_all_outputs(tmp_path, monkeypatch, capsys):
+    (tmp_path / "room.txt").write_text("XXXXXXX\nX.....X\nX.....X\nX.....X\nXXXXXXX\n")
+    code, out, err = run_cli(monkeypatch, capsys, "infer", "--map", tmp_path / "room.txt", "--sweeps", 20,
+                             "--num-angles", 60, "--out", tmp_path / "out", "--sampler", "outward")
+    assert code in (0, None), err
+    files = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert files == ["posterior.npy", "posterior.png", "readings.npy", "summary.json"]
+    posterior = np.load(tmp_path / "out" / "posterior.npy")
+    assert posterior.shape == (5, 7)
+    assert np.load(tmp_path / "out" / "readings.npy").shape == (60,)
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["sweeps"] == 20 and summary["pos"] == [2.0, 3.0] and summary["visible_cells"] == 31
+    assert posterior[1:4, 1:6].max() < 0.1  # the free interior is inferred free
+    # (single-site raster order gets stuck here for 20+ sweeps: a cell next to the sensor shadows the true walls)
+    assert summary["wrong_visible_cells"] == 0
+    assert "wrong" in out and "runtime" in out
+    # nothing is overwritten without asking
+    before = (tmp_path / "out" / "summary.json").read_bytes()
+    code, out, err = run_cli(monkeypatch, capsys, "infer", "--map", tmp_path / "room.txt", "--out", tmp_path / "out")
+    assert code == 2 and "--force" in err and (tmp_path / "out" / "summary.json").read_bytes() == before
+
+
+def test_infer_on_a_real_scan(intel_log, tmp_path, monkeypatch, capsys):
+    code, out, err = run_cli(monkeypatch, capsys, "infer", "--log", intel_log, "--scan", 100, "--sweeps", 20,
+                             "--sampler", "chromatic", "--out", tmp_path / "scan")
+    assert code in (0, None), err
+    summary = json.loads((tmp_path / "scan" / "summary.json").read_text())
+    assert summary["grid"]["resolution"] == 0.1 and summary["num_angles"] == 180
+    from bayesmap.io.carmen import read_carmen
+    from bayesmap.problem import scan_problem
+
+    problem = scan_problem(read_carmen(intel_log), 100, sensor_noise=0.05)
+    posterior = np.load(tmp_path / "scan" / "posterior.npy")
+    direction = np.stack([np.cos(problem.beam_angles), np.sin(problem.beam_angles)], -1)
+    hit = ~problem.max_range_mask
+    ends = problem.pos + (problem.readings[:, None] + 0.05) * direction
+    before = problem.pos + (problem.readings[:, None] - 0.3) * direction
+    at_end = posterior[tuple(problem.grid.cell_index(ends[hit]).T)]
+    in_front = posterior[tuple(problem.grid.cell_index(before[hit]).T)]
+    assert np.median(at_end) > 0.75  # walls where the beams end
+    assert in_front.mean() < 0.05  # free space the beams crossed
+
+
+def test_demo_subprocess(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "bayesmap.cli", "demo", "--out", str(tmp_path / "d"), "--sweeps", "30"],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert "2x2 block Gibbs" in result.stdout and "of 217 visible cells wrong" in result.stdout
+    assert (tmp_path / "d" / "posterior.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("make_args, match", [
+    (lambda t: ["infer", "--map", t / "ragged.txt"], "line 2 has"),
+    (lambda t: ["infer", "--map", t / "junk.txt"], "unknown character"),
+    (lambda t: ["infer", "--map", t / "empty.txt"], "empty"),
+    (lambda t: ["infer", "--map", t / "missing.txt"], "does not exist"),
+    (lambda t: ["infer", "--pos", "30", "2"], r"\(30, 2\) is outside the grid"),
+    (lambda t: ["infer", "--prior-wall-prob", "1.2"], "prior_wall_prob"),
+    (lambda t: ["infer", "--sensor-noise", "0"], "sensor_noise"),
+    (lambda t: ["infer", "--sampler", "magic"], "unknown sampler 'magic'"),
+    (lambda t: ["infer", "--sweeps", "10", "--burn-in", "10"], "burn-in"),
+    (lambda t: ["infer", "--log", t / "missing.log"], "needs --scan"),
+    (lambda t: ["infer", "--log", t / "missing.log", "--scan", "1"], "missing.log"),
+    (lambda t: ["infer", "--log", t / "trunc.log.gz", "--scan", "1"], "trunc"),
+    (lambda t: ["infer", "--log", t / "one.log", "--scan", "5"], "5"),
+    (lambda t: ["infer", "--out", t / "file.txt" / "sub"], "file.txt"),
+])
+def test_user_errors_are_one_line_exit_2(tmp_path, monkeypatch, capsys, make_args, match, intel_log):
+    (tmp_path / "ragged.txt").write_text("X..\nX.\n")
+    (tmp_path / "junk.txt").write_text("X..\nX#.\n")
+    (tmp_path / "empty.txt").write_text("")
+    (tmp_path / "file.txt").write_text("x")
+    (tmp_path / "trunc.log.gz").write_bytes(intel_log.read_bytes()[:50000])
+    with gzip.open(intel_log, "rt") as handle:
+        line = next(l for l in handle if l.startswith("FLASER"))
+    (tmp_path / "one.log").write_text(line)
+    code, out, err = run_cli(monkeypatch, capsys, *make_args(tmp_path), "--sweeps", "2", "--out", tmp_path / "o") \
+        if "--out" not in make_args(tmp_path) else run_cli(monkeypatch, capsys, *make_args(tmp_path))
+    assert code == 2
+    lines = [l for l in err.strip().splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:"), err
+    import re
+
+    assert re.search(match, lines[0]), lines[0]
+    assert "Traceback" not in err
