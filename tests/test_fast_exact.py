@@ -83,8 +83,7 @@ def test_levels_are_valid_schedules(schedule, block_size):
 def exact_marginals(params, pos, y, beam_angles=None):
     nx, ny = params.grid.shape
     maps = np.array(list(itertools.product([0.0, 1.0], repeat=nx * ny)), dtype=np.float32).reshape(-1, nx, ny)
-    args = model_args(pos, params, beam_angles)
-    lj = jax.jit(jax.vmap(lambda w: log_joint(w, y, pos, params)))(jnp.asarray(maps))
+    lj = jax.jit(jax.vmap(lambda w: log_joint(w, y, pos, params, beam_angles)))(jnp.asarray(maps))
     w = np.exp(np.asarray(lj, float) - np.max(np.asarray(lj, float)))
     w /= w.sum()
     return np.tensordot(w, maps, axes=1)
@@ -124,8 +123,6 @@ def test_marginals_match_exact_enumeration(sampler, prior, pos):
 
 def test_reference_sampler_matches_exact_enumeration():
     """The assess-based reference passes the same check (smaller run: 16 chains x 150 sweeps, tolerance 0.1)."""
-    from bayesmap.inference.chains import run_chains
-
     grid = Grid((3, 3))
     params = make_params(prior_wall_prob=0.3, sensor_noise=0.4, num_angles=6, grid=grid)
     truth = np.zeros((3, 3), np.float32)

@@ -71,7 +71,7 @@ def _npy(array) -> bytes:
 
 def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], seed: int, out: Path, force: bool,
                    title: str) -> dict:
-    from bayesmap.plots import plot_posterior
+    from bayesmap.plots import figure_bytes, plot_posterior
     from bayesmap.problem import run_inference
 
     _check_output_dir(out, force)
@@ -79,12 +79,10 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
     fig = plot_posterior(problem.grid, result.posterior, truth=problem.truth, pos=problem.pos,
                          beam_angles=problem.beam_angles, readings=problem.readings,
                          max_range_mask=problem.max_range_mask, title=title)
-    png = io.BytesIO()
-    fig.savefig(png, format="png", dpi=110)
     _write_outputs(out, {
         "posterior.npy": _npy(result.posterior.astype("float32")),
         "readings.npy": _npy(problem.readings.astype("float32")),
-        "posterior.png": png.getvalue(),
+        "posterior.png": figure_bytes(fig, "png"),
         "summary.json": (json.dumps(result.summary, indent=2) + "\n").encode(),
     })
     return result.summary
@@ -141,7 +139,7 @@ def infer(
     force: bool = typer.Option(False, "--force", help="replace bayesmap's outputs already in the folder"),
 ) -> None:
     """Infer the walls from simulated readings on a map file, or from one real laser scan (--log FILE --scan N)."""
-    from bayesmap.grid import load_map
+    from bayesmap.grid import load_map, tutorial_map
     from bayesmap.problem import scan_problem, tutorial_problem
 
     if log is not None:
@@ -157,11 +155,7 @@ def infer(
     else:
         if scan is not None:
             raise BayesmapError("--scan needs --log FILE")
-        walls = load_map(map_file) if map_file is not None else None
-        if walls is None:
-            from bayesmap.grid import tutorial_map
-
-            walls = tutorial_map()
+        walls = load_map(map_file) if map_file is not None else tutorial_map()
         center = (float(walls.shape[0] // 2), float(walls.shape[1] // 2))  # the tutorial's GRID_SIZE // 2
         problem = tutorial_problem(walls, pos=pos if pos is not None else center, seed=seed,
                                    prior_wall_prob=prior_wall_prob, sensor_noise=0.2 if sensor_noise is None else sensor_noise, num_angles=num_angles,

@@ -550,6 +550,21 @@ def plot_posterior(
     return fig
 
 
+def figure_bytes(fig, fmt: str = "png") -> bytes:
+    """The figure rendered in memory as ``"png"`` (150 dpi) or ``"svg"``, with tight borders.
+
+    Raises:
+        BayesmapError: if ``fig`` is not a Figure or ``fmt`` is not png or svg.
+    """
+    if not isinstance(fig, Figure):
+        raise BayesmapError(f"expected a matplotlib Figure, got {type(fig).__name__}")
+    if fmt not in SAVE_FORMATS.values():
+        raise BayesmapError(f"cannot render a figure as {fmt!r}: use png or svg")
+    buffer = BytesIO()
+    fig.savefig(buffer, format=fmt, dpi=150 if fmt == "png" else "figure", bbox_inches="tight", pad_inches=0.1)
+    return buffer.getvalue()
+
+
 def save_figure(fig, path, *, overwrite: bool = False) -> Path:
     """Save ``fig`` as PNG or SVG (chosen by the suffix of ``path``), whole or not at all.
 
@@ -572,6 +587,4 @@ def save_figure(fig, path, *, overwrite: bool = False) -> Path:
         )
     if path.exists() and not overwrite:
         raise BayesmapError(f"{str(path)!r} already exists (refusing to overwrite it)")
-    buffer = BytesIO()
-    fig.savefig(buffer, format=fmt, dpi=150 if fmt == "png" else "figure", bbox_inches="tight", pad_inches=0.1)
-    return write_atomic(path, buffer.getvalue(), overwrite=overwrite)
+    return write_atomic(path, figure_bytes(fig, fmt), overwrite=overwrite)

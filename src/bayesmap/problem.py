@@ -80,15 +80,16 @@ class Problem:
         """The ray-cell table of this scan (built on first use)."""
         return build_ray_table(self.grid, self.pos, self.beam_angles, self.params.cap)
 
+    @cached_property
     def visible(self) -> np.ndarray | None:
-        """``(nx, ny)`` bool cells seen by a ray given the true map (None without a truth)."""
+        """``(nx, ny)`` bool cells seen by a ray given the true map (None without a truth); computed once."""
         return None if self.truth is None else visible_cells(self.table, self.truth)
 
     def wrong_visible_cells(self, posterior) -> int | None:
         """Number of visible cells where the rounded posterior disagrees with the truth (None without a truth)."""
         if self.truth is None:
             return None
-        wrong = (np.round(np.asarray(posterior)) != (self.truth > 0.5)) & self.visible()
+        wrong = (np.round(np.asarray(posterior)) != (self.truth > 0.5)) & self.visible
         return int(wrong.sum())
 
 
@@ -233,7 +234,7 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
     if problem.max_range_mask is not None:
         summary["max_range_readings"] = int(problem.max_range_mask.sum())
     if problem.truth is not None:
-        summary["visible_cells"] = int(problem.visible().sum())
+        summary["visible_cells"] = int(problem.visible.sum())
         summary["wrong_visible_cells"] = problem.wrong_visible_cells(posterior)
         summary["log_joint_truth"] = float(log_joint(problem.truth, problem.readings, problem.pos, problem.params, problem.beam_angles))
     summary["log_joint_final_sample"] = float(log_joint(samples[-1], problem.readings, problem.pos, problem.params, problem.beam_angles))
