@@ -25,7 +25,7 @@ def run_cli(monkeypatch, capsys, *args):
 def test_infer_on_a_map_file_writes_all_outputs(tmp_path, monkeypatch, capsys):
     (tmp_path / "room.txt").write_text("XXXXXXX\nX.....X\nX.....X\nX.....X\nXXXXXXX\n")
     code, out, err = run_cli(monkeypatch, capsys, "infer", "--map", tmp_path / "room.txt", "--sweeps", 20,
-                             "--num-angles", 60, "--out", tmp_path / "out", "--sampler", "outward")
+                             "--num-angles", 60, "--out", tmp_path / "out")
     assert code in (0, None), err
     files = sorted(p.name for p in (tmp_path / "out").iterdir())
     assert files == ["posterior.npy", "posterior.png", "readings.npy", "summary.json"]
@@ -35,7 +35,8 @@ def test_infer_on_a_map_file_writes_all_outputs(tmp_path, monkeypatch, capsys):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["sweeps"] == 20 and summary["pos"] == [2.0, 3.0] and summary["visible_cells"] == 31
     assert posterior[1:4, 1:6].max() < 0.5 and posterior[1:4, 1:6].mean() < 0.1  # the free interior is inferred free
-    # (single-site raster order gets stuck here for 20+ sweeps: a cell next to the sensor shadows the true walls)
+    # (single-site Gibbs, any order, can get stuck here for 20+ sweeps with some seeds: a wall next to the sensor
+    # shadows the true walls; the default 2x2 block sampler does not)
     assert summary["wrong_visible_cells"] == 0
     assert "wrong" in out and "runtime" in out
     # nothing is overwritten without asking

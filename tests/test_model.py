@@ -22,10 +22,11 @@ def manual_log_joint(walls, readings, pos, params, beam_angles):
 def test_tutorial_readings_and_log_joint(tutorial):
     # the tutorial's readings (key 0): cell (4, 1)'s ray reads 10.83 with the cell at 10.51 (tutorial-baseline.md)
     table = tutorial.table
-    rays = np.nonzero((table.cells == 4 * 21 + 1).any(axis=1))[0]
+    rays = np.unique(table.pair_rays[table.pair_cells == 4 * 21 + 1])
     assert 65 in rays
     assert tutorial.readings[65] == pytest.approx(10.83, abs=0.005)
-    assert table.dists[65][table.cells[65] == 4 * 21 + 1][0] == pytest.approx(10.51, abs=0.005)
+    cells, dists = table.ray(65)
+    assert dists[cells == 4 * 21 + 1][0] == pytest.approx(10.51, abs=0.005)
     low = make_params(prior_wall_prob=0.05)
     assert float(log_joint(tutorial.truth, tutorial.readings, tutorial.pos, low)) == pytest.approx(-164.7, abs=0.05)
 

@@ -94,9 +94,10 @@ def test_ray_table_many_poses_and_sparsity():
     for s, p in enumerate(poses):
         want = np.asarray(sensor_distances(walls, p, a))
         assert table.first_wall_distances(walls)[s * 50:(s + 1) * 50] == pytest.approx(want, abs=1e-5)
-    # rows sorted by distance; real pairs far fewer than rays x cells
-    real = table.cells < table.num_cells
-    assert np.all(np.diff(np.where(real, table.dists, 1e9), axis=1)[real[:, 1:]] >= 0)
+    # each ray's pairs sorted by distance; storage is the real pairs only, far fewer than rays x cells
+    same_ray = np.diff(table.pair_rays) == 0
+    assert np.all(np.diff(table.pair_dists)[same_ray] >= 0)
+    assert table.pair_cells.shape == table.pair_dists.shape == (table.num_pairs,)
     assert table.num_pairs < 0.2 * table.num_rays * table.num_cells
 
 

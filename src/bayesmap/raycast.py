@@ -114,34 +114,34 @@ def sensor_distances(walls, pos, beam_angles, grid: Grid | None = None, max_dist
 class RayTable:
     """Which cells each ray crosses and at which distance it would stop there, for fixed sensor poses and beams.
 
-    Ray ``r`` (scan ``r // K``, beam ``r % K``) crosses the cells ``cells[r, :lengths[r]]`` in order of increasing
-    stopping distance ``dists[r, :lengths[r]]`` (meters, exactly the numbers :func:`sensor_distances` would use).
-    Only cells at a distance below the max distance are listed: a wall beyond it does not change the reading.
-    Rows are padded to a common length with the cell index ``num_cells`` (a phantom cell that is never a wall)
-    and distance ``max_distance``; memory is ``num_rays * width``, and the table also records ``num_pairs``, the
-    real (ray, cell) pairs.
+    Stored sparse, in compressed-row form: the (ray, cell) pairs of ray ``r`` are ``offsets[r]:offsets[r + 1]`` of
+    ``pair_cells`` / ``pair_dists``, in order of increasing stopping distance (meters, exactly the numbers
+    :func:`sensor_distances` would use). Only cells at a distance below the max distance are listed: a wall beyond
+    it does not change the reading. Memory is proportional to the number of pairs, not rays x cells. Rays from
+    several poses (scans) live in one table: ray ``r`` has its own origin and angle.
 
     Attributes:
         grid: the grid geometry.
-        cells: ``(R, L)`` int32 flat cell indices ``i * ny + j``; padding ``num_cells``.
-        dists: ``(R, L)`` float (JAX's default dtype, float32 unless x64 is on) stopping distances in meters; padding ``max_distance``.
-        lengths: ``(R,)`` int32 number of real entries per ray.
+        offsets: ``(R + 1,)`` int64 start of each ray's pairs (``offsets[-1] == num_pairs``).
+        pair_cells: ``(P,)`` int32 flat cell index ``i * ny + j`` of each pair.
+        pair_dists: ``(P,)`` float (JAX's default dtype, float32 unless x64 is on) stopping distance of each
+            pair, meters.
         origins: ``(R, 2)`` float64 world position of each ray's sensor (meters).
         beam_angles: ``(R,)`` float64 world-frame angle of each ray (radians).
         max_distance: the cap on distances (meters).
     """
 
     grid: Grid
-    cells: np.ndarray
-    dists: np.ndarray
-    lengths: np.ndarray
+    offsets: np.ndarray
+    pair_cells: np.ndarray
+    pair_dists: np.ndarray
     origins: np.ndarray
     beam_angles: np.ndarray
     max_distance: float
 
     @property
     def num_rays(self) -> int:
-        return int(self.cells.shape[0])
+        return len(self.offsets) - 1
 
     @property
     def num_cells(self) -> int:
@@ -149,18 +149,40 @@ class RayTable:
 
     @property
     def num_pairs(self) -> int:
-        return int(self.lengths.sum())
+        return int(self.offsets[-1])
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """``(R,)`` int64 number of cells on each ray."""
+        return np.diff(self.offsets)
+
+    @property
+    def pair_rays(self) -> np.ndarray:
+        """``(P,)`` int64 ray of each pair."""
+        return np.repeat(np.arange(self.num_rays), self.lengths)
+
+    @property
+    def pair_positions(self) -> np.ndarray:
+        """``(P,)`` int64 position of each pair along its ray (0 = closest to the sensor)."""
+        return np.arange(self.num_pairs) - np.repeat(self.offsets[:-1], self.lengths)
+
+    def ray(self, r: int) -> tuple[np.ndarray, np.ndarray]:
+        """Cells ``(n,)`` int32 and stopping distances ``(n,)`` (meters) of ray ``r``, in order along the ray."""
+        sl = slice(int(self.offsets[r]), int(self.offsets[r + 1]))
+        return self.pair_cells[sl], self.pair_dists[sl]
 
     def first_wall_distances(self, walls) -> np.ndarray:
         """Distance of each ray to its first wall (meters, ``(R,)``), capped at ``max_distance``; equals
         :func:`sensor_distances` for every ray."""
-        flat = np.append(np.asarray(walls).reshape(-1) > 0, False)
-        return np.min(np.where(flat[self.cells], self.dists, self.max_distance), axis=1)
+        is_wall = np.asarray(walls).reshape(-1)[self.pair_cells] > 0
+        d = np.where(is_wall, self.pair_dists, self.max_distance)
+        out = np.full(self.num_rays, self.max_distance, dtype=self.pair_dists.dtype)
+        np.minimum.at(out, self.pair_rays, d)
+        return out
 
     def rays_per_cell(self) -> np.ndarray:
         """``(num_cells,)`` int: how many rays cross each cell."""
-        counts = np.bincount(self.cells.ravel(), minlength=self.num_cells + 1)
-        return counts[: self.num_cells]
+        return np.bincount(self.pair_cells, minlength=self.num_cells)
 
 
 def _candidate_cells(p, u, s_max, shape):
@@ -270,19 +292,12 @@ def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None
     order = np.lexsort((flat, dist, rr))
     rr, flat, dist = rr[order], flat[order], dist[order]
     num_rays = len(beam_angles)
-    lengths = np.bincount(rr, minlength=num_rays).astype(np.int32)
-    width = max(int(lengths.max()) if num_rays else 0, 1)
-    first = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    slot = np.arange(len(rr)) - first[rr]
-    cells = np.full((num_rays, width), grid.num_cells, dtype=np.int32)
-    dists = np.full((num_rays, width), max_distance, dtype=dist.dtype)
-    cells[rr, slot] = flat
-    dists[rr, slot] = dist * dist.dtype.type(grid.resolution)
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(rr, minlength=num_rays))]).astype(np.int64)
     return RayTable(
         grid=grid,
-        cells=cells,
-        dists=dists,
-        lengths=lengths,
+        offsets=offsets,
+        pair_cells=flat.astype(np.int32),
+        pair_dists=dist * dist.dtype.type(grid.resolution),
         origins=np.array(origins),
         beam_angles=beam_angles,
         max_distance=max_distance,
@@ -294,14 +309,12 @@ def visible_cells(table: RayTable, walls) -> np.ndarray:
 
     A cell tied in distance with the first wall (a ray through a corner) counts only if it is itself a wall.
     """
-    flat = np.append(np.asarray(walls).reshape(-1) > 0, False)
-    first = table.first_wall_distances(walls)[:, None]
-    is_wall = flat[table.cells]
-    seen = (table.dists < first) | (is_wall & (table.dists <= first))
-    seen &= table.cells < table.num_cells
-    out = np.zeros(table.num_cells + 1, dtype=bool)
-    out[table.cells[seen]] = True
-    return out[:-1].reshape(table.grid.shape)
+    is_wall = np.asarray(walls).reshape(-1)[table.pair_cells] > 0
+    first = table.first_wall_distances(walls)[table.pair_rays]
+    seen = (table.pair_dists < first) | (is_wall & (table.pair_dists <= first))
+    out = np.zeros(table.num_cells, dtype=bool)
+    out[table.pair_cells[seen]] = True
+    return out.reshape(table.grid.shape)
 
 
 def check_readings(readings, num_rays: int) -> np.ndarray:

@@ -87,15 +87,14 @@ def block_configurations(block_cells: int) -> np.ndarray:
     return np.array(list(itertools.product([0.0, 1.0], repeat=block_cells)), dtype=np.float32)
 
 
-def _cell_rays(ray_cells: np.ndarray, num_cells: int) -> list[np.ndarray]:
-    rays = np.repeat(np.arange(ray_cells.shape[0]), ray_cells.shape[1])
-    flat = ray_cells.ravel()
-    keep = flat < num_cells
-    rays, flat = rays[keep], flat[keep]
-    order = np.argsort(flat, kind="stable")
-    rays, flat = rays[order], flat[order]
-    bounds = np.searchsorted(flat, np.arange(num_cells + 1))
-    return [rays[bounds[c] : bounds[c + 1]] for c in range(num_cells)]
+def cell_rays(table) -> list[np.ndarray]:
+    """For each cell, the sorted distinct rays of ``table`` (a :class:`~bayesmap.raycast.RayTable`) that cross it:
+    a list of ``num_cells`` int64 arrays."""
+    rays, cells = table.pair_rays, table.pair_cells.astype(np.int64)
+    key = np.unique(cells * max(table.num_rays, 1) + rays)
+    cells, rays = key // max(table.num_rays, 1), key % max(table.num_rays, 1)
+    bounds = np.searchsorted(cells, np.arange(table.num_cells + 1))
+    return [rays[bounds[c] : bounds[c + 1]] for c in range(table.num_cells)]
 
 
 def _pad_levels(level_of_block: np.ndarray, num_blocks: int) -> np.ndarray:
@@ -110,25 +109,24 @@ def _pad_levels(level_of_block: np.ndarray, num_blocks: int) -> np.ndarray:
     return out
 
 
-def dependency_levels(blocks: np.ndarray, ray_cells: np.ndarray, num_cells: int) -> np.ndarray:
+def dependency_levels(blocks: np.ndarray, table) -> np.ndarray:
     """Group the sequential block updates ``blocks`` ``(NB, B)`` into levels of mutually non-conflicting blocks
     that preserve the order of every conflicting pair (see the module docstring).
 
     Args:
         blocks: ``(NB, B)`` flat cell indices, in sweep order.
-        ray_cells: ``(R, L)`` the ray-cell table's cells (padding ``num_cells``).
-        num_cells: number of cells in the grid.
+        table: the scene's :class:`~bayesmap.raycast.RayTable`.
 
     Returns:
         ``(num_levels, width)`` int32 block indices; padding ``NB`` (no block). Within a level, blocks keep their
         sweep order.
     """
-    cell_rays = _cell_rays(ray_cells, num_cells)
-    ray_last = np.full(ray_cells.shape[0], -1, dtype=np.int64)
-    cell_last = np.full(num_cells, -1, dtype=np.int64)
+    rays_of = cell_rays(table)
+    ray_last = np.full(table.num_rays, -1, dtype=np.int64)
+    cell_last = np.full(table.num_cells, -1, dtype=np.int64)
     level = np.empty(len(blocks), dtype=np.int64)
     for b, cells in enumerate(blocks):
-        rays = np.concatenate([cell_rays[c] for c in cells])
+        rays = np.concatenate([rays_of[c] for c in cells])
         lv = max(int(cell_last[cells].max()), int(ray_last[rays].max()) if len(rays) else -1) + 1
         level[b] = lv
         cell_last[cells] = lv
@@ -136,15 +134,15 @@ def dependency_levels(blocks: np.ndarray, ray_cells: np.ndarray, num_cells: int)
     return _pad_levels(level, len(blocks))
 
 
-def chromatic_levels(blocks: np.ndarray, ray_cells: np.ndarray, num_cells: int) -> np.ndarray:
+def chromatic_levels(blocks: np.ndarray, table) -> np.ndarray:
     """Greedy colouring of the block conflict graph (visiting blocks in the given order); returns the colour
     classes as ``(num_colours, width)`` int32 block indices, padding ``NB``. See the module docstring."""
-    cell_rays = _cell_rays(ray_cells, num_cells)
-    ray_colours: list[set] = [set() for _ in range(ray_cells.shape[0])]
-    cell_colours: list[set] = [set() for _ in range(num_cells)]
+    rays_of = cell_rays(table)
+    ray_colours: list[set] = [set() for _ in range(table.num_rays)]
+    cell_colours: list[set] = [set() for _ in range(table.num_cells)]
     colour = np.empty(len(blocks), dtype=np.int64)
     for b, cells in enumerate(blocks):
-        rays = np.unique(np.concatenate([cell_rays[c] for c in cells]))
+        rays = np.unique(np.concatenate([rays_of[c] for c in cells]))
         used = set().union(*(cell_colours[c] for c in cells), *(ray_colours[r] for r in rays))
         c = 0
         while c in used:
@@ -155,3 +153,45 @@ def chromatic_levels(blocks: np.ndarray, ray_cells: np.ndarray, num_cells: int) 
         for r in rays:
             ray_colours[r].add(c)
     return _pad_levels(colour, len(blocks))
+
+
+def split_levels(levels: np.ndarray, cost: np.ndarray, capacity: int) -> np.ndarray:
+    """Split levels so that none holds more than ``capacity`` blocks or more than ``capacity`` units of ``cost``
+    (a block whose own cost exceeds ``capacity`` gets a level of its own).
+
+    The blocks of a level are pairwise non-conflicting, so running a level's parts one after the other is the same
+    transition as running the level at once; splitting changes neither a sequential sweep's kernel nor a colour
+    class's conditionals. It bounds the padding of the fast sampler's fixed-size levels.
+
+    Args:
+        levels: ``(num_levels, width)`` block indices, padding ``NB = len(cost)``.
+        cost: ``(NB,)`` non-negative work of each block (the fast sampler uses the number of rays through it).
+        capacity: the largest total cost (and block count) of a level, >= 1.
+
+    Returns:
+        ``(num_levels', width')`` int32 block indices, padding ``NB``, blocks in their original order.
+    """
+    nb = len(cost)
+    level_of: list[int] = []
+    order: list[int] = []
+    current = -1
+    for row in levels:
+        load = count = capacity + 1  # force a new level at the start of each original level
+        for b in row[row < nb]:
+            c = int(cost[b])
+            if count + 1 > capacity or (load + c > capacity and count > 0):
+                current += 1
+                load = count = 0
+            load += c
+            count += 1
+            level_of.append(current)
+            order.append(int(b))
+    num_levels = current + 1
+    counts = np.bincount(np.asarray(level_of, dtype=np.int64), minlength=num_levels)
+    width = max(int(counts.max()) if num_levels else 0, 1)
+    out = np.full((max(num_levels, 0), width), nb, dtype=np.int32)
+    fill = np.zeros(num_levels, dtype=np.int64)
+    for lv, b in zip(level_of, order):
+        out[lv, fill[lv]] = b
+        fill[lv] += 1
+    return out
