@@ -165,6 +165,41 @@ def infer(
     _print_summary(summary, out)
 
 
+@app.command()
+def bench(
+    json_file: Optional[Path] = typer.Option(None, "--json", help="also write the figures as JSON to this file"),
+    samplers: Optional[str] = typer.Option(None, "--samplers", help="comma-separated subset of: raster, incremental, outward, block, chromatic, chromatic-block"),
+    sweeps: int = typer.Option(200, help="sweeps per timed chain of a fast sampler"),
+    reference_sweeps: int = typer.Option(5, "--reference-sweeps", help="sweeps per timed chain of a reference sampler"),
+    repeats: int = typer.Option(5, help="timed chains per sampler; the fastest counts"),
+    chains: int = typer.Option(64, help="chains run at once for the throughput figure"),
+    force: bool = typer.Option(False, "--force", help="replace the --json file if it exists"),
+) -> None:
+    """Fast samplers against the tutorial's reference samplers on the tutorial scene, in one process."""
+    import platform
+
+    from bayesmap.bench import format_table, run_bench
+    from bayesmap.grid import write_atomic
+
+    for name, value, least in (("--sweeps", sweeps, 1), ("--reference-sweeps", reference_sweeps, 1),
+                               ("--repeats", repeats, 1), ("--chains", chains, 1)):
+        if value < least:
+            raise BayesmapError(f"{name} must be >= {least}, got {value}")
+    if json_file is not None and json_file.exists() and not force:
+        raise BayesmapError(f"{str(json_file)!r} already exists; pass --force to replace it")
+    names = None if samplers is None else [n.strip() for n in samplers.split(",") if n.strip()]
+    import jax
+
+    typer.echo(f"bayesmap bench: tutorial scene (21 x 21, 100 beams, prior 0.5); jax {jax.__version__} on "
+               f"{jax.default_backend()}, {os.cpu_count()} cores, {platform.processor() or platform.machine()}")
+    results = run_bench(names, fast_sweeps=sweeps, reference_sweeps=reference_sweeps, repeats=repeats,
+                        num_chains=chains, progress=lambda msg: typer.echo(f"  {msg} ...", err=True))
+    typer.echo(format_table(results))
+    if json_file is not None:
+        write_atomic(json_file, json.dumps(results, indent=2) + "\n", overwrite=True)
+        typer.echo(f"wrote {json_file}")
+
+
 def main() -> None:
     """Entry point: run the app, turning :class:`BayesmapError` into one line on stderr and exit code 2."""
     try:

@@ -55,8 +55,10 @@ def _normal_logpdf(y, mean, scale):
 def sample_categorical(log_weights, u):
     """Index ``(...,)`` int32 drawn from the unnormalized log-weights ``(..., C)`` by inverse CDF with uniforms
     ``u`` ``(...,)`` in ``[0, 1)``; ``-inf`` weights are never drawn (rows must have a finite maximum)."""
+    num = log_weights.shape[-1]
+    if num == 2:  # draw 1 with probability 1 / (1 + exp(w0 - w1))
+        return (u * (1.0 + jnp.exp(log_weights[..., 0] - log_weights[..., 1])) < 1.0).astype(jnp.int32)
     p = jnp.exp(log_weights - jnp.max(log_weights, axis=-1, keepdims=True))
-    num = p.shape[-1]
     below = np.arange(num)[None, :] <= np.arange(num)[:, None]  # (C, C): j <= k
     cdf = jnp.sum(jnp.where(below, p[..., None, :], 0.0), axis=-1)  # a cumsum without reduce_window
     return jnp.sum(cdf < (u * cdf[..., -1])[..., None], axis=-1, dtype=jnp.int32)
@@ -114,8 +116,9 @@ class FastGibbs:
         block_size: 1 for single-site, k for k x k blocks.
         schedule: ``"sequential"`` (same kernel as the reference sweep) or ``"chromatic"``.
         pos: ``(2,)`` sensor position, meters (for the outward order; default: the first ray's origin).
-        level_capacity: most (block, ray) entries per level; levels with more are split (a block crossed by more
-            rays gets a level of its own, and sets the level size). Default: no splitting below 4096.
+        level_capacity: most (block, ray) entries per level; levels with more are split, and a block crossed by
+            more rays gets a "heavy" level of its own, run at its own size. Default: no splitting for schedules of
+            at most 50 levels, else 32 (or the mean entries per level if larger).
 
     Attributes:
         blocks: ``(NB, B)`` int flat cell indices, sweep order.
@@ -158,16 +161,48 @@ class FastGibbs:
         self._config_bits = block_configurations(self.blocks.shape[1]) > 0  # (C, B) numpy
         self._bits = jnp.asarray(self._config_bits)
         p = float(params.prior_wall_prob)
-        self._log_prior = np.log(np.array([1.0 - p, p])) if 0.0 < p < 1.0 else np.log(np.array([1.0 - p, p]) + 0.0)
+        self._log_prior = np.log(np.array([1.0 - p, p]))
         self._noise = jnp.asarray(params.sensor_noise, dtype=self._dtype)
 
         self._entries = self._block_entries()
         entry_count = np.bincount(self._entries[0], minlength=len(self.blocks))
-        self.level_capacity = max(int(level_capacity or 4096), int(entry_count.max(initial=0)), 1)
+        if level_capacity is None:
+            # Measured on the tutorial scene (2-core CPU): a level costs about 0.5 us plus its work, and a heavy
+            # level adds a branch to every step; long schedules gain from small levels, short ones do not.
+            per_level = [entry_count[row[row < len(self.blocks)]].sum() for row in base_levels]
+            mean = len(self._entries[0]) / max(len(base_levels), 1)
+            level_capacity = max(per_level, default=1) if len(base_levels) <= 50 else max(32, 8 * math.ceil(mean / 8))
+        self.level_capacity = max(int(level_capacity), 1)
         self.levels = split_levels(base_levels, entry_count, self.level_capacity)
-        level_entries = np.array([entry_count[row[row < len(self.blocks)]].sum() for row in self.levels])
-        self._capacity = max(int(level_entries.max(initial=1)), 1)
-        self._levels, self._final_words, self._final_walls = self._pack_levels(self.levels, chained=True)
+        # A level above the capacity holds one block crossed by many rays (the sensor's cell, say). Such "heavy"
+        # levels run at their own size, each right after an ordinary level (one step of the sweep's scan).
+        level_entries = np.array([entry_count[row[row < len(self.blocks)]].sum() for row in self.levels], dtype=np.int64)
+        heavy = level_entries > self.level_capacity
+        empty = np.full(self.levels.shape[1], len(self.blocks), dtype=self.levels.dtype)
+        light_rows, heavy_rows, step_heavy = [], [], []
+        for row, is_heavy in zip(self.levels, heavy):
+            if not is_heavy:
+                light_rows.append(row)
+                step_heavy.append(-1)
+                continue
+            if not step_heavy or step_heavy[-1] >= 0:
+                light_rows.append(empty)
+                step_heavy.append(-1)
+            step_heavy[-1] = len(heavy_rows)
+            heavy_rows.append(row)
+        self._step_heavy = np.asarray(step_heavy, dtype=np.int32)
+        light = np.asarray(light_rows, dtype=np.int32).reshape(-1, self.levels.shape[1])
+        heavy_levels = np.full((0, 1), len(self.blocks), dtype=np.int32)
+        if heavy_rows:
+            heavy_levels = np.asarray(heavy_rows, dtype=np.int32)
+            heavy_levels = heavy_levels[:, : max(int((heavy_levels < len(self.blocks)).sum(axis=1).max()), 1)]
+        heavy_capacity = int(level_entries.max(initial=1)) if heavy.any() else 1
+        light_capacity = int(level_entries[~heavy].max(initial=1)) if (~heavy).any() else 1
+        # sweep position of each level: step s runs light level s, then its heavy level
+        heavy_step = np.zeros(len(heavy_rows), dtype=np.int64)
+        heavy_step[self._step_heavy[self._step_heavy >= 0]] = np.nonzero(self._step_heavy >= 0)[0]
+        groups = [(light, light_capacity, 2 * np.arange(len(light))), (heavy_levels, heavy_capacity, 2 * heavy_step + 1)]
+        (self._light, self._heavy), self._final_words, self._final_walls = self._pack(groups, chained=True)
         self.algorithm = SamplingAlgorithm(init=self.init, step=self.step)
 
     # -- static preparation (numpy) ------------------------------------------------------------------------------
@@ -193,99 +228,117 @@ class FastGibbs:
         stop[entry, j] = table.pair_dists[pair]
         return (unique // num_rays).astype(np.int64), (unique % num_rays).astype(np.int64), pos, stop
 
-    def _pack_levels(self, levels: np.ndarray, chained: bool):
-        """Device arrays for the levels ``levels`` ``(NL, A)`` (block indices, padding ``NB``).
+    def _pack(self, groups, chained: bool):
+        """Device arrays for groups of levels that share the sweep's buffer.
 
-        With ``chained``, an entry reads its ray's words from the buffer slot where the ray's previous entry in
-        the sweep wrote them (or from the state if it is the ray's first entry), and the final state is gathered
-        from the last writers; otherwise every entry reads the state (independent levels, for
-        :meth:`block_log_weights`). Returns ``(Levels, final_words, final_walls)``."""
+        Args:
+            groups: ``[(levels (n, A) block indices padded with NB, capacity E, sweep position of each level)]``.
+            chained: if True, an entry reads its ray's words from the buffer slot where the ray's previous entry in
+                the sweep wrote them (or from the state if it is the ray's first entry), and the final state is
+                gathered from the last writers; if False every entry reads the state (independent levels, for
+                :meth:`block_log_weights`).
+
+        Returns:
+            ``([Levels per group], final_words, final_walls)``; the last two are None unless ``chained``.
+        """
         nb, size = self.blocks.shape
-        num_levels, width = levels.shape
-        cap, num_w = self._capacity, self._max_words
+        num_w = self._max_words
+        w = np.arange(num_w)
+        base = self._zero_word + 1  # the buffer: state words, one zero word, then each group's writes
         level_of = np.full(nb, -1, dtype=np.int64)
         slot_of = np.zeros(nb, dtype=np.int64)
-        rows, cols = np.nonzero(levels < nb)
-        level_of[levels[rows, cols]] = rows
-        slot_of[levels[rows, cols]] = cols
+        group_of = np.zeros(nb, dtype=np.int64)
+        starts, on_starts = [], []
+        address, on_address = base, 0
+        for g, (levels, cap, _) in enumerate(groups):
+            rows, cols = np.nonzero(levels < nb)
+            level_of[levels[rows, cols]] = rows
+            slot_of[levels[rows, cols]] = cols
+            group_of[levels[rows, cols]] = g
+            starts.append(address)
+            on_starts.append(on_address)
+            address += levels.shape[0] * num_w * cap
+            on_address += levels.size * size
         block, ray, pos, stop = self._entries
         keep = level_of[block] >= 0
         block, ray, pos, stop = block[keep], ray[keep], pos[keep], stop[keep]
-        lv, sl = level_of[block], slot_of[block]
-        order = np.lexsort((ray, sl, lv))
-        block, ray, pos, stop, lv, sl = block[order], ray[order], pos[order], stop[order], lv[order], sl[order]
-        counts = np.bincount(lv, minlength=num_levels)
-        index = np.arange(len(lv)) - np.repeat(np.cumsum(counts) - counts, counts)
-        flat = lv * cap + index  # entry's row in the (NL * E) layout
-        w = np.arange(num_w)
+        grp, lv, sl = group_of[block], level_of[block], slot_of[block]
+        sweep_pos = np.zeros(len(block), dtype=np.int64)
+        for g, (_, _, when) in enumerate(groups):
+            sweep_pos[grp == g] = np.asarray(when)[lv[grp == g]]
+        order = np.lexsort((ray, sl, sweep_pos))
+        block, ray, pos, stop, grp, lv, sl, sweep_pos = (a[order] for a in (block, ray, pos, stop, grp, lv, sl, sweep_pos))
+        index = np.zeros(len(block), dtype=np.int64)  # entry's place within its level
+        if len(block):
+            new_level = np.r_[True, (sweep_pos[1:] != sweep_pos[:-1])]
+            first = np.maximum.accumulate(np.where(new_level, np.arange(len(block)), 0))
+            index = np.arange(len(block)) - first
+        caps = np.array([cap for _, cap, _ in groups], dtype=np.int64)[grp]
+        written = (np.asarray(starts)[grp] + lv * num_w * caps)[:, None] + w[None, :] * caps[:, None] + index[:, None]
         valid_w = w[None, :] < self._num_words[ray][:, None]  # (M, W)
         state_word = self._word_offsets[ray][:, None] + w[None, :]
-        base = self._zero_word + 1  # the buffer: state words, one zero word, then the levels' writes
-
-        def written_at(entry, word):  # where level l wrote word w of its entry e: a (W, E) block per level
-            return base + (entry // cap) * cap * num_w + word * cap + entry % cap
-
         src_words = state_word
-        if chained:
-            # previous entry of the same ray in sweep order (entries are sorted by level)
-            by_ray = np.lexsort((flat, ray))
+        if chained:  # the previous entry of the same ray in sweep order
+            by_ray = np.lexsort((sweep_pos, ray))
             prev = np.full(len(ray), -1, dtype=np.int64)
             same = ray[by_ray][1:] == ray[by_ray][:-1]
-            prev[by_ray[1:][same]] = flat[by_ray[:-1][same]]
-            src_words = np.where(prev[:, None] >= 0, written_at(prev[:, None], w[None, :]), state_word)
-        src = np.full((num_levels * cap, num_w), self._zero_word, dtype=np.int64)
-        src[flat] = np.where(valid_w, src_words, self._zero_word)
-        bits = np.zeros((num_levels * cap, num_w), dtype=np.uint32)
-        on = pos >= 0
+            prev[by_ray[1:][same]] = by_ray[:-1][same]
+            src_words = np.where(prev[:, None] >= 0, written[np.maximum(prev, 0)], state_word)
+        src_words = np.where(valid_w, src_words, self._zero_word)
+        bits = np.zeros((len(block), num_w), dtype=np.uint32)
         for j in range(size):
-            word = np.where(on[:, j], pos[:, j] // WORD_BITS, 0)
-            np.bitwise_or.at(bits, (flat[on[:, j]], word[on[:, j]]),
-                             (np.uint32(1) << (pos[on[:, j], j] % WORD_BITS).astype(np.uint32)))
-        pair0 = np.full(num_levels * cap, self.table.num_pairs, dtype=np.int64)
-        pair0[flat] = self.table.offsets[ray]
-        y = np.zeros(num_levels * cap)
-        y[flat] = self._y[ray]
-        slot = np.full(num_levels * cap, width, dtype=np.int64)
-        slot[flat] = sl
-        pos_out = np.full((num_levels * cap, size), -1, dtype=np.int64)
-        pos_out[flat] = pos
-        stop_c = np.full((num_levels * cap, len(self._config_bits)), np.inf)
-        stop_c[flat] = np.min(np.where(self._config_bits[None], stop[:, None, :], np.inf), axis=-1)
-        exists = np.vstack([self.blocks, np.full((1, size), -1)])[levels] >= 0  # (NL, A, B)
-        bits_c = self._config_bits[None, None]  # (1, 1, C, B)
-        prior = np.where(exists[:, :, None, :], np.where(bits_c, self._log_prior[1], self._log_prior[0]), 0.0).sum(-1)
-        prior = np.where(np.any(bits_c & ~exists[:, :, None, :], axis=-1), -np.inf, prior)
+            on = pos[:, j] >= 0
+            np.bitwise_or.at(bits, (np.nonzero(on)[0], pos[on, j] // WORD_BITS),
+                             np.left_shift(np.uint32(1), (pos[on, j] % WORD_BITS).astype(np.uint32)))
+        stop_c = np.min(np.where(self._config_bits[None], stop[:, None, :], np.inf), axis=-1)  # (M, C)
         dt, i32 = self._dtype, jnp.int32
+        packed = []
+        for g, (levels, cap, _) in enumerate(groups):
+            n, width = levels.shape
+            mine = grp == g
+            at = (lv[mine], index[mine])
 
-        def entries_last(a, dtype):
-            a = a.reshape((num_levels, cap) + a.shape[1:])
-            return jnp.asarray(np.moveaxis(a, 1, -1) if a.ndim == 3 else a, dtype=dtype)
+            def fill(shape, value, data, dtype):
+                out = np.full((n, cap) + shape, value, dtype=np.float64 if dtype == dt else np.int64)
+                out[at] = data
+                out = np.moveaxis(out, 1, -1) if out.ndim == 3 else out  # entries last: the CPU vectorizes along it
+                return jnp.asarray(out, dtype=dtype)
 
-        packed = Levels(
-            src=entries_last(src, i32),
-            block_bits=entries_last(bits, jnp.uint32),
-            pair0=entries_last(pair0, i32),
-            y=entries_last(y, dt),
-            slot=entries_last(slot, i32),
-            pos=entries_last(pos_out, i32),
-            stop=entries_last(stop_c, dt),
-            log_prior=jnp.asarray(prior, dtype=dt),
-        )
+            exists = np.vstack([self.blocks, np.full((1, size), -1)])[levels] >= 0  # (n, A, B)
+            bits_c = self._config_bits[None, None]  # (1, 1, C, B)
+            prior = np.where(exists[:, :, None, :], np.where(bits_c, self._log_prior[1], self._log_prior[0]), 0.0).sum(-1)
+            prior = np.where(np.any(bits_c & ~exists[:, :, None, :], axis=-1), -np.inf, prior)
+            packed.append(Levels(
+                src=fill((num_w,), self._zero_word, src_words[mine], i32),
+                block_bits=fill((num_w,), 0, bits[mine], jnp.uint32),
+                pair0=fill((), self.table.num_pairs, self.table.offsets[ray[mine]], i32),
+                y=fill((), 0.0, self._y[ray[mine]], dt),
+                slot=fill((), width, sl[mine], i32),
+                pos=fill((size,), -1, pos[mine], i32),
+                stop=fill((len(self._config_bits),), np.inf, stop_c[mine], dt),
+                log_prior=jnp.asarray(prior, dtype=dt),
+            ))
         if not chained:
             return packed, None, None
         # final state: each ray word from the ray's last entry (or unchanged), each cell from its last block
         final_words = np.arange(self._zero_word + 1)
         last = np.full(self.table.num_rays, -1, dtype=np.int64)
-        last[ray] = flat  # entries are in sweep order, so the last assignment wins
+        last[ray] = np.arange(len(ray))  # entries are in sweep order, so the last assignment wins
         has = last >= 0
-        words_of = self._word_offsets[:, None] + w[None, :]
         mask = has[:, None] & (w[None, :] < self._num_words[:, None])
-        final_words[words_of[mask]] = written_at(last[:, None], w[None, :])[mask]
+        words_of = self._word_offsets[:, None] + w[None, :]
+        final_words[words_of[mask]] = written[np.maximum(last, 0)][mask]
         cell_last = np.full(self._num_cells, -1, dtype=np.int64)
-        ls = np.nonzero(levels < nb)
-        cells = self.blocks[levels[ls]]  # (n, B), in level order
-        flat_on = (ls[0] * width + ls[1])[:, None] * size + np.arange(size)[None, :]
-        cell_last[cells.reshape(-1)] = flat_on.reshape(-1)
+        cell_when = np.full(self._num_cells, -1, dtype=np.int64)
+        for g, (levels, _, when) in enumerate(groups):
+            rows, cols = np.nonzero(levels < nb)
+            for j in range(size):
+                cells = self.blocks[levels[rows, cols], j]
+                t = np.asarray(when)[rows]
+                src = on_starts[g] + (rows * levels.shape[1] + cols) * size + j
+                later = t > cell_when[cells]  # a cell is cell j of at most one block
+                cell_last[cells[later]] = src[later]
+                cell_when[cells[later]] = t[later]
         return packed, jnp.asarray(final_words, dtype=i32), jnp.asarray(cell_last, dtype=i32)
 
     # -- the kernel (pure JAX) -----------------------------------------------------------------------------------
@@ -341,46 +394,70 @@ class FastGibbs:
         num_blocks = lv.log_prior.shape[0]
         # sum over each block's rays with a dense (A, E) mask: scatters are slow loops on the CPU
         mine = lv.slot[None, :] == jnp.arange(num_blocks, dtype=lv.slot.dtype)[:, None]
-        if ll.shape[0] > 2:  # many configurations: accumulate (A, C) rows over the entries (vectorized over A, C)
-            w = jnp.sum(jnp.where(mine.T[:, :, None], ll.T[:, None, :], 0.0), axis=0)
-        else:
-            w = jnp.sum(jnp.where(mine[:, None, :], ll[None], 0.0), axis=-1)
-        return w + lv.log_prior, outside
+        if ll.shape[0] == 2:  # single cells: one log-likelihood ratio per ray, summed into log-odds (a dot: XLA
+            # turns a long masked sum into a slow reduce-window)
+            log_odds = jnp.dot(mine.astype(ll.dtype), ll[1] - ll[0], precision=jax.lax.Precision.HIGHEST)
+            return lv.log_prior + jnp.stack([jnp.zeros_like(log_odds), log_odds], axis=-1), outside
+        # many configurations: accumulate (A, C) rows over the entries (vectorized over A and C)
+        return jnp.sum(jnp.where(mine.T[:, :, None], ll.T[:, None, :], 0.0), axis=0) + lv.log_prior, outside
 
     def block_log_weights(self, walls) -> jax.Array:
         """Conditional log-weights of every block given the rest of ``walls`` ``(nx, ny)``: ``(NB, 2**B)``, each
         row up to an additive constant, configurations of :func:`block_configurations`. Uses the sweep's kernel
         (each block as a level of its own)."""
         if not hasattr(self, "_single"):
-            self._single = self._pack_levels(np.arange(len(self.blocks), dtype=np.int32)[:, None], chained=False)[0]
+            singles = np.arange(len(self.blocks), dtype=np.int32)[:, None]
+            most = int(np.bincount(self._entries[0], minlength=len(self.blocks)).max(initial=1))
+            self._single = self._pack([(singles, max(most, 1), np.arange(len(singles)))], chained=False)[0][0]
         ray_bits = self.ray_bits(walls)
         return jax.vmap(lambda lv: self._level_log_weights(ray_bits[lv.src], lv)[0])(self._single)[:, 0]
+
+    def _run_level(self, buffer, lv: Levels, u, address):
+        """Sample the blocks of one level; returns the buffer with the level's words written at ``address``, and
+        the blocks' new values ``(A, B)`` bool."""
+        log_w, outside = self._level_log_weights(buffer[lv.src], lv)
+        on = self._bits[sample_categorical(log_w, u)]  # (A, B)
+        no_block = jnp.zeros((1, on.shape[1]), dtype=bool)
+        new = outside | self._bits_at(lv.pos, jnp.concatenate([on, no_block])[lv.slot].T)
+        return jax.lax.dynamic_update_slice(buffer, new.reshape(-1), (address,)), on
 
     def step(self, key, state: FastGibbsState) -> FastGibbsState:
         """One sweep: every level in order, all its blocks sampled at once.
 
         No scatter runs inside the loop (on the CPU a scatter is a loop of its own): each level reads its rays'
         words from the buffer slot where they were last written, at indices fixed in advance, and appends its new
-        words with one ``dynamic_update_slice``; the final map and ray bits are gathered from the last writers."""
-        num_levels, num_w, cap = self._levels.src.shape
-        width = self._levels.log_prior.shape[1]
-        # one uniform per block and level: inverse-CDF sampling of the 2**B configurations (cheaper on the CPU
-        # than a Gumbel per configuration, whose double log dominates a sweep)
-        uniforms = jax.random.uniform(key, (num_levels, width), dtype=self._dtype)
-        buffer = jnp.concatenate([state.ray_bits, jnp.zeros(num_levels * cap * num_w, jnp.uint32)])
+        words with one ``dynamic_update_slice``; the final map and ray bits are gathered from the last writers.
+        Blocks are drawn by inverse CDF from one uniform each."""
+        light, heavy = self._light, self._heavy
+        num_steps, num_w, cap = light.src.shape
+        num_heavy, heavy_width = heavy.log_prior.shape[:2]
+        heavy_cap = heavy.src.shape[-1]
+        key_light, key_heavy = jax.random.split(key)
+        u_light = jax.random.uniform(key_light, (num_steps, light.log_prior.shape[1]), dtype=self._dtype)
+        u_heavy = jax.random.uniform(key_heavy, (num_heavy, heavy_width), dtype=self._dtype)
         base = self._zero_word + 1
-        no_block = jnp.zeros((1, self._bits.shape[1]), dtype=bool)
+        heavy_base = base + num_steps * num_w * cap
+        buffer = jnp.concatenate([state.ray_bits, jnp.zeros(heavy_base - base + num_heavy * num_w * heavy_cap, jnp.uint32)])
+        heavy_on = jnp.zeros((num_heavy, heavy_width, self._bits.shape[1]), dtype=bool)
 
-        def level(buffer, xs):
-            l, lv, u = xs
-            log_w, outside = self._level_log_weights(buffer[lv.src], lv)
-            on = self._bits[sample_categorical(log_w, u)]  # (A, B)
-            new = outside | self._bits_at(lv.pos, jnp.concatenate([on, no_block])[lv.slot].T)
-            buffer = jax.lax.dynamic_update_slice(buffer, new.reshape(-1), (base + l * cap * num_w,))
-            return buffer, on
+        def heavy_level(carry, h):
+            buffer, heavy_on = carry
+            lv = jax.tree_util.tree_map(lambda x: x[h], heavy)
+            buffer, on = self._run_level(buffer, lv, u_heavy[h], heavy_base + h * num_w * heavy_cap)
+            return buffer, jax.lax.dynamic_update_slice(heavy_on, on[None], (h, 0, 0))
 
-        buffer, on = jax.lax.scan(level, buffer, (jnp.arange(num_levels), self._levels, uniforms))
-        walls = on.reshape(-1)[self._final_walls].astype(state.walls.dtype).reshape(state.walls.shape)
+        def one_step(carry, xs):
+            s, lv, u, h = xs
+            buffer, heavy_on = carry
+            buffer, on = self._run_level(buffer, lv, u, base + s * num_w * cap)
+            if num_heavy:
+                buffer, heavy_on = jax.lax.cond(h >= 0, heavy_level, lambda c, h: c, (buffer, heavy_on), h)
+            return (buffer, heavy_on), on
+
+        xs = (jnp.arange(num_steps), light, u_light, jnp.asarray(self._step_heavy))
+        (buffer, heavy_on), on = jax.lax.scan(one_step, (buffer, heavy_on), xs)
+        on_all = jnp.concatenate([on.reshape(-1), heavy_on.reshape(-1)])
+        walls = on_all[self._final_walls].astype(state.walls.dtype).reshape(state.walls.shape)
         return FastGibbsState(walls=walls, ray_bits=buffer[self._final_words])
 
 
