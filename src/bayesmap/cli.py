@@ -22,6 +22,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Bayesian occupancy-grid mapping from range scans, with honest uncertainty.")
 
 OUTPUT_FILES = ("posterior.npy", "readings.npy", "posterior.png", "summary.json")
+DIAGNOSTICS_FILE = "diagnostics.npz"  # written with --chains >= 2
 
 
 def _check_output_dir(out: Path, force: bool) -> None:
@@ -29,7 +30,7 @@ def _check_output_dir(out: Path, force: bool) -> None:
     if out.exists() and not out.is_dir():
         raise BayesmapError(f"output folder {str(out)!r} exists and is not a folder")
     if out.is_dir() and not force:
-        clash = [name for name in OUTPUT_FILES if (out / name).exists()]
+        clash = [name for name in OUTPUT_FILES + (DIAGNOSTICS_FILE,) if (out / name).exists()]
         if clash:
             raise BayesmapError(f"{str(out / clash[0])!r} already exists; pass --force to replace bayesmap's outputs in {str(out)!r}")
     parent = out if out.is_dir() else out.parent
@@ -70,21 +71,28 @@ def _npy(array) -> bytes:
 
 
 def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], seed: int, out: Path, force: bool,
-                   title: str) -> dict:
+                   title: str, chains: int = 1) -> dict:
     from bayesmap.plots import figure_bytes, plot_posterior
     from bayesmap.problem import run_inference
 
     _check_output_dir(out, force)
-    result = run_inference(problem, sampler=sampler, sweeps=sweeps, burn_in=burn_in, seed=seed)
+    result = run_inference(problem, sampler=sampler, sweeps=sweeps, burn_in=burn_in, seed=seed, chains=chains)
     fig = plot_posterior(problem.grid, result.posterior, truth=problem.truth, pos=problem.pos,
                          beam_angles=problem.beam_angles, readings=problem.readings,
                          max_range_mask=problem.max_range_mask, title=title)
-    _write_outputs(out, {
+    files = {
         "posterior.npy": _npy(result.posterior.astype("float32")),
         "readings.npy": _npy(problem.readings.astype("float32")),
         "posterior.png": figure_bytes(fig, "png"),
         "summary.json": (json.dumps(result.summary, indent=2) + "\n").encode(),
-    })
+    }
+    if result.diagnostics is not None:
+        import numpy as np
+
+        buf = io.BytesIO()
+        np.savez(buf, r_hat=result.diagnostics["r_hat"], ess=result.diagnostics["ess"])
+        files[DIAGNOSTICS_FILE] = buf.getvalue()
+    _write_outputs(out, files)
     return result.summary
 
 
@@ -96,7 +104,11 @@ def _print_summary(summary: dict, out: Path) -> None:
     typer.echo(f"runtime:  {summary['runtime_s']:.2f} s (compilation included)")
     if "wrong_visible_cells" in summary:
         typer.echo(f"accuracy: {summary['wrong_visible_cells']} of {summary['visible_cells']} visible cells wrong")
-    typer.echo(f"outputs:  {out}/ ({', '.join(OUTPUT_FILES)})")
+    if summary.get("chains", 1) > 1 and summary.get("r_hat_max") is not None:
+        typer.echo(f"chains:   {summary['chains']}; over the {summary['cells_varying']} cells that change: worst split "
+                   f"R-hat {summary['r_hat_max']:.3f}, smallest effective sample size {summary['ess_min']:.0f}")
+    files = OUTPUT_FILES + ((DIAGNOSTICS_FILE,) if summary.get("chains", 1) > 1 else ())
+    typer.echo(f"outputs:  {out}/ ({', '.join(files)})")
 
 
 def _sampler_option(default: str):
@@ -135,6 +147,7 @@ def infer(
     num_angles: int = typer.Option(100, "--num-angles", help="number of beams (simulated readings)"),
     pos: Optional[tuple[float, float]] = typer.Option(None, "--pos", help="sensor position X Y (simulated readings); default the map's center"),
     seed: int = typer.Option(0, help="seed of the simulated readings and of the chain"),
+    chains: int = typer.Option(1, help="independent chains run at once; 2 or more add split R-hat and effective sample size per cell"),
     out: Path = typer.Option(Path("bayesmap-out"), "--out", help="output folder"),
     force: bool = typer.Option(False, "--force", help="replace bayesmap's outputs already in the folder"),
 ) -> None:
@@ -161,7 +174,7 @@ def infer(
                                    prior_wall_prob=prior_wall_prob, sensor_noise=0.2 if sensor_noise is None else sensor_noise, num_angles=num_angles,
                                    source=str(map_file) if map_file else "tutorial map")
         title = f"Posterior wall probability ({problem.source})"
-    summary = _run_and_write(problem, sampler, sweeps, burn_in, seed, out, force, title=title)
+    summary = _run_and_write(problem, sampler, sweeps, burn_in, seed, out, force, title=title, chains=chains)
     _print_summary(summary, out)
 
 

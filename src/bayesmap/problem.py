@@ -17,7 +17,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.grid import Grid, tutorial_map
-from bayesmap.inference.chains import SamplingAlgorithm, _run, posterior_mean
+from bayesmap.inference.chains import SamplingAlgorithm, _run, _run_many, cell_diagnostics, posterior_mean
 from bayesmap.inference.fast import fast_gibbs
 from bayesmap.inference.reference import reference_gibbs, reference_incremental_gibbs
 from bayesmap.model import ModelParams, log_joint, make_params, simulate_readings
@@ -164,21 +164,25 @@ class InferenceResult:
     """What :func:`run_inference` returns.
 
     Attributes:
-        samples: ``(num_sweeps, nx, ny)`` bool, the map after each sweep.
-        posterior: ``(nx, ny)`` float64 mean of the samples after the burn-in.
+        samples: ``(num_sweeps, nx, ny)`` bool, the map after each sweep (``(num_chains, num_sweeps, nx, ny)``
+            with several chains).
+        posterior: ``(nx, ny)`` float64 mean of the samples after the burn-in (over all chains).
         runtime_s: wall time of the whole run in seconds, compilation included.
         summary: settings and metrics (JSON-serializable).
+        diagnostics: with 2 or more chains, per-cell ``{"r_hat": (nx, ny), "ess": (nx, ny)}`` float64 of the kept
+            sweeps (:func:`~bayesmap.inference.chains.cell_diagnostics`); else None.
     """
 
     samples: np.ndarray
     posterior: np.ndarray
     runtime_s: float
     summary: dict
+    diagnostics: dict | None = None
 
 
 def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, burn_in: int | None = None,
-                  seed: int = 0, progress: bool = True) -> InferenceResult:
-    """Run one chain of ``sampler`` from the all-free map and summarize it.
+                  seed: int = 0, progress: bool = True, chains: int = 1) -> InferenceResult:
+    """Run ``chains`` chains of ``sampler`` from the all-free map (at once, ``vmap``) and summarize them.
 
     Args:
         problem: the scene.
@@ -187,10 +191,15 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         burn_in: sweeps dropped before averaging; default half of them.
         seed: the chain's PRNG seed.
         progress: show a progress bar (tqdm, on stderr) when the run takes longer than a second.
+        chains: number of independent chains (keys split from ``seed``); with 2 or more the summary reports the
+            worst split R-hat and the smallest effective sample size over the cells that change.
 
     Raises:
-        BayesmapError: on an unknown sampler, or a bad number of sweeps or burn-in.
+        BayesmapError: on an unknown sampler, or a bad number of sweeps, burn-in or chains; with several chains,
+            on fewer than 4 kept sweeps (too few for R-hat).
     """
+    if int(chains) != chains or chains < 1:
+        raise BayesmapError(f"number of chains must be an integer >= 1, got {chains!r}")
     if int(sweeps) != sweeps or sweeps < 1:
         raise BayesmapError(f"number of sweeps must be an integer >= 1, got {sweeps!r}")
     burn_in = sweeps // 2 if burn_in is None else burn_in
@@ -198,9 +207,12 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         raise BayesmapError(f"burn-in must be an integer between 0 and {sweeps - 1} (sweeps - 1), got {burn_in!r}")
     from tqdm import tqdm
 
+    if chains > 1 and sweeps - burn_in < 4:
+        raise BayesmapError(f"diagnostics of {chains} chains need at least 4 sweeps after the burn-in, got {sweeps - burn_in}")
     start = time.perf_counter()
     algorithm = make_sampler(problem, sampler)
-    state = algorithm.init(jnp.zeros(problem.grid.shape, jnp.float32))
+    walls0 = jnp.zeros(problem.grid.shape, jnp.float32)
+    state = algorithm.init(walls0) if chains == 1 else jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape))
     chunk = max(1, min(sweeps, 10))
     keys = jax.random.split(jax.random.key(seed), -(-sweeps // chunk))
     pieces = []
@@ -208,13 +220,17 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         done = 0
         for key in keys:
             n = min(chunk, sweeps - done)
-            samples, state = _run(key, state, algorithm, n)
+            if chains == 1:
+                samples, state = _run(key, state, algorithm, n)
+            else:
+                samples, state = _run_many(jax.random.split(key, chains), state, algorithm, n)
             pieces.append(np.asarray(samples))
             done += n
             bar.update(n)
-    samples = np.concatenate(pieces)
+    samples = np.concatenate(pieces, axis=-3)
     runtime = time.perf_counter() - start
     posterior = posterior_mean(samples, burn_in)
+    diagnostics = cell_diagnostics(samples, burn_in) if chains > 1 else None
     summary = {
         "source": problem.source,
         "sampler": sampler,
@@ -222,6 +238,7 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         "sweeps": int(sweeps),
         "burn_in": int(burn_in),
         "seed": int(seed),
+        "chains": int(chains),
         "prior_wall_prob": float(problem.params.prior_wall_prob),
         "sensor_noise": float(problem.params.sensor_noise),
         "num_angles": int(len(problem.beam_angles)),
@@ -237,5 +254,11 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         summary["visible_cells"] = int(problem.visible.sum())
         summary["wrong_visible_cells"] = problem.wrong_visible_cells(posterior)
         summary["log_joint_truth"] = float(log_joint(problem.truth, problem.readings, problem.pos, problem.params, problem.beam_angles))
-    summary["log_joint_final_sample"] = float(log_joint(samples[-1], problem.readings, problem.pos, problem.params, problem.beam_angles))
-    return InferenceResult(samples=samples, posterior=posterior, runtime_s=runtime, summary=summary)
+    last = samples[-1] if chains == 1 else samples[0, -1]
+    summary["log_joint_final_sample"] = float(log_joint(last, problem.readings, problem.pos, problem.params, problem.beam_angles))
+    if diagnostics is not None:
+        varying = np.isfinite(diagnostics["r_hat"])
+        summary["cells_varying"] = int(varying.sum())
+        summary["r_hat_max"] = float(diagnostics["r_hat"][varying].max()) if varying.any() else None
+        summary["ess_min"] = float(diagnostics["ess"][varying].min()) if varying.any() else None
+    return InferenceResult(samples=samples, posterior=posterior, runtime_s=runtime, summary=summary, diagnostics=diagnostics)

@@ -7,6 +7,7 @@ Keys are passed explicitly; there is no global state.
 
 from __future__ import annotations
 
+import warnings
 from functools import partial
 from typing import Callable, NamedTuple
 
@@ -144,6 +145,8 @@ def cell_diagnostics(samples, burn_in: int = 0) -> dict[str, np.ndarray]:
     if arr.ndim != 4 or arr.shape[0] < 2 or arr.shape[1] < 4:
         raise BayesmapError(f"diagnostics need samples (chains >= 2, sweeps >= 4, nx, ny), got shape {arr.shape}")
     data = arviz.convert_to_dataset({"walls": arr})
-    r_hat = arviz.rhat(data)["walls"].values
-    ess = arviz.ess(data)["walls"].values
+    with warnings.catch_warnings(), np.errstate(divide="ignore", invalid="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)  # constant cells: 0 / 0, reported as NaN
+        r_hat = arviz.rhat(data)["walls"].values
+        ess = arviz.ess(data)["walls"].values
     return {"r_hat": np.asarray(r_hat), "ess": np.asarray(ess)}

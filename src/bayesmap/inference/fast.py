@@ -117,8 +117,9 @@ class FastGibbs:
         schedule: ``"sequential"`` (same kernel as the reference sweep) or ``"chromatic"``.
         pos: ``(2,)`` sensor position, meters (for the outward order; default: the first ray's origin).
         level_capacity: most (block, ray) entries per level; levels with more are split, and a block crossed by
-            more rays gets a "heavy" level of its own, run at its own size. Default: no splitting for schedules of
-            at most 50 levels, else 32 (or the mean entries per level if larger).
+            more rays gets a "heavy" level of its own, run at its own size. Default: no splitting unless padding
+            every level to the largest would cost more than 16 times the real work; then 32 (or the mean entries
+            per level if larger).
 
     Attributes:
         blocks: ``(NB, B)`` int flat cell indices, sweep order.
@@ -167,11 +168,15 @@ class FastGibbs:
         self._entries = self._block_entries()
         entry_count = np.bincount(self._entries[0], minlength=len(self.blocks))
         if level_capacity is None:
-            # Measured on the tutorial scene (2-core CPU): a level costs about 0.5 us plus its work, and a heavy
-            # level adds a branch to every step; long schedules gain from small levels, short ones do not.
-            per_level = [entry_count[row[row < len(self.blocks)]].sum() for row in base_levels]
+            # Measured on the tutorial scene (2-core CPU): splitting its levels at 32 entries saves 10-20 % of a
+            # sweep but the second level shape adds 0.2-0.3 s of compilation. Split only when padding every level
+            # to the largest would multiply the work by more than 16.
+            per_level = [int(entry_count[row[row < len(self.blocks)]].sum()) for row in base_levels]
+            largest = max(per_level, default=1)
+            padded = largest * len(base_levels)
             mean = len(self._entries[0]) / max(len(base_levels), 1)
-            level_capacity = max(per_level, default=1) if len(base_levels) <= 50 else max(32, 8 * math.ceil(mean / 8))
+            split = padded > 16 * max(len(self._entries[0]), 1)
+            level_capacity = max(32, 8 * math.ceil(mean / 8)) if split else largest
         self.level_capacity = max(int(level_capacity), 1)
         self.levels = split_levels(base_levels, entry_count, self.level_capacity)
         # A level above the capacity holds one block crossed by many rays (the sensor's cell, say). Such "heavy"
