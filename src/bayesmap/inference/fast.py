@@ -78,9 +78,14 @@ class FastGibbsState(NamedTuple):
 
 
 class Levels(NamedTuple):
-    """A schedule as fixed-size device arrays, one row per level: level ``l`` updates ``A`` blocks from ``E``
-    (block, ray) entries, each ray's bit string read from ``W`` words of the sweep's buffer (see
+    """A schedule as fixed-size device arrays, one row per step of the sweep: step ``s`` updates up to ``A``
+    blocks from ``E`` (block, ray) entries, each ray's bit string read from ``W`` words of the sweep's buffer (see
     :meth:`FastGibbs.step`). The entry axis is the last (contiguous) one, so that the CPU vectorizes along it.
+
+    A block crossed by more than ``E`` rays (the sensor's cell, say) takes several consecutive steps, one chunk
+    of its rays each: the first steps only add up its log-weights (``carry_in``), the last one draws it
+    (``commit``). Rays of the unfinished chunks are written without the block's bits; whoever reads them next adds
+    those bits back from the block's drawn configuration (``fix_src``, ``fix_pos``).
 
     Attributes:
         src: ``(NL, W, E)`` int32 buffer index of each entry's ray words (a zero word for padding).
@@ -92,7 +97,12 @@ class Levels(NamedTuple):
         stop: ``(NL, C, E)`` float the ray's distance if only the block's walls in configuration ``c`` existed
             (``inf`` if none of them is on the ray), meters.
         log_prior: ``(NL, A, C)`` float prior log-probability of each configuration (``-inf`` for configurations
-            that set cells a padding block does not have).
+            that set cells a padding block does not have; 0 in the first steps of a chunked block).
+        carry_in: ``(NL,)`` bool, the step continues the previous step's block (add its log-weights).
+        commit: ``(NL,)`` bool, the step draws its blocks.
+        fix_src: ``(NL, E)`` int32 buffer index of the drawn configuration of a chunked block whose bits the
+            entry's words lack (the zero word, configuration 0, if none).
+        fix_pos: ``(NL, B, E)`` int32 positions of that block's cells on the ray, ``-1`` if none.
     """
 
     src: jax.Array
@@ -103,6 +113,10 @@ class Levels(NamedTuple):
     pos: jax.Array
     stop: jax.Array
     log_prior: jax.Array
+    carry_in: jax.Array
+    commit: jax.Array
+    fix_src: jax.Array
+    fix_pos: jax.Array
 
 
 class FastGibbs:
@@ -176,38 +190,12 @@ class FastGibbs:
             padded = largest * len(base_levels)
             mean = len(self._entries[0]) / max(len(base_levels), 1)
             split = padded > 16 * max(len(self._entries[0]), 1)
-            level_capacity = max(32, 8 * math.ceil(mean / 8)) if split else largest
+            level_capacity = max(32, 8 * math.ceil(mean / 8)) if split else max(largest, 1)
         self.level_capacity = max(int(level_capacity), 1)
         self.levels = split_levels(base_levels, entry_count, self.level_capacity)
-        # A level above the capacity holds one block crossed by many rays (the sensor's cell, say). Such "heavy"
-        # levels run at their own size, each right after an ordinary level (one step of the sweep's scan).
-        level_entries = np.array([entry_count[row[row < len(self.blocks)]].sum() for row in self.levels], dtype=np.int64)
-        heavy = level_entries > self.level_capacity
-        empty = np.full(self.levels.shape[1], len(self.blocks), dtype=self.levels.dtype)
-        light_rows, heavy_rows, step_heavy = [], [], []
-        for row, is_heavy in zip(self.levels, heavy):
-            if not is_heavy:
-                light_rows.append(row)
-                step_heavy.append(-1)
-                continue
-            if not step_heavy or step_heavy[-1] >= 0:
-                light_rows.append(empty)
-                step_heavy.append(-1)
-            step_heavy[-1] = len(heavy_rows)
-            heavy_rows.append(row)
-        self._step_heavy = np.asarray(step_heavy, dtype=np.int32)
-        light = np.asarray(light_rows, dtype=np.int32).reshape(-1, self.levels.shape[1])
-        heavy_levels = np.full((0, 1), len(self.blocks), dtype=np.int32)
-        if heavy_rows:
-            heavy_levels = np.asarray(heavy_rows, dtype=np.int32)
-            heavy_levels = heavy_levels[:, : max(int((heavy_levels < len(self.blocks)).sum(axis=1).max()), 1)]
-        heavy_capacity = int(level_entries.max(initial=1)) if heavy.any() else 1
-        light_capacity = int(level_entries[~heavy].max(initial=1)) if (~heavy).any() else 1
-        # sweep position of each level: step s runs light level s, then its heavy level
-        heavy_step = np.zeros(len(heavy_rows), dtype=np.int64)
-        heavy_step[self._step_heavy[self._step_heavy >= 0]] = np.nonzero(self._step_heavy >= 0)[0]
-        groups = [(light, light_capacity, 2 * np.arange(len(light))), (heavy_levels, heavy_capacity, 2 * heavy_step + 1)]
-        (self._light, self._heavy), self._final_words, self._final_walls = self._pack(groups, chained=True)
+        packed = self._pack(self.levels, self.level_capacity, chained=True)
+        self._steps, self._final_words, self._final_walls, self._final_fix = packed
+        self._chunked = not bool(np.all(np.asarray(self._steps.commit)))
         self.algorithm = SamplingAlgorithm(init=self.init, step=self.step)
 
     # -- static preparation (numpy) ------------------------------------------------------------------------------
@@ -233,118 +221,126 @@ class FastGibbs:
         stop[entry, j] = table.pair_dists[pair]
         return (unique // num_rays).astype(np.int64), (unique % num_rays).astype(np.int64), pos, stop
 
-    def _pack(self, groups, chained: bool):
-        """Device arrays for groups of levels that share the sweep's buffer.
+    def _pack(self, levels: np.ndarray, capacity: int, chained: bool):
+        """Device arrays for the levels ``levels`` ``(NL, A)`` (block indices, padding ``NB``), ``capacity`` entries
+        per step; a level with more entries (one block, see :func:`split_levels`) takes several steps.
 
-        Args:
-            groups: ``[(levels (n, A) block indices padded with NB, capacity E, sweep position of each level)]``.
-            chained: if True, an entry reads its ray's words from the buffer slot where the ray's previous entry in
-                the sweep wrote them (or from the state if it is the ray's first entry), and the final state is
-                gathered from the last writers; if False every entry reads the state (independent levels, for
-                :meth:`block_log_weights`).
+        With ``chained``, an entry reads its ray's words from the buffer slot where the ray's previous entry in the
+        sweep wrote them (or from the state if it is the ray's first entry), and the final state is gathered from
+        the last writers; otherwise every entry reads the state (independent levels, for
+        :meth:`block_log_weights`; no level may then exceed the capacity).
 
         Returns:
-            ``([Levels per group], final_words, final_walls)``; the last two are None unless ``chained``.
+            ``(Levels, final_words, final_walls, final_fix)``; the last three are None unless ``chained``.
         """
         nb, size = self.blocks.shape
-        num_w = self._max_words
+        num_levels, width = levels.shape
+        num_w, cap = self._max_words, capacity
         w = np.arange(num_w)
-        base = self._zero_word + 1  # the buffer: state words, one zero word, then each group's writes
         level_of = np.full(nb, -1, dtype=np.int64)
         slot_of = np.zeros(nb, dtype=np.int64)
-        group_of = np.zeros(nb, dtype=np.int64)
-        starts, on_starts = [], []
-        address, on_address = base, 0
-        for g, (levels, cap, _) in enumerate(groups):
-            rows, cols = np.nonzero(levels < nb)
-            level_of[levels[rows, cols]] = rows
-            slot_of[levels[rows, cols]] = cols
-            group_of[levels[rows, cols]] = g
-            starts.append(address)
-            on_starts.append(on_address)
-            address += levels.shape[0] * num_w * cap
-            on_address += levels.size * size
+        rows, cols = np.nonzero(levels < nb)
+        level_of[levels[rows, cols]] = rows
+        slot_of[levels[rows, cols]] = cols
         block, ray, pos, stop = self._entries
         keep = level_of[block] >= 0
         block, ray, pos, stop = block[keep], ray[keep], pos[keep], stop[keep]
-        grp, lv, sl = group_of[block], level_of[block], slot_of[block]
-        sweep_pos = np.zeros(len(block), dtype=np.int64)
-        for g, (_, _, when) in enumerate(groups):
-            sweep_pos[grp == g] = np.asarray(when)[lv[grp == g]]
-        order = np.lexsort((ray, sl, sweep_pos))
-        block, ray, pos, stop, grp, lv, sl, sweep_pos = (a[order] for a in (block, ray, pos, stop, grp, lv, sl, sweep_pos))
-        index = np.zeros(len(block), dtype=np.int64)  # entry's place within its level
-        if len(block):
-            new_level = np.r_[True, (sweep_pos[1:] != sweep_pos[:-1])]
-            first = np.maximum.accumulate(np.where(new_level, np.arange(len(block)), 0))
-            index = np.arange(len(block)) - first
-        caps = np.array([cap for _, cap, _ in groups], dtype=np.int64)[grp]
-        written = (np.asarray(starts)[grp] + lv * num_w * caps)[:, None] + w[None, :] * caps[:, None] + index[:, None]
-        valid_w = w[None, :] < self._num_words[ray][:, None]  # (M, W)
-        state_word = self._word_offsets[ray][:, None] + w[None, :]
-        src_words = state_word
+        lv, sl = level_of[block], slot_of[block]
+        order = np.lexsort((ray, sl, lv))
+        block, ray, pos, stop, lv, sl = (a[order] for a in (block, ray, pos, stop, lv, sl))
+        # steps: a level takes ceil(entries / capacity) consecutive steps (more than one only for a single block)
+        per_level = np.bincount(lv, minlength=num_levels)
+        level_steps = np.maximum(1, -(-per_level // cap))
+        first_step = np.concatenate([[0], np.cumsum(level_steps)[:-1]])
+        num_steps = int(level_steps.sum())
+        rank = np.arange(len(lv)) - np.repeat(np.cumsum(per_level) - per_level, per_level)
+        step, index = first_step[lv] + rank // cap, rank % cap
+        step_level = np.repeat(np.arange(num_levels), level_steps)
+        commit_step = first_step + level_steps - 1  # per level
+        commit = np.zeros(num_steps, dtype=bool)
+        commit[commit_step] = True
+        carry_in = np.ones(num_steps, dtype=bool)
+        carry_in[first_step] = False
+        base = self._zero_word + 1  # the buffer: state words, one zero word, each step's words, each step's draws
+        config_base = base + num_steps * num_w * cap
+        written = (base + step * num_w * cap)[:, None] + w[None, :] * cap + index[:, None]  # (M, W)
+        config_at = config_base + commit_step[lv] * width + sl  # where the entry's block's draw is stored
+        valid_w = w[None, :] < self._num_words[ray][:, None]
+        src_words = self._word_offsets[ray][:, None] + w[None, :]
+        fix_src = np.full(len(ray), self._zero_word, dtype=np.int64)
+        fix_pos = np.full((len(ray), size), -1, dtype=np.int64)
+        unfinished = ~commit[step]  # entries written before their block is drawn
         if chained:  # the previous entry of the same ray in sweep order
-            by_ray = np.lexsort((sweep_pos, ray))
+            by_ray = np.lexsort((step, ray))
             prev = np.full(len(ray), -1, dtype=np.int64)
             same = ray[by_ray][1:] == ray[by_ray][:-1]
             prev[by_ray[1:][same]] = by_ray[:-1][same]
-            src_words = np.where(prev[:, None] >= 0, written[np.maximum(prev, 0)], state_word)
+            has = prev >= 0
+            src_words = np.where(has[:, None], written[np.maximum(prev, 0)], src_words)
+            fix = has & unfinished[np.maximum(prev, 0)]
+            fix_src[fix] = config_at[prev[fix]]
+            fix_pos[fix] = pos[prev[fix]]
         src_words = np.where(valid_w, src_words, self._zero_word)
-        bits = np.zeros((len(block), num_w), dtype=np.uint32)
+        bits = np.zeros((len(ray), num_w), dtype=np.uint32)
         for j in range(size):
             on = pos[:, j] >= 0
             np.bitwise_or.at(bits, (np.nonzero(on)[0], pos[on, j] // WORD_BITS),
                              np.left_shift(np.uint32(1), (pos[on, j] % WORD_BITS).astype(np.uint32)))
         stop_c = np.min(np.where(self._config_bits[None], stop[:, None, :], np.inf), axis=-1)  # (M, C)
+        exists = np.vstack([self.blocks, np.full((1, size), -1)])[levels] >= 0  # (NL, A, B)
+        bits_c = self._config_bits[None, None]  # (1, 1, C, B)
+        prior = np.where(exists[:, :, None, :], np.where(bits_c, self._log_prior[1], self._log_prior[0]), 0.0).sum(-1)
+        prior = np.where(np.any(bits_c & ~exists[:, :, None, :], axis=-1), -np.inf, prior)[step_level]
+        prior = np.where(commit[:, None, None] | np.isinf(prior), prior, 0.0)  # a chunked block's prior counts once
+        at = (step, index)
         dt, i32 = self._dtype, jnp.int32
-        packed = []
-        for g, (levels, cap, _) in enumerate(groups):
-            n, width = levels.shape
-            mine = grp == g
-            at = (lv[mine], index[mine])
 
-            def fill(shape, value, data, dtype):
-                out = np.full((n, cap) + shape, value, dtype=np.float64 if dtype == dt else np.int64)
-                out[at] = data
-                out = np.moveaxis(out, 1, -1) if out.ndim == 3 else out  # entries last: the CPU vectorizes along it
-                return jnp.asarray(out, dtype=dtype)
+        def fill(shape, value, data, dtype):
+            out = np.full((num_steps, cap) + shape, value, dtype=np.float64 if dtype == dt else np.int64)
+            out[at] = data
+            out = np.moveaxis(out, 1, -1) if out.ndim == 3 else out  # entries last: the CPU vectorizes along it
+            return jnp.asarray(out, dtype=dtype)
 
-            exists = np.vstack([self.blocks, np.full((1, size), -1)])[levels] >= 0  # (n, A, B)
-            bits_c = self._config_bits[None, None]  # (1, 1, C, B)
-            prior = np.where(exists[:, :, None, :], np.where(bits_c, self._log_prior[1], self._log_prior[0]), 0.0).sum(-1)
-            prior = np.where(np.any(bits_c & ~exists[:, :, None, :], axis=-1), -np.inf, prior)
-            packed.append(Levels(
-                src=fill((num_w,), self._zero_word, src_words[mine], i32),
-                block_bits=fill((num_w,), 0, bits[mine], jnp.uint32),
-                pair0=fill((), self.table.num_pairs, self.table.offsets[ray[mine]], i32),
-                y=fill((), 0.0, self._y[ray[mine]], dt),
-                slot=fill((), width, sl[mine], i32),
-                pos=fill((size,), -1, pos[mine], i32),
-                stop=fill((len(self._config_bits),), np.inf, stop_c[mine], dt),
-                log_prior=jnp.asarray(prior, dtype=dt),
-            ))
+        packed = Levels(
+            src=fill((num_w,), self._zero_word, src_words, i32),
+            block_bits=fill((num_w,), 0, bits, jnp.uint32),
+            pair0=fill((), self.table.num_pairs, self.table.offsets[ray], i32),
+            y=fill((), 0.0, self._y[ray], dt),
+            slot=fill((), width, sl, i32),
+            pos=fill((size,), -1, pos, i32),
+            stop=fill((len(self._config_bits),), np.inf, stop_c, dt),
+            log_prior=jnp.asarray(prior, dtype=dt),
+            carry_in=jnp.asarray(carry_in),
+            commit=jnp.asarray(commit),
+            fix_src=fill((), self._zero_word, fix_src, i32),
+            fix_pos=fill((size,), -1, fix_pos, i32),
+        )
         if not chained:
-            return packed, None, None
-        # final state: each ray word from the ray's last entry (or unchanged), each cell from its last block
+            return packed, None, None, None
+        # final state: each ray word from the ray's last entry (or unchanged), each cell from its last draw
+        num_rays = self.table.num_rays
+        last = np.full(num_rays, -1, dtype=np.int64)
+        np.maximum.at(last, ray, np.arange(len(ray)))  # entries are sorted by step: the largest index is the last
+        words_ray = np.repeat(np.arange(num_rays), self._num_words)
+        words_w = np.arange(self._zero_word) - np.repeat(self._word_offsets, self._num_words)
         final_words = np.arange(self._zero_word + 1)
-        last = np.full(self.table.num_rays, -1, dtype=np.int64)
-        last[ray] = np.arange(len(ray))  # entries are in sweep order, so the last assignment wins
-        has = last >= 0
-        mask = has[:, None] & (w[None, :] < self._num_words[:, None])
-        words_of = self._word_offsets[:, None] + w[None, :]
-        final_words[words_of[mask]] = written[np.maximum(last, 0)][mask]
-        cell_last = np.full(self._num_cells, -1, dtype=np.int64)
-        cell_when = np.full(self._num_cells, -1, dtype=np.int64)
-        for g, (levels, _, when) in enumerate(groups):
-            rows, cols = np.nonzero(levels < nb)
-            for j in range(size):
-                cells = self.blocks[levels[rows, cols], j]
-                t = np.asarray(when)[rows]
-                src = on_starts[g] + (rows * levels.shape[1] + cols) * size + j
-                later = t > cell_when[cells]  # a cell is cell j of at most one block
-                cell_last[cells[later]] = src[later]
-                cell_when[cells[later]] = t[later]
-        return packed, jnp.asarray(final_words, dtype=i32), jnp.asarray(cell_last, dtype=i32)
+        last_w = last[words_ray]
+        final_words[:-1] = np.where(last_w >= 0, written[np.maximum(last_w, 0), words_w], final_words[:-1])
+        final_fix = None
+        late = (last >= 0) & unfinished[np.maximum(last, 0)]
+        if late.any():  # rays last written by an unfinished chunk get their block's bits back at the end
+            fsrc = np.full(num_rays, self._zero_word, dtype=np.int64)
+            fpos = np.full((size, num_rays), -1, dtype=np.int64)
+            fsrc[late] = config_at[last[late]]
+            fpos[:, late] = pos[last[late]].T
+            final_fix = (jnp.asarray(fsrc, dtype=i32), jnp.asarray(fpos, dtype=i32),
+                         jnp.asarray(words_ray, dtype=i32), jnp.asarray(words_w, dtype=i32))
+        cells = self.blocks[levels[rows, cols]].reshape(-1)  # rows in sweep order
+        source = (((commit_step[rows] * width + cols) * size)[:, None] + np.arange(size)[None, :]).reshape(-1)
+        latest = np.full(self._num_cells, -1, dtype=np.int64)
+        np.maximum.at(latest, cells, np.arange(len(cells)))
+        cell_last = np.where(latest >= 0, source[np.maximum(latest, 0)], -1)
+        return packed, jnp.asarray(final_words, dtype=i32), jnp.asarray(cell_last, dtype=i32), final_fix
 
     # -- the kernel (pure JAX) -----------------------------------------------------------------------------------
 
@@ -413,57 +409,62 @@ class FastGibbs:
         if not hasattr(self, "_single"):
             singles = np.arange(len(self.blocks), dtype=np.int32)[:, None]
             most = int(np.bincount(self._entries[0], minlength=len(self.blocks)).max(initial=1))
-            self._single = self._pack([(singles, max(most, 1), np.arange(len(singles)))], chained=False)[0][0]
+            self._single = self._pack(singles, max(most, 1), chained=False)[0]
         ray_bits = self.ray_bits(walls)
         return jax.vmap(lambda lv: self._level_log_weights(ray_bits[lv.src], lv)[0])(self._single)[:, 0]
 
-    def _run_level(self, buffer, lv: Levels, u, address):
-        """Sample the blocks of one level; returns the buffer with the level's words written at ``address``, and
-        the blocks' new values ``(A, B)`` bool."""
-        log_w, outside = self._level_log_weights(buffer[lv.src], lv)
-        on = self._bits[sample_categorical(log_w, u)]  # (A, B)
-        no_block = jnp.zeros((1, on.shape[1]), dtype=bool)
-        new = outside | self._bits_at(lv.pos, jnp.concatenate([on, no_block])[lv.slot].T)
-        return jax.lax.dynamic_update_slice(buffer, new.reshape(-1), (address,)), on
+    def _bits_of_draws(self, buffer, fix_src, fix_pos):
+        """Bits ``(W, E)`` of chunked blocks' drawn configurations (read from ``buffer[fix_src]``) at ``fix_pos``."""
+        config = buffer[fix_src]  # (E,) uint32 configuration index, 0 when there is nothing to add
+        return self._bits_at(fix_pos, self._bits[config].T)
 
     def step(self, key, state: FastGibbsState) -> FastGibbsState:
         """One sweep: every level in order, all its blocks sampled at once.
 
-        No scatter runs inside the loop (on the CPU a scatter is a loop of its own): each level reads its rays'
+        No scatter runs inside the loop (on the CPU a scatter is a loop of its own): each step reads its rays'
         words from the buffer slot where they were last written, at indices fixed in advance, and appends its new
         words with one ``dynamic_update_slice``; the final map and ray bits are gathered from the last writers.
         Blocks are drawn by inverse CDF from one uniform each."""
-        light, heavy = self._light, self._heavy
-        num_steps, num_w, cap = light.src.shape
-        num_heavy, heavy_width = heavy.log_prior.shape[:2]
-        heavy_cap = heavy.src.shape[-1]
-        key_light, key_heavy = jax.random.split(key)
-        u_light = jax.random.uniform(key_light, (num_steps, light.log_prior.shape[1]), dtype=self._dtype)
-        u_heavy = jax.random.uniform(key_heavy, (num_heavy, heavy_width), dtype=self._dtype)
+        steps = self._steps
+        num_steps, num_w, cap = steps.src.shape
+        width = steps.log_prior.shape[1]
+        chunked = self._chunked
+        uniforms = jax.random.uniform(key, (num_steps, width), dtype=self._dtype)
         base = self._zero_word + 1
-        heavy_base = base + num_steps * num_w * cap
-        buffer = jnp.concatenate([state.ray_bits, jnp.zeros(heavy_base - base + num_heavy * num_w * heavy_cap, jnp.uint32)])
-        heavy_on = jnp.zeros((num_heavy, heavy_width, self._bits.shape[1]), dtype=bool)
-
-        def heavy_level(carry, h):
-            buffer, heavy_on = carry
-            lv = jax.tree_util.tree_map(lambda x: x[h], heavy)
-            buffer, on = self._run_level(buffer, lv, u_heavy[h], heavy_base + h * num_w * heavy_cap)
-            return buffer, jax.lax.dynamic_update_slice(heavy_on, on[None], (h, 0, 0))
+        config_base = base + num_steps * num_w * cap
+        size = num_steps * num_w * cap + (num_steps * width if chunked else 0)
+        buffer = jnp.concatenate([state.ray_bits, jnp.zeros(size, jnp.uint32)])
+        no_block = jnp.zeros((1, self._bits.shape[1]), dtype=bool)
 
         def one_step(carry, xs):
-            s, lv, u, h = xs
-            buffer, heavy_on = carry
-            buffer, on = self._run_level(buffer, lv, u, base + s * num_w * cap)
-            if num_heavy:
-                buffer, heavy_on = jax.lax.cond(h >= 0, heavy_level, lambda c, h: c, (buffer, heavy_on), h)
-            return (buffer, heavy_on), on
+            buffer, acc = carry
+            s, lv, u = xs
+            words = buffer[lv.src]
+            if chunked:
+                words = words | self._bits_of_draws(buffer, lv.fix_src, lv.fix_pos)
+            log_w, outside = self._level_log_weights(words, lv)
+            if chunked:
+                log_w = log_w + jnp.where(lv.carry_in, acc, 0.0)
+            choice = sample_categorical(log_w, u)
+            on = self._bits[choice]  # (A, B)
+            entry_on = jnp.concatenate([on, no_block])[lv.slot].T  # (B, E)
+            if chunked:
+                entry_on = entry_on & lv.commit
+            new = outside | self._bits_at(lv.pos, entry_on)
+            buffer = jax.lax.dynamic_update_slice(buffer, new.reshape(-1), (base + s * num_w * cap,))
+            if chunked:
+                buffer = jax.lax.dynamic_update_slice(buffer, choice.astype(jnp.uint32), (config_base + s * width,))
+            return (buffer, log_w), on
 
-        xs = (jnp.arange(num_steps), light, u_light, jnp.asarray(self._step_heavy))
-        (buffer, heavy_on), on = jax.lax.scan(one_step, (buffer, heavy_on), xs)
-        on_all = jnp.concatenate([on.reshape(-1), heavy_on.reshape(-1)])
-        walls = on_all[self._final_walls].astype(state.walls.dtype).reshape(state.walls.shape)
-        return FastGibbsState(walls=walls, ray_bits=buffer[self._final_words])
+        acc = jnp.zeros(steps.log_prior.shape[1:], self._dtype)
+        (buffer, _), on = jax.lax.scan(one_step, (buffer, acc), (jnp.arange(num_steps), steps, uniforms))
+        walls = on.reshape(-1)[self._final_walls].astype(state.walls.dtype).reshape(state.walls.shape)
+        ray_bits = buffer[self._final_words]
+        if self._final_fix is not None:
+            fsrc, fpos, words_ray, words_w = self._final_fix
+            fixed = self._bits_of_draws(buffer, fsrc, fpos)  # (W, R)
+            ray_bits = jnp.concatenate([ray_bits[:-1] | fixed[words_w, words_ray], ray_bits[-1:]])
+        return FastGibbsState(walls=walls, ray_bits=ray_bits)
 
 
 def fast_gibbs(table: RayTable, readings, params: ModelParams, order: str = "raster", block_size: int = 1,
