@@ -130,10 +130,10 @@ class FastGibbs:
         block_size: 1 for single-site, k for k x k blocks.
         schedule: ``"sequential"`` (same kernel as the reference sweep) or ``"chromatic"``.
         pos: ``(2,)`` sensor position, meters (for the outward order; default: the first ray's origin).
-        level_capacity: most (block, ray) entries per level; levels with more are split, and a block crossed by
-            more rays gets a "heavy" level of its own, run at its own size. Default: no splitting unless padding
-            every level to the largest would cost more than 16 times the real work; then 32 (or the mean entries
-            per level if larger).
+        level_capacity: most (block, ray) entries per step; larger levels are split (:func:`split_levels`), and a
+            block crossed by more rays is drawn over several steps. Default: no splitting unless padding every
+            level to the largest would cost more than 4 times the real work; then 32 (or the mean entries per
+            level if larger).
 
     Attributes:
         blocks: ``(NB, B)`` int flat cell indices, sweep order.
@@ -182,14 +182,14 @@ class FastGibbs:
         self._entries = self._block_entries()
         entry_count = np.bincount(self._entries[0], minlength=len(self.blocks))
         if level_capacity is None:
-            # Measured on the tutorial scene (2-core CPU): splitting its levels at 32 entries saves 10-20 % of a
-            # sweep but the second level shape adds 0.2-0.3 s of compilation. Split only when padding every level
-            # to the largest would multiply the work by more than 16.
+            # Measured on the tutorial scene (2-core CPU): a step costs about 0.5 us plus its work. Padding every
+            # level to the largest (the sensor's cell: all 100 rays) costs the raster sweep 2x; steps of 32 entries,
+            # with the few large blocks drawn over several steps, halve it. Schedules with few, wide levels (sensor-
+            # outward, chromatic) are faster unsplit.
             per_level = [int(entry_count[row[row < len(self.blocks)]].sum()) for row in base_levels]
             largest = max(per_level, default=1)
-            padded = largest * len(base_levels)
             mean = len(self._entries[0]) / max(len(base_levels), 1)
-            split = padded > 16 * max(len(self._entries[0]), 1)
+            split = largest * len(base_levels) > 4 * max(len(self._entries[0]), 1)
             level_capacity = max(32, 8 * math.ceil(mean / 8)) if split else max(largest, 1)
         self.level_capacity = max(int(level_capacity), 1)
         self.levels = split_levels(base_levels, entry_count, self.level_capacity)
@@ -261,10 +261,10 @@ class FastGibbs:
         commit[commit_step] = True
         carry_in = np.ones(num_steps, dtype=bool)
         carry_in[first_step] = False
-        base = self._zero_word + 1  # the buffer: state words, one zero word, each step's words, each step's draws
-        config_base = base + num_steps * num_w * cap
-        written = (base + step * num_w * cap)[:, None] + w[None, :] * cap + index[:, None]  # (M, W)
-        config_at = config_base + commit_step[lv] * width + sl  # where the entry's block's draw is stored
+        # the buffer: state words, one zero word, then per step its entries' words (W x E) and its draws (A)
+        base, stride = self._zero_word + 1, num_w * cap + width
+        written = (base + step * stride)[:, None] + w[None, :] * cap + index[:, None]  # (M, W)
+        config_at = base + commit_step[lv] * stride + num_w * cap + sl  # where the entry's block's draw is stored
         valid_w = w[None, :] < self._num_words[ray][:, None]
         src_words = self._word_offsets[ray][:, None] + w[None, :]
         fix_src = np.full(len(ray), self._zero_word, dtype=np.int64)
@@ -336,11 +336,11 @@ class FastGibbs:
             final_fix = (jnp.asarray(fsrc, dtype=i32), jnp.asarray(fpos, dtype=i32),
                          jnp.asarray(words_ray, dtype=i32), jnp.asarray(words_w, dtype=i32))
         cells = self.blocks[levels[rows, cols]].reshape(-1)  # rows in sweep order
-        source = (((commit_step[rows] * width + cols) * size)[:, None] + np.arange(size)[None, :]).reshape(-1)
+        draw_at = np.repeat(base + commit_step[rows] * stride + num_w * cap + cols, size)
         latest = np.full(self._num_cells, -1, dtype=np.int64)
-        np.maximum.at(latest, cells, np.arange(len(cells)))
-        cell_last = np.where(latest >= 0, source[np.maximum(latest, 0)], -1)
-        return packed, jnp.asarray(final_words, dtype=i32), jnp.asarray(cell_last, dtype=i32), final_fix
+        np.maximum.at(latest, cells, np.arange(len(cells)))  # a cell is in one block per level: the last level wins
+        final_walls = (jnp.asarray(draw_at[latest], dtype=i32), jnp.asarray(latest % size, dtype=i32))
+        return packed, jnp.asarray(final_words, dtype=i32), final_walls, final_fix
 
     # -- the kernel (pure JAX) -----------------------------------------------------------------------------------
 
@@ -385,9 +385,9 @@ class FastGibbs:
         pair = jnp.where(found, pair0 + WORD_BITS * w + bit, self._pair_dists.shape[0] - 1)
         return self._pair_dists[pair]
 
-    def _level_log_weights(self, words, lv: Levels):
-        """Conditional log-weights ``(A, C)`` of the blocks of one level from their rays' words ``(W, E)``, and the
-        words with the blocks' bits cleared."""
+    def _level_scores(self, words, lv: Levels):
+        """Conditional scores of the blocks of one level from their rays' words ``(W, E)``: log-odds ``(A,)`` for
+        single cells, else log-weights ``(A, C)`` up to a constant; and the words with the blocks' bits cleared."""
         outside = words & ~lv.block_bits
         m_out = self._first_outside(lv.pair0, outside)  # (E,)
         d = jnp.minimum(lv.stop, m_out[None, :])  # (C, E)
@@ -398,9 +398,16 @@ class FastGibbs:
         if ll.shape[0] == 2:  # single cells: one log-likelihood ratio per ray, summed into log-odds (a dot: XLA
             # turns a long masked sum into a slow reduce-window)
             log_odds = jnp.dot(mine.astype(ll.dtype), ll[1] - ll[0], precision=jax.lax.Precision.HIGHEST)
-            return lv.log_prior + jnp.stack([jnp.zeros_like(log_odds), log_odds], axis=-1), outside
+            return log_odds + (lv.log_prior[:, 1] - lv.log_prior[:, 0]), outside
         # many configurations: accumulate (A, C) rows over the entries (vectorized over A and C)
         return jnp.sum(jnp.where(mine.T[:, :, None], ll.T[:, None, :], 0.0), axis=0) + lv.log_prior, outside
+
+    @staticmethod
+    def _draw(scores, u):
+        """Configuration index ``(A,)`` int32 from log-odds ``(A,)`` or log-weights ``(A, C)``, one uniform each."""
+        if scores.ndim == 1:  # 1 with probability 1 / (1 + exp(-log odds)); a padding block has log-odds -inf
+            return (u * (1.0 + jnp.exp(-scores)) < 1.0).astype(jnp.int32)
+        return sample_categorical(scores, u)
 
     def block_log_weights(self, walls) -> jax.Array:
         """Conditional log-weights of every block given the rest of ``walls`` ``(nx, ny)``: ``(NB, 2**B)``, each
@@ -411,7 +418,10 @@ class FastGibbs:
             most = int(np.bincount(self._entries[0], minlength=len(self.blocks)).max(initial=1))
             self._single = self._pack(singles, max(most, 1), chained=False)[0]
         ray_bits = self.ray_bits(walls)
-        return jax.vmap(lambda lv: self._level_log_weights(ray_bits[lv.src], lv)[0])(self._single)[:, 0]
+        scores = jax.vmap(lambda lv: self._level_scores(ray_bits[lv.src], lv)[0])(self._single)[:, 0]
+        if scores.ndim == 1:
+            scores = jnp.stack([jnp.zeros_like(scores), scores], axis=-1)
+        return scores
 
     def _bits_of_draws(self, buffer, fix_src, fix_pos):
         """Bits ``(W, E)`` of chunked blocks' drawn configurations (read from ``buffer[fix_src]``) at ``fix_pos``."""
@@ -430,10 +440,8 @@ class FastGibbs:
         width = steps.log_prior.shape[1]
         chunked = self._chunked
         uniforms = jax.random.uniform(key, (num_steps, width), dtype=self._dtype)
-        base = self._zero_word + 1
-        config_base = base + num_steps * num_w * cap
-        size = num_steps * num_w * cap + (num_steps * width if chunked else 0)
-        buffer = jnp.concatenate([state.ray_bits, jnp.zeros(size, jnp.uint32)])
+        base, stride = self._zero_word + 1, num_w * cap + width
+        buffer = jnp.concatenate([state.ray_bits, jnp.zeros(num_steps * stride, jnp.uint32)])
         no_block = jnp.zeros((1, self._bits.shape[1]), dtype=bool)
 
         def one_step(carry, xs):
@@ -442,23 +450,21 @@ class FastGibbs:
             words = buffer[lv.src]
             if chunked:
                 words = words | self._bits_of_draws(buffer, lv.fix_src, lv.fix_pos)
-            log_w, outside = self._level_log_weights(words, lv)
+            scores, outside = self._level_scores(words, lv)
             if chunked:
-                log_w = log_w + jnp.where(lv.carry_in, acc, 0.0)
-            choice = sample_categorical(log_w, u)
-            on = self._bits[choice]  # (A, B)
-            entry_on = jnp.concatenate([on, no_block])[lv.slot].T  # (B, E)
+                scores = scores + jnp.where(lv.carry_in, acc, 0.0)
+            choice = self._draw(scores, u)
+            entry_on = jnp.concatenate([self._bits[choice], no_block])[lv.slot].T  # (B, E)
             if chunked:
                 entry_on = entry_on & lv.commit
             new = outside | self._bits_at(lv.pos, entry_on)
-            buffer = jax.lax.dynamic_update_slice(buffer, new.reshape(-1), (base + s * num_w * cap,))
-            if chunked:
-                buffer = jax.lax.dynamic_update_slice(buffer, choice.astype(jnp.uint32), (config_base + s * width,))
-            return (buffer, log_w), on
+            written = jnp.concatenate([new.reshape(-1), choice.astype(jnp.uint32)])
+            return (jax.lax.dynamic_update_slice(buffer, written, (base + s * stride,)), scores), None
 
-        acc = jnp.zeros(steps.log_prior.shape[1:], self._dtype)
-        (buffer, _), on = jax.lax.scan(one_step, (buffer, acc), (jnp.arange(num_steps), steps, uniforms))
-        walls = on.reshape(-1)[self._final_walls].astype(state.walls.dtype).reshape(state.walls.shape)
+        acc = jnp.zeros(steps.log_prior.shape[1:] if self.num_configurations > 2 else (width,), self._dtype)
+        (buffer, _), _ = jax.lax.scan(one_step, (buffer, acc), (jnp.arange(num_steps), steps, uniforms))
+        draw_at, cell_j = self._final_walls
+        walls = self._bits[buffer[draw_at], cell_j].astype(state.walls.dtype).reshape(state.walls.shape)
         ray_bits = buffer[self._final_words]
         if self._final_fix is not None:
             fsrc, fpos, words_ray, words_w = self._final_fix
