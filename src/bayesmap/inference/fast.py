@@ -18,8 +18,11 @@ A sweep runs the levels of a schedule (:mod:`bayesmap.inference.schedules`): all
 and no ray, so their conditionals are computed and sampled at once, each exactly as if sampled alone. With
 ``schedule="sequential"`` the levels come from :func:`dependency_levels`, which makes one sweep the *same
 transition kernel* as the reference sweep in the same order; ``"chromatic"`` runs colour classes instead. Levels
-are split (:func:`split_levels`) so that each holds at most ``level_capacity`` (block, ray) entries: a level is a
-fixed-size piece of work in a ``lax.fori_loop``.
+are split (:func:`split_levels`) into fixed-size steps of a ``lax.scan`` of at most ``level_capacity`` (block,
+ray) entries; a block crossed by more rays is drawn over several steps (:class:`Levels`).
+
+Each block is drawn by inverse CDF from one uniform (for single cells: wall with probability
+``1 / (1 + exp(-log odds))``), which on the CPU is much cheaper than a Gumbel per configuration.
 """
 
 from __future__ import annotations
