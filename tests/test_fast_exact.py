@@ -175,3 +175,32 @@ def test_split_levels_sample_the_exact_posterior(block_size, prior):
     result = run_chains(jax.random.key(3), fast.algorithm, jnp.zeros((3, 4)), 300, 64)
     est = np.asarray(result.samples[:, 50:], float).mean(axis=(0, 1))
     assert np.abs(est - exact).max() < 0.06, (est, exact)  # tolerance: see test_marginals_match_exact_enumeration
+
+
+def test_fast_conditionals_with_several_poses():
+    """One table for rays from three poses (a multi-scan problem): every cell's log-odds equal the brute-force
+    difference of log joints, computed from each ray's first wall (itself tested against ``sensor_distances``)."""
+    with jax.experimental.enable_x64():
+        rng = np.random.default_rng(11)
+        grid = Grid((6, 7))
+        params = make_params(prior_wall_prob=0.3, sensor_noise=0.4, num_angles=12, grid=grid)
+        poses = np.array([[1.2, 1.1], [4.3, 5.2], [2.6, 3.9]])
+        beam = np.asarray(model_args(poses[0], params)[2], float)
+        origins = np.repeat(poses, len(beam), axis=0)
+        table = build_ray_table(grid, origins, np.tile(beam, len(poses)), params.cap)
+        y = rng.uniform(0.3, 6.0, table.num_rays)
+        fast = FastGibbs(table, y, params, block_size=1)
+        s, p = params.sensor_noise, params.prior_wall_prob
+
+        def log_joint_np(walls):
+            d = table.first_wall_distances(walls).astype(float)
+            prior = np.sum(np.where(walls > 0, np.log(p), np.log1p(-p)))
+            return prior + np.sum(-0.5 * ((y - d) / s) ** 2)
+
+        walls = (rng.random(grid.shape) < 0.35).astype(float)
+        got = np.asarray(fast.block_log_weights(walls))
+        for b, (cell,) in enumerate(fast.blocks):
+            on, off = walls.copy().reshape(-1), walls.copy().reshape(-1)
+            on[cell], off[cell] = 1, 0
+            want = log_joint_np(on.reshape(grid.shape)) - log_joint_np(off.reshape(grid.shape))
+            assert got[b, 1] - got[b, 0] == pytest.approx(want, abs=1e-4)
