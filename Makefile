@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.bayesmap-installed
 
-.PHONY: demo test install clean
+.PHONY: demo test notebook install clean
 
 install: $(STAMP)
 
@@ -20,5 +20,12 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2
 
+# the tutorial notebook, executed, as one HTML file with its outputs
+notebook: $(STAMP)
+	cd notebooks && ../$(BIN)/jupytext --to ipynb --execute --output mapping_tutorial.ipynb mapping_tutorial.py
+	$(BIN)/jupyter nbconvert --to html notebooks/mapping_tutorial.ipynb
+	rm -f notebooks/mapping_tutorial.ipynb
+	@echo "wrote notebooks/mapping_tutorial.html"
+
 clean:
-	rm -rf $(VENV) bayesmap-out .pytest_cache
+	rm -rf $(VENV) bayesmap-out .pytest_cache notebooks/mapping_tutorial.html notebooks/mapping_tutorial.ipynb
