@@ -9,6 +9,8 @@ STAMP := $(VENV)/.bayesmap-installed
 install: $(STAMP)
 
 $(STAMP): pyproject.toml requirements.lock
+	@# Debian's chromium for the browser tests (Playwright drives it; never `playwright install`)
+	command -v chromium >/dev/null || (apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.lock
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .

@@ -31,9 +31,11 @@ from bayesmap.grid import format_map, tutorial_map
 from bayesmap.inference.chains import posterior_mean, run_chain, run_chains
 from bayesmap.inference.importance import importance_sampling, resample
 from bayesmap.model import log_joint, make_params, simulate, simulate_readings, walls_prior
-from bayesmap.plots import figure_bytes, plot_map, plot_posterior
+from bayesmap.animation import chain_gif
+from bayesmap.plots import figure_bytes, plot_convergence, plot_importance, plot_map, plot_posterior
 from bayesmap.problem import make_sampler, tutorial_problem
-from bayesmap.raycast import angles, sensor_distances
+from bayesmap.raycast import sensor_distances
+from bayesmap.report import chain_log_joints, chain_wrong_cells
 
 
 def show(fig):
@@ -97,6 +99,7 @@ picked = np.asarray(resample(jax.random.key(4), result.log_weights, 100))
 print(f"effective sample size {float(result.ess):.2f} of 2,000; {len(np.unique(picked))} distinct particle(s) among 100 resampled")
 best = np.asarray(result.walls[picked[0]])
 print(f"the best particle has {int((best != walls).sum())} of 441 cells wrong")
+show(plot_importance(np.asarray(result.log_weights), float(result.ess)))
 
 # %% [markdown]
 # ## Gibbs sampling, as in the tutorial
@@ -137,6 +140,16 @@ print(f"true map log joint {float(log_joint(walls, readings, pos, low.params)):.
       f"{float(log_joint(blocks[0][-1], readings, pos, low.params)):.1f}")
 show(plot_posterior(grid, stuck[1], truth=walls, pos=pos, title="prior 0.05: single-site Gibbs, 100 sweeps"))
 show(plot_posterior(grid, blocks[1], truth=walls, pos=pos, title="prior 0.05: 2x2 block Gibbs, 100 sweeps"))
+both = np.stack([stuck[0], blocks[0]])  # (2 chains, 100 sweeps, nx, ny)
+show(plot_convergence(chain_log_joints(low, both), chain_wrong_cells(low, both), burn_in=50,
+                      truth_log_joint=float(log_joint(walls, readings, pos, low.params)),
+                      title="prior 0.05: chain 0 single-site, chain 1 2x2 blocks"))
+
+# %% [markdown]
+# The block chain as an animation (the sample after each sweep, and the running mean):
+
+# %%
+display(Image(chain_gif(grid, blocks[0], truth=walls, pos=pos, max_frames=40), format="gif"))
 
 # %% [markdown]
 # The tutorial's own 2x2 block sweep (`reference-block`) takes 16 `assess` calls per block; a few sweeps suffice:

@@ -23,6 +23,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True,
 
 OUTPUT_FILES = ("posterior.npy", "readings.npy", "posterior.png", "summary.json")
 DIAGNOSTICS_FILE = "diagnostics.npz"  # written with --chains >= 2
+REPORT_FILE = "report.html"  # written by demo, and by infer --report
 
 
 def _check_output_dir(out: Path, force: bool) -> None:
@@ -30,7 +31,7 @@ def _check_output_dir(out: Path, force: bool) -> None:
     if out.exists() and not out.is_dir():
         raise BayesmapError(f"output folder {str(out)!r} exists and is not a folder")
     if out.is_dir() and not force:
-        clash = [name for name in OUTPUT_FILES + (DIAGNOSTICS_FILE,) if (out / name).exists()]
+        clash = [name for name in OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) if (out / name).exists()]
         if clash:
             raise BayesmapError(f"{str(out / clash[0])!r} already exists; pass --force to replace bayesmap's outputs in {str(out)!r}")
     parent = out if out.is_dir() else out.parent
@@ -71,7 +72,7 @@ def _npy(array) -> bytes:
 
 
 def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], seed: int, out: Path, force: bool,
-                   title: str, chains: int = 1) -> dict:
+                   title: str, chains: int = 1, report: bool = False) -> dict:
     from bayesmap.plots import figure_bytes, plot_posterior
     from bayesmap.problem import run_inference
 
@@ -92,6 +93,10 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
         buf = io.BytesIO()
         np.savez(buf, r_hat=result.diagnostics["r_hat"], ess=result.diagnostics["ess"])
         files[DIAGNOSTICS_FILE] = buf.getvalue()
+    if report:
+        from bayesmap.report import build_report
+
+        files[REPORT_FILE] = build_report(problem, result, title=title, seed=seed).encode("utf-8")
     _write_outputs(out, files)
     return result.summary
 
@@ -107,7 +112,7 @@ def _print_summary(summary: dict, out: Path) -> None:
     if summary.get("chains", 1) > 1 and summary.get("r_hat_max") is not None:
         typer.echo(f"chains:   {summary['chains']}; over the {summary['cells_varying']} cells that change: worst split "
                    f"R-hat {summary['r_hat_max']:.3f}, smallest effective sample size {summary['ess_min']:.0f}")
-    files = OUTPUT_FILES + ((DIAGNOSTICS_FILE,) if summary.get("chains", 1) > 1 else ())
+    files = [name for name in OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) if (out / name).exists()]
     typer.echo(f"outputs:  {out}/ ({', '.join(files)})")
 
 
@@ -124,12 +129,13 @@ def demo(
     seed: int = typer.Option(0, help="seed of the chain (readings always use the tutorial's key 0)"),
     force: bool = typer.Option(False, "--force", help="replace bayesmap's outputs already in the folder"),
 ) -> None:
-    """The tutorial map, readings simulated with the tutorial's key, 2x2 block Gibbs; prints a summary, writes figures."""
+    """The tutorial map, readings simulated with the tutorial's key, 2x2 block Gibbs; prints a summary, writes figures
+    and report.html."""
     from bayesmap.problem import tutorial_problem
 
     problem = tutorial_problem()
     summary = _run_and_write(problem, "block", sweeps, None, seed, out, force,
-                             title="Posterior wall probability, 2x2 block Gibbs (tutorial map)")
+                             title="Posterior wall probability, 2x2 block Gibbs (tutorial map)", report=True)
     _print_summary(summary, out)
 
 
@@ -148,6 +154,7 @@ def infer(
     pos: Optional[tuple[float, float]] = typer.Option(None, "--pos", help="sensor position X Y (simulated readings); default the map's center"),
     seed: int = typer.Option(0, help="seed of the simulated readings and of the chain"),
     chains: int = typer.Option(1, help="independent chains run at once; 2 or more add split R-hat and effective sample size per cell"),
+    report: bool = typer.Option(False, "--report", help="also write report.html: settings, metrics, all figures and the chain's animation, offline"),
     out: Path = typer.Option(Path("bayesmap-out"), "--out", help="output folder"),
     force: bool = typer.Option(False, "--force", help="replace bayesmap's outputs already in the folder"),
 ) -> None:
@@ -174,7 +181,8 @@ def infer(
                                    prior_wall_prob=prior_wall_prob, sensor_noise=0.2 if sensor_noise is None else sensor_noise, num_angles=num_angles,
                                    source=str(map_file) if map_file else "tutorial map")
         title = f"Posterior wall probability ({problem.source})"
-    summary = _run_and_write(problem, sampler, sweeps, burn_in, seed, out, force, title=title, chains=chains)
+    summary = _run_and_write(problem, sampler, sweeps, burn_in, seed, out, force, title=title, chains=chains,
+                             report=report)
     _print_summary(summary, out)
 
 
