@@ -60,3 +60,26 @@ def test_cli_chains_write_diagnostics(tmp_path, monkeypatch, capsys):
     assert "R-hat" in out
     code, out, err = run_cli(monkeypatch, capsys, "infer", "--sweeps", 5, "--chains", 2, "--out", tmp_path / "o2")
     assert code == 2 and "at least 4 sweeps" in err and not (tmp_path / "o2").exists()
+
+
+def test_new_readings_prior_and_noise_reuse_the_compiled_sweep():
+    """A sampler's arrays are arguments of the compiled chain: a problem with the same geometry but other readings,
+    prior or noise runs without compiling again (what the app needs); another sensor position compiles anew."""
+    import jax
+    import jax.numpy as jnp
+
+    from bayesmap.inference.chains import _run, _run_jit
+    from bayesmap.problem import make_sampler, tutorial_problem
+
+    def run(problem):
+        algorithm = make_sampler(problem, "block")
+        samples, _ = _run(jax.random.key(0), algorithm.init(jnp.zeros(problem.grid.shape)), algorithm, 7)
+        return np.asarray(samples)
+
+    first = run(tutorial_problem(seed=3))
+    size = _run_jit._cache_size()
+    second = run(tutorial_problem(seed=4, prior_wall_prob=0.2, sensor_noise=0.3))
+    assert _run_jit._cache_size() == size  # no new compilation
+    assert not np.array_equal(first, second)  # and the new data were used
+    run(tutorial_problem(seed=3, pos=(6.0, 12.0)))
+    assert _run_jit._cache_size() == size + 1

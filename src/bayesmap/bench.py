@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bayesmap.inference.chains import _run, _run_many
+from bayesmap.inference.chains import _run, compile_chain
 from bayesmap.problem import SAMPLERS, Problem, make_sampler, tutorial_problem
 
 # fast sampler -> (reference sampler, tutorial baseline seconds per sweep or None, note)
@@ -56,7 +56,7 @@ def _fresh(problem: Problem, name: str):
     """Build the sampler and compile a 1-sweep chain: ``(state, compiled)``."""
     algorithm = make_sampler(problem, name)
     state = algorithm.init(jnp.zeros(problem.grid.shape, jnp.float32))
-    return state, _run.lower(jax.random.key(0), state, algorithm, 1).compile()
+    return state, compile_chain(jax.random.key(0), state, algorithm, 1)
 
 
 def time_sampler(problem: Problem, name: str, sweeps: int, repeats: int, max_sweeps: int) -> Timing:
@@ -86,7 +86,7 @@ def time_sampler(problem: Problem, name: str, sweeps: int, repeats: int, max_swe
     start = time.perf_counter()
     algorithm = make_sampler(problem, name)
     state = algorithm.init(jnp.zeros(problem.grid.shape, jnp.float32))
-    chain = _run.lower(jax.random.key(0), state, algorithm, sweeps).compile()
+    chain = compile_chain(jax.random.key(0), state, algorithm, sweeps)
     compile_s = time.perf_counter() - start
     jax.block_until_ready(chain(jax.random.key(0), state))
     best = np.inf
@@ -102,7 +102,7 @@ def chain_throughput(problem: Problem, name: str, num_chains: int = 64, sweeps: 
     algorithm = make_sampler(problem, name)
     states = jax.vmap(algorithm.init)(jnp.zeros((num_chains,) + problem.grid.shape, jnp.float32))
     keys = jax.random.split(jax.random.key(0), num_chains)
-    run = _run_many.lower(keys, states, algorithm, sweeps).compile()
+    run = compile_chain(keys, states, algorithm, sweeps, num_chains)
     jax.block_until_ready(run(keys, states))
     best = np.inf
     for r in range(repeats):

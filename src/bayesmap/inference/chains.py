@@ -43,14 +43,57 @@ class ChainResult(NamedTuple):
     final_state: object
 
 
-@partial(jax.jit, static_argnames=("algorithm", "num_sweeps"))
-def _run(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int):
+def _split(algorithm):
+    """``algorithm`` -> (its array leaves, the hashable rest): arrays become arguments of the compiled chain, so
+    that samplers whose arrays differ only in value (new readings, prior, noise) share one compilation; functions,
+    sizes and flags are static."""
+    leaves, treedef = jax.tree_util.tree_flatten(algorithm)
+    is_array = [isinstance(x, (jax.Array, np.ndarray)) for x in leaves]
+    arrays = [x for x, a in zip(leaves, is_array) if a]
+    static = (treedef, tuple(None if a else x for x, a in zip(leaves, is_array)))
+    return arrays, static
+
+
+def _join(arrays, static):
+    treedef, rest = static
+    it = iter(arrays)
+    return jax.tree_util.tree_unflatten(treedef, [next(it) if x is None else x for x in rest])
+
+
+def _chain(key, initial_state, algorithm, num_sweeps: int):
     def body(state, k):
         state = algorithm.step(k, state)
         return state, state.walls > 0
 
     final, samples = jax.lax.scan(body, initial_state, jax.random.split(key, num_sweeps))
     return samples, final
+
+
+@partial(jax.jit, static_argnames=("static", "num_sweeps"))
+def _run_jit(key, initial_state, arrays, static, num_sweeps: int):
+    return _chain(key, initial_state, _join(arrays, static), num_sweeps)
+
+
+@partial(jax.jit, static_argnames=("static", "num_sweeps"))
+def _run_many_jit(keys, initial_states, arrays, static, num_sweeps: int):
+    algorithm = _join(arrays, static)
+    return jax.vmap(lambda k, s: _chain(k, s, algorithm, num_sweeps))(keys, initial_states)
+
+
+def _run(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int):
+    """``num_sweeps`` sweeps from ``initial_state``, compiled: ``(samples (num_sweeps, nx, ny) bool, final state)``."""
+    arrays, static = _split(algorithm)
+    return _run_jit(key, initial_state, arrays, static, int(num_sweeps))
+
+
+def compile_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, num_chains: int | None = None):
+    """Compile a chain of ``num_sweeps`` sweeps (``num_chains`` at once with ``vmap`` if given; ``key`` is then
+    ``(num_chains,)`` keys and the state batched) ahead of time; returns ``run(key, initial_state) ->
+    (samples, final_state)``. For timing compilation apart from running."""
+    arrays, static = _split(algorithm)
+    fn = _run_jit if num_chains is None else _run_many_jit
+    compiled = fn.lower(key, initial_state, arrays, static, int(num_sweeps)).compile()
+    return lambda k, s: compiled(k, s, arrays)
 
 
 def run_chain(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int) -> ChainResult:
@@ -77,9 +120,10 @@ def run_chain(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int)
     return ChainResult(samples=samples, final_state=final)
 
 
-@partial(jax.jit, static_argnames=("algorithm", "num_sweeps"))
 def _run_many(keys, initial_states, algorithm: SamplingAlgorithm, num_sweeps: int):
-    return jax.vmap(lambda k, s: _run(k, s, algorithm, num_sweeps))(keys, initial_states)
+    """Chains at once (``vmap``): ``keys`` ``(C,)``, states batched; samples ``(C, num_sweeps, nx, ny)``."""
+    arrays, static = _split(algorithm)
+    return _run_many_jit(keys, initial_states, arrays, static, int(num_sweeps))
 
 
 def run_chains(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int, num_chains: int) -> ChainResult:

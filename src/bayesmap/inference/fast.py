@@ -197,9 +197,15 @@ class FastGibbs:
         self.level_capacity = max(int(level_capacity), 1)
         self.levels = split_levels(base_levels, entry_count, self.level_capacity)
         packed = self._pack(self.levels, self.level_capacity, chained=True)
-        self._steps, self._final_words, self._final_walls, self._final_fix = packed
-        self._chunked = not bool(np.all(np.asarray(self._steps.commit)))
-        self.algorithm = SamplingAlgorithm(init=self.init, step=self.step)
+        self._steps, final_words, final_walls, final_fix = packed
+        self.kernel = FastKernel(
+            _steps=self._steps, _final_words=final_words, _final_walls=final_walls, _final_fix=final_fix,
+            _pair_dists=self._pair_dists, _pair_cells=self._pair_cells, _pair_words=self._pair_words,
+            _pair_shift=self._pair_shift, _bits=self._bits, _noise=self._noise, _max_words=self._max_words,
+            _zero_word=self._zero_word, _chunked=not bool(np.all(np.asarray(self._steps.commit))),
+            _dtype=jnp.dtype(self._dtype).name)
+        self.algorithm = SamplingAlgorithm(init=jax.tree_util.Partial(FastKernel.init, self.kernel),
+                                           step=jax.tree_util.Partial(FastKernel.step, self.kernel))
 
     # -- static preparation (numpy) ------------------------------------------------------------------------------
 
@@ -347,6 +353,64 @@ class FastGibbs:
 
     # -- the kernel (pure JAX) -----------------------------------------------------------------------------------
 
+    # -- the kernel lives in FastKernel (a pytree: a new problem of the same shapes reuses the compiled sweep) ----
+
+    @property
+    def num_configurations(self) -> int:
+        return self.kernel.num_configurations
+
+    def ray_bits(self, walls) -> jax.Array:
+        """See :meth:`FastKernel.ray_bits`."""
+        return self.kernel.ray_bits(walls)
+
+    def init(self, walls) -> FastGibbsState:
+        """See :meth:`FastKernel.init`."""
+        return self.kernel.init(walls)
+
+    def step(self, key, state: FastGibbsState) -> FastGibbsState:
+        """See :meth:`FastKernel.step`."""
+        return self.kernel.step(key, state)
+
+    def _level_scores(self, words, lv: Levels):
+        return self.kernel._level_scores(words, lv)
+
+    def block_log_weights(self, walls) -> jax.Array:
+        """Conditional log-weights of every block given the rest of ``walls`` ``(nx, ny)``: ``(NB, 2**B)``, each
+        row up to an additive constant, configurations of :func:`block_configurations`. Uses the sweep's kernel
+        (each block as a level of its own)."""
+        if not hasattr(self, "_single"):
+            singles = np.arange(len(self.blocks), dtype=np.int32)[:, None]
+            most = int(np.bincount(self._entries[0], minlength=len(self.blocks)).max(initial=1))
+            self._single = self._pack(singles, max(most, 1), chained=False)[0]
+        ray_bits = self.ray_bits(walls)
+        scores = jax.vmap(lambda lv: self.kernel._level_scores(ray_bits[lv.src], lv)[0])(self._single)[:, 0]
+        if scores.ndim == 1:
+            scores = jnp.stack([jnp.zeros_like(scores), scores], axis=-1)
+        return scores
+
+
+
+@jax.tree_util.register_pytree_node_class
+class FastKernel:
+    """The fast sweep's data and code: arrays as pytree leaves, sizes and flags as static metadata, so that two
+    problems with the same geometry and schedule (other readings, prior or noise) share one compiled sweep.
+    Built by :class:`FastGibbs`."""
+
+    _ARRAYS = ("_steps", "_final_words", "_final_walls", "_final_fix", "_pair_dists", "_pair_cells", "_pair_words",
+               "_pair_shift", "_bits", "_noise")
+    _STATIC = ("_max_words", "_zero_word", "_chunked", "_dtype")
+
+    def __init__(self, **fields):
+        for name in self._ARRAYS + self._STATIC:
+            setattr(self, name, fields[name])
+
+    def tree_flatten(self):
+        return tuple(getattr(self, n) for n in self._ARRAYS), tuple(getattr(self, n) for n in self._STATIC)
+
+    @classmethod
+    def tree_unflatten(cls, static, arrays):
+        return cls(**dict(zip(cls._ARRAYS, arrays)), **dict(zip(cls._STATIC, static)))
+
     @property
     def num_configurations(self) -> int:
         return int(self._bits.shape[0])
@@ -411,20 +475,6 @@ class FastGibbs:
         if scores.ndim == 1:  # 1 with probability 1 / (1 + exp(-log odds)); a padding block has log-odds -inf
             return (u * (1.0 + jnp.exp(-scores)) < 1.0).astype(jnp.int32)
         return sample_categorical(scores, u)
-
-    def block_log_weights(self, walls) -> jax.Array:
-        """Conditional log-weights of every block given the rest of ``walls`` ``(nx, ny)``: ``(NB, 2**B)``, each
-        row up to an additive constant, configurations of :func:`block_configurations`. Uses the sweep's kernel
-        (each block as a level of its own)."""
-        if not hasattr(self, "_single"):
-            singles = np.arange(len(self.blocks), dtype=np.int32)[:, None]
-            most = int(np.bincount(self._entries[0], minlength=len(self.blocks)).max(initial=1))
-            self._single = self._pack(singles, max(most, 1), chained=False)[0]
-        ray_bits = self.ray_bits(walls)
-        scores = jax.vmap(lambda lv: self._level_scores(ray_bits[lv.src], lv)[0])(self._single)[:, 0]
-        if scores.ndim == 1:
-            scores = jnp.stack([jnp.zeros_like(scores), scores], axis=-1)
-        return scores
 
     def _bits_of_draws(self, buffer, fix_src, fix_pos):
         """Bits ``(W, E)`` of chunked blocks' drawn configurations (read from ``buffer[fix_src]``) at ``fix_pos``."""
