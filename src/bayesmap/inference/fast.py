@@ -72,8 +72,9 @@ class FastGibbsState(NamedTuple):
 
     Attributes:
         walls: ``(nx, ny)`` float32 map of 0.0 / 1.0.
-        ray_bits: ``(num_words + 1,)`` uint32, the walls along every ray, one bit per (ray, cell) pair; the last
-            word is scratch space (always 0).
+        ray_bits: ``(num_words + 1,)`` uint32, the walls along every ray, one bit per (ray, cell) pair (ray ``r``'s
+            ``ceil(length / 32)`` words in a row, cell ``p`` of the ray at bit ``p % 32`` of word ``p // 32``); the
+            last word is always 0 (read for padding).
     """
 
     walls: jax.Array
@@ -141,7 +142,10 @@ class FastGibbs:
     Attributes:
         blocks: ``(NB, B)`` int flat cell indices, sweep order.
         levels: ``(num_levels, width)`` int32 block indices after splitting (padding ``NB``).
-        algorithm: the :class:`SamplingAlgorithm` (``init``, ``step``).
+        kernel: the :class:`FastKernel` (arrays and code of the sweep).
+        algorithm: the :class:`SamplingAlgorithm`: ``init`` and ``step`` are ``jax.tree_util.Partial`` of the
+            kernel, so a compiled chain takes the kernel's arrays as arguments and is reused by any problem of
+            the same geometry and schedule.
 
     Raises:
         BayesmapError: on readings that do not match the table's rays, an unknown schedule or order, or a bad
