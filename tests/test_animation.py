@@ -301,3 +301,19 @@ def test_bad_grid_title_and_durations_raise():
         frame_sweeps(0)
     with pytest.raises(TypeError):
         chain_gif(GRID, samples, colour="red")  # unknown options are not swallowed
+
+
+def test_chain_animation_is_gif_and_html_rendered_once(monkeypatch):
+    """``chain_animation`` returns exactly ``chain_gif`` and ``chain_html`` of the same arguments, from one render."""
+    grid = Grid((5, 6))
+    rng = np.random.default_rng(2)
+    samples = rng.random((7, 5, 6)) < 0.4
+    kw = dict(truth=samples[0], pos=(1.0, 2.0), max_frames=4)
+    gif, page = animation.chain_animation(grid, samples, title="t <1>", **kw)
+    assert gif == animation.chain_gif(grid, samples, **kw)
+    assert page == animation.chain_html(grid, samples, title="t <1>", **kw)
+    calls = []
+    render = animation._render
+    monkeypatch.setattr(animation, "_render", lambda *a, **k: calls.append(1) or render(*a, **k))
+    animation.chain_animation(grid, samples, **kw)
+    assert len(calls) == 1

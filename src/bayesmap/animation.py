@@ -12,7 +12,7 @@ each frame only updates the two images' data (``AxesImage.set_data``) and the ti
 background and composites the fixed overlays (see :class:`_ChainFigure`), so 100 frames of a 21 x 21 chain
 render in about a second, whatever the number of wall edges outlined.
 
-:func:`chain_gif` and :func:`chain_html` store the frames with one shared palette (192 greys plus 64 colours):
+:func:`chain_gif` and :func:`chain_html` (or both at once, rendered once: :func:`chain_animation`) store the frames with one shared palette (192 greys plus 64 colours):
 greys within one level of the rendered frame, only antialiased edges of the red marks a few levels off.
 """
 
@@ -46,7 +46,7 @@ from bayesmap.plots import (
     _is_unit_grid,
 )
 
-__all__ = ["chain_frames", "chain_gif", "chain_html", "frame_sweeps"]
+__all__ = ["chain_animation", "chain_frames", "chain_gif", "chain_html", "frame_sweeps"]
 
 DEFAULT_SIZE_PX = (600, 300)
 DPI = 100
@@ -444,7 +444,10 @@ def chain_gif(
     duration = _check_count(duration_ms, "duration_ms")
     last = _check_count(last_duration_ms, "last_duration_ms")
     frames, _, _ = _render(grid, samples, **kw)
-    paletted = _paletted(frames)
+    return _gif_bytes(_paletted(frames), duration, last)
+
+
+def _gif_bytes(paletted: list[Image.Image], duration: int, last: int) -> bytes:
     buffer = BytesIO()
     paletted[0].save(
         buffer,
@@ -576,8 +579,36 @@ def chain_html(
         raise BayesmapError(f"title must be a str, got {type(title).__name__}: {title!r}")
     delay = _check_count(duration_ms, "duration_ms")
     frames, sweeps, total = _render(grid, samples, **kw)
+    return _html_page(_paletted(frames), sweeps, total, title, delay)
+
+
+def chain_animation(
+    grid,
+    samples,
+    *,
+    title: str = "Gibbs chain",
+    duration_ms: int = DEFAULT_DURATION_MS,
+    last_duration_ms: int = DEFAULT_LAST_DURATION_MS,
+    **kw,
+) -> tuple[bytes, str]:
+    """Both :func:`chain_gif` and :func:`chain_html` of the same chain, rendering the frames once:
+    ``(gif bytes, html str)``, each identical to what those functions return for these arguments.
+
+    Raises:
+        BayesmapError: as :func:`chain_gif` and :func:`chain_html`.
+    """
+    if not isinstance(title, str):
+        raise BayesmapError(f"title must be a str, got {type(title).__name__}: {title!r}")
+    duration = _check_count(duration_ms, "duration_ms")
+    last = _check_count(last_duration_ms, "last_duration_ms")
+    frames, sweeps, total = _render(grid, samples, **kw)
+    paletted = _paletted(frames)
+    return _gif_bytes(paletted, duration, last), _html_page(paletted, sweeps, total, title, duration)
+
+
+def _html_page(frames: list[Image.Image], sweeps: np.ndarray, total: int, title: str, delay: int) -> str:
     width, height = frames[0].size
-    uris = [_png_data_uri(frame) for frame in _paletted(frames)]
+    uris = [_png_data_uri(frame) for frame in frames]
     return _HTML_TEMPLATE.format(
         title=html.escape(title, quote=True),
         width=width,

@@ -80,7 +80,7 @@ def build_report(problem, result, *, title: str, seed: int = 0, importance: bool
             :data:`IMPORTANCE_MAX_CELLS` cells.
         max_frames: frames of the chain animation.
     """
-    from bayesmap.animation import chain_gif, chain_html
+    from bayesmap.animation import chain_animation
     from bayesmap.plots import figure_bytes, plot_convergence, plot_importance, plot_map, plot_posterior
 
     summary = result.summary
@@ -125,9 +125,8 @@ def build_report(problem, result, *, title: str, seed: int = 0, importance: bool
                                f"normalized log-weights. Effective sample size {ess_text}: one map takes (almost) all "
                                "the weight, which is why the tutorial turns to Gibbs sampling.", "fig-importance"))
     chain = samples[0] if samples.ndim == 4 else samples
-    gif = chain_gif(grid, chain, truth=problem.truth, pos=problem.pos, max_frames=max_frames)
-    page = chain_html(grid, chain, truth=problem.truth, pos=problem.pos, max_frames=max_frames,
-                      title="Gibbs chain: sample and running mean")
+    gif, page = chain_animation(grid, chain, truth=problem.truth, pos=problem.pos, max_frames=max_frames,
+                                title="Gibbs chain: sample and running mean")
 
     metrics = [("runtime", f"{summary['runtime_s']:.2f} s", "compilation included")]
     if "wrong_visible_cells" in summary:
