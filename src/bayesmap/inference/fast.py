@@ -59,8 +59,6 @@ def sample_categorical(log_weights, u):
     """Index ``(...,)`` int32 drawn from the unnormalized log-weights ``(..., C)`` by inverse CDF with uniforms
     ``u`` ``(...,)`` in ``[0, 1)``; ``-inf`` weights are never drawn (rows must have a finite maximum)."""
     num = log_weights.shape[-1]
-    if num == 2:  # draw 1 with probability 1 / (1 + exp(w0 - w1))
-        return (u * (1.0 + jnp.exp(log_weights[..., 0] - log_weights[..., 1])) < 1.0).astype(jnp.int32)
     p = jnp.exp(log_weights - jnp.max(log_weights, axis=-1, keepdims=True))
     below = np.arange(num)[None, :] <= np.arange(num)[:, None]  # (C, C): j <= k
     cdf = jnp.sum(jnp.where(below, p[..., None, :], 0.0), axis=-1)  # a cumsum without reduce_window
@@ -175,16 +173,9 @@ class FastGibbs:
         self._max_words = max(int(num_words.max(initial=0)), 1)
         self._word_offsets = np.concatenate([[0], np.cumsum(num_words)[:-1]]).astype(np.int64)
         self._zero_word = int(num_words.sum())
-        self._pair_dists = jnp.asarray(np.append(table.pair_dists, table.max_distance), dtype=self._dtype)
-        self._pair_cells = jnp.asarray(table.pair_cells)
-        self._pair_words = jnp.asarray(self._word_offsets[table.pair_rays] + table.pair_positions // WORD_BITS,
-                                       dtype=jnp.int32)
-        self._pair_shift = jnp.asarray(table.pair_positions % WORD_BITS, dtype=jnp.uint32)
         self._config_bits = block_configurations(self.blocks.shape[1]) > 0  # (C, B) numpy
-        self._bits = jnp.asarray(self._config_bits)
         p = float(params.prior_wall_prob)
         self._log_prior = np.log(np.array([1.0 - p, p]))
-        self._noise = jnp.asarray(params.sensor_noise, dtype=self._dtype)
 
         self._entries = self._block_entries()
         entry_count = np.bincount(self._entries[0], minlength=len(self.blocks))
@@ -204,10 +195,14 @@ class FastGibbs:
         self._steps, final_words, final_walls, final_fix = packed
         self.kernel = FastKernel(
             _steps=self._steps, _final_words=final_words, _final_walls=final_walls, _final_fix=final_fix,
-            _pair_dists=self._pair_dists, _pair_cells=self._pair_cells, _pair_words=self._pair_words,
-            _pair_shift=self._pair_shift, _bits=self._bits, _noise=self._noise, _max_words=self._max_words,
-            _zero_word=self._zero_word, _chunked=not bool(np.all(np.asarray(self._steps.commit))),
-            _dtype=jnp.dtype(self._dtype).name)
+            _pair_dists=jnp.asarray(np.append(table.pair_dists, table.max_distance), dtype=self._dtype),
+            _pair_cells=jnp.asarray(table.pair_cells),
+            _pair_words=jnp.asarray(self._word_offsets[table.pair_rays] + table.pair_positions // WORD_BITS,
+                                    dtype=jnp.int32),
+            _pair_shift=jnp.asarray(table.pair_positions % WORD_BITS, dtype=jnp.uint32),
+            _bits=jnp.asarray(self._config_bits), _noise=jnp.asarray(params.sensor_noise, dtype=self._dtype),
+            _max_words=self._max_words, _zero_word=self._zero_word,
+            _chunked=not bool(np.all(np.asarray(self._steps.commit))), _dtype=jnp.dtype(self._dtype).name)
         self.algorithm = SamplingAlgorithm(init=jax.tree_util.Partial(FastKernel.init, self.kernel),
                                            step=jax.tree_util.Partial(FastKernel.step, self.kernel))
 
@@ -391,7 +386,6 @@ class FastGibbs:
         if scores.ndim == 1:
             scores = jnp.stack([jnp.zeros_like(scores), scores], axis=-1)
         return scores
-
 
 
 @jax.tree_util.register_pytree_node_class
