@@ -13,7 +13,7 @@ resolution, so the tutorial's unit cells and maps in meters are the same code.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
+from functools import cached_property, partial
 
 import jax
 import jax.numpy as jnp
@@ -151,17 +151,17 @@ class RayTable:
     def num_pairs(self) -> int:
         return int(self.offsets[-1])
 
-    @property
+    @cached_property
     def lengths(self) -> np.ndarray:
-        """``(R,)`` int64 number of cells on each ray."""
+        """``(R,)`` int64 number of cells on each ray (computed once; do not modify)."""
         return np.diff(self.offsets)
 
-    @property
+    @cached_property
     def pair_rays(self) -> np.ndarray:
         """``(P,)`` int64 ray of each pair."""
         return np.repeat(np.arange(self.num_rays), self.lengths)
 
-    @property
+    @cached_property
     def pair_positions(self) -> np.ndarray:
         """``(P,)`` int64 position of each pair along its ray (0 = closest to the sensor)."""
         return np.arange(self.num_pairs) - np.repeat(self.offsets[:-1], self.lengths)

@@ -90,9 +90,9 @@ def block_configurations(block_cells: int) -> np.ndarray:
 def cell_rays(table) -> list[np.ndarray]:
     """For each cell, the sorted distinct rays of ``table`` (a :class:`~bayesmap.raycast.RayTable`) that cross it:
     a list of ``num_cells`` int64 arrays."""
-    rays, cells = table.pair_rays, table.pair_cells.astype(np.int64)
-    key = np.unique(cells * max(table.num_rays, 1) + rays)
-    cells, rays = key // max(table.num_rays, 1), key % max(table.num_rays, 1)
+    stride = max(table.num_rays, 1)
+    key = np.unique(table.pair_cells.astype(np.int64) * stride + table.pair_rays)
+    cells, rays = key // stride, key % stride
     bounds = np.searchsorted(cells, np.arange(table.num_cells + 1))
     return [rays[bounds[c] : bounds[c + 1]] for c in range(table.num_cells)]
 
