@@ -52,11 +52,10 @@ class Timing:
     sweeps_to_accuracy: int | None
 
 
-def _fresh(problem: Problem, name: str):
-    """Build the sampler and compile a 1-sweep chain: ``(state, compiled)``."""
+def _start(problem: Problem, name: str):
+    """Build the sampler and its state on the all-free map: ``(algorithm, state)``."""
     algorithm = make_sampler(problem, name)
-    state = algorithm.init(jnp.zeros(problem.grid.shape, jnp.float32))
-    return state, compile_chain(jax.random.key(0), state, algorithm, 1)
+    return algorithm, algorithm.init(jnp.zeros(problem.grid.shape, jnp.float32))
 
 
 def time_sampler(problem: Problem, name: str, sweeps: int, repeats: int, max_sweeps: int) -> Timing:
@@ -71,7 +70,8 @@ def time_sampler(problem: Problem, name: str, sweeps: int, repeats: int, max_swe
     """
     # time to accuracy, from nothing (compilation included)
     start = time.perf_counter()
-    state, one = _fresh(problem, name)
+    algorithm, state = _start(problem, name)
+    one = compile_chain(jax.random.key(0), state, algorithm, 1)
     samples = []
     reached = None
     for t in range(1, max_sweeps + 1):
@@ -84,8 +84,7 @@ def time_sampler(problem: Problem, name: str, sweeps: int, repeats: int, max_swe
     time_to_accuracy = time.perf_counter() - start if reached else None
     # compile time (building the sampler included) and steady state, on a new sampler object (nothing cached)
     start = time.perf_counter()
-    algorithm = make_sampler(problem, name)
-    state = algorithm.init(jnp.zeros(problem.grid.shape, jnp.float32))
+    algorithm, state = _start(problem, name)
     chain = compile_chain(jax.random.key(0), state, algorithm, sweeps)
     compile_s = time.perf_counter() - start
     jax.block_until_ready(chain(jax.random.key(0), state))
@@ -116,8 +115,7 @@ def chain_throughput(problem: Problem, name: str, num_chains: int = 64, sweeps: 
 def fresh_chain_seconds(problem: Problem, name: str, sweeps: int = 100) -> float:
     """Wall time of a new ``sweeps``-sweep chain from nothing: build the sampler, compile, run."""
     start = time.perf_counter()
-    algorithm = make_sampler(problem, name)
-    state = algorithm.init(jnp.zeros(problem.grid.shape, jnp.float32))
+    algorithm, state = _start(problem, name)
     samples, _ = _run(jax.random.key(0), state, algorithm, sweeps)
     jax.block_until_ready(samples)
     return time.perf_counter() - start
@@ -147,8 +145,8 @@ def run_bench(samplers=None, fast_sweeps: int = 200, reference_sweeps: int = 5, 
     problem = tutorial_problem()
     problem.visible  # noqa: B018 -- computed once, outside every timing
     # warm up JAX (backend start, first compilation) so that it is not charged to the first sampler timed
-    warm = make_sampler(problem, "chromatic")
-    jax.block_until_ready(_run(jax.random.key(0), warm.init(jnp.zeros(problem.grid.shape, jnp.float32)), warm, 2))
+    warm, state = _start(problem, "chromatic")
+    jax.block_until_ready(_run(jax.random.key(0), state, warm, 2))
     say = progress or (lambda msg: None)
     fast_cache: dict[str, tuple] = {}
     ref_cache: dict[str, Timing] = {}

@@ -72,7 +72,8 @@ def _npy(array) -> bytes:
 
 
 def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], seed: int, out: Path, force: bool,
-                   title: str, chains: int = 1, report: bool = False) -> dict:
+                   title: str, chains: int = 1, report: bool = False) -> tuple[dict, list[str]]:
+    """Run inference and write its outputs into ``out``; returns the summary and the names of the files written."""
     from bayesmap.plots import figure_bytes, plot_posterior
     from bayesmap.problem import run_inference
 
@@ -98,10 +99,10 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
 
         files[REPORT_FILE] = build_report(problem, result, title=title, seed=seed).encode("utf-8")
     _write_outputs(out, files)
-    return result.summary
+    return result.summary, list(files)
 
 
-def _print_summary(summary: dict, out: Path) -> None:
+def _print_summary(summary: dict, out: Path, written: list[str]) -> None:
     typer.echo(f"sampler:  {summary['sampler']} ({summary['sampler_description']})")
     typer.echo(f"data:     {summary['source']}, {summary['num_angles']} beams, grid {summary['grid']['shape'][0]} x "
                f"{summary['grid']['shape'][1]} cells of {summary['grid']['resolution']:g} m")
@@ -112,8 +113,7 @@ def _print_summary(summary: dict, out: Path) -> None:
     if summary.get("chains", 1) > 1 and summary.get("r_hat_max") is not None:
         typer.echo(f"chains:   {summary['chains']}; over the {summary['cells_varying']} cells that change: worst split "
                    f"R-hat {summary['r_hat_max']:.3f}, smallest effective sample size {summary['ess_min']:.0f}")
-    files = [name for name in OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) if (out / name).exists()]
-    typer.echo(f"outputs:  {out}/ ({', '.join(files)})")
+    typer.echo(f"outputs:  {out}/ ({', '.join(written)})")
 
 
 def _sampler_option(default: str):
@@ -134,9 +134,9 @@ def demo(
     from bayesmap.problem import tutorial_problem
 
     problem = tutorial_problem()
-    summary = _run_and_write(problem, "block", sweeps, None, seed, out, force,
-                             title="Posterior wall probability, 2x2 block Gibbs (tutorial map)", report=True)
-    _print_summary(summary, out)
+    summary, written = _run_and_write(problem, "block", sweeps, None, seed, out, force,
+                                      title="Posterior wall probability, 2x2 block Gibbs (tutorial map)", report=True)
+    _print_summary(summary, out, written)
 
 
 @app.command()
@@ -181,9 +181,9 @@ def infer(
                                    prior_wall_prob=prior_wall_prob, sensor_noise=0.2 if sensor_noise is None else sensor_noise, num_angles=num_angles,
                                    source=str(map_file) if map_file else "tutorial map")
         title = f"Posterior wall probability ({problem.source})"
-    summary = _run_and_write(problem, sampler, sweeps, burn_in, seed, out, force, title=title, chains=chains,
-                             report=report)
-    _print_summary(summary, out)
+    summary, written = _run_and_write(problem, sampler, sweeps, burn_in, seed, out, force, title=title,
+                                      chains=chains, report=report)
+    _print_summary(summary, out, written)
 
 
 @app.command()
