@@ -25,15 +25,16 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from IPython.display import HTML, Image, display
+from IPython.display import Image, display
 
-from bayesmap.grid import format_map, tutorial_map
-from bayesmap.inference.chains import posterior_mean, run_chain, run_chains
-from bayesmap.inference.importance import importance_sampling, resample
-from bayesmap.model import log_joint, make_params, simulate, simulate_readings, walls_prior
 from bayesmap.animation import chain_gif
+from bayesmap.grid import format_map, tutorial_map
+from bayesmap.inference.chains import cell_diagnostics, posterior_mean, run_chain, run_chains
+from bayesmap.inference.importance import importance_sampling, resample
+from bayesmap.io.carmen import read_carmen
+from bayesmap.model import log_joint, simulate, walls_prior
 from bayesmap.plots import figure_bytes, plot_convergence, plot_importance, plot_map, plot_posterior
-from bayesmap.problem import make_sampler, tutorial_problem
+from bayesmap.problem import make_sampler, scan_problem, tutorial_problem
 from bayesmap.raycast import sensor_distances
 from bayesmap.report import chain_log_joints, chain_wrong_cells
 
@@ -172,8 +173,6 @@ for name in ["raster", "outward", "block", "chromatic", "chromatic-block"]:
 # Many chains at once (`vmap`) give per-cell split R-hat and effective sample size:
 
 # %%
-from bayesmap.inference.chains import cell_diagnostics  # noqa: E402
-
 chains = run_chains(jax.random.key(5), make_sampler(problem, "block"), jnp.zeros(grid.shape), 100, 8)
 diag = cell_diagnostics(np.asarray(chains.samples), burn_in=50)
 varying = np.isfinite(diag["r_hat"])
@@ -189,20 +188,16 @@ show(plot_posterior(grid, mean, truth=walls, pos=pos, std=True, title="8 chains 
 # within max range along this beam".
 
 # %%
-log_path = Path("../../shared/data/carmen/intel-corrected.log.gz")
-candidates = [log_path, Path("../shared/data/carmen/intel-corrected.log.gz"), Path.cwd() / log_path]
+# the shared data beside the checkout, from the notebooks folder or from the checkout itself
+candidates = [Path(f"{up}/shared/data/carmen/intel-corrected.log.gz") for up in ("../..", "..")]
 log_path = next((p for p in candidates if p.exists()), None)
 if log_path is None:
     print("the shared Intel log is not here; skipping the real scan")
 else:
-    from bayesmap.inference.chains import posterior_mean as mean_of  # noqa: E402
-    from bayesmap.io.carmen import read_carmen  # noqa: E402
-    from bayesmap.problem import scan_problem  # noqa: E402
-
     scan = scan_problem(read_carmen(log_path), 100, resolution=0.1, sensor_noise=0.05)
     start = time.perf_counter()
     chain = run_chain(jax.random.key(6), make_sampler(scan, "chromatic"), jnp.zeros(scan.grid.shape), 40)
     print(f"scan 100: grid {scan.grid.shape} at 0.1 m, {len(scan.readings)} beams, 40 sweeps in "
           f"{time.perf_counter() - start:.1f} s")
-    show(plot_posterior(scan.grid, mean_of(np.asarray(chain.samples), 20), pos=scan.pos, beam_angles=scan.beam_angles,
+    show(plot_posterior(scan.grid, posterior_mean(np.asarray(chain.samples), 20), pos=scan.pos, beam_angles=scan.beam_angles,
                         readings=scan.readings, max_range_mask=scan.max_range_mask, title="Intel scan 100: P(wall)"))
