@@ -20,7 +20,7 @@ demo: $(STAMP)
 	$(BIN)/bayesmap demo --force
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2
+	$(BIN)/python -m pytest -q -n 2 --dist loadgroup
 
 # the tutorial notebook, executed, as one HTML file with its outputs
 notebook: $(STAMP)

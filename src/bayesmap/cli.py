@@ -221,6 +221,21 @@ def bench(
         typer.echo(f"wrote {json_file}")
 
 
+@app.command("app")
+def explorer(
+    host: str = typer.Option("127.0.0.1", help="interface to listen on (default: this machine only)"),
+    port: int = typer.Option(8080, help="TCP port"),
+    no_browser: bool = typer.Option(False, "--no-browser", help="do not open the page in a browser"),
+) -> None:
+    """The interactive map explorer, a local web app: draw walls, drag the sensor, run inference, browse samples.
+
+    It serves its own scripts and contacts nothing on the network. Stop it with Ctrl+C."""
+    from bayesmap.app import run_app
+
+    typer.echo(f"bayesmap explorer at http://{host}:{port}/ (Ctrl+C stops it)")
+    run_app(host=host, port=port, show=not no_browser)
+
+
 def main() -> None:
     """Entry point: run the app, turning :class:`BayesmapError` into one line on stderr and exit code 2."""
     try:

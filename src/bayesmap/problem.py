@@ -181,7 +181,8 @@ class InferenceResult:
 
 
 def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, burn_in: int | None = None,
-                  seed: int = 0, progress: bool = True, chains: int = 1) -> InferenceResult:
+                  seed: int = 0, progress: bool = True, chains: int = 1,
+                  on_progress=None) -> InferenceResult:
     """Run ``chains`` chains of ``sampler`` from the all-free map (at once, ``vmap``) and summarize them.
 
     Args:
@@ -193,6 +194,8 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         progress: show a progress bar (tqdm, on stderr) when the run takes longer than a second.
         chains: number of independent chains (keys split from ``seed``); with 2 or more the summary reports the
             worst split R-hat and the smallest effective sample size over the cells that change.
+        on_progress: called as ``on_progress(done, total)`` after every chunk of at most 10 sweeps (from the
+            thread that runs the chain), for a progress display such as the app's.
 
     Raises:
         BayesmapError: on an unknown sampler, or a bad number of sweeps, burn-in or chains; with several chains,
@@ -227,6 +230,8 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
             pieces.append(np.asarray(samples))
             done += n
             bar.update(n)
+            if on_progress is not None:
+                on_progress(done, sweeps)
     samples = np.concatenate(pieces, axis=-3)
     runtime = time.perf_counter() - start
     posterior = posterior_mean(samples, burn_in)

@@ -1,0 +1,582 @@
+"""The interactive map explorer: a local web app (NiceGUI) for the tutorial's scene.
+
+It does what the tutorial's final interactive widget does, offline and without Jupyter:
+
+* the grid with the true walls; a click toggles a wall, click-and-drag paints (walls or free space, whichever the
+  first cell became); the sensor is a handle that can be dragged (no wall can be drawn on its cell, and it cannot be
+  dropped on a wall);
+* the beams and the noisy range readings, simulated from the model and redrawn whenever the walls, the sensor, the
+  sensor noise or the number of beams change;
+* sliders (each with a field to type a value) for ``prior_wall_prob``, ``sensor_noise``, ``num_angles`` and the
+  number of sweeps;
+* buttons Run inference (fast 2x2 block Gibbs in a worker thread, with a progress bar; a click while a run is going
+  does nothing), Clear walls, Clear inferred walls; load an ASCII map file and save the drawn map;
+* after a run, a sample slider and a "show average" switch; the inferred walls drawn as cell opacity (the tutorial's
+  style) or as a heatmap.
+
+Each browser tab gets its own :class:`Explorer`, so tabs are independent sessions. The page's scripts and styles are
+NiceGUI's own, served by the app itself: nothing is fetched from the network.
+
+The logic lives in :class:`Explorer` (plain Python, tested without a browser); :func:`build_page` wires it to
+NiceGUI elements and :func:`run_app` serves it.
+"""
+
+from __future__ import annotations
+
+import html
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from bayesmap.errors import BayesmapError
+from bayesmap.grid import Grid, format_map, parse_map, tutorial_map
+from bayesmap.problem import TUTORIAL_POS, InferenceResult, Problem, run_inference, tutorial_problem
+from bayesmap.raycast import sensor_distances
+
+SAMPLER = "block"
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One numeric setting of the explorer: its range (inclusive), slider step and whether it is an integer."""
+
+    label: str
+    low: float
+    high: float
+    step: float
+    integer: bool = False
+
+    def check(self, value) -> float | int:
+        """``value`` as a number of this setting.
+
+        Raises:
+            BayesmapError: naming the value, if it is not a number within ``[low, high]`` (an integer if required).
+        """
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise BayesmapError(f"{self.label}: {value!r} is not a number") from None
+        if not math.isfinite(number) or not (self.low <= number <= self.high):
+            raise BayesmapError(f"{self.label} must be between {self.low:g} and {self.high:g}, got {value!r}")
+        if self.integer:
+            if number != int(number):
+                raise BayesmapError(f"{self.label} must be a whole number, got {value!r}")
+            return int(number)
+        return number
+
+
+SETTINGS: dict[str, Setting] = {
+    "prior_wall_prob": Setting("prior wall probability", 0.01, 0.99, 0.01),
+    "sensor_noise": Setting("sensor noise (m)", 0.01, 2.0, 0.01),
+    "num_angles": Setting("number of beams", 1, 400, 1, integer=True),
+    "sweeps": Setting("sweeps", 10, 2000, 10, integer=True),
+}
+
+
+class Explorer:
+    """The state of one explorer session: drawn map, sensor, settings, readings and the last inference.
+
+    Args:
+        walls: ``(nx, ny)`` initial map (cells > 0.5 are walls); default the tutorial's 21 x 21 map.
+        pos: ``(2,)`` initial sensor position in world meters (the tutorial's unit cells); default the map's
+            center cell (the tutorial's (10, 10)).
+        seed: PRNG seed of the simulated readings and of the chain.
+
+    Attributes:
+        walls: ``(nx, ny)`` float32 0/1, the drawn (true) map.
+        pos: ``(2,)`` float64 sensor position (meters).
+        prior_wall_prob, sensor_noise, num_angles, sweeps: the settings (see :data:`SETTINGS`).
+        result: the last :class:`~bayesmap.problem.InferenceResult`, or None.
+        stale: True when the map, sensor or a setting changed since the last run.
+        runs: number of runs started in this session.
+        running: True while a run is going.
+        progress: fraction of the current run's sweeps done, in [0, 1].
+
+    Raises:
+        BayesmapError: if the map has no free cell for the sensor.
+    """
+
+    def __init__(self, walls=None, pos=None, seed: int = 0):
+        self.walls = (tutorial_map() if walls is None else (np.asarray(walls) > 0.5)).astype(np.float32)
+        self.grid = Grid(shape=self.walls.shape)
+        self.seed = int(seed)
+        self.prior_wall_prob = 0.5
+        self.sensor_noise = 0.2
+        self.num_angles = 100
+        self.sweeps = 100
+        self.pos = self._free_position(TUTORIAL_POS if pos is None and self.walls.shape == (21, 21) else pos)
+        self.result: InferenceResult | None = None
+        self.stale = False
+        self.runs = 0
+        self.running = False
+        self.progress = 0.0
+        self._lock = threading.Lock()
+        self._problem: Problem | None = None
+
+    # -- the scene ---------------------------------------------------------------------------------------------
+
+    def _free_position(self, pos) -> np.ndarray:
+        """``pos`` if it is inside the grid and not in a wall, else the free cell center nearest to the grid's
+        center."""
+        if pos is not None:
+            xy = np.asarray(pos, dtype=np.float64)
+            if self.grid.contains(xy) and not self._wall_at(xy):
+                return xy
+        free = np.argwhere(self.walls < 0.5)
+        if len(free) == 0:
+            raise BayesmapError("the map has no free cell to put the sensor in")
+        center = (np.asarray(self.walls.shape) - 1) / 2.0
+        i, j = free[np.argmin(np.sum((free - center) ** 2, axis=1))]
+        return self.grid.cell_centers()[i, j].astype(np.float64)
+
+    def cell_at(self, xy) -> tuple[int, int] | None:
+        """The cell ``(i, j)`` containing the world point ``xy`` (meters), or None outside the grid."""
+        i, j = (int(v) for v in self.grid.cell_index(xy))
+        if 0 <= i < self.grid.shape[0] and 0 <= j < self.grid.shape[1]:
+            return i, j
+        return None
+
+    def _wall_at(self, xy) -> bool:
+        cell = self.cell_at(xy)
+        return cell is not None and self.walls[cell] > 0.5
+
+    def sensor_cell(self) -> tuple[int, int]:
+        """The cell ``(i, j)`` the sensor is in."""
+        return self.cell_at(self.pos)
+
+    def _changed(self) -> None:
+        self._problem = None
+        if self.result is not None:
+            self.stale = True
+
+    def set_wall(self, cell: tuple[int, int], value: bool) -> bool:
+        """Make ``cell`` a wall (``value`` True) or free; returns False (and changes nothing) for the sensor's cell
+        or a cell outside the grid."""
+        i, j = cell
+        if not (0 <= i < self.grid.shape[0] and 0 <= j < self.grid.shape[1]) or (i, j) == self.sensor_cell():
+            return False
+        if (self.walls[i, j] > 0.5) != bool(value):
+            self.walls[i, j] = float(value)
+            self._changed()
+        return True
+
+    def toggle(self, cell: tuple[int, int]) -> bool | None:
+        """Toggle ``cell``; returns its new state (True for a wall), or None if it cannot be drawn on."""
+        new = not (self.walls[cell] > 0.5)
+        return new if self.set_wall(cell, new) else None
+
+    def move_sensor(self, xy) -> bool:
+        """Move the sensor to the world point ``xy`` (meters); returns False (and does not move) if the point is
+        outside the grid or in a wall."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(2)
+        if not np.all(np.isfinite(xy)) or not self.grid.contains(xy) or self._wall_at(xy):
+            return False
+        if not np.array_equal(xy, self.pos):
+            self.pos = xy
+            self._changed()
+        return True
+
+    def clear_walls(self) -> None:
+        """Remove every drawn wall."""
+        if self.walls.any():
+            self.walls[:] = 0.0
+            self._changed()
+
+    def clear_inferred(self) -> None:
+        """Forget the last inference."""
+        self.result = None
+        self.stale = False
+
+    def set_setting(self, name: str, value) -> float | int:
+        """Set one of :data:`SETTINGS` after checking it; returns the value set.
+
+        Raises:
+            BayesmapError: on an unknown name or a value out of range (nothing changes).
+        """
+        if name not in SETTINGS:
+            raise BayesmapError(f"unknown setting {name!r}")
+        number = SETTINGS[name].check(value)
+        if number != getattr(self, name):
+            setattr(self, name, number)
+            if name != "sweeps":
+                self._changed()
+        return number
+
+    def load_map_text(self, text: str, source: str = "map") -> None:
+        """Replace the drawn map by an ASCII map (see :func:`bayesmap.grid.parse_map`); the sensor stays if it is
+        still on a free cell inside the new grid, else it moves to the free cell nearest the center.
+
+        Raises:
+            BayesmapError: if the text is not a valid map or has no free cell (nothing changes).
+        """
+        walls = parse_map(text, source=source)
+        if max(walls.shape) > 200:
+            raise BayesmapError(f"{source}: the explorer draws maps of at most 200 x 200 cells, got {walls.shape[0]} x {walls.shape[1]}")
+        old = (self.walls, self.grid, self.pos)
+        self.walls, self.grid = walls, Grid(shape=walls.shape)
+        try:
+            self.pos = self._free_position(self.pos)
+        except BayesmapError:
+            self.walls, self.grid, self.pos = old
+            raise BayesmapError(f"{source}: the map has no free cell to put the sensor in") from None
+        self.result = None
+        self.stale = False
+        self._problem = None
+
+    def map_text(self) -> str:
+        """The drawn map in the ASCII format (:func:`bayesmap.grid.format_map`)."""
+        return format_map(self.walls)
+
+    @property
+    def problem(self) -> Problem:
+        """The scene as a :class:`~bayesmap.problem.Problem`, readings simulated with this session's seed
+        (recomputed after every change)."""
+        if self._problem is None:
+            self._problem = tutorial_problem(self.walls, tuple(self.pos), seed=self.seed,
+                                             prior_wall_prob=self.prior_wall_prob, sensor_noise=self.sensor_noise,
+                                             num_angles=self.num_angles, source="app")
+        return self._problem
+
+    def beams(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(hits (K, 2), readings (K, 2))``: world points of each beam's first wall (capped at the max distance) and
+        of its noisy range reading, meters."""
+        pb = self.problem
+        exact = np.asarray(sensor_distances(self.walls, pb.pos, pb.beam_angles, pb.grid, pb.params.cap))
+        direction = np.stack([np.cos(pb.beam_angles), np.sin(pb.beam_angles)], axis=-1)
+        return pb.pos + exact[:, None] * direction, pb.pos + pb.readings[:, None] * direction
+
+    # -- inference ----------------------------------------------------------------------------------------------
+
+    def start_run(self) -> bool:
+        """Claim the right to run; False if a run is already going (then nothing must be started)."""
+        with self._lock:
+            if self.running:
+                return False
+            self.running = True
+            self.runs += 1
+            self.progress = 0.0
+            return True
+
+    def run(self) -> InferenceResult:
+        """Run the fast 2x2 block Gibbs sampler (``sweeps`` sweeps, half burn-in) on the current scene; call
+        :meth:`start_run` first (blocking; the app calls it in a worker thread). Updates :attr:`progress`."""
+        try:
+            problem = self.problem
+            result = run_inference(problem, SAMPLER, self.sweeps, seed=self.seed, progress=False,
+                                   on_progress=lambda done, total: setattr(self, "progress", done / total))
+            if problem is self._problem:
+                self.result = result
+                self.stale = False
+            return result
+        finally:
+            self.running = False
+
+    def shown(self, sample: int | None) -> np.ndarray | None:
+        """``(nx, ny)`` float wall probabilities to draw: the posterior mean (``sample`` None) or sample ``sample``
+        (0-based sweep index) of the last run; None without a run."""
+        if self.result is None:
+            return None
+        if sample is None:
+            return self.result.posterior
+        index = int(np.clip(sample, 0, len(self.result.samples) - 1))
+        return self.result.samples[index].astype(np.float64)
+
+    def status(self) -> str:
+        """One line about the scene and the last run."""
+        n_walls = int(self.walls.sum())
+        text = f"{n_walls} walls, sensor at ({self.pos[0]:.2f}, {self.pos[1]:.2f}), {self.num_angles} beams"
+        if self.running:
+            return text + f"; run {self.runs}: {self.progress:.0%} done"
+        if self.result is not None:
+            s = self.result.summary
+            text += f"; run {self.runs}: {s['sweeps']} sweeps in {s['runtime_s']:.2f} s"
+            if s.get("wrong_visible_cells") is not None:
+                text += f", {s['wrong_visible_cells']} of {s['visible_cells']} visible cells wrong"
+            if self.stale:
+                text += " (the scene changed since; run again)"
+        return text
+
+    # -- drawing ------------------------------------------------------------------------------------------------
+
+    def cell_px(self) -> int:
+        """Pixels per cell on the page (about 500 px for the whole grid)."""
+        return int(max(3, min(32, 504 // max(self.grid.shape))))
+
+    def image_size(self) -> tuple[int, int]:
+        """``(width, height)`` of the drawing in pixels."""
+        s = self.cell_px()
+        return self.grid.shape[0] * s, self.grid.shape[1] * s
+
+    def to_world(self, px: float, py: float) -> np.ndarray:
+        """Image pixel ``(px, py)`` (y down) to world meters (y up)."""
+        s = self.cell_px()
+        ox, oy = self.grid.origin
+        res = self.grid.resolution
+        return np.array([ox + px / s * res, oy + (self.grid.shape[1] * s - py) / s * res])
+
+    def _to_px(self, xy) -> tuple[np.ndarray, np.ndarray]:
+        s = self.cell_px()
+        cc = self.grid.to_cell_coords(np.asarray(xy, dtype=np.float64))
+        return (cc[..., 0] + 0.5) * s, (self.grid.shape[1] - 0.5 - cc[..., 1]) * s
+
+    def svg(self, shown: np.ndarray | None = None, heatmap: bool = False) -> str:
+        """The SVG content of the drawing: grid, inferred walls ``shown`` (``(nx, ny)`` probabilities, as opacity or
+        heatmap), true walls, beams, readings and the sensor. Elements carry classes and ``data-i``/``data-j``
+        (and ``data-p`` for inferred cells) so that tests can read the drawing."""
+        s = self.cell_px()
+        nx, ny = self.grid.shape
+        width, height = nx * s, ny * s
+        out = [f'<rect x="0" y="0" width="{width}" height="{height}" fill="white" stroke="#999"/>']
+        if s >= 8:
+            lines = [f"M{i * s} 0V{height}" for i in range(1, nx)] + [f"M0 {j * s}H{width}" for j in range(1, ny)]
+            out.append(f'<path d="{" ".join(lines)}" stroke="#eee" stroke-width="1"/>')
+        if shown is not None:
+            colors = _heat_colors() if heatmap else None
+            for i, j in zip(*np.nonzero(shown > 0.005 if not heatmap else np.ones_like(shown, bool))):
+                p = float(shown[i, j])
+                x, y = i * s, (ny - 1 - j) * s
+                if heatmap:
+                    style = f'fill="{colors[int(round(p * 255))]}"'
+                else:
+                    style = f'fill="#d62728" fill-opacity="{p:.3f}"'
+                out.append(f'<rect class="inferred" data-i="{i}" data-j="{j}" data-p="{p:.3f}" x="{x}" y="{y}" '
+                           f'width="{s}" height="{s}" {style}/>')
+        for i, j in zip(*np.nonzero(self.walls > 0.5)):
+            x, y = i * s, (ny - 1 - j) * s
+            if heatmap and shown is not None:
+                out.append(f'<rect class="wall" data-i="{i}" data-j="{j}" x="{x + 1}" y="{y + 1}" width="{s - 2}" '
+                           f'height="{s - 2}" fill="none" stroke="black" stroke-width="2"/>')
+            else:
+                inset = max(1, s // 5) if shown is not None else 0
+                out.append(f'<rect class="wall" data-i="{i}" data-j="{j}" x="{x + inset}" y="{y + inset}" '
+                           f'width="{s - 2 * inset}" height="{s - 2 * inset}" fill="#333"/>')
+        hits, readings = self.beams()
+        sx, sy = self._to_px(self.pos)
+        hx, hy = self._to_px(hits)
+        path = " ".join(f"M{sx:.1f} {sy:.1f}L{a:.1f} {b:.1f}" for a, b in zip(hx, hy))
+        out.append(f'<path class="beams" d="{path}" stroke="#1f77b4" stroke-opacity="0.35" stroke-width="1"/>')
+        rx, ry = self._to_px(readings)
+        radius = max(1.5, s / 8)
+        out.append('<g class="readings" fill="#1f77b4">'
+                   + "".join(f'<circle cx="{a:.1f}" cy="{b:.1f}" r="{radius:.1f}"/>' for a, b in zip(rx, ry)) + "</g>")
+        out.append(f'<circle class="sensor" cx="{sx:.1f}" cy="{sy:.1f}" r="{max(4.0, s * 0.4):.1f}" fill="#ff7f0e" '
+                   f'stroke="black" stroke-width="1.5" style="cursor: grab"><title>sensor: drag to move</title></circle>')
+        return "".join(out)
+
+
+def _heat_colors() -> list[str]:
+    """256 hex colors of matplotlib's "viridis" colormap, for probabilities 0..1."""
+    from matplotlib import colormaps
+    from matplotlib.colors import to_hex
+
+    cmap = colormaps["viridis"]
+    return [to_hex(cmap(k / 255)) for k in range(256)]
+
+
+# -- NiceGUI ---------------------------------------------------------------------------------------------------
+
+
+def build_page(explorer: Explorer | None = None) -> Explorer:
+    """Build the explorer's page for the current NiceGUI client (one :class:`Explorer` per browser tab).
+
+    Returns the page's explorer."""
+    from nicegui import events, run, ui
+
+    ex = explorer or Explorer()
+    drag = {"mode": None, "paint": None, "last": None}
+    view = {"sample": None, "heatmap": False}
+
+    ui.page_title("bayesmap explorer")
+    ui.label("bayesmap: Bayesian occupancy-grid mapping").classes("text-h5")
+    ui.label("Click a cell to toggle a wall, drag to paint, drag the orange sensor to move it. "
+             "Run inference to infer the walls from the beams' noisy range readings.").classes("text-body2 text-grey-8")
+
+    message = ui.label("").classes("bm-message text-negative text-body1")
+
+    def show_error(text: str) -> None:
+        message.set_text(text)
+        ui.notify(text, type="negative")
+
+    def clear_error() -> None:
+        message.set_text("")
+
+    with ui.row().classes("items-start no-wrap gap-6"):
+        width, height = ex.image_size()
+        with ui.column().style(f"width: {width}px") as left:
+            image = ui.interactive_image(size=(width, height), content="", cross=False, sanitize=False,
+                                         events=["mousedown", "mousemove", "mouseup", "mouseleave"])
+            image.classes("bm-map").style(f"width: {width}px; height: {height}px; cursor: crosshair")
+            status = ui.label("").classes("bm-status text-body2")
+        with ui.column().classes("gap-1").style("min-width: 360px"):
+            fields = {}
+            for name, setting in SETTINGS.items():
+                with ui.row().classes("items-center no-wrap w-full"):
+                    ui.label(setting.label).classes("w-40")
+                    slider = ui.slider(min=setting.low, max=setting.high, step=setting.step,
+                                       value=getattr(ex, name)).classes(f"bm-slider-{name} w-40")
+                    number = ui.input(value=str(getattr(ex, name))).classes(f"bm-field-{name} w-20").props("dense")
+                fields[name] = (slider, number)
+            with ui.row():
+                run_button = ui.button("Run inference").classes("bm-run")
+                ui.button("Clear walls", on_click=lambda: (ex.clear_walls(), redraw())).classes("bm-clear-walls").props("outline")
+                ui.button("Clear inferred walls", on_click=lambda: (ex.clear_inferred(), redraw())).classes("bm-clear-inferred").props("outline")
+            progress = ui.linear_progress(value=0.0, show_value=False).classes("bm-progress")
+            progress.set_visibility(False)
+            ui.separator()
+            average = ui.switch("show average", value=True).classes("bm-average")
+            with ui.row().classes("items-center no-wrap w-full"):
+                ui.label("sample").classes("w-16")
+                sample_slider = ui.slider(min=1, max=2, step=1, value=1).classes("bm-sample w-56").props("label")
+                sample_label = ui.label("").classes("bm-sample-label")
+            heat = ui.toggle(["opacity", "heatmap"], value="opacity").classes("bm-style")
+            ui.separator()
+            ui.label("Map file (ASCII: 'X' wall, '.' free; line i, column j is cell (i, j))").classes("text-caption")
+            with ui.row().classes("items-center"):
+                upload = ui.upload(label="Load map", auto_upload=True, max_files=1).classes("bm-upload").props("accept=.txt,text/plain flat bordered")
+                ui.button("Save map", on_click=lambda: ui.download.content(ex.map_text().encode(), "map.txt")).classes("bm-save").props("outline")
+
+    def redraw() -> None:
+        result_on = ex.result is not None
+        shown = ex.shown(None if (average.value or not result_on) else int(sample_slider.value) - 1)
+        image.content = ex.svg(shown, heatmap=heat.value == "heatmap")
+        sample_slider.set_enabled(result_on and not average.value)
+        if result_on:
+            n = len(ex.result.samples)
+            sample_slider.props(f"max={n}")
+            sample_label.set_text("average of sweeps %d-%d" % (ex.result.summary["burn_in"] + 1, n) if average.value
+                                  else f"sweep {int(sample_slider.value)} of {n}")
+        else:
+            sample_label.set_text("no inference yet")
+        status.set_text(ex.status())
+
+    def on_mouse(e: events.MouseEventArguments) -> None:
+        xy = ex.to_world(e.image_x, e.image_y)
+        if e.type == "mousedown":
+            clear_error()
+            if np.hypot(*(xy - ex.pos)) <= 0.6 * ex.grid.resolution:
+                drag["mode"] = "sensor"
+                return
+            cell = ex.cell_at(xy)
+            if cell is None:
+                return
+            new = ex.toggle(cell)
+            drag["mode"] = "paint" if new is not None else None
+            drag["paint"], drag["last"] = new, cell
+            redraw()
+        elif e.type == "mousemove" and drag["mode"] and (e.buttons & 1):
+            if drag["mode"] == "sensor":
+                if ex.move_sensor(xy):
+                    redraw()
+            else:
+                cell = ex.cell_at(xy)
+                if cell is not None and cell != drag["last"]:
+                    drag["last"] = cell
+                    ex.set_wall(cell, drag["paint"])
+                    redraw()
+        elif e.type in ("mouseup", "mouseleave") or not (e.buttons & 1):
+            drag["mode"] = None
+
+    image.on_mouse(on_mouse)
+
+    def apply_setting(name: str, value, source) -> None:
+        slider, number = fields[name]
+        try:
+            value = ex.set_setting(name, value)
+        except BayesmapError as err:
+            show_error(str(err))
+            number.value = str(getattr(ex, name))
+            return
+        clear_error()
+        if source is not slider and slider.value != value:
+            slider.value = value
+        if source is not number:
+            number.value = str(value)
+        redraw()
+
+    for name, (slider, number) in fields.items():
+        slider.on_value_change(lambda e, n=name, s=slider: apply_setting(n, e.value, s))
+        number.on("keydown.enter", lambda _e, n=name, f=number: apply_setting(n, f.value, f))
+        number.on("blur", lambda _e, n=name, f=number: apply_setting(n, f.value, f))
+
+    async def run_clicked() -> None:
+        if not ex.start_run():
+            ui.notify("inference is already running", type="warning")
+            return
+        clear_error()
+        run_button.disable()
+        progress.set_visibility(True)
+        progress.value = 0.0
+        poll = ui.timer(0.1, lambda: (progress.set_value(ex.progress), status.set_text(ex.status())))
+        try:
+            await run.io_bound(ex.run)
+        except BayesmapError as err:
+            show_error(str(err))
+        finally:
+            poll.cancel()
+            run_button.enable()
+            progress.set_visibility(False)
+            if ex.result is not None:
+                sample_slider.value = len(ex.result.samples)
+            redraw()
+
+    run_button.on_click(run_clicked)
+    average.on_value_change(lambda _e: redraw())
+    sample_slider.on_value_change(lambda _e: redraw())
+    heat.on_value_change(lambda _e: redraw())
+
+    async def on_upload(e: events.UploadEventArguments) -> None:
+        name = e.file.name or "uploaded file"
+        try:
+            data = await e.file.read()
+            try:
+                text = data.decode("utf-8")
+            except UnicodeDecodeError:
+                raise BayesmapError(f"{name}: not a text file (expected an ASCII map of 'X' and '.')") from None
+            ex.load_map_text(text, source=name)
+        except BayesmapError as err:
+            show_error(str(err))
+        else:
+            clear_error()
+            width, height = ex.image_size()
+            image._props["size"] = (width, height)
+            image.update()
+            image.style(f"width: {width}px; height: {height}px")
+            left.style(f"width: {width}px")
+            redraw()
+            ui.notify(f"loaded {name}: {ex.grid.shape[0]} x {ex.grid.shape[1]} cells")
+        finally:
+            upload.reset()
+
+    upload.on_upload(on_upload)
+    redraw()
+    return ex
+
+
+def run_app(host: str = "127.0.0.1", port: int = 8080, show: bool = True) -> None:
+    """Serve the explorer at ``http://host:port/`` until interrupted (blocking).
+
+    Args:
+        host: interface to listen on (default only this machine).
+        port: TCP port.
+        show: open the page in the default browser.
+
+    Raises:
+        BayesmapError: if the port cannot be used (in use, or not in 1..65535).
+    """
+    import socket
+
+    if not (1 <= int(port) <= 65535):
+        raise BayesmapError(f"port must be between 1 and 65535, got {port!r}")
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind((host, int(port)))
+        except OSError as err:
+            raise BayesmapError(f"cannot listen on {host}:{port}: {err.strerror}") from None
+    from nicegui import ui
+
+    ui.run(build_page, host=host, port=int(port), show=show, reload=False, title="bayesmap explorer",
+           show_welcome_message=True, uvicorn_logging_level="warning")
