@@ -376,6 +376,14 @@ def _heat_colors() -> list[str]:
     return [to_hex(cmap(k / 255)) for k in range(256)]
 
 
+def _legend_gradient(heatmap: bool) -> str:
+    """CSS gradient of the drawing's colour scale for probabilities 0..1 (heatmap, or red opacity on white)."""
+    if heatmap:
+        colors = _heat_colors()
+        return "linear-gradient(to right, " + ", ".join(colors[k] for k in range(0, 256, 51)) + ")"
+    return "linear-gradient(to right, rgba(214, 39, 40, 0), rgba(214, 39, 40, 1))"
+
+
 # -- NiceGUI ---------------------------------------------------------------------------------------------------
 
 
@@ -409,6 +417,10 @@ def build_page(explorer: Explorer | None = None) -> Explorer:
             image = ui.interactive_image(size=(width, height), content="", cross=False, sanitize=False,
                                          events=["mousedown", "mousemove", "mouseup", "mouseleave"])
             image.classes("bm-map").style(f"width: {width}px; height: {height}px; cursor: crosshair")
+            with ui.row().classes("items-center no-wrap gap-2"):
+                ui.label("inferred wall probability: 0").classes("text-caption")
+                legend = ui.element("div").classes("bm-legend").style("width: 160px; height: 12px; border: 1px solid #999")
+                ui.label("1").classes("text-caption")
             status = ui.label("").classes("bm-status text-body2")
         with ui.column().classes("gap-1").style("min-width: 360px"):
             fields = {}
@@ -442,6 +454,7 @@ def build_page(explorer: Explorer | None = None) -> Explorer:
         result_on = ex.result is not None
         shown = ex.shown(None if (average.value or not result_on) else int(sample_slider.value) - 1)
         image.content = ex.svg(shown, heatmap=heat.value == "heatmap")
+        legend.style(f"background: {_legend_gradient(heat.value == 'heatmap')}")
         sample_slider.set_enabled(result_on and not average.value)
         if result_on:
             n = len(ex.result.samples)
