@@ -84,7 +84,14 @@ def test_demo_subprocess(tmp_path):
     (lambda t: ["infer", "--sensor-noise", "0"], "sensor_noise"),
     (lambda t: ["infer", "--sampler", "magic"], "unknown sampler 'magic'"),
     (lambda t: ["infer", "--sweeps", "10", "--burn-in", "10"], "burn-in"),
-    (lambda t: ["infer", "--log", t / "missing.log"], "needs --scan"),
+    (lambda t: ["infer", "--log", t / "missing.log"], "missing.log"),
+    (lambda t: ["infer", "--log", t / "one.log", "--scan", "0", "--scans", "0:1"], "either --scan N or --scans"),
+    (lambda t: ["infer", "--log", t / "one.log", "--scans", "3:x"], "bad scan selection '3:x'"),
+    (lambda t: ["infer", "--log", t / "one.log", "--scans", "7"], "scan 7 is out of range"),
+    (lambda t: ["infer", "--scans", "0:2"], "need --log"),
+    (lambda t: ["infer", "--method", "magic"], "unknown method 'magic'"),
+    (lambda t: ["infer", "--method", "logodds", "--report"], "need --method gibbs"),
+    (lambda t: ["infer", "--beam-model", "laser"], "laser"),
     (lambda t: ["infer", "--log", t / "missing.log", "--scan", "1"], "missing.log"),
     (lambda t: ["infer", "--log", t / "trunc.log.gz", "--scan", "1"], "trunc"),
     (lambda t: ["infer", "--log", t / "one.log", "--scan", "5"], "5"),
@@ -108,3 +115,21 @@ def test_user_errors_are_one_line_exit_2(tmp_path, monkeypatch, capsys, make_arg
 
     assert re.search(match, lines[0]), lines[0]
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("args, match", [
+    ([], "either --log FILE or --truth FILE"),
+    (["--log", "{t}/one.log", "--every", "1"], "integer >= 2"),
+    (["--log", "{t}/one.log"], "no scan to test"),
+    (["--truth", "{t}/junk.txt"], "junk.txt"),
+    (["--truth", "{t}/missing.pgm"], "missing.pgm"),
+])
+def test_evaluate_user_errors_are_one_line_exit_2(tmp_path, monkeypatch, capsys, args, match, intel_log):
+    (tmp_path / "junk.txt").write_text("X..\nX#.\n")
+    with gzip.open(intel_log, "rt") as handle:
+        line = next(l for l in handle if l.startswith("FLASER"))
+    (tmp_path / "one.log").write_text(line)
+    code, out, err = run_cli(monkeypatch, capsys, "evaluate", *[a.format(t=tmp_path) for a in args])
+    lines = [l for l in err.strip().splitlines() if l.strip()]
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("error:"), err
+    assert match in lines[0]

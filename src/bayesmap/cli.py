@@ -24,6 +24,9 @@ app = typer.Typer(add_completion=False, no_args_is_help=True,
 OUTPUT_FILES = ("posterior.npy", "readings.npy", "posterior.png", "summary.json")
 DIAGNOSTICS_FILE = "diagnostics.npz"  # written with --chains >= 2
 REPORT_FILE = "report.html"  # written by demo, and by infer --report
+LOG_PRIOR = 0.1  # bayesmap.problem.LOG_PRIOR (not imported here: the CLI imports JAX only when a command runs)
+ROSMAP_STEM = "map"  # infer --rosmap writes map.pgm and map.yaml (ROS map_server)
+ROSMAP_FILES = (ROSMAP_STEM + ".pgm", ROSMAP_STEM + ".yaml")
 
 
 def _check_output_dir(out: Path, force: bool) -> None:
@@ -31,7 +34,7 @@ def _check_output_dir(out: Path, force: bool) -> None:
     if out.exists() and not out.is_dir():
         raise BayesmapError(f"output folder {str(out)!r} exists and is not a folder")
     if out.is_dir() and not force:
-        clash = [name for name in OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) if (out / name).exists()]
+        clash = [name for name in OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) + ROSMAP_FILES if (out / name).exists()]
         if clash:
             raise BayesmapError(f"{str(out / clash[0])!r} already exists; pass --force to replace bayesmap's outputs in {str(out)!r}")
     parent = out if out.is_dir() else out.parent
@@ -72,16 +75,28 @@ def _npy(array) -> bytes:
 
 
 def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], seed: int, out: Path, force: bool,
-                   title: str, chains: int = 1, report: bool = False) -> tuple[dict, list[str]]:
-    """Run inference and write its outputs into ``out``; returns the summary and the names of the files written."""
+                   title: str, chains: int = 1, report: bool = False, method: str = "gibbs",
+                   rosmap: bool = False) -> tuple[dict, list[str]]:
+    """Map ``problem`` (Gibbs sampling, or log-odds mapping with ``method="logodds"``) and write the outputs into
+    ``out``; returns the summary and the names of the files written."""
     from bayesmap.plots import figure_bytes, plot_posterior
-    from bayesmap.problem import run_inference
+    from bayesmap.problem import run_inference, run_logodds
 
     _check_output_dir(out, force)
-    result = run_inference(problem, sampler=sampler, sweeps=sweeps, burn_in=burn_in, seed=seed, chains=chains)
-    fig = plot_posterior(problem.grid, result.posterior, truth=problem.truth, pos=problem.pos,
-                         beam_angles=problem.beam_angles, readings=problem.readings,
-                         max_range_mask=problem.max_range_mask, title=title)
+    if method == "logodds":
+        result = run_logodds(problem)
+    else:
+        result = run_inference(problem, sampler=sampler, sweeps=sweeps, burn_in=burn_in, seed=seed, chains=chains)
+    if problem.multi_scan:
+        # a whole log: the posterior with its standard deviation and the robot's path (too many beams to draw)
+        fig = plot_posterior(problem.grid, result.posterior, title=title, std=method != "logodds")
+        path = problem.pos.reshape(-1, 2)
+        for ax in fig.axes[: 2 if method != "logodds" else 1]:
+            ax.plot(path[:, 0], path[:, 1], color="tab:blue", lw=0.6, alpha=0.7, label="sensor path")
+    else:
+        fig = plot_posterior(problem.grid, result.posterior, truth=problem.truth, pos=problem.pos,
+                             beam_angles=problem.beam_angles, readings=problem.readings,
+                             max_range_mask=problem.max_range_mask, title=title)
     files = {
         "posterior.npy": _npy(result.posterior.astype("float32")),
         "readings.npy": _npy(problem.readings.astype("float32")),
@@ -94,6 +109,10 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
         buf = io.BytesIO()
         np.savez(buf, r_hat=result.diagnostics["r_hat"], ess=result.diagnostics["ess"])
         files[DIAGNOSTICS_FILE] = buf.getvalue()
+    if rosmap:
+        from bayesmap.io.rosmap import encode_rosmap
+
+        files.update(encode_rosmap(ROSMAP_STEM, result.posterior, problem.grid))
     if report:
         from bayesmap.report import build_report
 
@@ -104,9 +123,12 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
 
 def _print_summary(summary: dict, out: Path, written: list[str]) -> None:
     typer.echo(f"sampler:  {summary['sampler']} ({summary['sampler_description']})")
-    typer.echo(f"data:     {summary['source']}, {summary['num_angles']} beams, grid {summary['grid']['shape'][0]} x "
+    beams = (f"{summary['num_scans']} scans, {summary['num_beams']} beams" if "num_scans" in summary
+             else f"{summary['num_angles']} beams")
+    typer.echo(f"data:     {summary['source']}, {beams}, grid {summary['grid']['shape'][0]} x "
                f"{summary['grid']['shape'][1]} cells of {summary['grid']['resolution']:g} m")
-    typer.echo(f"sweeps:   {summary['sweeps']} (posterior mean over the last {summary['sweeps'] - summary['burn_in']})")
+    if "sweeps" in summary:
+        typer.echo(f"sweeps:   {summary['sweeps']} (posterior mean over the last {summary['sweeps'] - summary['burn_in']})")
     typer.echo(f"runtime:  {summary['runtime_s']:.2f} s (compilation included)")
     if "wrong_visible_cells" in summary:
         typer.echo(f"accuracy: {summary['wrong_visible_cells']} of {summary['visible_cells']} visible cells wrong")
@@ -142,47 +164,67 @@ def demo(
 @app.command()
 def infer(
     map_file: Optional[Path] = typer.Option(None, "--map", help="ASCII map ('X' wall, '.' free); default the tutorial map"),
-    log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log (.log or .log.gz) for a real scan"),
-    scan: Optional[int] = typer.Option(None, "--scan", help="index of the scan in --log"),
-    resolution: float = typer.Option(0.1, help="grid resolution for a real scan, meters per cell"),
+    log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log (.log or .log.gz): all its scans, or --scans / --scan"),
+    scan: Optional[int] = typer.Option(None, "--scan", help="map only this scan of --log (one pose, the single-scan model)"),
+    scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to map: a range a:b, a stride a:b:step, a list, or 'all' (default)"),
+    resolution: float = typer.Option(0.1, help="grid resolution for real data, meters per cell"),
+    method: str = typer.Option("gibbs", "--method", help="gibbs (the posterior, with --sampler) or logodds (classic log-odds mapping, no posterior)"),
+    beam_model: Optional[str] = typer.Option(None, "--beam-model", help="sensor model: normal (the tutorial's; default for maps) or beam (robust mixture, Probabilistic Robotics 6.3; default for logs)"),
     sampler: str = _sampler_option("block"),
     sweeps: int = typer.Option(100, help="number of Gibbs sweeps"),
     burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: half)"),
-    prior_wall_prob: float = typer.Option(0.5, "--prior-wall-prob", help="prior probability that a cell is a wall"),
+    prior_wall_prob: Optional[float] = typer.Option(None, "--prior-wall-prob", help=f"prior probability that a cell is a wall (default 0.5, the tutorial's; {LOG_PRIOR} for several scans of a log)"),
     sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help="standard deviation of a reading, meters (default 0.2, the tutorial's; for --log half a cell)"),
     num_angles: int = typer.Option(100, "--num-angles", help="number of beams (simulated readings)"),
     pos: Optional[tuple[float, float]] = typer.Option(None, "--pos", help="sensor position X Y (simulated readings); default the map's center"),
     seed: int = typer.Option(0, help="seed of the simulated readings and of the chain"),
     chains: int = typer.Option(1, help="independent chains run at once; 2 or more add split R-hat and effective sample size per cell"),
     report: bool = typer.Option(False, "--report", help="also write report.html: settings, metrics, all figures and the chain's animation, offline"),
+    rosmap: bool = typer.Option(False, "--rosmap", help="also write the posterior mean as a ROS map_server map (map.pgm + map.yaml)"),
     out: Path = typer.Option(Path("bayesmap-out"), "--out", help="output folder"),
     force: bool = typer.Option(False, "--force", help="replace bayesmap's outputs already in the folder"),
 ) -> None:
-    """Infer the walls from simulated readings on a map file, or from one real laser scan (--log FILE --scan N)."""
+    """Infer the walls from simulated readings on a map file, or from a real CARMEN log (all scans, a selection, or
+    one scan)."""
     from bayesmap.grid import load_map, tutorial_map
-    from bayesmap.problem import scan_problem, tutorial_problem
+    from bayesmap.problem import log_problem, parse_scans, scan_problem, tutorial_problem
 
+    if method not in ("gibbs", "logodds"):
+        raise BayesmapError(f"unknown method {method!r}; choose gibbs or logodds")
+    if method == "logodds" and (report or chains != 1):
+        raise BayesmapError("--report and --chains need --method gibbs (log-odds mapping has no chain)")
     if log is not None:
         if map_file is not None:
             raise BayesmapError("give either --map or --log, not both")
-        if scan is None:
-            raise BayesmapError("--log needs --scan N (the index of the scan to map)")
+        if scan is not None and scans is not None:
+            raise BayesmapError("give either --scan N or --scans SPEC, not both")
         from bayesmap.io.carmen import read_carmen
 
-        problem = scan_problem(read_carmen(log), scan, resolution=resolution, prior_wall_prob=prior_wall_prob,
-                               sensor_noise=resolution / 2 if sensor_noise is None else sensor_noise)
-        title = f"Posterior wall probability, {log.name} scan {scan}"
-    else:
+        carmen = read_carmen(log)
+        noise = resolution / 2 if sensor_noise is None else sensor_noise
         if scan is not None:
-            raise BayesmapError("--scan needs --log FILE")
+            problem = scan_problem(carmen, scan, resolution=resolution, prior_wall_prob=prior_wall_prob or 0.5,
+                                   sensor_noise=noise, beam_model=beam_model or "normal")
+            title = f"{log.name} scan {scan}"
+        else:
+            chosen = parse_scans(scans, len(carmen))
+            problem = log_problem(carmen, chosen, resolution=resolution,
+                                  prior_wall_prob=LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
+                                  sensor_noise=noise, beam_model=beam_model or "beam")
+            title = f"{log.name}, {len(chosen)} scans"
+    else:
+        if scan is not None or scans is not None:
+            raise BayesmapError("--scan and --scans need --log FILE")
         walls = load_map(map_file) if map_file is not None else tutorial_map()
         center = (float(walls.shape[0] // 2), float(walls.shape[1] // 2))  # the tutorial's GRID_SIZE // 2
         problem = tutorial_problem(walls, pos=pos if pos is not None else center, seed=seed,
-                                   prior_wall_prob=prior_wall_prob, sensor_noise=0.2 if sensor_noise is None else sensor_noise, num_angles=num_angles,
-                                   source=str(map_file) if map_file else "tutorial map")
-        title = f"Posterior wall probability ({problem.source})"
+                                   prior_wall_prob=0.5 if prior_wall_prob is None else prior_wall_prob,
+                                   sensor_noise=0.2 if sensor_noise is None else sensor_noise, num_angles=num_angles,
+                                   source=str(map_file) if map_file else "tutorial map", beam_model=beam_model or "normal")
+        title = problem.source
+    title = ("Log-odds occupancy, " if method == "logodds" else "Posterior wall probability, ") + title
     summary, written = _run_and_write(problem, sampler, sweeps, burn_in, seed, out, force, title=title,
-                                      chains=chains, report=report)
+                                      chains=chains, report=report, method=method, rosmap=rosmap)
     _print_summary(summary, out, written)
 
 
@@ -218,6 +260,77 @@ def bench(
     typer.echo(format_table(results))
     if json_file is not None:
         write_atomic(json_file, json.dumps(results, indent=2) + "\n", overwrite=True)
+        typer.echo(f"wrote {json_file}")
+
+
+def _format_scores(scores: dict) -> str:
+    """The evaluation table: one row per method, its metrics as columns."""
+    rows = [(name, vals) for name, vals in scores.items() if name != "setup"]
+    keys = [k for k in ("auc", "nll", "accuracy", "brier", "beams", "cells", "runtime_s") if any(k in v for _, v in rows)]
+    head = f"{'method':<10}" + "".join(f"{k:>12}" for k in keys)
+    lines = [head]
+    for name, vals in rows:
+        cells = []
+        for k in keys:
+            v = vals.get(k)
+            cells.append(f"{'-':>12}" if v is None else f"{v:>12,}" if isinstance(v, int) else f"{v:>12.4f}")
+        lines.append(f"{name:<10}" + "".join(cells))
+    return "\n".join(lines)
+
+
+@app.command()
+def evaluate(
+    log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log: hold out every --every-th scan, map the rest, score the held-out beams"),
+    truth: Optional[Path] = typer.Option(None, "--truth", help="a floor plan (ROS .pgm or .yaml): simulate scans in it, map them, score against it"),
+    scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to use (a:b:step, list, or all)"),
+    every: int = typer.Option(10, "--every", help="hold out every k-th scan"),
+    resolution: float = typer.Option(0.1, help="meters per cell (--log; for a bare .pgm --truth, its pixel size)"),
+    sampler: str = _sampler_option("chromatic"),
+    sweeps: int = typer.Option(100, help="Gibbs sweeps (half burn-in)"),
+    beam_model: str = typer.Option("beam", "--beam-model", help="sensor model of mapping and scoring: beam or normal"),
+    num_poses: int = typer.Option(30, "--num-poses", help="--truth: number of simulated scans"),
+    num_angles: int = typer.Option(360, "--num-angles", help="--truth: beams per simulated scan (over 360 degrees)"),
+    max_range: float = typer.Option(20.0, "--max-range", help="--truth: max range of the simulated sensor, meters"),
+    sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help="standard deviation of a reading, meters (default half a cell)"),
+    prior_wall_prob: float = typer.Option(LOG_PRIOR, "--prior-wall-prob", help="prior probability that a cell is a wall"),
+    seed: int = typer.Option(0, help="seed of the chain (and of the simulated scans)"),
+    json_file: Optional[Path] = typer.Option(None, "--json", help="also write the table as JSON"),
+    force: bool = typer.Option(False, "--force", help="replace the --json file if it exists"),
+) -> None:
+    """Score bayesmap against log-odds mapping: on held-out beams of a log (occupancy AUC, predictive NLL), or
+    against a known floor plan (accuracy, AUC, Brier score)."""
+    from bayesmap.grid import write_atomic
+
+    if (log is None) == (truth is None):
+        raise BayesmapError("give either --log FILE or --truth FILE")
+    if json_file is not None and json_file.exists() and not force:
+        raise BayesmapError(f"{str(json_file)!r} already exists; pass --force to replace it")
+    if log is not None:
+        from bayesmap.evaluate import evaluate_log
+        from bayesmap.io.carmen import read_carmen
+        from bayesmap.problem import parse_scans
+
+        carmen = read_carmen(log)
+        scores = evaluate_log(carmen, parse_scans(scans, len(carmen)), every=every, resolution=resolution,
+                              sampler=sampler, sweeps=sweeps, seed=seed, sensor_noise=sensor_noise,
+                              beam_model=beam_model, prior_wall_prob=prior_wall_prob)
+        setup = scores["setup"]
+        typer.echo(f"{log.name}: mapped {setup['train_scans']} scans, scored the {setup['test_scans']} held out "
+                   f"(every {every}-th); grid {setup['grid'][0]} x {setup['grid'][1]} cells of {resolution:g} m; "
+                   f"{sampler}, {sweeps} sweeps, {beam_model} model")
+    else:
+        from bayesmap.evaluate import evaluate_truth
+
+        scores = evaluate_truth(truth, resolution=resolution, num_poses=num_poses, num_angles=num_angles,
+                                max_range=max_range, sampler=sampler, sweeps=sweeps, seed=seed,
+                                sensor_noise=sensor_noise, beam_model=beam_model, prior_wall_prob=prior_wall_prob)
+        setup = scores["setup"]
+        typer.echo(f"{truth.name}: {setup['num_poses']} simulated scans of {num_angles} beams; grid {setup['grid'][0]} x "
+                   f"{setup['grid'][1]} cells of {setup['resolution']:g} m; scored on {setup['cells_scored']:,} known cells "
+                   f"seen by a beam; {sampler}, {sweeps} sweeps")
+    typer.echo(_format_scores(scores))
+    if json_file is not None:
+        write_atomic(json_file, json.dumps(scores, indent=2) + "\n", overwrite=True)
         typer.echo(f"wrote {json_file}")
 
 

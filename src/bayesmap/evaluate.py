@@ -165,3 +165,186 @@ def truth_scores(prob, truth, known=None) -> dict[str, float]:
     labels = truth > 0.5
     return {"accuracy": accuracy(prob, labels, mask=mask), "auc": roc_auc(prob[mask], labels[mask]),
             "brier": brier_score(prob, labels, mask=mask), "cells": int(mask.sum())}
+
+
+# -- drivers: a log with held-out scans, a floor plan with synthetic scans ------------------------------------------
+
+
+def _sensor_logpdf(params):
+    """``logpdf(y, d)`` of the problem's sensor model, numpy in and out (:func:`bayesmap.model.reading_log_likelihood`)."""
+    from bayesmap.model import reading_log_likelihood
+
+    return lambda y, d: np.asarray(reading_log_likelihood(np.asarray(y), np.asarray(d), params), dtype=np.float64)
+
+
+def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, float]]:
+    """Score maps on the beams of ``test`` (a :class:`~bayesmap.problem.Problem` on the maps' grid).
+
+    Args:
+        test: the held-out beams.
+        maps: name -> ``(prob (nx, ny), samples (N, nx, ny) or None)``; with samples the predictive density averages
+            over (at most ``max_samples``, evenly thinned) samples, without it cells are independent with ``prob``.
+
+    Returns:
+        name -> ``{"auc", "nll", "beams", "positives", "negatives"}``.
+    """
+    table, y, mask = test.table, test.ray_readings, test.ray_max_range
+    logpdf = _sensor_logpdf(test.params)
+    hit, miss = beam_hits_and_misses(table, y, mask)
+    out = {}
+    for name, (prob, samples) in maps.items():
+        if samples is not None and len(samples):
+            keep = samples[np.unique(np.linspace(0, len(samples) - 1, min(max_samples, len(samples))).astype(int))]
+            logp = predictive_log_density_samples(table, y, keep, logpdf)
+        else:
+            logp = predictive_log_density_independent(table, y, prob, logpdf)
+        out[name] = {"auc": occupancy_auc(table, y, prob, mask), "nll": float(-np.mean(logp)),
+                     "beams": int(table.num_rays), "positives": int(hit.sum()), "negatives": int(miss.sum())}
+    return out
+
+
+def evaluate_log(log, scans=None, every: int = 10, resolution: float = 0.1, sampler: str = "chromatic",
+                 sweeps: int = 100, seed: int = 0, prior_wall_prob: float = 0.1, sensor_noise: float | None = None,
+                 beam_model: str = "beam", progress: bool = True) -> dict:
+    """Held-out evaluation on a log: hold out every ``every``-th of the chosen scans, map the rest with bayesmap
+    (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
+    held-out beams (see the module docstring).
+
+    Returns:
+        ``{"bayesmap": {...}, "logodds": {...}, "setup": {...}}`` (JSON-serializable).
+
+    Raises:
+        BayesmapError: on bad arguments (see :func:`heldout_split`, :func:`bayesmap.problem.log_problem`).
+    """
+    import time
+
+    from bayesmap.grid import Grid
+    from bayesmap.problem import log_problem, run_inference, run_logodds
+
+    scans = np.arange(len(log)) if scans is None else np.asarray(scans)
+    train_pos, test_pos = heldout_split(len(scans), every)
+    train, test = scans[train_pos], scans[test_pos]
+    everything = log_problem(log, scans, resolution=resolution)  # only for the grid covering all chosen scans
+    ends = everything.ray_origins + everything.ray_readings[:, None] * np.stack(
+        [np.cos(everything.ray_angles), np.sin(everything.ray_angles)], axis=-1)
+    grid = Grid.covering(np.vstack([ends[~everything.ray_max_range], everything.ray_origins]),
+                         resolution=resolution, margin=1.0)
+    kwargs = dict(resolution=resolution, prior_wall_prob=prior_wall_prob, sensor_noise=sensor_noise,
+                  beam_model=beam_model, grid=grid)
+    train_problem = log_problem(log, train, **kwargs)
+    test_problem = log_problem(log, test, **kwargs)
+    start = time.perf_counter()
+    gibbs = run_inference(train_problem, sampler, sweeps, seed=seed, progress=progress)
+    gibbs_s = time.perf_counter() - start
+    logodds = run_logodds(train_problem)
+    kept = gibbs.samples[gibbs.summary["burn_in"]:]
+    scores = score_maps(test_problem, {"bayesmap": (gibbs.posterior, kept), "logodds": (logodds.posterior, None)})
+    scores["bayesmap"]["runtime_s"] = round(gibbs_s, 3)
+    scores["logodds"]["runtime_s"] = round(logodds.runtime_s, 3)
+    scores["setup"] = {
+        "log": str(log.path), "scans": int(len(scans)), "train_scans": int(len(train)), "test_scans": int(len(test)),
+        "every": int(every), "resolution": float(resolution), "grid": list(grid.shape), "sampler": sampler,
+        "sweeps": int(sweeps), "beam_model": beam_model, "sensor_noise": float(train_problem.params.sensor_noise),
+        "prior_wall_prob": float(prior_wall_prob), "train_pairs": int(train_problem.table.num_pairs),
+    }
+    return scores
+
+
+KNOWN_FREE = 0.1
+"""A floor-plan cell counts as known free when its occupancy (map_server's ``(255 - pixel) / 255``) is at most this:
+white. Willow's unknown grey is pixel 206 (occupancy 0.192), which map_server's default ``free_thresh`` 0.196 would
+call free."""
+
+
+def simulate_readings_from_table(key, table: RayTable, walls, params) -> np.ndarray:
+    """``(R,)`` range readings (meters) of the table's beams in the map ``walls`` ``(nx, ny)``, drawn from the sensor
+    model of ``params`` (``params.beam_model``) at each beam's first-wall distance. Memory grows with the table's
+    pairs, not beams x cells. Normal readings are clipped at 0 (as :func:`bayesmap.problem.tutorial_problem`) and at
+    the max distance."""
+    import jax
+    import jax.numpy as jnp
+
+    from bayesmap.sensor import beam_sample
+
+    d = jnp.asarray(table.first_wall_distances(walls), dtype=jnp.result_type(float))
+    if params.beam_model == "normal":
+        y = d + params.sensor_noise * jax.random.normal(key, d.shape, d.dtype)
+    else:
+        keys = jax.random.split(key, d.shape[0])
+        y = jax.vmap(lambda k, dist: beam_sample(k, dist, *params.sensor_args))(keys, d)
+    return np.clip(np.asarray(y, dtype=np.float64), 0.0, table.max_distance)
+
+
+def evaluate_truth(path, resolution: float = 0.1, num_poses: int = 30, num_angles: int = 360, max_range: float = 20.0,
+                   sampler: str = "chromatic", sweeps: int = 100, seed: int = 0, sensor_noise: float | None = None,
+                   beam_model: str = "beam", prior_wall_prob: float = 0.1, clearance: float = 0.5) -> dict:
+    """Map synthetic scans of a known floor plan and score the maps against it.
+
+    ``num_poses`` positions are drawn (seed ``seed``) uniformly among the known-free cells at least ``clearance``
+    meters from any wall or unknown cell; from each, ``num_angles`` beams over 360 degrees (random heading) are
+    ray-cast in the floor plan and readings drawn from the sensor model (:func:`simulate_readings_from_table`;
+    max-range readings where no wall is within ``max_range``). bayesmap (``sampler``, ``sweeps``) and log-odds
+    mapping both map them; :func:`truth_scores` scores each over the known cells that some beam reached (cells
+    no beam saw are the prior in both, and would only measure coverage).
+
+    Args:
+        path: the floor plan, a ROS map (``.yaml``, or a bare ``.pgm`` with ``resolution`` meters per pixel).
+
+    Returns:
+        ``{"bayesmap": {"accuracy", "auc", "brier", "cells"}, "logodds": {...}, "setup": {...}}``.
+
+    Raises:
+        BayesmapError: on an unreadable map, or too few free cells for the poses.
+    """
+    import time
+    from pathlib import Path
+
+    import jax
+
+    from bayesmap.io.rosmap import read_rosmap
+    from bayesmap.model import make_params
+    from bayesmap.problem import Problem, run_inference, run_logodds
+    from bayesmap.raycast import build_ray_table, visible_cells
+
+    bare_pgm = Path(path).suffix.lower() == ".pgm"
+    plan = read_rosmap(path, resolution=resolution if bare_pgm else None)
+    grid = plan.grid
+    walls = plan.occupancy > plan.occupied_thresh
+    free = plan.occupancy <= KNOWN_FREE
+    known = walls | free
+    # poses: free cells with `clearance` of known free space around them (a square of cells, by shifting)
+    r = int(np.ceil(clearance / grid.resolution))
+    ok = free.copy()
+    padded = np.pad(free, r, constant_values=False)
+    for di in range(-r, r + 1):
+        for dj in range(-r, r + 1):
+            ok &= padded[r + di: r + di + free.shape[0], r + dj: r + dj + free.shape[1]]
+    candidates = np.argwhere(ok)
+    if len(candidates) < num_poses:
+        raise BayesmapError(f"{path}: only {len(candidates)} free cells with {clearance} m of clearance for {num_poses} poses")
+    rng = np.random.default_rng(seed)
+    cells = candidates[rng.choice(len(candidates), size=num_poses, replace=False)]
+    centers = grid.cell_centers()[cells[:, 0], cells[:, 1]]
+    poses = centers + rng.uniform(-0.5, 0.5, size=centers.shape) * grid.resolution
+    headings = rng.uniform(0, 2 * np.pi, size=num_poses)
+    beam_angles = headings[:, None] + np.linspace(0, 2 * np.pi, num_angles, endpoint=False)[None, :]
+    noise = grid.resolution / 2 if sensor_noise is None else sensor_noise
+    params = make_params(prior_wall_prob, noise, num_angles, grid, max_distance=max_range, beam_model=beam_model)
+    table = build_ray_table(grid, np.repeat(poses, num_angles, axis=0), beam_angles.reshape(-1), max_range)
+    readings = simulate_readings_from_table(jax.random.key(seed), table, walls, params).reshape(num_poses, num_angles)
+    problem = Problem(params=params, pos=poses, beam_angles=beam_angles, readings=readings,
+                      max_range_mask=readings >= max_range, source=f"{path} ({num_poses} simulated scans)")
+    problem.__dict__["table"] = table  # the cached property: the table was built above to simulate the readings
+    start = time.perf_counter()
+    gibbs = run_inference(problem, sampler, sweeps, seed=seed, progress=True)
+    gibbs_s = time.perf_counter() - start
+    logodds = run_logodds(problem)
+    seen = visible_cells(table, walls) & known
+    scores = {"bayesmap": truth_scores(gibbs.posterior, walls, seen), "logodds": truth_scores(logodds.posterior, walls, seen)}
+    scores["bayesmap"]["runtime_s"] = round(gibbs_s, 3)
+    scores["logodds"]["runtime_s"] = round(logodds.runtime_s, 3)
+    scores["setup"] = {"truth": str(path), "grid": list(grid.shape), "resolution": grid.resolution,
+                       "num_poses": int(num_poses), "num_angles": int(num_angles), "max_range": float(max_range),
+                       "sampler": sampler, "sweeps": int(sweeps), "beam_model": beam_model, "sensor_noise": float(noise),
+                       "cells_scored": int(seen.sum()), "known_cells": int(known.sum()), "pairs": int(table.num_pairs)}
+    return scores

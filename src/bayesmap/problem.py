@@ -20,46 +20,54 @@ from bayesmap.grid import Grid, tutorial_map
 from bayesmap.inference.chains import SamplingAlgorithm, _run, _run_many, cell_diagnostics, posterior_mean
 from bayesmap.inference.fast import fast_gibbs
 from bayesmap.inference.reference import reference_gibbs, reference_incremental_gibbs
-from bayesmap.model import ModelParams, log_joint, make_params, simulate_readings
+from bayesmap.model import ModelParams, log_joint, log_joint_scans, make_params, reading_log_likelihood, simulate_readings
 from bayesmap.raycast import RayTable, angles, build_ray_table, check_readings, visible_cells
 
 TUTORIAL_POS = (10.0, 10.0)
 
+LOG_PRIOR = 0.1
+"""Default prior wall probability for maps from many scans (logs, floor plans): indoor floor plans have about a tenth
+of their cells occupied, and with 0.5 the robust beam model explains a long beam's reading as a sensor failure rather
+than as free space (the prior odds of "no wall in 100 cells" are 2^-100 against a likelihood ratio of at most 9)."""
+
 # name -> (description, factory(problem) -> SamplingAlgorithm)
 SAMPLERS: dict[str, tuple[str, object]] = {
     "block": ("2x2 block Gibbs, fast (ray-cell table), raster order",
-              lambda pb: fast_gibbs(pb.table, pb.readings, pb.params, "raster", 2, "sequential", pb.pos)),
+              lambda pb: fast_gibbs(pb.table, pb.ray_readings, pb.params, "raster", 2, "sequential", pb.ray_origins[0])),
     "raster": ("single-site Gibbs, fast, raster order",
-               lambda pb: fast_gibbs(pb.table, pb.readings, pb.params, "raster", 1, "sequential", pb.pos)),
+               lambda pb: fast_gibbs(pb.table, pb.ray_readings, pb.params, "raster", 1, "sequential", pb.ray_origins[0])),
     "outward": ("single-site Gibbs, fast, sensor-outward order",
-                lambda pb: fast_gibbs(pb.table, pb.readings, pb.params, "outward", 1, "sequential", pb.pos)),
+                lambda pb: fast_gibbs(pb.table, pb.ray_readings, pb.params, "outward", 1, "sequential", pb.ray_origins[0])),
     "chromatic": ("single-site Gibbs, fast, chromatic (colour classes updated in parallel)",
-                  lambda pb: fast_gibbs(pb.table, pb.readings, pb.params, "raster", 1, "chromatic", pb.pos)),
+                  lambda pb: fast_gibbs(pb.table, pb.ray_readings, pb.params, "raster", 1, "chromatic", pb.ray_origins[0])),
     "chromatic-block": ("2x2 block Gibbs, fast, chromatic",
-                        lambda pb: fast_gibbs(pb.table, pb.readings, pb.params, "raster", 2, "chromatic", pb.pos)),
+                        lambda pb: fast_gibbs(pb.table, pb.ray_readings, pb.params, "raster", 2, "chromatic", pb.ray_origins[0])),
     "reference-raster": ("the tutorial's single-site Gibbs with assess, raster order",
-                         lambda pb: reference_gibbs(pb.readings, pb.pos, pb.params, pb.beam_angles, "raster", 1)),
+                         lambda pb: reference_gibbs(*pb.single_scan(), "raster", 1)),
     "reference-incremental": ("the tutorial's single-site Gibbs with incremental trace edit",
-                              lambda pb: reference_incremental_gibbs(pb.readings, pb.pos, pb.params, pb.beam_angles)),
+                              lambda pb: reference_incremental_gibbs(*pb.single_scan())),
     "reference-outward": ("the tutorial's single-site Gibbs with assess, sensor-outward order",
-                          lambda pb: reference_gibbs(pb.readings, pb.pos, pb.params, pb.beam_angles, "outward", 1)),
+                          lambda pb: reference_gibbs(*pb.single_scan(), "outward", 1)),
     "reference-block": ("the tutorial's 2x2 block Gibbs with assess",
-                        lambda pb: reference_gibbs(pb.readings, pb.pos, pb.params, pb.beam_angles, "raster", 2)),
+                        lambda pb: reference_gibbs(*pb.single_scan(), "raster", 2)),
 }
 
 
 @dataclass(frozen=True, eq=False)
 class Problem:
-    """A single-scan mapping problem.
+    """A mapping problem: one scan (the tutorial's case) or ``S`` scans, each from its own position.
 
     Attributes:
-        params: model parameters; ``params.grid`` is the grid and ``params.cap`` the max distance (meters).
-        pos: ``(2,)`` float64 sensor position, world meters.
-        beam_angles: ``(K,)`` float64 world-frame beam angles, radians.
-        readings: ``(K,)`` float64 range readings, meters (max-range readings already set to the max range).
+        params: model parameters; ``params.grid`` is the grid, ``params.cap`` the max distance (meters) and
+            ``params.beam_model`` the sensor model.
+        pos: sensor position(s), world meters: ``(2,)`` float64 for one scan, ``(S, 2)`` for ``S`` scans.
+        beam_angles: world-frame beam angles, radians: ``(K,)`` for one scan, ``(S, K)`` for ``S`` scans (the pose's
+            heading is folded in).
+        readings: range readings, meters, the shape of ``beam_angles`` (max-range readings set to the max range).
         truth: ``(nx, ny)`` float32 true map, or None for real data.
-        max_range_mask: ``(K,)`` bool, readings that were max-range (no return), or None.
+        max_range_mask: bool, the shape of ``readings``: readings that were max-range (no return); or None.
         source: a description for summaries.
+        extra: more JSON-serializable facts for the summary.
     """
 
     params: ModelParams
@@ -75,10 +83,79 @@ class Problem:
     def grid(self) -> Grid:
         return self.params.grid
 
+    @property
+    def num_scans(self) -> int:
+        """``S``: 1 for a single-scan problem."""
+        return 1 if np.ndim(self.pos) == 1 else int(np.shape(self.pos)[0])
+
+    @property
+    def multi_scan(self) -> bool:
+        """True when ``pos`` is ``(S, 2)`` (even with ``S = 1``)."""
+        return np.ndim(self.pos) == 2
+
+    @cached_property
+    def ray_origins(self) -> np.ndarray:
+        """``(R, 2)`` float64 sensor position of every beam (scan-major), meters."""
+        k = np.shape(self.beam_angles)[-1]
+        return np.repeat(np.asarray(self.pos, dtype=np.float64).reshape(-1, 2), k, axis=0)
+
+    @property
+    def ray_angles(self) -> np.ndarray:
+        """``(R,)`` world-frame angle of every beam, radians."""
+        return np.asarray(self.beam_angles, dtype=np.float64).reshape(-1)
+
+    @property
+    def ray_readings(self) -> np.ndarray:
+        """``(R,)`` reading of every beam, meters."""
+        return np.asarray(self.readings, dtype=np.float64).reshape(-1)
+
+    @property
+    def ray_max_range(self) -> np.ndarray | None:
+        """``(R,)`` bool, max-range readings (or None)."""
+        return None if self.max_range_mask is None else np.asarray(self.max_range_mask, bool).reshape(-1)
+
+    @property
+    def scan_of_ray(self) -> np.ndarray:
+        """``(R,)`` int64 index of the scan of every beam."""
+        return np.repeat(np.arange(self.num_scans), np.shape(self.beam_angles)[-1])
+
     @cached_property
     def table(self) -> RayTable:
-        """The ray-cell table of this scan (built on first use)."""
-        return build_ray_table(self.grid, self.pos, self.beam_angles, self.params.cap)
+        """The ray-cell table of all beams (built on first use)."""
+        return build_ray_table(self.grid, self.ray_origins, self.ray_angles, self.params.cap)
+
+    def single_scan(self) -> tuple:
+        """``(readings (K,), pos (2,), params, beam_angles (K,))`` for the single-scan (reference) samplers.
+
+        Raises:
+            BayesmapError: for a problem of several scans.
+        """
+        if self.num_scans != 1:
+            raise BayesmapError(f"the reference samplers take one scan; this problem has {self.num_scans} "
+                                "(use a fast sampler)")
+        return (self.ray_readings, np.asarray(self.pos, np.float64).reshape(2), self.params, self.ray_angles)
+
+    def log_joint(self, walls) -> float:
+        """``log p(walls, readings)``: the GenJAX model's ``assess`` (:func:`~bayesmap.model.log_joint`, or
+        :func:`~bayesmap.model.log_joint_scans` for several scans) when the problem is small enough for the dense
+        geometry (beams x cells <= 2e7), else :meth:`table_log_joint` (equal to it, tested)."""
+        if not self.multi_scan:
+            return float(log_joint(walls, self.readings, self.pos, self.params, self.beam_angles))
+        if self.table.num_rays * self.grid.num_cells <= 2e7:
+            return float(log_joint_scans(walls, self.readings, self.pos, self.params, self.beam_angles))
+        return self.table_log_joint(walls)
+
+    def table_log_joint(self, walls) -> float:
+        """``log p(walls, readings)`` from the ray-cell table: the prior's log-probability plus, per beam,
+        the sensor model's log-density of its reading at the distance of its first wall (the max distance if none).
+        Memory and time grow with the table's pairs, not beams x cells."""
+        walls = np.asarray(walls) > 0.5
+        p = float(self.params.prior_wall_prob)
+        prior = walls.sum() * math.log(p) + (walls.size - walls.sum()) * math.log1p(-p)
+        d = self.table.first_wall_distances(walls)
+        ll = reading_log_likelihood(jnp.asarray(self.ray_readings), jnp.asarray(d, dtype=jnp.result_type(float)),
+                                    self.params)
+        return float(prior + float(jnp.sum(ll)))
 
     @cached_property
     def visible(self) -> np.ndarray | None:
@@ -94,7 +171,8 @@ class Problem:
 
 
 def tutorial_problem(walls=None, pos=TUTORIAL_POS, seed: int = 0, prior_wall_prob: float = 0.5,
-                     sensor_noise: float = 0.2, num_angles: int = 100, source: str = "tutorial map") -> Problem:
+                     sensor_noise: float = 0.2, num_angles: int = 100, source: str = "tutorial map",
+                     beam_model: str = "normal") -> Problem:
     """The tutorial's scene: a map (default the built-in 21 x 21), the sensor at ``pos`` (default the center),
     ``num_angles`` equally spaced beams, readings simulated from the sensor model with ``jax.random.key(seed)``
     (seed 0 gives the tutorial's readings).
@@ -104,7 +182,7 @@ def tutorial_problem(walls=None, pos=TUTORIAL_POS, seed: int = 0, prior_wall_pro
     """
     walls = tutorial_map() if walls is None else (np.asarray(walls) > 0.5).astype(np.float32)
     grid = Grid(shape=walls.shape)
-    params = make_params(prior_wall_prob, sensor_noise, num_angles, grid)
+    params = make_params(prior_wall_prob, sensor_noise, num_angles, grid, beam_model=beam_model)
     grid.check_inside(pos)
     pos = np.asarray(pos, dtype=np.float64)
     beam_angles = np.asarray(angles(num_angles), dtype=np.float64)
@@ -115,7 +193,7 @@ def tutorial_problem(walls=None, pos=TUTORIAL_POS, seed: int = 0, prior_wall_pro
 
 
 def scan_problem(log, index: int, resolution: float = 0.1, prior_wall_prob: float = 0.5, sensor_noise: float = 0.2,
-                 margin: float = 1.0) -> Problem:
+                 margin: float = 1.0, beam_model: str = "normal") -> Problem:
     """The area around one real scan at its pose.
 
     ``sensor_noise`` should be about half a cell for real data: with the tutorial's 0.2 m on 0.1 m cells the
@@ -141,11 +219,89 @@ def scan_problem(log, index: int, resolution: float = 0.1, prior_wall_prob: floa
     pos = np.asarray(scan.pose[:2], dtype=np.float64)
     ends = pos + ranges[:, None] * np.stack([np.cos(scan.angles), np.sin(scan.angles)], axis=-1)
     grid = Grid.covering(np.vstack([ends[~is_max], pos[None]]), resolution=resolution, margin=margin)
-    params = make_params(prior_wall_prob, sensor_noise, len(ranges), grid, max_distance=max_range)
+    params = make_params(prior_wall_prob, sensor_noise, len(ranges), grid, max_distance=max_range, beam_model=beam_model)
     readings = np.where(is_max, max_range, ranges)
     return Problem(params=params, pos=pos, beam_angles=np.asarray(scan.angles, dtype=np.float64), readings=readings,
                    max_range_mask=is_max, source=f"{log.path} scan {index}",
                    extra={"pose": [float(v) for v in scan.pose], "max_range": max_range})
+
+
+def parse_scans(spec: str | None, num_scans: int) -> np.ndarray:
+    """Scan indices from a spec: None or ``"all"`` (every scan), ``"i"`` (one), ``"a:b"`` or ``"a:b:step"``
+    (Python slice syntax, any part may be empty), or a comma-separated list of those.
+
+    Raises:
+        BayesmapError: on a malformed spec, an index out of range, or no scan selected.
+    """
+    if spec is None or spec.strip().lower() == "all":
+        return np.arange(num_scans)
+    chosen = []
+    for part in spec.split(","):
+        part = part.strip()
+        try:
+            if ":" in part:
+                bits = [int(b) if b.strip() else None for b in part.split(":")]
+                if len(bits) > 3 or (len(bits) == 3 and bits[2] is not None and bits[2] <= 0):
+                    raise ValueError
+                chosen.append(np.arange(num_scans)[slice(*bits)])
+            else:
+                index = int(part)
+        except ValueError:  # (BayesmapError is a ValueError too: none is raised inside)
+            raise BayesmapError(f"bad scan selection {part!r}: use an index, a range a:b or a:b:step, or 'all'") from None
+        if ":" not in part:
+            if not (-num_scans <= index < num_scans):
+                raise BayesmapError(f"scan {index} is out of range: the log has {num_scans} scans (0..{num_scans - 1})")
+            chosen.append(np.array([index % num_scans]))
+    scans = np.unique(np.concatenate(chosen)) if chosen else np.zeros(0, int)
+    if len(scans) == 0:
+        raise BayesmapError(f"the scan selection {spec!r} selects no scan of the {num_scans}")
+    return scans
+
+
+def log_problem(log, scans=None, resolution: float = 0.1, prior_wall_prob: float = LOG_PRIOR,
+                sensor_noise: float | None = None, beam_model: str = "beam", margin: float = 1.0,
+                grid: Grid | None = None) -> Problem:
+    """Many scans of a real log at their poses: one map from all of them.
+
+    The grid (``resolution`` meters per cell) covers the sensor positions and the endpoints of all beams that
+    returned, plus ``margin`` meters. The model's max distance is the log's max range and max-range readings are set
+    to exactly that value: with the beam model they are scored by its point mass at the max range (a beam with no
+    wall within range makes them likely), not dropped.
+
+    Args:
+        log: a :class:`bayesmap.io.carmen.CarmenLog`.
+        scans: scan indices (``(S,)`` ints); default all.
+        resolution: meters per cell.
+        prior_wall_prob: prior probability of a wall.
+        sensor_noise: the hit component's standard deviation, meters; default half a cell.
+        beam_model: ``"beam"`` (the robust mixture, default for real data) or ``"normal"``.
+        margin: meters added around the data.
+        grid: use this grid instead (e.g. one covering held-out scans too); its resolution wins.
+
+    Raises:
+        BayesmapError: on bad parameters or scan indices, or a sensor position outside ``grid``.
+    """
+    scans = np.arange(len(log)) if scans is None else np.asarray(scans, dtype=np.int64).reshape(-1)
+    if len(scans) == 0:
+        raise BayesmapError("no scan selected")
+    for index in (scans.min(), scans.max()):
+        log._check_index(int(index))
+    ranges = np.asarray(log.ranges[scans], dtype=np.float64)
+    max_range = float(log.max_range) if math.isfinite(log.max_range) else float(ranges.max()) + 1.0
+    is_max = ranges >= max_range
+    poses = np.asarray(log.poses[scans], dtype=np.float64)
+    beam_angles = np.asarray(log.angles[scans], dtype=np.float64)
+    ends = poses[:, None, :2] + ranges[..., None] * np.stack([np.cos(beam_angles), np.sin(beam_angles)], axis=-1)
+    if grid is None:
+        grid = Grid.covering(np.vstack([ends[~is_max], poses[:, :2]]), resolution=resolution, margin=margin)
+    resolution = grid.resolution
+    noise = resolution / 2 if sensor_noise is None else sensor_noise
+    params = make_params(prior_wall_prob, noise, beam_angles.shape[1], grid, max_distance=max_range,
+                         beam_model=beam_model)
+    readings = np.where(is_max, max_range, ranges)
+    label = f"{log.path} scans {scans[0]}..{scans[-1]} ({len(scans)})" if len(scans) > 1 else f"{log.path} scan {scans[0]}"
+    return Problem(params=params, pos=poses[:, :2], beam_angles=beam_angles, readings=readings, max_range_mask=is_max,
+                   source=label, extra={"max_range": max_range, "scans": len(scans)})
 
 
 def make_sampler(problem: Problem, name: str) -> SamplingAlgorithm:
@@ -182,7 +338,7 @@ class InferenceResult:
 
 def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, burn_in: int | None = None,
                   seed: int = 0, progress: bool = True, chains: int = 1,
-                  on_progress=None) -> InferenceResult:
+                  on_progress=None, init: str | None = None) -> InferenceResult:
     """Run ``chains`` chains of ``sampler`` from the all-free map (at once, ``vmap``) and summarize them.
 
     Args:
@@ -194,6 +350,11 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         progress: show a progress bar (tqdm, on stderr) when the run takes longer than a second.
         chains: number of independent chains (keys split from ``seed``); with 2 or more the summary reports the
             worst split R-hat and the smallest effective sample size over the cells that change.
+        init: the chains' first map: ``"free"`` (no walls; the tutorial's, default for one scan) or ``"logodds"``
+            (the cells log-odds mapping calls occupied, :func:`run_logodds`; default for several scans). Where the
+            chain starts does not change its stationary distribution; with the robust beam model a chain started
+            from the empty map can take very long to clear the spurious walls it draws first (a reading far beyond a
+            wrong wall is only "random" under the mixture, so wrong walls on a beam hold each other in place).
         on_progress: called as ``on_progress(done, total)`` after every chunk of at most 10 sweeps (from the
             thread that runs the chain), for a progress display such as the app's.
 
@@ -214,7 +375,13 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         raise BayesmapError(f"diagnostics of {chains} chains need at least 4 sweeps after the burn-in, got {sweeps - burn_in}")
     start = time.perf_counter()
     algorithm = make_sampler(problem, sampler)
-    walls0 = jnp.zeros(problem.grid.shape, jnp.float32)
+    init = ("logodds" if problem.multi_scan else "free") if init is None else init
+    if init == "free":
+        walls0 = jnp.zeros(problem.grid.shape, jnp.float32)
+    elif init == "logodds":
+        walls0 = jnp.asarray(run_logodds(problem).posterior > 0.5, jnp.float32)
+    else:
+        raise BayesmapError(f"unknown chain start {init!r}; choose free or logodds")
     state = algorithm.init(walls0) if chains == 1 else jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape))
     chunk = max(1, min(sweeps, 10))
     keys = jax.random.split(jax.random.key(seed), -(-sweeps // chunk))
@@ -244,10 +411,13 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         "burn_in": int(burn_in),
         "seed": int(seed),
         "chains": int(chains),
+        "init": init,
         "prior_wall_prob": float(problem.params.prior_wall_prob),
         "sensor_noise": float(problem.params.sensor_noise),
-        "num_angles": int(len(problem.beam_angles)),
-        "pos": [float(v) for v in problem.pos],
+        "num_angles": int(np.shape(problem.beam_angles)[-1]),
+        **({"num_scans": problem.num_scans, "num_beams": int(problem.table.num_rays)} if problem.multi_scan
+           else {"pos": [float(v) for v in problem.pos]}),
+        "beam_model": problem.params.beam_model,
         "grid": {"shape": list(problem.grid.shape), "resolution": problem.grid.resolution, "origin": list(problem.grid.origin)},
         "max_distance": problem.params.cap,
         "runtime_s": round(runtime, 4),
@@ -258,12 +428,54 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
     if problem.truth is not None:
         summary["visible_cells"] = int(problem.visible.sum())
         summary["wrong_visible_cells"] = problem.wrong_visible_cells(posterior)
-        summary["log_joint_truth"] = float(log_joint(problem.truth, problem.readings, problem.pos, problem.params, problem.beam_angles))
+        summary["log_joint_truth"] = problem.log_joint(problem.truth)
     last = samples[-1] if chains == 1 else samples[0, -1]
-    summary["log_joint_final_sample"] = float(log_joint(last, problem.readings, problem.pos, problem.params, problem.beam_angles))
+    summary["log_joint_final_sample"] = problem.log_joint(last)
     if diagnostics is not None:
         varying = np.isfinite(diagnostics["r_hat"])
         summary["cells_varying"] = int(varying.sum())
         summary["r_hat_max"] = float(diagnostics["r_hat"][varying].max()) if varying.any() else None
         summary["ess_min"] = float(diagnostics["ess"][varying].min()) if varying.any() else None
     return InferenceResult(samples=samples, posterior=posterior, runtime_s=runtime, summary=summary, diagnostics=diagnostics)
+
+
+def run_logodds(problem: Problem, params=None) -> InferenceResult:
+    """Map ``problem`` with classic log-odds occupancy mapping (:func:`bayesmap.inference.logodds.logodds_map`,
+    one update per scan, in scan order) instead of a posterior: the baseline users know.
+
+    Returns:
+        An :class:`InferenceResult` whose ``posterior`` is the occupancy probability per cell (not a posterior),
+        with no samples (``(0, nx, ny)``) and a summary like :func:`run_inference`'s.
+    """
+    from bayesmap.inference.logodds import LogOddsParams, logodds_map, occupancy
+
+    params = LogOddsParams() if params is None else params
+    start = time.perf_counter()
+    table = problem.table
+    table_s = time.perf_counter() - start
+    logodds = logodds_map(table, problem.ray_readings, problem.ray_max_range, problem.scan_of_ray, params)
+    runtime = time.perf_counter() - start
+    prob = occupancy(logodds)
+    summary = {
+        "source": problem.source,
+        "method": "logodds",
+        "sampler": "logodds",
+        "sampler_description": f"log-odds occupancy mapping, inverse sensor model (p_hit {params.p_hit}, p_miss "
+                               f"{params.p_miss}, clamping {params.clamp_min}-{params.clamp_max})",
+        "num_angles": int(np.shape(problem.beam_angles)[-1]),
+        **({"num_scans": problem.num_scans, "num_beams": int(table.num_rays)} if problem.multi_scan
+           else {"pos": [float(v) for v in problem.pos]}),
+        "grid": {"shape": list(problem.grid.shape), "resolution": problem.grid.resolution, "origin": list(problem.grid.origin)},
+        "max_distance": problem.params.cap,
+        "ray_cell_pairs": int(table.num_pairs),
+        "table_s": round(table_s, 4),
+        "update_s": round(runtime - table_s, 4),
+        "runtime_s": round(runtime, 4),
+        **problem.extra,
+    }
+    if problem.truth is not None:
+        summary["visible_cells"] = int(problem.visible.sum())
+        summary["wrong_visible_cells"] = problem.wrong_visible_cells(prob)
+    empty = np.zeros((0,) + problem.grid.shape, dtype=bool)
+    return InferenceResult(samples=empty, posterior=prob, runtime_s=runtime, summary=summary)
+

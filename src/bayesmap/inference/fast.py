@@ -5,10 +5,13 @@ For such a ray, let ``m_out`` be the distance of its first wall *outside* the bl
 block in configuration ``c``, the ray's expected distance is ``min(m_out, min over block walls of t)``, where ``t``
 is the table's stopping distance of each block cell on that ray. The block's conditional log-weights are then
 
-    log w(c) = sum over block cells of log prior(c_cell) + sum over rays through the block of log N(y_r; d_r(c), s)
+    log w(c) = sum over block cells of log prior(c_cell) + sum over rays through the block of log p(y_r | d_r(c))
 
 up to a constant that does not depend on ``c`` (``shared/DESIGN.md``, "The fast conditional"; for one cell it is
-the prior log-odds plus, per ray, ``log N(y | d1) - log N(y | d0)``).
+the prior log-odds plus, per ray, ``log p(y | d1) - log p(y | d0)``). ``log p(y | d)`` is the model's sensor model
+(:mod:`bayesmap.sensor`, ``params.beam_model``): the tutorial's ``log N(y; d, sensor_noise)`` or the robust beam
+mixture; a ray with no wall within the max distance has ``d = table.max_distance``, exactly as in the model.
+Rays may come from several scans (poses): the table holds each ray's own origin.
 
 The state keeps, next to the map, the walls *along each ray* as a bit string (bit ``p`` of ray ``r`` is the wall
 value of the ``p``-th cell on the ray, 32 cells per ``uint32`` word). The first wall outside a block is then the
@@ -28,6 +31,7 @@ Each block is drawn by inverse CDF from one uniform (for single cells: wall with
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -45,14 +49,13 @@ from bayesmap.inference.schedules import (
 )
 from bayesmap.model import ModelParams
 from bayesmap.raycast import RayTable, check_readings
+from bayesmap.sensor import normal_logpdf, reading_logpdf
 
 SCHEDULES = ("sequential", "chromatic")
 WORD_BITS = 32
 
 
-def _normal_logpdf(y, mean, scale):
-    z = (y - mean) / scale
-    return -0.5 * z * z - jnp.log(scale) - 0.5 * jnp.log(2 * jnp.pi)
+_normal_logpdf = normal_logpdf  # the tutorial's sensor model (kept under its old name)
 
 
 def sample_categorical(log_weights, u):
@@ -105,6 +108,11 @@ class Levels(NamedTuple):
         fix_src: ``(NL, E)`` int32 buffer index of the drawn configuration of a chunked block whose bits the
             entry's words lack (the zero word, configuration 0, if none).
         fix_pos: ``(NL, B, E)`` int32 positions of that block's cells on the ray, ``-1`` if none.
+        stop_ll: ``(NL, C, E)`` float ``log p(y | stop)`` of the sensor model at each configuration's own stopping
+            distance (0 where ``stop`` is ``inf``), and
+        max_ll: ``(NL, E)`` float ``log p(y | max distance)`` (the ray has no wall): both precomputed for sensor
+            models other than ``"normal"``, which are costly to evaluate (see :class:`FastKernel`); None for
+            ``"normal"`` (evaluated in the step, as always) or when not precomputed (then evaluated in the step).
     """
 
     src: jax.Array
@@ -119,6 +127,16 @@ class Levels(NamedTuple):
     commit: jax.Array
     fix_src: jax.Array
     fix_pos: jax.Array
+    stop_ll: jax.Array | None = None
+    max_ll: jax.Array | None = None
+
+
+@partial(jax.jit, static_argnames=("beam_model",))
+def _log_likelihood_table(beam_model, sensor_args, y, d):
+    """``log p(y | d)`` of ``beam_model`` (broadcast shapes), 0 where ``d`` is ``inf`` (a configuration that does
+    not stop the ray: never selected)."""
+    ll = reading_logpdf(beam_model, y, d, sensor_args)
+    return jnp.where(jnp.isfinite(d), ll, 0.0)
 
 
 class FastGibbs:
@@ -126,8 +144,12 @@ class FastGibbs:
 
     Args:
         table: the ray-cell table of the scene (its rays are in the order of ``readings``).
-        readings: ``(R,)`` observed ranges, meters.
-        params: model parameters (``prior_wall_prob`` and ``sensor_noise`` are used; geometry comes from the table).
+        readings: ``(R,)`` observed ranges, meters (for several scans, ``(S, K)`` readings flattened scan by scan,
+            in the order of the table's rays); max-range readings equal to the max distance.
+        params: model parameters: ``prior_wall_prob`` and the sensor model (``beam_model``, ``sensor_noise`` and,
+            for ``"beam"``, the mixture's weights and ``lambda_short``, whose max range is the table's max distance);
+            geometry comes from the table. The dynamic parameters are kernel arrays (changing them reuses the
+            compiled sweep); ``beam_model`` is static.
         order: ``"raster"`` or ``"outward"`` (block anchors' order).
         block_size: 1 for single-site, k for k x k blocks.
         schedule: ``"sequential"`` (same kernel as the reference sweep) or ``"chromatic"``.
@@ -146,11 +168,12 @@ class FastGibbs:
             the same geometry and schedule.
 
     Raises:
-        BayesmapError: on readings that do not match the table's rays, an unknown schedule or order, or a bad
-            block size.
+        BayesmapError: on readings that do not match the table's rays, an unknown schedule or order, a bad block
+            size, or (beam model) a table whose max distance is not ``params.cap`` (the sensor's max range).
 
     Memory: the table's pairs, one bit per pair for the state, and per (block, ray) entry ``B`` positions and
-    ``2**B`` distances (``B`` cells per block); a sweep's buffer holds one copy of each entry's ray words.
+    ``2**B`` distances (``B`` cells per block); a sweep's buffer holds one copy of each entry's ray words. The beam
+    model adds its looked-up log-likelihoods: one float per pair and ``2**B + 1`` per entry (:class:`FastKernel`).
     """
 
     def __init__(self, table: RayTable, readings, params: ModelParams, order: str = "raster", block_size: int = 1,
@@ -160,12 +183,17 @@ class FastGibbs:
         self.table = table
         self.grid = table.grid
         self._y = check_readings(readings, table.num_rays)
+        self.beam_model = params.beam_model
+        self._dtype = jnp.result_type(float)
+        self._sensor_args = tuple(jnp.asarray(a, dtype=self._dtype) for a in params.sensor_args)
+        if params.beam_model != "normal" and not math.isclose(float(table.max_distance), params.cap, rel_tol=1e-12):
+            raise BayesmapError(f"the table's max distance {table.max_distance!r} m is not the model's max range "
+                                f"params.cap = {params.cap!r} m")
         if pos is None:
             pos = table.origins[0] if table.num_rays else np.zeros(2)
         self.blocks = make_blocks(self.grid, block_size, order, pos)
         make_levels = dependency_levels if schedule == "sequential" else chromatic_levels
         base_levels = make_levels(self.blocks, table)
-        self._dtype = jnp.result_type(float)
         self._num_cells = table.num_cells
         # per-ray word layout of the state's bit strings, then one zero word
         num_words = (-(-table.lengths // WORD_BITS)).astype(np.int64)
@@ -200,13 +228,24 @@ class FastGibbs:
             _pair_words=jnp.asarray(self._word_offsets[table.pair_rays] + table.pair_positions // WORD_BITS,
                                     dtype=jnp.int32),
             _pair_shift=jnp.asarray(table.pair_positions % WORD_BITS, dtype=jnp.uint32),
-            _bits=jnp.asarray(self._config_bits), _noise=jnp.asarray(params.sensor_noise, dtype=self._dtype),
-            _max_words=self._max_words, _zero_word=self._zero_word,
+            _bits=jnp.asarray(self._config_bits),
+            _sensor=self._sensor_args, _pair_ll=self._pair_log_likelihoods(),
+            _beam_model=params.beam_model, _max_words=self._max_words, _zero_word=self._zero_word,
             _chunked=not bool(np.all(np.asarray(self._steps.commit))), _dtype=jnp.dtype(self._dtype).name)
         self.algorithm = SamplingAlgorithm(init=jax.tree_util.Partial(FastKernel.init, self.kernel),
                                            step=jax.tree_util.Partial(FastKernel.step, self.kernel))
 
     # -- static preparation (numpy) ------------------------------------------------------------------------------
+
+    def _pair_log_likelihoods(self):
+        """``(P + 1,)`` ``log p(y_r | t)`` for each (ray r, cell) pair's stopping distance ``t`` (then a 0 for the
+        "no wall" index, whose value comes from ``Levels.max_ll``); None for ``"normal"``."""
+        if self.beam_model == "normal":
+            return None
+        table = self.table
+        y = jnp.asarray(self._y[table.pair_rays], dtype=self._dtype)
+        ll = _log_likelihood_table(self.beam_model, self._sensor_args, y, jnp.asarray(table.pair_dists, self._dtype))
+        return jnp.append(ll, jnp.zeros(1, ll.dtype))
 
     def _block_entries(self):
         """All (block, ray) entries: ``(block, ray, pos (M, B), stop (M, B))`` sorted by block then ray."""
@@ -323,6 +362,11 @@ class FastGibbs:
             fix_src=fill((), self._zero_word, fix_src, i32),
             fix_pos=fill((size,), -1, fix_pos, i32),
         )
+        if self.beam_model != "normal":
+            no_wall = jnp.asarray(self.table.max_distance, dtype=dt)
+            packed = packed._replace(
+                stop_ll=_log_likelihood_table(self.beam_model, self._sensor_args, packed.y[:, None, :], packed.stop),
+                max_ll=_log_likelihood_table(self.beam_model, self._sensor_args, packed.y, no_wall))
         if not chained:
             return packed, None, None, None
         # final state: each ray word from the ray's last entry (or unchanged), each cell from its last draw
@@ -391,12 +435,21 @@ class FastGibbs:
 @jax.tree_util.register_pytree_node_class
 class FastKernel:
     """The fast sweep's data and code: arrays as pytree leaves, sizes and flags as static metadata, so that two
-    problems with the same geometry and schedule (other readings, prior or noise) share one compiled sweep.
-    Built by :class:`FastGibbs`."""
+    problems with the same geometry, schedule and sensor model (other readings, prior, noise or mixture weights)
+    share one compiled sweep. Built by :class:`FastGibbs`.
+
+    The sensor model: ``_beam_model`` (static name) and ``_sensor``, a tuple of scalar arrays (kernel dtype), the
+    model's ``params.sensor_args``: ``(sensor_noise,)`` for ``"normal"``, ``(sensor_noise, z_hit, z_short, z_max,
+    z_rand, lambda_short, max_range)`` for ``"beam"``. The Normal is evaluated in the step (a few multiplies). The
+    beam mixture costs tens of transcendental operations, but a ray's candidate distances are all known in
+    advance (its pairs' stopping distances, or the max distance), so ``log p(y | d)`` is looked up instead:
+    ``_pair_ll`` ``(P + 1,)`` for the first wall outside the block (the pair found in the ray's bits),
+    ``Levels.max_ll`` for no wall, ``Levels.stop_ll`` for a wall of the block (None for ``"normal"``). The step
+    then costs no more than the Normal's; the tables are recomputed with the readings, never compiled in."""
 
     _ARRAYS = ("_steps", "_final_words", "_final_walls", "_final_fix", "_pair_dists", "_pair_cells", "_pair_words",
-               "_pair_shift", "_bits", "_noise")
-    _STATIC = ("_max_words", "_zero_word", "_chunked", "_dtype")
+               "_pair_shift", "_bits", "_sensor", "_pair_ll")
+    _STATIC = ("_max_words", "_zero_word", "_chunked", "_dtype", "_beam_model")
 
     def __init__(self, **fields):
         for name in self._ARRAYS + self._STATIC:
@@ -448,15 +501,33 @@ class FastKernel:
         lowest = word & (~word + jnp.uint32(1))
         bit = (WORD_BITS - 1) - jax.lax.clz(lowest).astype(jnp.int32)
         pair = jnp.where(found, pair0 + WORD_BITS * w + bit, self._pair_dists.shape[0] - 1)
+        if self._beam_model != "normal":
+            return self._pair_dists[pair], pair, found
         return self._pair_dists[pair]
+
+    def _log_likelihood(self, y, d):
+        """``log p(y | d)`` of the model's sensor model for readings ``y`` and candidate distances ``d`` (meters,
+        broadcast): :func:`bayesmap.sensor.reading_logpdf` with the kernel's parameters (for ``"normal"`` the
+        tutorial's Normal, the same arithmetic as always)."""
+        if self._beam_model == "normal":
+            return normal_logpdf(y, d, *self._sensor)
+        return reading_logpdf(self._beam_model, y, d, self._sensor)
 
     def _level_scores(self, words, lv: Levels):
         """Conditional scores of the blocks of one level from their rays' words ``(W, E)``: log-odds ``(A,)`` for
         single cells, else log-weights ``(A, C)`` up to a constant; and the words with the blocks' bits cleared."""
         outside = words & ~lv.block_bits
-        m_out = self._first_outside(lv.pair0, outside)  # (E,)
-        d = jnp.minimum(lv.stop, m_out[None, :])  # (C, E)
-        ll = _normal_logpdf(lv.y[None, :], d, self._noise)
+        if self._beam_model == "normal":
+            m_out = self._first_outside(lv.pair0, outside)  # (E,)
+            d = jnp.minimum(lv.stop, m_out[None, :])  # (C, E)
+            ll = self._log_likelihood(lv.y[None, :], d)
+        else:  # d = stop if stop < m_out else m_out, each log p(y | d) looked up (see the class docstring)
+            m_out, pair, found = self._first_outside(lv.pair0, outside)
+            if lv.stop_ll is None or lv.max_ll is None:  # not precomputed: evaluate
+                stop_ll, m_ll = self._log_likelihood(lv.y[None, :], lv.stop), self._log_likelihood(lv.y, m_out)
+            else:
+                stop_ll, m_ll = lv.stop_ll, jnp.where(found, self._pair_ll[pair], lv.max_ll)
+            ll = jnp.where(lv.stop < m_out[None, :], stop_ll, m_ll[None, :])
         num_blocks = lv.log_prior.shape[0]
         # sum over each block's rays with a dense (A, E) mask: scatters are slow loops on the CPU
         mine = lv.slot[None, :] == jnp.arange(num_blocks, dtype=lv.slot.dtype)[:, None]

@@ -435,6 +435,45 @@ def _yaml_float(x: float) -> str:
     return text
 
 
+def encode_rosmap(stem: str, occupancy, grid: Grid, free_thresh: float = FREE_THRESH,
+                  occupied_thresh: float = OCCUPIED_THRESH, unknown=None) -> dict[str, bytes]:
+    """The two files of a ROS map_server map as bytes: ``{stem + ".pgm": image, stem + ".yaml": text}`` (see
+    :func:`write_rosmap` for the format and the arguments), for callers that write several outputs at once.
+
+    Raises:
+        BayesmapError: as :func:`write_rosmap`, except for the file checks.
+    """
+    if not isinstance(grid, Grid):
+        raise BayesmapError(f"grid must be a bayesmap.grid.Grid, got {grid!r}")
+    occ = np.asarray(occupancy, dtype=np.float64)
+    if occ.shape != grid.shape:
+        raise BayesmapError(f"occupancy has shape {occ.shape}, but the grid is {grid.shape}")
+    if unknown is None:
+        unk = np.zeros(grid.shape, dtype=bool)
+    else:
+        unk = np.asarray(unknown)
+        if unk.dtype != bool or unk.shape != grid.shape:
+            raise BayesmapError(f"unknown must be a bool mask of shape {grid.shape}, got {unk.dtype} {unk.shape}")
+    bad = np.argwhere(~unk & ~((occ >= 0) & (occ <= 1)))
+    if len(bad):
+        i, j = bad[0]
+        raise BayesmapError(f"occupancy of cell ({i}, {j}) is {occ[i, j]!r}, not a probability in [0, 1]")
+    free, occupied = _check_thresholds(free_thresh, occupied_thresh, "")
+    pixels = np.where(unk, UNKNOWN_PIXEL, np.rint(255.0 * (1.0 - np.where(unk, 0.0, occ)))).astype(np.uint8)
+    image = pixels.T[::-1]  # cell (i, j) -> row nrows - 1 - j, column i
+    ox, oy = grid.origin
+    text = (
+        f"image: {stem}.pgm\n"
+        f"resolution: {_yaml_float(grid.resolution)}\n"
+        f"origin: [{_yaml_float(ox)}, {_yaml_float(oy)}, 0.0]\n"
+        "negate: 0\n"
+        f"occupied_thresh: {_yaml_float(occupied)}\n"
+        f"free_thresh: {_yaml_float(free)}\n"
+        "mode: trinary\n"
+    )
+    return {stem + ".pgm": encode_pgm(image, maxval=255), stem + ".yaml": text.encode("utf-8")}
+
+
 def write_rosmap(yaml_path, occupancy, grid: Grid, overwrite: bool = False, free_thresh: float = FREE_THRESH,
                  occupied_thresh: float = OCCUPIED_THRESH, unknown=None) -> Path:
     """Write an occupancy grid as a ROS map_server map: ``<stem>.pgm`` next to ``yaml_path``, and the YAML file.
@@ -468,41 +507,16 @@ def write_rosmap(yaml_path, occupancy, grid: Grid, overwrite: bool = False, free
     if yaml_path.suffix.lower() not in (".yaml", ".yml"):
         raise BayesmapError(f"ROS map file {str(yaml_path)!r} must end in .yaml or .yml")
     pgm_path = yaml_path.with_suffix(".pgm")
-    if not isinstance(grid, Grid):
-        raise BayesmapError(f"grid must be a bayesmap.grid.Grid, got {grid!r}")
-    occ = np.asarray(occupancy, dtype=np.float64)
-    if occ.shape != grid.shape:
-        raise BayesmapError(f"occupancy has shape {occ.shape}, but the grid is {grid.shape}")
-    if unknown is None:
-        unk = np.zeros(grid.shape, dtype=bool)
-    else:
-        unk = np.asarray(unknown)
-        if unk.dtype != bool or unk.shape != grid.shape:
-            raise BayesmapError(f"unknown must be a bool mask of shape {grid.shape}, got {unk.dtype} {unk.shape}")
-    bad = np.argwhere(~unk & ~((occ >= 0) & (occ <= 1)))
-    if len(bad):
-        i, j = bad[0]
-        raise BayesmapError(f"occupancy of cell ({i}, {j}) is {occ[i, j]!r}, not a probability in [0, 1]")
-    free, occupied = _check_thresholds(free_thresh, occupied_thresh, "")
+    files = encode_rosmap(yaml_path.stem, occupancy, grid, free_thresh, occupied_thresh, unknown)
     if not overwrite:
         for p in (yaml_path, pgm_path):
             if p.exists():
                 raise BayesmapError(f"{str(p)!r} already exists (refusing to overwrite it)")
-
-    pixels = np.where(unk, UNKNOWN_PIXEL, np.rint(255.0 * (1.0 - np.where(unk, 0.0, occ)))).astype(np.uint8)
-    image = pixels.T[::-1]  # cell (i, j) -> row nrows - 1 - j, column i
-    ox, oy = grid.origin
-    text = (
-        f"image: {pgm_path.name}\n"
-        f"resolution: {_yaml_float(grid.resolution)}\n"
-        f"origin: [{_yaml_float(ox)}, {_yaml_float(oy)}, 0.0]\n"
-        "negate: 0\n"
-        f"occupied_thresh: {_yaml_float(occupied)}\n"
-        f"free_thresh: {_yaml_float(free)}\n"
-        "mode: trinary\n"
-    )
+    # the YAML names the image by its file name: keep the name of the requested YAML's stem
+    text = files[yaml_path.stem + ".yaml"].decode()
+    image_bytes = files[yaml_path.stem + ".pgm"]
     pgm_existed = pgm_path.exists()
-    write_pgm(pgm_path, image, overwrite=overwrite, maxval=255)
+    write_atomic(pgm_path, image_bytes, overwrite=overwrite)
     try:
         write_atomic(yaml_path, text, overwrite=overwrite)
     except BayesmapError:
