@@ -226,7 +226,9 @@ def test_permission_denied_reported(tmp_path, monkeypatch):
     def denied(*args, **kwargs):
         raise PermissionError(13, "Permission denied", str(p))
 
-    monkeypatch.setattr(carmen, "open", denied, raising=False)
+    import bayesmap.io.files
+
+    monkeypatch.setattr(bayesmap.io.files, "open", denied, raising=False)
     with pytest.raises(BayesmapError, match=r"secret\.log.*permission denied"):
         read_carmen(p)
 

@@ -4,29 +4,17 @@ from __future__ import annotations
 
 import gzip
 import json
-import sys
 
 import jax
 import numpy as np
 import pytest
 
-from bayesmap.cli import main
 from bayesmap.errors import BayesmapError
 from bayesmap.grid import Grid
 from bayesmap.io.rosmap import read_rosmap, write_pgm
 from bayesmap.model import log_joint_scans, make_params, simulate_scan_readings
 from bayesmap.problem import Problem, parse_scans, run_inference, run_logodds
-
-
-def run_cli(monkeypatch, capsys, *args):
-    monkeypatch.setattr(sys, "argv", ["bayesmap", *map(str, args)])
-    code = 0
-    try:
-        main()
-    except SystemExit as exc:
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
+from test_cli import run_cli
 
 
 def room_scans(beam_model: str, seed: int = 0) -> Problem:

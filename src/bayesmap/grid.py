@@ -182,18 +182,14 @@ def load_map(path) -> np.ndarray:
     Raises:
         BayesmapError: if the file is missing, unreadable, not text, or malformed.
     """
-    path = Path(path)
+    from bayesmap.io.files import read_bytes
+
+    name, data = read_bytes(path, "map file")
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise BayesmapError(f"map file {str(path)!r} does not exist") from None
-    except IsADirectoryError:
-        raise BayesmapError(f"map file {str(path)!r} is a directory") from None
+        text = data.decode("utf-8")
     except UnicodeDecodeError:
-        raise BayesmapError(f"map file {str(path)!r} is not a text file") from None
-    except OSError as err:
-        raise BayesmapError(f"cannot read map file {str(path)!r}: {err.strerror}") from None
-    return parse_map(text, source=str(path))
+        raise BayesmapError(f"map file {name!r} is not a text file") from None
+    return parse_map(text, source=name)
 
 
 def write_atomic(path, data: bytes | str, overwrite: bool = False) -> Path:

@@ -61,6 +61,7 @@ from typing import Union
 import numpy as np
 
 from bayesmap.errors import BayesmapError
+from bayesmap.io.files import read_bytes
 
 __all__ = ["Scan", "CarmenLog", "read_carmen", "beam_offsets"]
 
@@ -239,20 +240,6 @@ class CarmenLog:
         return np.stack([x + r * np.cos(a), y + r * np.sin(a)], axis=1)
 
 
-def _read_bytes(name: str) -> bytes:
-    try:
-        with open(name, "rb") as fh:
-            return fh.read()
-    except FileNotFoundError:
-        raise BayesmapError(f"CARMEN log {name!r} does not exist") from None
-    except IsADirectoryError:
-        raise BayesmapError(f"CARMEN log {name!r} is a directory, not a file") from None
-    except PermissionError:
-        raise BayesmapError(f"CARMEN log {name!r} cannot be read: permission denied") from None
-    except OSError as exc:
-        raise BayesmapError(f"CARMEN log {name!r} cannot be read: {exc.strerror or exc}") from None
-
-
 def _decode(name: str, raw: bytes) -> str:
     if raw[:2] == _GZIP_MAGIC:
         try:
@@ -353,14 +340,8 @@ def read_carmen(path: PathLike, max_range: float | None = None, fov: float = mat
             raise BayesmapError(f"max_range must be a number of meters or None, got {max_range!r}")
         if not (math.isfinite(max_range) and max_range > 0):
             raise BayesmapError(f"max_range must be a finite positive number of meters, got {max_range!r}")
-    try:
-        name = os.fspath(path)
-    except TypeError:
-        raise BayesmapError(f"CARMEN log path must be a string or path, got {path!r}") from None
-    if isinstance(name, bytes):
-        name = os.fsdecode(name)
-
-    text = _decode(name, _read_bytes(name))
+    name, raw = read_bytes(path, "CARMEN log")
+    text = _decode(name, raw)
 
     rows: list[np.ndarray] = []
     linenos: list[int] = []

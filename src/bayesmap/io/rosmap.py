@@ -27,7 +27,6 @@ The YAML file is parsed with PyYAML (``yaml.safe_load``), imported when a YAML f
 from __future__ import annotations
 
 import math
-import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from bayesmap.errors import BayesmapError
+from bayesmap.io.files import read_bytes
 from bayesmap.grid import Grid, write_atomic
 
 #: map_server's defaults (also what ``write_rosmap`` writes): 205 (unknown grey) reads as p = 0.196..., which is
@@ -52,26 +52,6 @@ _REQUIRED_KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", 
 # ---------------------------------------------------------------------------------------------------------------
 # PGM
 # ---------------------------------------------------------------------------------------------------------------
-
-
-def _read_file(path, what: str) -> tuple[str, bytes]:
-    try:
-        name = os.fspath(path)
-    except TypeError:
-        raise BayesmapError(f"{what} path must be a string or path, got {path!r}") from None
-    if isinstance(name, bytes):
-        name = os.fsdecode(name)
-    try:
-        with open(name, "rb") as fh:
-            return name, fh.read()
-    except FileNotFoundError:
-        raise BayesmapError(f"{what} {name!r} does not exist") from None
-    except IsADirectoryError:
-        raise BayesmapError(f"{what} {name!r} is a directory, not a file") from None
-    except PermissionError:
-        raise BayesmapError(f"{what} {name!r} cannot be read: permission denied") from None
-    except OSError as exc:
-        raise BayesmapError(f"{what} {name!r} cannot be read: {exc.strerror or exc}") from None
 
 
 def _header_tokens(data: bytes, name: str, start: int, count: int) -> tuple[list[bytes], int]:
@@ -178,7 +158,7 @@ def read_pgm(path) -> np.ndarray:
             (maxval <= 65535); has fewer pixel bytes or values than ``width * height``; or has a pixel value that
             is not an integer or exceeds the maxval.
     """
-    name, data = _read_file(path, "PGM file")
+    name, data = read_bytes(path, "PGM file")
     return _parse_pgm(data, name)[0]
 
 
@@ -372,7 +352,7 @@ def read_rosmap(path, resolution: float | None = None, origin=None) -> RosMap:
             supported), a negate other than 0/1, thresholds not satisfying ``0 <= free_thresh < occupied_thresh
             <= 1`` or an unknown mode; if ``resolution`` is missing for a bare PGM or given with a YAML file.
     """
-    name, data = _read_file(path, "ROS map")
+    name, data = read_bytes(path, "ROS map")
     if re.match(rb"P[0-9]", data[:2]):
         if resolution is None:
             raise BayesmapError(f"reading the bare PGM image {name!r} needs a resolution (meters per pixel)")
@@ -419,7 +399,7 @@ def read_rosmap(path, resolution: float | None = None, origin=None) -> RosMap:
     image_path = Path(image_name)
     if not image_path.is_absolute():
         image_path = Path(name).parent / image_path
-    image_file, image_data = _read_file(image_path, f"image of ROS map {name!r}:")
+    image_file, image_data = read_bytes(image_path, f"image of ROS map {name!r}:")
     image, maxval = _parse_pgm(image_data, image_file)
     grid = Grid(shape=(image.shape[1], image.shape[0]), resolution=res, origin=(ox, oy))
     occ = _occupancy_from_pixels(image, maxval, bool(negate), mode)
