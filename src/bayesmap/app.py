@@ -23,10 +23,8 @@ NiceGUI elements and :func:`run_app` serves it.
 
 from __future__ import annotations
 
-import html
 import math
 import threading
-import time
 from dataclasses import dataclass
 
 import numpy as np

@@ -21,7 +21,7 @@ from bayesmap.inference.chains import SamplingAlgorithm, _run, _run_many, cell_d
 from bayesmap.inference.fast import fast_gibbs
 from bayesmap.inference.reference import reference_gibbs, reference_incremental_gibbs
 from bayesmap.model import ModelParams, log_joint, log_joint_scans, make_params, reading_log_likelihood, simulate_readings
-from bayesmap.raycast import RayTable, angles, build_ray_table, check_readings, visible_cells
+from bayesmap.raycast import RayTable, angles, build_ray_table, visible_cells
 
 TUTORIAL_POS = (10.0, 10.0)
 
