@@ -104,8 +104,11 @@ def small_log(tmp_path_factory, intel_log):
 
 def test_infer_whole_log_logodds_and_rosmap(small_log, tmp_path, monkeypatch, capsys):
     code, out, err = run_cli(monkeypatch, capsys, "infer", "--log", small_log, "--resolution", 0.2, "--sweeps", 6,
-                             "--sampler", "chromatic", "--rosmap", "--out", tmp_path / "g")
+                             "--sampler", "chromatic", "--rosmap", "--report", "--out", tmp_path / "g")
     assert code in (0, None), err
+    report = (tmp_path / "g" / "report.html").read_text()
+    assert 'id="fig-posterior"' in report and 'id="fig-convergence"' in report and "axes in m" in report
+    assert 'id="fig-importance"' not in report  # importance sampling is the single-scan tutorial's
     summary = json.loads((tmp_path / "g" / "summary.json").read_text())
     assert summary["num_scans"] == 12 and summary["num_beams"] == 12 * 180 and summary["beam_model"] == "beam"
     assert summary["prior_wall_prob"] == 0.1 and "12 scans" in out

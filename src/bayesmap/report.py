@@ -20,6 +20,7 @@ from bayesmap.model import log_joint
 # grids up to this many cells get the importance-sampling figure (it runs the full model once per particle)
 IMPORTANCE_MAX_CELLS = 2500
 IMPORTANCE_PARTICLES = 1000
+MAX_DRAWN_BEAMS = 3000  # beams drawn in the scan figures of a multi-scan problem (evenly spaced)
 
 _STYLE = """
 body { font-family: system-ui, -apple-system, "Segoe UI", sans-serif; margin: 2em auto; max-width: 1100px;
@@ -49,9 +50,12 @@ def _figure(png: bytes, caption: str, gid: str) -> str:
 
 def chain_log_joints(problem, samples) -> np.ndarray:
     """Log joint (GenJAX ``assess``) of every sample: ``samples`` ``(T, nx, ny)`` or ``(C, T, nx, ny)`` ->
-    ``(T,)`` or ``(C, T)`` float64."""
+    ``(T,)`` or ``(C, T)`` float64. For several scans: :meth:`~bayesmap.problem.Problem.log_joint` (``assess``, or
+    the ray-cell table's equal sum on large problems), one sample at a time."""
     arr = np.asarray(samples, dtype=np.float32)
     flat = arr.reshape((-1,) + arr.shape[-2:])
+    if problem.multi_scan:
+        return np.array([problem.log_joint(w) for w in flat], dtype=np.float64).reshape(arr.shape[:-2])
     score = jax.jit(jax.vmap(lambda w: log_joint(w, problem.readings, problem.pos, problem.params, problem.beam_angles)))
     out = np.concatenate([np.asarray(score(flat[i:i + 25]), dtype=np.float64) for i in range(0, len(flat), 25)])
     return out.reshape(arr.shape[:-2])
@@ -87,8 +91,15 @@ def build_report(problem, result, *, title: str, seed: int = 0, importance: bool
     grid = problem.grid
     samples = np.asarray(result.samples)
     burn_in = int(summary["burn_in"])
-    scan = dict(pos=problem.pos, beam_angles=problem.beam_angles, readings=problem.readings,
-                max_range_mask=problem.max_range_mask)
+    if problem.multi_scan:
+        # every beam of every scan, at most MAX_DRAWN_BEAMS of them (evenly spaced) to keep the figures light
+        keep = np.unique(np.linspace(0, problem.table.num_rays - 1, min(MAX_DRAWN_BEAMS, problem.table.num_rays)).astype(int))
+        scan = dict(origins=problem.ray_origins[keep], beam_angles=problem.ray_angles[keep],
+                    readings=problem.ray_readings[keep],
+                    max_range_mask=None if problem.ray_max_range is None else problem.ray_max_range[keep])
+    else:
+        scan = dict(pos=problem.pos, beam_angles=problem.beam_angles, readings=problem.readings,
+                    max_range_mask=problem.max_range_mask)
     metric = grid.resolution != 1.0 or tuple(grid.origin) != (-0.5, -0.5)
     unit = "m" if metric else "cells"
     figures = []
@@ -112,7 +123,7 @@ def build_report(problem, result, *, title: str, seed: int = 0, importance: bool
                            + ("; the true map's log joint for reference; below, visible cells each sample gets wrong."
                               if wrong is not None else ".") + " The dashed line ends the burn-in.", "fig-convergence"))
     if importance is None:
-        importance = grid.num_cells <= IMPORTANCE_MAX_CELLS
+        importance = grid.num_cells <= IMPORTANCE_MAX_CELLS and not problem.multi_scan
     ess_text = None
     if importance:
         from bayesmap.inference.importance import importance_sampling
@@ -125,7 +136,8 @@ def build_report(problem, result, *, title: str, seed: int = 0, importance: bool
                                f"normalized log-weights. Effective sample size {ess_text}: one map takes (almost) all "
                                "the weight, which is why the tutorial turns to Gibbs sampling.", "fig-importance"))
     chain = samples[0] if samples.ndim == 4 else samples
-    gif, page = chain_animation(grid, chain, truth=problem.truth, pos=problem.pos, max_frames=max_frames,
+    gif, page = chain_animation(grid, chain, truth=problem.truth, pos=None if problem.multi_scan else problem.pos,
+                                max_frames=max_frames,
                                 title="Gibbs chain: sample and running mean")
 
     metrics = [("runtime", f"{summary['runtime_s']:.2f} s", "compilation included")]
