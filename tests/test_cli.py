@@ -89,6 +89,7 @@ def test_demo_subprocess(tmp_path):
     (lambda t: ["infer", "--log", t / "one.log", "--scans", "3:x"], "bad scan selection '3:x'"),
     (lambda t: ["infer", "--log", t / "one.log", "--scans", "7"], "scan 7 is out of range"),
     (lambda t: ["infer", "--scans", "0:2"], "need --log"),
+    (lambda t: ["infer", "--log", t / "one.log", "--scan", "0", "--range-offset", "0.1"], "--range-offset applies"),
     (lambda t: ["infer", "--method", "magic"], "unknown method 'magic'"),
     (lambda t: ["infer", "--method", "logodds", "--report"], "need --method gibbs"),
     (lambda t: ["infer", "--beam-model", "laser"], "laser"),

@@ -13,7 +13,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.grid import Grid
 from bayesmap.io.rosmap import read_rosmap, write_pgm
 from bayesmap.model import log_joint_scans, make_params, simulate_scan_readings
-from bayesmap.problem import Problem, parse_scans, run_inference, run_logodds
+from bayesmap.problem import Problem, log_problem, parse_scans, run_inference, run_logodds
 from test_cli import run_cli
 
 
@@ -154,3 +154,24 @@ def test_evaluate_truth_on_a_floor_plan(tmp_path, monkeypatch, capsys):
         assert set(scores[method]) >= {"accuracy", "auc", "brier", "cells"}
     # four viewpoints in a small room: the posterior gets nearly every seen cell right
     assert scores["bayesmap"]["accuracy"] > 0.9 and scores["bayesmap"]["brier"] < 0.1
+
+
+def test_range_offset_shifts_only_returned_readings_the_model_scores(small_log):
+    from bayesmap.io.carmen import read_carmen
+
+    log = read_carmen(small_log)
+    pb = log_problem(log, resolution=0.2)
+    assert pb.range_offset == 0.1 and pb.extra["range_offset"] == 0.1  # half a cell by default
+    raw, model, is_max = pb.ray_readings, pb.model_ray_readings, pb.ray_max_range
+    assert is_max.any() and (~is_max).any()
+    np.testing.assert_array_equal(model[is_max], raw[is_max])  # max-range readings keep the max range
+    np.testing.assert_allclose(model[~is_max], np.maximum(raw[~is_max] - 0.1, 0.0))
+    # the model's log joint scores the shifted readings; the figures and log-odds keep the measured ones
+    walls = np.zeros(pb.grid.shape)
+    unshifted = log_problem(log, resolution=0.2, range_offset=0.0)
+    assert unshifted.range_offset == 0.0 and np.array_equal(unshifted.model_ray_readings, raw)
+    assert pb.table_log_joint(walls) != unshifted.table_log_joint(walls)
+    np.testing.assert_array_equal(run_logodds(pb).posterior, run_logodds(unshifted).posterior)
+    for bad in (-0.1, float("nan"), 1e6):
+        with pytest.raises(BayesmapError, match="range_offset"):
+            log_problem(log, resolution=0.2, range_offset=bad)

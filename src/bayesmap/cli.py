@@ -170,6 +170,7 @@ def infer(
     resolution: float = typer.Option(0.1, help="grid resolution for real data, meters per cell"),
     method: str = typer.Option("gibbs", "--method", help="gibbs (the posterior, with --sampler) or logodds (classic log-odds mapping, no posterior)"),
     beam_model: Optional[str] = typer.Option(None, "--beam-model", help="sensor model: normal (the tutorial's; default for maps) or beam (robust mixture, Probabilistic Robotics 6.3; default for logs)"),
+    range_offset: Optional[float] = typer.Option(None, "--range-offset", help="meters the model subtracts from each returned reading of a log (default half a cell: a wall cell's reading is expected where the beam enters it, a real surface lies inside it)"),
     sampler: str = _sampler_option("block"),
     sweeps: int = typer.Option(100, help="number of Gibbs sweeps"),
     burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: half)"),
@@ -203,6 +204,8 @@ def infer(
         carmen = read_carmen(log)
         noise = resolution / 2 if sensor_noise is None else sensor_noise
         if scan is not None:
+            if range_offset is not None:
+                raise BayesmapError("--range-offset applies to several scans (--scans), not to --scan N")
             problem = scan_problem(carmen, scan, resolution=resolution, prior_wall_prob=prior_wall_prob or 0.5,
                                    sensor_noise=noise, beam_model=beam_model or "normal")
             title = f"{log.name} scan {scan}"
@@ -210,7 +213,7 @@ def infer(
             chosen = parse_scans(scans, len(carmen))
             problem = log_problem(carmen, chosen, resolution=resolution,
                                   prior_wall_prob=LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
-                                  sensor_noise=noise, beam_model=beam_model or "beam")
+                                  sensor_noise=noise, beam_model=beam_model or "beam", range_offset=range_offset)
             title = f"{log.name}, {len(chosen)} scans"
     else:
         if scan is not None or scans is not None:
@@ -293,6 +296,7 @@ def evaluate(
     max_range: float = typer.Option(20.0, "--max-range", help="--truth: max range of the simulated sensor, meters"),
     sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help="standard deviation of a reading, meters (default half a cell)"),
     prior_wall_prob: float = typer.Option(LOG_PRIOR, "--prior-wall-prob", help="prior probability that a cell is a wall"),
+    range_offset: Optional[float] = typer.Option(None, "--range-offset", help="--log: meters the model subtracts from each returned reading (default half a cell)"),
     seed: int = typer.Option(0, help="seed of the chain (and of the simulated scans)"),
     json_file: Optional[Path] = typer.Option(None, "--json", help="also write the table as JSON"),
     force: bool = typer.Option(False, "--force", help="replace the --json file if it exists"),
@@ -313,7 +317,7 @@ def evaluate(
         carmen = read_carmen(log)
         scores = evaluate_log(carmen, parse_scans(scans, len(carmen)), every=every, resolution=resolution,
                               sampler=sampler, sweeps=sweeps, seed=seed, sensor_noise=sensor_noise,
-                              beam_model=beam_model, prior_wall_prob=prior_wall_prob)
+                              beam_model=beam_model, prior_wall_prob=prior_wall_prob, range_offset=range_offset)
         setup = scores["setup"]
         typer.echo(f"{log.name}: mapped {setup['train_scans']} scans, scored the {setup['test_scans']} held out "
                    f"(every {every}-th); grid {setup['grid'][0]} x {setup['grid'][1]} cells of {resolution:g} m; "

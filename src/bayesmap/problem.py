@@ -33,15 +33,15 @@ than as free space (the prior odds of "no wall in 100 cells" are 2^-100 against 
 # name -> (description, factory(problem) -> SamplingAlgorithm)
 SAMPLERS: dict[str, tuple[str, object]] = {
     "block": ("2x2 block Gibbs, fast (ray-cell table), raster order",
-              lambda pb: fast_gibbs(pb.table, pb.ray_readings, pb.params, "raster", 2, "sequential", pb.ray_origins[0])),
+              lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, "raster", 2, "sequential", pb.ray_origins[0])),
     "raster": ("single-site Gibbs, fast, raster order",
-               lambda pb: fast_gibbs(pb.table, pb.ray_readings, pb.params, "raster", 1, "sequential", pb.ray_origins[0])),
+               lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, "raster", 1, "sequential", pb.ray_origins[0])),
     "outward": ("single-site Gibbs, fast, sensor-outward order",
-                lambda pb: fast_gibbs(pb.table, pb.ray_readings, pb.params, "outward", 1, "sequential", pb.ray_origins[0])),
+                lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, "outward", 1, "sequential", pb.ray_origins[0])),
     "chromatic": ("single-site Gibbs, fast, chromatic (colour classes updated in parallel)",
-                  lambda pb: fast_gibbs(pb.table, pb.ray_readings, pb.params, "raster", 1, "chromatic", pb.ray_origins[0])),
+                  lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, "raster", 1, "chromatic", pb.ray_origins[0])),
     "chromatic-block": ("2x2 block Gibbs, fast, chromatic",
-                        lambda pb: fast_gibbs(pb.table, pb.ray_readings, pb.params, "raster", 2, "chromatic", pb.ray_origins[0])),
+                        lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, "raster", 2, "chromatic", pb.ray_origins[0])),
     "reference-raster": ("the tutorial's single-site Gibbs with assess, raster order",
                          lambda pb: reference_gibbs(*pb.single_scan(), "raster", 1)),
     "reference-incremental": ("the tutorial's single-site Gibbs with incremental trace edit",
@@ -66,6 +66,10 @@ class Problem:
         readings: range readings, meters, the shape of ``beam_angles`` (max-range readings set to the max range).
         truth: ``(nx, ny)`` float32 true map, or None for real data.
         max_range_mask: bool, the shape of ``readings``: readings that were max-range (no return); or None.
+        range_offset: meters subtracted from every returned (not max-range) reading before the model sees it
+            (:attr:`model_readings`); 0 for simulated data. For real data the tutorial's geometry expects a reading at
+            the face where the beam enters the wall cell, while a real surface lies inside the cell: on average
+            about half a cell deeper.
         source: a description for summaries.
         extra: more JSON-serializable facts for the summary.
     """
@@ -78,6 +82,7 @@ class Problem:
     max_range_mask: np.ndarray | None = None
     source: str = ""
     extra: dict = field(default_factory=dict)
+    range_offset: float = 0.0
 
     @property
     def grid(self) -> Grid:
@@ -109,6 +114,21 @@ class Problem:
         """``(R,)`` reading of every beam, meters."""
         return np.asarray(self.readings, dtype=np.float64).reshape(-1)
 
+    @cached_property
+    def model_readings(self) -> np.ndarray:
+        """The readings the model scores (shape of ``readings``, meters): ``readings`` minus ``range_offset`` (at
+        least 0), max-range readings unchanged."""
+        readings = np.asarray(self.readings, dtype=np.float64)
+        if not self.range_offset:
+            return readings
+        shifted = np.maximum(readings - float(self.range_offset), 0.0)
+        return shifted if self.max_range_mask is None else np.where(self.max_range_mask, readings, shifted)
+
+    @property
+    def model_ray_readings(self) -> np.ndarray:
+        """``(R,)`` :attr:`model_readings` of every beam."""
+        return self.model_readings.reshape(-1)
+
     @property
     def ray_max_range(self) -> np.ndarray | None:
         """``(R,)`` bool, max-range readings (or None)."""
@@ -133,16 +153,16 @@ class Problem:
         if self.num_scans != 1:
             raise BayesmapError(f"the reference samplers take one scan; this problem has {self.num_scans} "
                                 "(use a fast sampler)")
-        return (self.ray_readings, np.asarray(self.pos, np.float64).reshape(2), self.params, self.ray_angles)
+        return (self.model_ray_readings, np.asarray(self.pos, np.float64).reshape(2), self.params, self.ray_angles)
 
     def log_joint(self, walls) -> float:
         """``log p(walls, readings)``: the GenJAX model's ``assess`` (:func:`~bayesmap.model.log_joint`, or
         :func:`~bayesmap.model.log_joint_scans` for several scans) when the problem is small enough for the dense
         geometry (beams x cells <= 2e7), else :meth:`table_log_joint` (equal to it, tested)."""
         if not self.multi_scan:
-            return float(log_joint(walls, self.readings, self.pos, self.params, self.beam_angles))
+            return float(log_joint(walls, self.model_readings, self.pos, self.params, self.beam_angles))
         if self.table.num_rays * self.grid.num_cells <= 2e7:
-            return float(log_joint_scans(walls, self.readings, self.pos, self.params, self.beam_angles))
+            return float(log_joint_scans(walls, self.model_readings, self.pos, self.params, self.beam_angles))
         return self.table_log_joint(walls)
 
     def table_log_joint(self, walls) -> float:
@@ -153,7 +173,7 @@ class Problem:
         p = float(self.params.prior_wall_prob)
         prior = walls.sum() * math.log(p) + (walls.size - walls.sum()) * math.log1p(-p)
         d = self.table.first_wall_distances(walls)
-        ll = reading_log_likelihood(jnp.asarray(self.ray_readings), jnp.asarray(d, dtype=jnp.result_type(float)),
+        ll = reading_log_likelihood(jnp.asarray(self.model_ray_readings), jnp.asarray(d, dtype=jnp.result_type(float)),
                                     self.params)
         return float(prior + float(jnp.sum(ll)))
 
@@ -260,7 +280,7 @@ def parse_scans(spec: str | None, num_scans: int) -> np.ndarray:
 
 def log_problem(log, scans=None, resolution: float = 0.1, prior_wall_prob: float = LOG_PRIOR,
                 sensor_noise: float | None = None, beam_model: str = "beam", margin: float = 1.0,
-                grid: Grid | None = None) -> Problem:
+                grid: Grid | None = None, range_offset: float | None = None) -> Problem:
     """Many scans of a real log at their poses: one map from all of them.
 
     The grid (``resolution`` meters per cell) covers the sensor positions and the endpoints of all beams that
@@ -277,6 +297,8 @@ def log_problem(log, scans=None, resolution: float = 0.1, prior_wall_prob: float
         beam_model: ``"beam"`` (the robust mixture, default for real data) or ``"normal"``.
         margin: meters added around the data.
         grid: use this grid instead (e.g. one covering held-out scans too); its resolution wins.
+        range_offset: meters the model subtracts from each returned reading (:attr:`Problem.range_offset`);
+            default half a cell.
 
     Raises:
         BayesmapError: on bad parameters or scan indices, or a sensor position outside ``grid``.
@@ -300,8 +322,12 @@ def log_problem(log, scans=None, resolution: float = 0.1, prior_wall_prob: float
                          beam_model=beam_model)
     readings = np.where(is_max, max_range, ranges)
     label = f"{log.path} scans {scans[0]}..{scans[-1]} ({len(scans)})" if len(scans) > 1 else f"{log.path} scan {scans[0]}"
+    offset = resolution / 2 if range_offset is None else float(range_offset)
+    if not (math.isfinite(offset) and 0 <= offset < max_range):
+        raise BayesmapError(f"range_offset must be between 0 and the max range {max_range:g} m, got {range_offset!r}")
     return Problem(params=params, pos=poses[:, :2], beam_angles=beam_angles, readings=readings, max_range_mask=is_max,
-                   source=label, extra={"max_range": max_range, "scans": len(scans)})
+                   source=label, extra={"max_range": max_range, "scans": len(scans), "range_offset": offset},
+                   range_offset=offset)
 
 
 def make_sampler(problem: Problem, name: str) -> SamplingAlgorithm:

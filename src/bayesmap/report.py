@@ -56,7 +56,7 @@ def chain_log_joints(problem, samples) -> np.ndarray:
     flat = arr.reshape((-1,) + arr.shape[-2:])
     if problem.multi_scan:
         return np.array([problem.log_joint(w) for w in flat], dtype=np.float64).reshape(arr.shape[:-2])
-    score = jax.jit(jax.vmap(lambda w: log_joint(w, problem.readings, problem.pos, problem.params, problem.beam_angles)))
+    score = jax.jit(jax.vmap(lambda w: log_joint(w, problem.model_readings, problem.pos, problem.params, problem.beam_angles)))
     out = np.concatenate([np.asarray(score(flat[i:i + 25]), dtype=np.float64) for i in range(0, len(flat), 25)])
     return out.reshape(arr.shape[:-2])
 
@@ -128,7 +128,7 @@ def build_report(problem, result, *, title: str, seed: int = 0, importance: bool
     if importance:
         from bayesmap.inference.importance import importance_sampling
 
-        imp = importance_sampling(jax.random.key(seed), problem.readings, problem.pos, problem.params,
+        imp = importance_sampling(jax.random.key(seed), problem.model_readings, problem.pos, problem.params,
                                   IMPORTANCE_PARTICLES, problem.beam_angles)
         ess_text = f"{float(imp.ess):.2f} of {IMPORTANCE_PARTICLES:,}"
         figures.append(_figure(figure_bytes(plot_importance(np.asarray(imp.log_weights), float(imp.ess))),
