@@ -175,3 +175,14 @@ def test_range_offset_shifts_only_returned_readings_the_model_scores(small_log):
     for bad in (-0.1, float("nan"), 1e6):
         with pytest.raises(BayesmapError, match="range_offset"):
             log_problem(log, resolution=0.2, range_offset=bad)
+
+
+def test_fast_samplers_refuse_problems_too_large_for_memory(monkeypatch):
+    import bayesmap.problem as problem_module
+
+    pb = room_scans("normal")
+    monkeypatch.setattr(problem_module, "MAX_FAST_PAIRS", pb.table.num_pairs - 1)
+    with pytest.raises(BayesmapError, match=f"{pb.table.num_pairs:,} \\(beam, cell\\) pairs.*--method logodds"):
+        run_inference(pb, "chromatic", 4, progress=False)
+    monkeypatch.setattr(problem_module, "MAX_FAST_PAIRS", pb.table.num_pairs)
+    assert run_inference(pb, "chromatic", 4, progress=False).samples.shape == (4, 12, 9)
