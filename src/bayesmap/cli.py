@@ -309,6 +309,8 @@ def evaluate(
         raise BayesmapError("give either --log FILE or --truth FILE")
     if json_file is not None and json_file.exists() and not force:
         raise BayesmapError(f"{str(json_file)!r} already exists; pass --force to replace it")
+    mapping = dict(sampler=sampler, sweeps=sweeps, seed=seed, sensor_noise=sensor_noise, beam_model=beam_model,
+                   prior_wall_prob=prior_wall_prob)
     if log is not None:
         from bayesmap.evaluate import evaluate_log
         from bayesmap.io.carmen import read_carmen
@@ -316,8 +318,7 @@ def evaluate(
 
         carmen = read_carmen(log)
         scores = evaluate_log(carmen, parse_scans(scans, len(carmen)), every=every, resolution=resolution,
-                              sampler=sampler, sweeps=sweeps, seed=seed, sensor_noise=sensor_noise,
-                              beam_model=beam_model, prior_wall_prob=prior_wall_prob, range_offset=range_offset)
+                              range_offset=range_offset, **mapping)
         setup = scores["setup"]
         typer.echo(f"{log.name}: mapped {setup['train_scans']} scans, scored the {setup['test_scans']} held out "
                    f"(every {every}-th); grid {setup['grid'][0]} x {setup['grid'][1]} cells of {resolution:g} m; "
@@ -326,8 +327,7 @@ def evaluate(
         from bayesmap.evaluate import evaluate_truth
 
         scores = evaluate_truth(truth, resolution=resolution, num_poses=num_poses, num_angles=num_angles,
-                                max_range=max_range, sampler=sampler, sweeps=sweeps, seed=seed,
-                                sensor_noise=sensor_noise, beam_model=beam_model, prior_wall_prob=prior_wall_prob)
+                                max_range=max_range, **mapping)
         setup = scores["setup"]
         typer.echo(f"{truth.name}: {setup['num_poses']} simulated scans of {num_angles} beams; grid {setup['grid'][0]} x "
                    f"{setup['grid'][1]} cells of {setup['resolution']:g} m; scored on {setup['cells_scored']:,} known cells "
