@@ -186,3 +186,12 @@ def test_fast_samplers_refuse_problems_too_large_for_memory(monkeypatch):
         run_inference(pb, "chromatic", 4, progress=False)
     monkeypatch.setattr(problem_module, "MAX_FAST_PAIRS", pb.table.num_pairs)
     assert run_inference(pb, "chromatic", 4, progress=False).samples.shape == (4, 12, 9)
+
+
+def test_beam_weights_reach_the_model_and_the_summary(tmp_path, monkeypatch, capsys):
+    code, out, err = run_cli(monkeypatch, capsys, "infer", "--beam-model", "beam", "--beam-weights", "0.7,0.1,0.1,0.1",
+                             "--lambda-short", "0.3", "--sweeps", 4, "--out", tmp_path / "o")
+    assert code in (0, None), err
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["beam_model"] == "beam"
+    assert [summary[k] for k in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")] == pytest.approx([0.7, 0.1, 0.1, 0.1, 0.3])

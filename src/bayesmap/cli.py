@@ -138,6 +138,28 @@ def _print_summary(summary: dict, out: Path, written: list[str]) -> None:
     typer.echo(f"outputs:  {out}/ ({', '.join(written)})")
 
 
+def _sensor_params(beam_weights: Optional[str], lambda_short: Optional[float]) -> dict:
+    """The beam mixture's parameters from ``--beam-weights HIT,SHORT,MAX,RAND`` and ``--lambda-short`` (keywords of
+    ``make_params``, which checks them); empty for the defaults."""
+    params = {}
+    if beam_weights is not None:
+        parts = [p.strip() for p in beam_weights.split(",")]
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            raise BayesmapError(f"--beam-weights must be four numbers HIT,SHORT,MAX,RAND, got {beam_weights!r}") from None
+        if len(values) != 4:
+            raise BayesmapError(f"--beam-weights must be four numbers HIT,SHORT,MAX,RAND, got {len(values)} in {beam_weights!r}")
+        params.update(zip(("z_hit", "z_short", "z_max", "z_rand"), values))
+    if lambda_short is not None:
+        params["lambda_short"] = lambda_short
+    return params
+
+
+BEAM_WEIGHTS_HELP = ("beam model: mixture weights HIT,SHORT,MAX,RAND summing to 1 (default 0.8,0.05,0.05,0.1, "
+                     "Probabilistic Robotics 6.3)")
+
+
 def _sampler_option(default: str):
     from bayesmap.problem import SAMPLERS
 
@@ -171,6 +193,8 @@ def infer(
     method: str = typer.Option("gibbs", "--method", help="gibbs (the posterior, with --sampler) or logodds (classic log-odds mapping, no posterior)"),
     beam_model: Optional[str] = typer.Option(None, "--beam-model", help="sensor model: normal (the tutorial's; default for maps) or beam (robust mixture, Probabilistic Robotics 6.3; default for logs)"),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help="meters the model subtracts from each returned reading of a log (default half a cell: a wall cell's reading is expected where the beam enters it, a real surface lies inside it)"),
+    beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
+    lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help="beam model: rate of short readings, 1/m (default 0.1)"),
     sampler: str = _sampler_option("block"),
     sweeps: int = typer.Option(100, help="number of Gibbs sweeps"),
     burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: half)"),
@@ -192,6 +216,7 @@ def infer(
 
     if method not in ("gibbs", "logodds"):
         raise BayesmapError(f"unknown method {method!r}; choose gibbs or logodds")
+    sensor_params = _sensor_params(beam_weights, lambda_short)
     if method == "logodds" and (report or chains != 1):
         raise BayesmapError("--report and --chains need --method gibbs (log-odds mapping has no chain)")
     if log is not None:
@@ -207,13 +232,14 @@ def infer(
             if range_offset is not None:
                 raise BayesmapError("--range-offset applies to several scans (--scans), not to --scan N")
             problem = scan_problem(carmen, scan, resolution=resolution, prior_wall_prob=prior_wall_prob or 0.5,
-                                   sensor_noise=noise, beam_model=beam_model or "normal")
+                                   sensor_noise=noise, beam_model=beam_model or "normal", sensor_params=sensor_params)
             title = f"{log.name} scan {scan}"
         else:
             chosen = parse_scans(scans, len(carmen))
             problem = log_problem(carmen, chosen, resolution=resolution,
                                   prior_wall_prob=LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
-                                  sensor_noise=noise, beam_model=beam_model or "beam", range_offset=range_offset)
+                                  sensor_noise=noise, beam_model=beam_model or "beam", range_offset=range_offset,
+                                  sensor_params=sensor_params)
             title = f"{log.name}, {len(chosen)} scans"
     else:
         if scan is not None or scans is not None:
@@ -223,7 +249,8 @@ def infer(
         problem = tutorial_problem(walls, pos=pos if pos is not None else center, seed=seed,
                                    prior_wall_prob=0.5 if prior_wall_prob is None else prior_wall_prob,
                                    sensor_noise=0.2 if sensor_noise is None else sensor_noise, num_angles=num_angles,
-                                   source=str(map_file) if map_file else "tutorial map", beam_model=beam_model or "normal")
+                                   source=str(map_file) if map_file else "tutorial map", beam_model=beam_model or "normal",
+                                   sensor_params=sensor_params)
         title = problem.source
     title = ("Log-odds occupancy, " if method == "logodds" else "Posterior wall probability, ") + title
     summary, written = _run_and_write(problem, sampler, sweeps, burn_in, seed, out, force, title=title,
@@ -297,6 +324,8 @@ def evaluate(
     sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help="standard deviation of a reading, meters (default half a cell)"),
     prior_wall_prob: float = typer.Option(LOG_PRIOR, "--prior-wall-prob", help="prior probability that a cell is a wall"),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help="--log: meters the model subtracts from each returned reading (default half a cell)"),
+    beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
+    lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help="beam model: rate of short readings, 1/m (default 0.1)"),
     seed: int = typer.Option(0, help="seed of the chain (and of the simulated scans)"),
     json_file: Optional[Path] = typer.Option(None, "--json", help="also write the table as JSON"),
     force: bool = typer.Option(False, "--force", help="replace the --json file if it exists"),
@@ -310,7 +339,7 @@ def evaluate(
     if json_file is not None and json_file.exists() and not force:
         raise BayesmapError(f"{str(json_file)!r} already exists; pass --force to replace it")
     mapping = dict(sampler=sampler, sweeps=sweeps, seed=seed, sensor_noise=sensor_noise, beam_model=beam_model,
-                   prior_wall_prob=prior_wall_prob)
+                   prior_wall_prob=prior_wall_prob, sensor_params=_sensor_params(beam_weights, lambda_short))
     if log is not None:
         from bayesmap.evaluate import evaluate_log
         from bayesmap.io.carmen import read_carmen

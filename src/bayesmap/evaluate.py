@@ -208,11 +208,12 @@ def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, f
 
 def evaluate_log(log, scans=None, every: int = 10, resolution: float = 0.1, sampler: str = "chromatic",
                  sweeps: int = 100, seed: int = 0, prior_wall_prob: float = 0.1, sensor_noise: float | None = None,
-                 beam_model: str = "beam", progress: bool = True, range_offset: float | None = None) -> dict:
+                 beam_model: str = "beam", progress: bool = True, range_offset: float | None = None,
+                 sensor_params: dict | None = None) -> dict:
     """Held-out evaluation on a log: hold out every ``every``-th of the chosen scans, map the rest with bayesmap
     (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
-    held-out beams (see the module docstring). ``range_offset``: see :func:`bayesmap.problem.log_problem` (default
-    half a cell; log-odds mapping always uses the measured ranges).
+    held-out beams (see the module docstring). ``range_offset`` and ``sensor_params``: see
+    :func:`bayesmap.problem.log_problem` (log-odds mapping always uses the measured ranges).
 
     Returns:
         ``{"bayesmap": {...}, "logodds": {...}, "setup": {...}}`` (JSON-serializable).
@@ -234,7 +235,7 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = 0.1, samp
     grid = Grid.covering(np.vstack([ends[~everything.ray_max_range], everything.ray_origins]),
                          resolution=resolution, margin=1.0)
     kwargs = dict(resolution=resolution, prior_wall_prob=prior_wall_prob, sensor_noise=sensor_noise,
-                  beam_model=beam_model, grid=grid, range_offset=range_offset)
+                  beam_model=beam_model, grid=grid, range_offset=range_offset, sensor_params=sensor_params)
     train_problem = log_problem(log, train, **kwargs)
     test_problem = log_problem(log, test, **kwargs)
     start = time.perf_counter()
@@ -282,7 +283,8 @@ def simulate_readings_from_table(key, table: RayTable, walls, params) -> np.ndar
 
 def evaluate_truth(path, resolution: float = 0.1, num_poses: int = 30, num_angles: int = 360, max_range: float = 20.0,
                    sampler: str = "chromatic", sweeps: int = 100, seed: int = 0, sensor_noise: float | None = None,
-                   beam_model: str = "beam", prior_wall_prob: float = 0.1, clearance: float = 0.5) -> dict:
+                   beam_model: str = "beam", prior_wall_prob: float = 0.1, clearance: float = 0.5,
+                   sensor_params: dict | None = None) -> dict:
     """Map synthetic scans of a known floor plan and score the maps against it.
 
     ``num_poses`` positions are drawn (seed ``seed``) uniformly among the known-free cells at least ``clearance``
@@ -334,7 +336,8 @@ def evaluate_truth(path, resolution: float = 0.1, num_poses: int = 30, num_angle
     headings = rng.uniform(0, 2 * np.pi, size=num_poses)
     beam_angles = headings[:, None] + np.linspace(0, 2 * np.pi, num_angles, endpoint=False)[None, :]
     noise = grid.resolution / 2 if sensor_noise is None else sensor_noise
-    params = make_params(prior_wall_prob, noise, num_angles, grid, max_distance=max_range, beam_model=beam_model)
+    params = make_params(prior_wall_prob, noise, num_angles, grid, max_distance=max_range, beam_model=beam_model,
+                         **(sensor_params or {}))
     table = build_ray_table(grid, np.repeat(poses, num_angles, axis=0), beam_angles.reshape(-1), max_range)
     readings = simulate_readings_from_table(jax.random.key(seed), table, walls, params).reshape(num_poses, num_angles)
     problem = Problem(params=params, pos=poses, beam_angles=beam_angles, readings=readings,

@@ -196,7 +196,7 @@ class Problem:
 
 def tutorial_problem(walls=None, pos=TUTORIAL_POS, seed: int = 0, prior_wall_prob: float = 0.5,
                      sensor_noise: float = 0.2, num_angles: int = 100, source: str = "tutorial map",
-                     beam_model: str = "normal") -> Problem:
+                     beam_model: str = "normal", sensor_params: dict | None = None) -> Problem:
     """The tutorial's scene: a map (default the built-in 21 x 21), the sensor at ``pos`` (default the center),
     ``num_angles`` equally spaced beams, readings simulated from the sensor model with ``jax.random.key(seed)``
     (seed 0 gives the tutorial's readings).
@@ -206,7 +206,7 @@ def tutorial_problem(walls=None, pos=TUTORIAL_POS, seed: int = 0, prior_wall_pro
     """
     walls = tutorial_map() if walls is None else (np.asarray(walls) > 0.5).astype(np.float32)
     grid = Grid(shape=walls.shape)
-    params = make_params(prior_wall_prob, sensor_noise, num_angles, grid, beam_model=beam_model)
+    params = make_params(prior_wall_prob, sensor_noise, num_angles, grid, beam_model=beam_model, **(sensor_params or {}))
     grid.check_inside(pos)
     pos = np.asarray(pos, dtype=np.float64)
     beam_angles = np.asarray(angles(num_angles), dtype=np.float64)
@@ -217,7 +217,7 @@ def tutorial_problem(walls=None, pos=TUTORIAL_POS, seed: int = 0, prior_wall_pro
 
 
 def scan_problem(log, index: int, resolution: float = 0.1, prior_wall_prob: float = 0.5, sensor_noise: float = 0.2,
-                 margin: float = 1.0, beam_model: str = "normal") -> Problem:
+                 margin: float = 1.0, beam_model: str = "normal", sensor_params: dict | None = None) -> Problem:
     """The area around one real scan at its pose.
 
     ``sensor_noise`` should be about half a cell for real data: with the tutorial's 0.2 m on 0.1 m cells the
@@ -243,7 +243,8 @@ def scan_problem(log, index: int, resolution: float = 0.1, prior_wall_prob: floa
     pos = np.asarray(scan.pose[:2], dtype=np.float64)
     ends = pos + ranges[:, None] * np.stack([np.cos(scan.angles), np.sin(scan.angles)], axis=-1)
     grid = Grid.covering(np.vstack([ends[~is_max], pos[None]]), resolution=resolution, margin=margin)
-    params = make_params(prior_wall_prob, sensor_noise, len(ranges), grid, max_distance=max_range, beam_model=beam_model)
+    params = make_params(prior_wall_prob, sensor_noise, len(ranges), grid, max_distance=max_range, beam_model=beam_model,
+                         **(sensor_params or {}))
     readings = np.where(is_max, max_range, ranges)
     return Problem(params=params, pos=pos, beam_angles=np.asarray(scan.angles, dtype=np.float64), readings=readings,
                    max_range_mask=is_max, source=f"{log.path} scan {index}",
@@ -284,7 +285,8 @@ def parse_scans(spec: str | None, num_scans: int) -> np.ndarray:
 
 def log_problem(log, scans=None, resolution: float = 0.1, prior_wall_prob: float = LOG_PRIOR,
                 sensor_noise: float | None = None, beam_model: str = "beam", margin: float = 1.0,
-                grid: Grid | None = None, range_offset: float | None = None) -> Problem:
+                grid: Grid | None = None, range_offset: float | None = None,
+                sensor_params: dict | None = None) -> Problem:
     """Many scans of a real log at their poses: one map from all of them.
 
     The grid (``resolution`` meters per cell) covers the sensor positions and the endpoints of all beams that
@@ -303,6 +305,8 @@ def log_problem(log, scans=None, resolution: float = 0.1, prior_wall_prob: float
         grid: use this grid instead (e.g. one covering held-out scans too); its resolution wins.
         range_offset: meters the model subtracts from each returned reading (:attr:`Problem.range_offset`);
             default half a cell.
+        sensor_params: the beam mixture's ``z_hit``, ``z_short``, ``z_max``, ``z_rand``, ``lambda_short`` (keywords of
+            :func:`bayesmap.model.make_params`); default :data:`bayesmap.sensor.BEAM_DEFAULTS`.
 
     Raises:
         BayesmapError: on bad parameters or scan indices, or a sensor position outside ``grid``.
@@ -323,7 +327,7 @@ def log_problem(log, scans=None, resolution: float = 0.1, prior_wall_prob: float
     resolution = grid.resolution
     noise = resolution / 2 if sensor_noise is None else sensor_noise
     params = make_params(prior_wall_prob, noise, beam_angles.shape[1], grid, max_distance=max_range,
-                         beam_model=beam_model)
+                         beam_model=beam_model, **(sensor_params or {}))
     readings = np.where(is_max, max_range, ranges)
     label = f"{log.path} scans {scans[0]}..{scans[-1]} ({len(scans)})" if len(scans) > 1 else f"{log.path} scan {scans[0]}"
     offset = resolution / 2 if range_offset is None else float(range_offset)
@@ -454,6 +458,8 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         **({"num_scans": problem.num_scans, "num_beams": int(problem.table.num_rays)} if problem.multi_scan
            else {"pos": [float(v) for v in problem.pos]}),
         "beam_model": problem.params.beam_model,
+        **({name: float(getattr(problem.params, name)) for name in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")}
+           if problem.params.beam_model == "beam" else {}),
         "grid": {"shape": list(problem.grid.shape), "resolution": problem.grid.resolution, "origin": list(problem.grid.origin)},
         "max_distance": problem.params.cap,
         "runtime_s": round(runtime, 4),
