@@ -55,9 +55,6 @@ SCHEDULES = ("sequential", "chromatic")
 WORD_BITS = 32
 
 
-_normal_logpdf = normal_logpdf  # the tutorial's sensor model (kept under its old name)
-
-
 def sample_categorical(log_weights, u):
     """Index ``(...,)`` int32 drawn from the unnormalized log-weights ``(..., C)`` by inverse CDF with uniforms
     ``u`` ``(...,)`` in ``[0, 1)``; ``-inf`` weights are never drawn (rows must have a finite maximum)."""
@@ -112,7 +109,8 @@ class Levels(NamedTuple):
             distance (0 where ``stop`` is ``inf``), and
         max_ll: ``(NL, E)`` float ``log p(y | max distance)`` (the ray has no wall): both precomputed for sensor
             models other than ``"normal"``, which are costly to evaluate (see :class:`FastKernel`); None for
-            ``"normal"`` (evaluated in the step, as always) or when not precomputed (then evaluated in the step).
+            ``"normal"`` (evaluated in the step, as always); a test sets them to None to check the lookups against
+            evaluating in the step.
     """
 
     src: jax.Array
@@ -505,14 +503,6 @@ class FastKernel:
             return self._pair_dists[pair], pair, found
         return self._pair_dists[pair]
 
-    def _log_likelihood(self, y, d):
-        """``log p(y | d)`` of the model's sensor model for readings ``y`` and candidate distances ``d`` (meters,
-        broadcast): :func:`bayesmap.sensor.reading_logpdf` with the kernel's parameters (for ``"normal"`` the
-        tutorial's Normal, the same arithmetic as always)."""
-        if self._beam_model == "normal":
-            return normal_logpdf(y, d, *self._sensor)
-        return reading_logpdf(self._beam_model, y, d, self._sensor)
-
     def _level_scores(self, words, lv: Levels):
         """Conditional scores of the blocks of one level from their rays' words ``(W, E)``: log-odds ``(A,)`` for
         single cells, else log-weights ``(A, C)`` up to a constant; and the words with the blocks' bits cleared."""
@@ -520,11 +510,12 @@ class FastKernel:
         if self._beam_model == "normal":
             m_out = self._first_outside(lv.pair0, outside)  # (E,)
             d = jnp.minimum(lv.stop, m_out[None, :])  # (C, E)
-            ll = self._log_likelihood(lv.y[None, :], d)
+            ll = normal_logpdf(lv.y[None, :], d, *self._sensor)  # the tutorial's Normal, evaluated in the step
         else:  # d = stop if stop < m_out else m_out, each log p(y | d) looked up (see the class docstring)
             m_out, pair, found = self._first_outside(lv.pair0, outside)
-            if lv.stop_ll is None or lv.max_ll is None:  # not precomputed: evaluate
-                stop_ll, m_ll = self._log_likelihood(lv.y[None, :], lv.stop), self._log_likelihood(lv.y, m_out)
+            if lv.stop_ll is None or lv.max_ll is None:  # not looked up: evaluated (tests compare the two)
+                stop_ll = reading_logpdf(self._beam_model, lv.y[None, :], lv.stop, self._sensor)
+                m_ll = reading_logpdf(self._beam_model, lv.y, m_out, self._sensor)
             else:
                 stop_ll, m_ll = lv.stop_ll, jnp.where(found, self._pair_ll[pair], lv.max_ll)
             ll = jnp.where(lv.stop < m_out[None, :], stop_ll, m_ll[None, :])
