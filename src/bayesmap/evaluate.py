@@ -53,10 +53,15 @@ def occupancy_auc(table: RayTable, readings, prob, max_range_mask=None) -> float
     Raises:
         BayesmapError: on shapes that do not match, or if the beams give no positive or no negative.
     """
+    return _auc(table, beam_hits_and_misses(table, readings, max_range_mask), prob)
+
+
+def _auc(table: RayTable, hits_and_misses: tuple[np.ndarray, np.ndarray], prob) -> float:
+    """:func:`occupancy_auc` from the beams' ``(hit, miss)`` pairs (:func:`beam_hits_and_misses`)."""
     prob = np.asarray(prob, dtype=np.float64)
     if prob.shape != table.grid.shape:
         raise BayesmapError(f"wall probabilities have shape {prob.shape}, the grid is {table.grid.shape}")
-    hit, miss = beam_hits_and_misses(table, readings, max_range_mask)
+    hit, miss = hits_and_misses
     scores = prob.reshape(-1)[table.pair_cells]
     touched = hit | miss
     return roc_auc(scores[touched], hit[touched])
@@ -201,7 +206,7 @@ def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, f
             logp = predictive_log_density_samples(table, y_model, keep, logpdf)
         else:
             logp = predictive_log_density_independent(table, y_model, prob, logpdf)
-        out[name] = {"auc": occupancy_auc(table, y, prob, mask), "nll": float(-np.mean(logp)),
+        out[name] = {"auc": _auc(table, (hit, miss), prob), "nll": float(-np.mean(logp)),
                      "beams": int(table.num_rays), "positives": int(hit.sum()), "negatives": int(miss.sum())}
     return out
 
@@ -223,17 +228,12 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = 0.1, samp
     """
     import time
 
-    from bayesmap.grid import Grid
     from bayesmap.problem import log_problem, run_inference, run_logodds
 
     scans = np.arange(len(log)) if scans is None else np.asarray(scans)
     train_pos, test_pos = heldout_split(len(scans), every)
     train, test = scans[train_pos], scans[test_pos]
-    everything = log_problem(log, scans, resolution=resolution)  # only for the grid covering all chosen scans
-    ends = everything.ray_origins + everything.ray_readings[:, None] * np.stack(
-        [np.cos(everything.ray_angles), np.sin(everything.ray_angles)], axis=-1)
-    grid = Grid.covering(np.vstack([ends[~everything.ray_max_range], everything.ray_origins]),
-                         resolution=resolution, margin=1.0)
+    grid = log_problem(log, scans, resolution=resolution).grid  # covers all chosen scans, held-out ones too
     kwargs = dict(resolution=resolution, prior_wall_prob=prior_wall_prob, sensor_noise=sensor_noise,
                   beam_model=beam_model, grid=grid, range_offset=range_offset, sensor_params=sensor_params)
     train_problem = log_problem(log, train, **kwargs)
