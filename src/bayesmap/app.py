@@ -113,6 +113,7 @@ class Explorer:
         self.progress = 0.0
         self._lock = threading.Lock()
         self._problem: Problem | None = None
+        self._beams: tuple | None = None  # (problem, hits, readings) of the last drawing
 
     # -- the scene ---------------------------------------------------------------------------------------------
 
@@ -240,11 +241,13 @@ class Explorer:
 
     def beams(self) -> tuple[np.ndarray, np.ndarray]:
         """``(hits (K, 2), readings (K, 2))``: world points of each beam's first wall (capped at the max distance) and
-        of its noisy range reading, meters."""
+        of its noisy range reading, meters (recomputed only when the scene changed)."""
         pb = self.problem
-        exact = np.asarray(sensor_distances(self.walls, pb.pos, pb.beam_angles, pb.grid, pb.params.cap))
-        direction = np.stack([np.cos(pb.beam_angles), np.sin(pb.beam_angles)], axis=-1)
-        return pb.pos + exact[:, None] * direction, pb.pos + pb.readings[:, None] * direction
+        if self._beams is None or self._beams[0] is not pb:  # computed once per scene, not at every redraw
+            exact = np.asarray(sensor_distances(self.walls, pb.pos, pb.beam_angles, pb.grid, pb.params.cap))
+            direction = np.stack([np.cos(pb.beam_angles), np.sin(pb.beam_angles)], axis=-1)
+            self._beams = (pb, pb.pos + exact[:, None] * direction, pb.pos + pb.readings[:, None] * direction)
+        return self._beams[1], self._beams[2]
 
     # -- inference ----------------------------------------------------------------------------------------------
 
