@@ -135,6 +135,19 @@ def test_reference_sampler_matches_exact_enumeration():
     assert np.abs(est - exact).max() < 0.1, (est, exact)
 
 
+def sweeps_keep_ray_bits(fast, state, num_sweeps: int) -> int:
+    """Run ``num_sweeps`` sweeps of ``fast`` (a FastGibbs) from ``state`` (keys 0, 1, ...), asserting after each that
+    the state's ray bits equal those recomputed from its map; returns how many cells changed in all."""
+    step = jax.jit(fast.step)
+    changed = 0
+    for k in range(num_sweeps):
+        new = step(jax.random.key(k), state)
+        changed += int(jnp.sum(new.walls != state.walls))
+        state = new
+        assert np.array_equal(np.asarray(state.ray_bits), np.asarray(fast.ray_bits(state.walls)))
+    return changed
+
+
 @pytest.mark.parametrize("schedule", ["sequential", "chromatic"])
 @pytest.mark.parametrize("block_size", [1, 2])
 @pytest.mark.parametrize("capacity", [1, 3, None])
@@ -147,15 +160,8 @@ def test_sweep_keeps_ray_bits_consistent(schedule, block_size, capacity):
     fast = FastGibbs(table, y, params, block_size=block_size, schedule=schedule, pos=pos, level_capacity=capacity)
     if capacity == 1:
         assert not np.all(np.asarray(fast._steps.commit))  # blocks drawn over several steps are exercised
-    step = jax.jit(fast.step)
     state = fast.init(jnp.asarray(rng.random(params.grid.shape) < 0.5, jnp.float32))
-    changed = 0
-    for k in range(5):
-        new = step(jax.random.key(k), state)
-        changed += int(jnp.sum(new.walls != state.walls))
-        state = new
-        assert np.array_equal(np.asarray(state.ray_bits), np.asarray(fast.ray_bits(state.walls)))
-    assert changed > 0  # the chain moves
+    assert sweeps_keep_ray_bits(fast, state, 5) > 0  # the chain moves
 
 
 @pytest.mark.parametrize("block_size, prior", [(1, 0.5), (2, 0.2)])
