@@ -160,10 +160,10 @@ BEAM_WEIGHTS_HELP = ("beam model: mixture weights HIT,SHORT,MAX,RAND summing to 
                      "Probabilistic Robotics 6.3)")
 
 
-def _sampler_option(default: str):
+def _sampler_option(default: Optional[str], note: str = ""):
     from bayesmap.problem import SAMPLERS
 
-    return typer.Option(default, "--sampler", help=f"one of: {', '.join(SAMPLERS)}")
+    return typer.Option(default, "--sampler", help=f"one of: {', '.join(SAMPLERS)}{note}")
 
 
 @app.command()
@@ -195,7 +195,7 @@ def infer(
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help="meters the model subtracts from each returned reading of a log (default half a cell: a wall cell's reading is expected where the beam enters it, a real surface lies inside it)"),
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
     lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help="beam model: rate of short readings, 1/m (default 0.1)"),
-    sampler: str = _sampler_option("block"),
+    sampler: Optional[str] = _sampler_option(None, " (default block; cellwise for several scans of a log)"),
     sweeps: int = typer.Option(100, help="number of Gibbs sweeps"),
     burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: half)"),
     prior_wall_prob: Optional[float] = typer.Option(None, "--prior-wall-prob", help=f"prior probability that a cell is a wall (default 0.5, the tutorial's; {LOG_PRIOR} for several scans of a log)"),
@@ -253,6 +253,8 @@ def infer(
                                    sensor_params=sensor_params)
         title = problem.source
     title = ("Log-odds occupancy, " if method == "logodds" else "Posterior wall probability, ") + title
+    if sampler is None:
+        sampler = "cellwise" if problem.multi_scan else "block"
     summary, written = _run_and_write(problem, sampler, sweeps, burn_in, seed, out, force, title=title,
                                       chains=chains, report=report, method=method, rosmap=rosmap)
     _print_summary(summary, out, written)
@@ -315,7 +317,7 @@ def evaluate(
     scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to use (a:b:step, list, or all)"),
     every: int = typer.Option(10, "--every", help="hold out every k-th scan"),
     resolution: float = typer.Option(0.1, help="meters per cell (--log; for a bare .pgm --truth, its pixel size)"),
-    sampler: str = _sampler_option("chromatic"),
+    sampler: str = _sampler_option("cellwise"),
     sweeps: int = typer.Option(100, help="Gibbs sweeps (half burn-in)"),
     beam_model: str = typer.Option("beam", "--beam-model", help="sensor model of mapping and scoring: beam or normal"),
     num_poses: int = typer.Option(30, "--num-poses", help="--truth: number of simulated scans"),

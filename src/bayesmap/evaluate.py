@@ -211,7 +211,7 @@ def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, f
     return out
 
 
-def evaluate_log(log, scans=None, every: int = 10, resolution: float = 0.1, sampler: str = "chromatic",
+def evaluate_log(log, scans=None, every: int = 10, resolution: float = 0.1, sampler: str = "cellwise",
                  sweeps: int = 100, seed: int = 0, prior_wall_prob: float = 0.1, sensor_noise: float | None = None,
                  beam_model: str = "beam", progress: bool = True, range_offset: float | None = None,
                  sensor_params: dict | None = None) -> dict:
@@ -282,7 +282,7 @@ def simulate_readings_from_table(key, table: RayTable, walls, params) -> np.ndar
 
 
 def evaluate_truth(path, resolution: float = 0.1, num_poses: int = 30, num_angles: int = 360, max_range: float = 20.0,
-                   sampler: str = "chromatic", sweeps: int = 100, seed: int = 0, sensor_noise: float | None = None,
+                   sampler: str = "cellwise", sweeps: int = 100, seed: int = 0, sensor_noise: float | None = None,
                    beam_model: str = "beam", prior_wall_prob: float = 0.1, clearance: float = 0.5,
                    sensor_params: dict | None = None) -> dict:
     """Map synthetic scans of a known floor plan and score the maps against it.

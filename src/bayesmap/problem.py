@@ -17,6 +17,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.grid import Grid, tutorial_map
+from bayesmap.inference.cellwise import cellwise_gibbs
 from bayesmap.inference.chains import SamplingAlgorithm, _run, _run_many, cell_diagnostics, posterior_mean
 from bayesmap.inference.fast import fast_gibbs
 from bayesmap.inference.reference import reference_gibbs, reference_incremental_gibbs
@@ -26,8 +27,16 @@ from bayesmap.raycast import RayTable, angles, build_ray_table, visible_cells
 TUTORIAL_POS = (10.0, 10.0)
 
 MAX_FAST_PAIRS = 8_000_000
-"""Most (beam, cell) pairs the fast Gibbs samplers take: they need about 1.9 KB per pair (measured: 11.4 GB peak for
-CSAIL's 6.1 million pairs), so a whole log at 0.1 m (Intel: 42 million pairs) would exhaust memory."""
+"""Most (beam, cell) pairs the level-based fast samplers (:data:`LEVEL_SAMPLERS`) take: they need about 1.9 KB per
+pair (measured: 11.4 GB peak for CSAIL's 6.1 million pairs), so a whole log at 0.1 m (Intel: 42 million pairs) would
+exhaust memory. The ``cellwise`` sampler needs about 25 bytes per pair and has no limit."""
+
+LEVEL_SAMPLERS = ("block", "raster", "outward", "chromatic", "chromatic-block")
+"""The samplers of :mod:`bayesmap.inference.fast` (levels of blocks updated at once)."""
+
+SEQUENTIAL_CHAINS = ("cellwise",)
+"""Samplers whose chains run one after another rather than at once under ``vmap`` (which would turn their
+conditional writes into selects that always run)."""
 
 LOG_PRIOR = 0.1
 """Default prior wall probability for maps from many scans (logs, floor plans): indoor floor plans have about a tenth
@@ -46,6 +55,8 @@ SAMPLERS: dict[str, tuple[str, object]] = {
                   lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, "raster", 1, "chromatic", pb.ray_origins[0])),
     "chromatic-block": ("2x2 block Gibbs, fast, chromatic",
                         lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, "raster", 2, "chromatic", pb.ray_origins[0])),
+    "cellwise": ("single-site Gibbs, one cell at a time, each ray's first two walls in the state (whole logs)",
+                 lambda pb: cellwise_gibbs(pb.table, pb.model_ray_readings, pb.params)),
     "reference-raster": ("the tutorial's single-site Gibbs with assess, raster order",
                          lambda pb: reference_gibbs(*pb.single_scan(), "raster", 1)),
     "reference-incremental": ("the tutorial's single-site Gibbs with incremental trace edit",
@@ -346,12 +357,12 @@ def make_sampler(problem: Problem, name: str) -> SamplingAlgorithm:
     """
     if name not in SAMPLERS:
         raise BayesmapError(f"unknown sampler {name!r}; choose one of {', '.join(SAMPLERS)}")
-    if not name.startswith("reference") and problem.table.num_pairs > MAX_FAST_PAIRS:
+    if name in LEVEL_SAMPLERS and problem.table.num_pairs > MAX_FAST_PAIRS:
         pairs = problem.table.num_pairs
         raise BayesmapError(
-            f"{problem.source or 'this problem'} has {pairs:,} (beam, cell) pairs; the fast samplers take at most "
-            f"{MAX_FAST_PAIRS:,} (about 1.9 KB each, {pairs * 1.9e-6:.0f} GB here): map fewer scans (--scans ::k) or "
-            "use coarser cells (--resolution); --method logodds maps any size")
+            f"{problem.source or 'this problem'} has {pairs:,} (beam, cell) pairs; the sampler {name!r} takes at most "
+            f"{MAX_FAST_PAIRS:,} (about 1.9 KB each, {pairs * 1.9e-6:.0f} GB here): use --sampler cellwise (about "
+            "25 bytes per pair), map fewer scans (--scans ::k) or use coarser cells (--resolution)")
     return SAMPLERS[name][1](problem)
 
 
@@ -422,24 +433,34 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         walls0 = jnp.asarray(run_logodds(problem).posterior > 0.5, jnp.float32)
     else:
         raise BayesmapError(f"unknown chain start {init!r}; choose free or logodds")
-    state = algorithm.init(walls0) if chains == 1 else jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape))
+    one_by_one = chains > 1 and sampler in SEQUENTIAL_CHAINS
     chunk = max(1, min(sweeps, 10))
     keys = jax.random.split(jax.random.key(seed), -(-sweeps // chunk))
-    pieces = []
-    with tqdm(total=sweeps, unit="sweep", delay=1.0, disable=not progress, leave=False) as bar:
-        done = 0
-        for key in keys:
-            n = min(chunk, sweeps - done)
-            if chains == 1:
-                samples, state = _run(key, state, algorithm, n)
-            else:
-                samples, state = _run_many(jax.random.split(key, chains), state, algorithm, n)
-            pieces.append(np.asarray(samples))
-            done += n
-            bar.update(n)
-            if on_progress is not None:
-                on_progress(done, sweeps)
-    samples = np.concatenate(pieces, axis=-3)
+    with tqdm(total=sweeps * chains if one_by_one else sweeps, unit="sweep", delay=1.0, disable=not progress,
+              leave=False) as bar:
+        def run(keys, state, chains, total):
+            pieces, done = [], 0
+            for key in keys:
+                n = min(chunk, sweeps - done)
+                if chains == 1:
+                    samples, state = _run(key, state, algorithm, n)
+                else:
+                    samples, state = _run_many(jax.random.split(key, chains), state, algorithm, n)
+                pieces.append(np.asarray(samples))
+                done += n
+                bar.update(n)
+                if on_progress is not None:
+                    on_progress(bar.n, total)
+            return np.concatenate(pieces, axis=-3)
+
+        if one_by_one:  # chain c uses the keys chain c would get at once (split of each chunk's key)
+            per_chain = jnp.stack([jax.random.split(key, chains) for key in keys])  # (chunks, chains)
+            samples = np.stack([run(per_chain[:, c], algorithm.init(walls0), 1, sweeps * chains) for c in range(chains)])
+        elif chains == 1:
+            samples = run(keys, algorithm.init(walls0), 1, sweeps)
+        else:
+            samples = run(keys, jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape)), chains,
+                          sweeps)
     runtime = time.perf_counter() - start
     posterior = posterior_mean(samples, burn_in)
     diagnostics = cell_diagnostics(samples, burn_in) if chains > 1 else None

@@ -1,0 +1,346 @@
+"""Whole-log single-site Gibbs: one cell at a time, with each ray's first and second wall kept in the state.
+
+The samplers of :mod:`bayesmap.inference.fast` update many cells at once and keep, per (block, ray) entry of a
+sweep, the ray's words and distances (about 1.9 KB per pair): right for one scan, impossible for a whole log
+(42 million pairs for the Intel log at 0.1 m), whose "shares a ray" graph is nearly complete anyway, so colour
+classes would bring little parallelism. This sampler is the plain systematic-scan single-site Gibbs sampler
+(Geman & Geman 1984) done cheaply:
+
+* A cell's conditional log-odds is the prior log-odds plus, over the rays through it, ``log p(y | d1) - log p(y |
+  d0)`` (``shared/DESIGN.md``, "The fast conditional"). Only three cases exist: the ray's first wall lies before
+  the cell (the term cancels), after it (``d1`` is the cell's stopping distance, ``d0`` the first wall's), or the
+  cell *is* the first wall (``d0`` is the second wall's). So the state keeps, per ray, the position along the ray of
+  its first and second wall and ``log p(y | .)`` at each (:class:`CellwiseState`), and a cell's update reads one
+  row per ray through it: O(pairs) per sweep, with ``log p(y | t)`` of every (ray, cell) pair looked up from a
+  table computed once per set of readings (any sensor model costs the same).
+* When the drawn value differs from the current one, the rows of the rays whose first or second wall changes are
+  rewritten; removing a ray's first or second wall needs the next wall along it, found by walking the ray's cells
+  in the map (32 at a time). A cell that keeps its value writes nothing.
+* Cells are visited in a fixed order: grouped by how many rays cross them (so that each group is a ``lax.scan`` of
+  fixed width, padding at most 2x), then in raster order within a group. Any fixed order gives a valid Gibbs sweep.
+  Cells that no ray crosses are independent of everything given the rest: they are drawn from the prior at once.
+
+Memory: per pair, 12 bytes in the sweep's lanes (ray, position, looked-up log-likelihood; at most twice that with
+the padding, 1.16x on the Intel log) plus 12 bytes of tables (cell, log-likelihood, ray, for the lookups and
+:meth:`CellwiseKernel.init`); per ray, one row of 4 numbers.
+
+The kernel is exact: each update draws the cell from its full conditional, the same transition as the reference
+sweep (:mod:`bayesmap.inference.reference`) in this sampler's order; tests check the conditionals against the
+GenJAX model's ``assess``, the state's rows against those recomputed from the map, and marginals against exact
+enumeration. It is written for one chain: under ``vmap`` (several chains at once) JAX turns the conditional
+writes into selects that always run, which is correct but slow; run chains of large problems one after another.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bayesmap.errors import BayesmapError
+from bayesmap.inference.chains import SamplingAlgorithm
+from bayesmap.inference.fast import _log_likelihood_table
+from bayesmap.model import ModelParams
+from bayesmap.raycast import RayTable, check_readings
+
+NONE = float(1 << 22)  # "no such wall": a position beyond every ray (exact in float32)
+SEARCH_CHUNK = 32  # cells read per step of the walk along a ray to its next wall
+SEARCH_BATCH = 16  # rays walked at once
+MAX_WIDTH = 1 << 16
+
+
+class CellwiseState(NamedTuple):
+    """State of a :class:`CellwiseGibbs` chain.
+
+    Attributes:
+        walls: ``(nx, ny)`` float32 map of 0.0 / 1.0.
+        ray_walls: ``(R + 1, 4)`` float (kernel dtype): per ray, the position along the ray (0 = the cell closest to
+            the sensor) of its first and of its second wall (:data:`NONE` if there is none), then ``log p(y_r | d)``
+            at each (at the max distance for :data:`NONE`). The last row belongs to no ray (read by padding lanes).
+    """
+
+    walls: jax.Array
+    ray_walls: jax.Array
+
+
+def width_groups(counts: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """Cells grouped by how many rays cross them: ``[(width, cells), ...]`` with widths 8, 16, 32, ... (powers of 2)
+    and each cell (flat index, ascending) in the group of the smallest width >= its count; cells with count 0 are
+    left out.
+
+    Raises:
+        BayesmapError: if a cell is crossed by more than 65,536 rays.
+    """
+    counts = np.asarray(counts)
+    if counts.max(initial=0) > MAX_WIDTH:
+        raise BayesmapError(f"a cell is crossed by {int(counts.max()):,} rays; at most {MAX_WIDTH:,} are supported")
+    groups, low, width = [], 0, 8
+    while low < counts.max(initial=0):
+        cells = np.nonzero((counts > low) & (counts <= width))[0]
+        if len(cells):
+            groups.append((width, cells))
+        low, width = width, 2 * width
+    return groups
+
+
+class Lanes(NamedTuple):
+    """One group of cells of equal padded width ``W``: ``(n,)`` int32 ``cells``; per cell and lane, ``(n, W)``
+    int32 ``rays`` (``R`` for padding), int32 ``positions`` along the ray, and ``log_lik`` ``log p(y_ray | stopping
+    distance of the cell)`` (0 for padding)."""
+
+    cells: jax.Array
+    rays: jax.Array
+    positions: jax.Array
+    log_lik: jax.Array
+
+
+@jax.tree_util.register_pytree_node_class
+class CellwiseKernel:
+    """The sweep's data (pytree leaves) and code; built by :class:`CellwiseGibbs`. Problems with the same geometry
+    and sensor model (other readings, prior, noise, mixture weights) share one compiled sweep."""
+
+    _ARRAYS = ("_lanes", "_free", "_pair_cells", "_pair_ll", "_pair_rays", "_ray_start", "_ray_length", "_max_ll",
+               "_logit")
+    _STATIC = ("_shape", "_num_rays", "_num_pairs")
+
+    def __init__(self, **fields):
+        for name in self._ARRAYS + self._STATIC:
+            setattr(self, name, fields[name])
+
+    def tree_flatten(self):
+        return tuple(getattr(self, n) for n in self._ARRAYS), tuple(getattr(self, n) for n in self._STATIC)
+
+    @classmethod
+    def tree_unflatten(cls, static, arrays):
+        return cls(**dict(zip(cls._ARRAYS, arrays)), **dict(zip(cls._STATIC, static)))
+
+    # -- the per-ray rows ---------------------------------------------------------------------------------------
+
+    def _pair_log_lik(self, rays, positions):
+        """``log p(y_ray | d)`` at a position along each ray (the max distance's for :data:`NONE`)."""
+        none = positions >= NONE
+        pair = jnp.where(none, self._num_pairs, self._ray_start[rays] + jnp.where(none, 0, positions).astype(jnp.int32))
+        return jnp.where(none, self._max_ll[rays], self._pair_ll[pair])
+
+    def ray_walls(self, walls) -> jax.Array:
+        """The state's rows ``(R + 1, 4)`` for the map ``walls`` ``(nx, ny)`` (see :class:`CellwiseState`)."""
+        dtype = self._pair_ll.dtype
+        on = jnp.asarray(walls).reshape(-1)[self._pair_cells[:-1]] > 0
+        positions = (jnp.arange(self._num_pairs, dtype=jnp.int32) - self._ray_start[self._pair_rays]).astype(dtype)
+        num = self._num_rays + 1
+        first = jax.ops.segment_min(jnp.where(on, positions, NONE), self._pair_rays, num_segments=num)
+        first = jnp.minimum(first, NONE)
+        later = on & (positions > first[self._pair_rays])
+        second = jnp.minimum(jax.ops.segment_min(jnp.where(later, positions, NONE), self._pair_rays,
+                                                 num_segments=num), NONE)
+        rays = jnp.arange(num, dtype=jnp.int32)
+        rows = jnp.stack([first, second, self._pair_log_lik(rays, first), self._pair_log_lik(rays, second)], axis=1)
+        return rows.at[self._num_rays].set(jnp.array([-1.0, -1.0, 0.0, 0.0], dtype))  # the padding lanes' row
+
+    def init(self, walls) -> CellwiseState:
+        """State for the map ``walls`` ``(nx, ny)``."""
+        walls = jnp.asarray(walls, dtype=jnp.float32).reshape(self._shape)
+        return CellwiseState(walls=walls, ray_walls=_ray_walls(self, walls))
+
+    # -- one cell ----------------------------------------------------------------------------------------------
+
+    @staticmethod
+    def _score(rows, positions, log_lik):
+        """Sum over a cell's lanes of ``log p(y | d1) - log p(y | d0)`` (see the module docstring)."""
+        first, second, ll_first, ll_second = rows[..., 0], rows[..., 1], rows[..., 2], rows[..., 3]
+        q = positions.astype(rows.dtype)
+        term = jnp.where(q < first, log_lik - ll_first, jnp.where(q == first, log_lik - ll_second, 0.0))
+        return jnp.sum(term, axis=-1)
+
+    def _walk(self, rays, after, need, walls):
+        """Position of the first wall of each ray beyond position ``after`` (:data:`NONE` if none), for the lanes
+        ``need`` (others: :data:`NONE`); walks the rays' cells ``SEARCH_CHUNK`` at a time until every needed lane
+        is done."""
+        length, start = self._ray_length[rays], self._ray_start[rays]
+        offsets = jnp.arange(SEARCH_CHUNK, dtype=jnp.int32)
+
+        def more(carry):
+            at, found = carry
+            return jnp.any(need & (found >= NONE) & (at < length))
+
+        def walk(carry):
+            at, found = carry
+            ts = at[:, None] + offsets[None, :]
+            inside = ts < length[:, None]
+            cell = self._pair_cells[jnp.where(inside, start[:, None] + ts, self._num_pairs)]
+            hit = inside & (walls[cell] > 0)
+            first = jnp.min(jnp.where(hit, ts, int(NONE)), axis=1).astype(found.dtype)
+            return at + SEARCH_CHUNK, jnp.where(need & (found >= NONE), first, found)
+
+        begin = jnp.where(after >= NONE, length, after.astype(jnp.int32) + 1)
+        _, found = jax.lax.while_loop(more, walk, (begin, jnp.full(rays.shape, NONE, after.dtype)))
+        return found
+
+    def _next_wall(self, rays, after, need, walls):
+        """:meth:`_walk` for the lanes ``need`` of a cell, gathered ``SEARCH_BATCH`` at a time (a removed wall is
+        the first or second wall of few of the rays through it, so most lanes need no walk)."""
+        width = rays.shape[0]
+        batch = min(width, SEARCH_BATCH)
+        rank = jnp.cumsum(need) - 1
+
+        def one_batch(b, found):
+            (lane,) = jnp.nonzero(need & (rank >= b * batch), size=batch, fill_value=width)
+            ok = lane < width
+            src = jnp.where(ok, lane, 0)
+            got = self._walk(rays[src], after[src], ok, walls)
+            return found.at[lane].set(got, mode="drop")
+
+        num_batches = (jnp.sum(need) + batch - 1) // batch
+        return jax.lax.fori_loop(0, num_batches, one_batch, jnp.full(rays.shape, NONE, after.dtype))
+
+    def _update_cell(self, carry, xs):
+        """Draw one cell from its conditional; if it changes, rewrite the rows of the rays it affects."""
+        walls, rows_all = carry
+        cell, rays, positions, log_lik, u = xs
+        rows = rows_all[rays]
+        log_odds = self._logit + self._score(rows, positions, log_lik)
+        new = u < jax.nn.sigmoid(log_odds)
+        old = walls[cell] > 0
+
+        def rewrite(carry):
+            walls, rows_all = carry
+            walls = walls.at[cell].set(new.astype(walls.dtype))  # before the walk: it reads the new map
+            first, second, ll_first, ll_second = rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3]
+            q = positions.astype(rows.dtype)
+            before, at, between = q < first, q == first, (q > first) & (q < second)
+            # the rays whose first or second wall changes (none for a cell behind every ray's second wall)
+            changed = (rays < self._num_rays) & jnp.where(new, before | between, at | (q == second))
+
+            def added():
+                return jnp.stack([jnp.where(before, q, first), jnp.where(before, first, jnp.where(between, q, second)),
+                                  jnp.where(before, log_lik, ll_first),
+                                  jnp.where(before, ll_first, jnp.where(between, log_lik, ll_second))], axis=1)
+
+            def removed():  # the ray's new second wall is its next wall after the old second one
+                nxt = self._next_wall(rays, second, changed, walls)
+                return jnp.stack([jnp.where(at, second, first), jnp.where(changed, nxt, second),
+                                  jnp.where(at, ll_second, ll_first),
+                                  jnp.where(changed, self._pair_log_lik(rays, nxt), ll_second)], axis=1)
+
+            def write(rows_all):
+                rows_new = jnp.where(changed[:, None], jax.lax.cond(new, added, removed), rows)
+                return rows_all.at[rays].set(rows_new)
+
+            return walls, jax.lax.cond(jnp.any(changed), write, lambda r: r, rows_all)
+
+        return jax.lax.cond(new != old, rewrite, lambda c: c, carry), None
+
+    def step(self, key, state: CellwiseState) -> CellwiseState:
+        """One sweep: every cell once, in the order of the module docstring."""
+        walls = state.walls.reshape(-1)
+        u = jax.random.uniform(key, walls.shape)
+        carry = (walls, state.ray_walls)
+        for lanes in self._lanes:
+            xs = (lanes.cells, lanes.rays, lanes.positions, lanes.log_lik, u[lanes.cells])
+            carry, _ = jax.lax.scan(self._update_cell, carry, xs)
+        walls, rows = carry
+        prior = jax.nn.sigmoid(self._logit)
+        walls = jnp.where(self._free, (u < prior).astype(walls.dtype), walls)
+        return CellwiseState(walls=walls.reshape(self._shape), ray_walls=rows)
+
+    def cell_log_odds(self, walls) -> jax.Array:
+        """Every cell's conditional log-odds given the rest of ``walls`` ``(nx, ny)``: ``(nx, ny)``, computed with
+        the sweep's own scoring (each cell alone, from the rows of ``walls``)."""
+        rows_all = self.ray_walls(walls)
+        out = jnp.full(self._shape[0] * self._shape[1], self._logit, rows_all.dtype)
+        for lanes in self._lanes:
+            scores = self._score(rows_all[lanes.rays], lanes.positions, lanes.log_lik)
+            out = out.at[lanes.cells].add(scores)
+        return out.reshape(self._shape)
+
+
+@jax.jit
+def _ray_walls(kernel: CellwiseKernel, walls):
+    return kernel.ray_walls(walls)
+
+
+class CellwiseGibbs:
+    """Single-site Gibbs for large problems (whole logs): see the module docstring.
+
+    Args:
+        table: the ray-cell table (its rays in the order of ``readings``; any number of scans).
+        readings: ``(R,)`` ranges, meters, max-range readings equal to the max distance.
+        params: model parameters (``prior_wall_prob`` and the sensor model; for ``"beam"`` the table's max distance
+            must be the model's max range ``params.cap``).
+
+    Attributes:
+        order: ``(num_cells_crossed,)`` flat indices of the cells crossed by a ray, in sweep order.
+        kernel: the :class:`CellwiseKernel`.
+        algorithm: the :class:`SamplingAlgorithm` (``init``, ``step``), partials of the kernel as in
+            :mod:`bayesmap.inference.fast`.
+
+    Raises:
+        BayesmapError: on readings that do not match the table's rays, a table whose max distance is not the beam
+            model's max range, or a cell crossed by more than 65,536 rays.
+    """
+
+    def __init__(self, table: RayTable, readings, params: ModelParams):
+        y = check_readings(readings, table.num_rays)
+        if params.beam_model != "normal" and not math.isclose(float(table.max_distance), params.cap, rel_tol=1e-12):
+            raise BayesmapError(f"the table's max distance {table.max_distance!r} m is not the model's max range "
+                                f"params.cap = {params.cap!r} m")
+        dtype = jnp.result_type(float)
+        num_rays, num_pairs = table.num_rays, table.num_pairs
+        sensor = tuple(jnp.asarray(a, dtype=dtype) for a in params.sensor_args)
+        pair_ll = np.asarray(_log_likelihood_table(params.beam_model, sensor, jnp.asarray(y[table.pair_rays], dtype),
+                                                   jnp.asarray(table.pair_dists, dtype)))
+        max_ll = np.asarray(_log_likelihood_table(params.beam_model, sensor, jnp.asarray(y, dtype),
+                                                  jnp.asarray(table.max_distance, dtype)))
+        counts = table.rays_per_cell()
+        by_cell = np.argsort(table.pair_cells, kind="stable")  # pairs of a cell in ray order
+        start = np.concatenate([[0], np.cumsum(counts)])
+        positions = table.pair_positions
+        lanes, order = [], []
+        for width, cells in width_groups(counts):
+            lane = np.arange(width)[None, :]
+            valid = lane < counts[cells][:, None]
+            pair = by_cell[np.where(valid, start[cells][:, None] + lane, 0)]
+            lanes.append(Lanes(cells=jnp.asarray(cells, jnp.int32),
+                               rays=jnp.asarray(np.where(valid, table.pair_rays[pair], num_rays), jnp.int32),
+                               positions=jnp.asarray(np.where(valid, positions[pair], 0), jnp.int32),
+                               log_lik=jnp.asarray(np.where(valid, pair_ll[pair], 0.0), dtype)))
+            order.append(cells)
+        self.order = np.concatenate(order) if order else np.zeros(0, np.int64)
+        self.table = table
+        p = float(params.prior_wall_prob)
+        self.kernel = CellwiseKernel(
+            _lanes=tuple(lanes), _free=jnp.asarray(counts == 0),
+            _pair_cells=jnp.asarray(np.append(table.pair_cells, 0), jnp.int32),
+            _pair_ll=jnp.asarray(np.append(pair_ll, 0.0), dtype),
+            _pair_rays=jnp.asarray(table.pair_rays, jnp.int32),
+            _ray_start=jnp.asarray(np.append(table.offsets[:-1], num_pairs), jnp.int32),
+            _ray_length=jnp.asarray(np.append(table.lengths, 0), jnp.int32),
+            _max_ll=jnp.asarray(np.append(max_ll, 0.0), dtype),
+            _logit=jnp.asarray(math.log(p) - math.log1p(-p), dtype),
+            _shape=tuple(table.grid.shape), _num_rays=num_rays, _num_pairs=num_pairs)
+        self.algorithm = SamplingAlgorithm(init=jax.tree_util.Partial(CellwiseKernel.init, self.kernel),
+                                           step=jax.tree_util.Partial(CellwiseKernel.step, self.kernel))
+
+    def init(self, walls) -> CellwiseState:
+        """See :meth:`CellwiseKernel.init`."""
+        return self.kernel.init(walls)
+
+    def step(self, key, state: CellwiseState) -> CellwiseState:
+        """See :meth:`CellwiseKernel.step`."""
+        return self.kernel.step(key, state)
+
+    def ray_walls(self, walls) -> jax.Array:
+        """See :meth:`CellwiseKernel.ray_walls`."""
+        return self.kernel.ray_walls(walls)
+
+    def cell_log_odds(self, walls) -> jax.Array:
+        """See :meth:`CellwiseKernel.cell_log_odds`."""
+        return self.kernel.cell_log_odds(walls)
+
+
+def cellwise_gibbs(table: RayTable, readings, params: ModelParams) -> SamplingAlgorithm:
+    """The :class:`CellwiseGibbs` sampler's :class:`SamplingAlgorithm`."""
+    return CellwiseGibbs(table, readings, params).algorithm

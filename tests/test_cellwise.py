@@ -1,0 +1,141 @@
+"""The whole-log single-site sampler (bayesmap.inference.cellwise): conditionals against the multi-scan model's
+assess, the state's per-ray rows against those recomputed from the map, and marginals against exact enumeration."""
+
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.experimental import enable_x64
+
+from bayesmap.errors import BayesmapError
+from bayesmap.inference import cellwise
+from bayesmap.grid import Grid
+from bayesmap.inference.cellwise import NONE, CellwiseGibbs, width_groups
+from bayesmap.inference.chains import run_chain, run_chains
+from bayesmap.model import choices, make_params, multi_scan_model, scan_args, simulate_scan_readings
+from bayesmap.raycast import build_ray_table
+from test_multiscan import POSES, scenes
+
+
+@pytest.mark.parametrize("beam_model", ["normal", "beam"])
+def test_conditionals_match_the_multi_scan_model(beam_model):
+    """3 scans in one table, max-range readings at exactly the max range: for random maps every cell's log-odds
+    from the sweep's scoring equals the difference of the model's assess with the cell set to 1 and to 0.
+    Tolerance 1e-4 as tests/test_multiscan.py::test_fast_conditionals_match_the_multi_scan_model (float64 on both
+    sides; the model's float32 prior carries ~3e-6 of rounding); a wrong case of the three (first wall before,
+    after, at the cell) changes some difference by far more than 1e-2, and the check below makes sure the data
+    are informative."""
+    with enable_x64():
+        grid, params, angles, _, y, table = scenes(beam_model, 7)
+        sampler = CellwiseGibbs(table, y.reshape(-1), params)
+        args = scan_args(POSES, params, angles)
+        readings = jnp.asarray(y)
+
+        @jax.jit
+        def brute(walls):
+            flat = walls.reshape(-1)
+
+            def diff(c):
+                on = multi_scan_model.assess(choices(flat.at[c].set(1.0).reshape(grid.shape), readings), args)[0]
+                off = multi_scan_model.assess(choices(flat.at[c].set(0.0).reshape(grid.shape), readings), args)[0]
+                return on - off
+
+            return jax.vmap(diff)(jnp.arange(flat.size)).reshape(grid.shape)
+
+        rng = np.random.default_rng(3)
+        for density in (0.15, 0.35, 0.6):
+            walls = (rng.random(grid.shape) < density).astype(np.float64)
+            got = np.asarray(sampler.cell_log_odds(walls))
+            want = np.asarray(brute(jnp.asarray(walls)))
+            np.testing.assert_allclose(got, want, atol=1e-4, rtol=0)
+            assert np.ptp(want) > 5.0
+
+
+def rows_from_map(table, walls):
+    """Per ray (first position, second position) of walls along it, recomputed in plain numpy."""
+    on = np.asarray(walls).reshape(-1)[table.pair_cells] > 0
+    out = np.full((table.num_rays, 2), NONE)
+    for r in range(table.num_rays):
+        pos = np.nonzero(on[table.offsets[r]:table.offsets[r + 1]])[0][:2]
+        out[r, :len(pos)] = pos
+    return out
+
+
+@pytest.mark.parametrize("beam_model, batch", [("normal", 16), ("beam", 16), ("beam", 1)])
+def test_sweeps_keep_the_ray_rows_consistent(beam_model, batch, monkeypatch):
+    """After each sweep, the state's first and second wall of every ray (and their log-likelihoods) equal those
+    recomputed from the new map: the rows are rewritten exactly when a cell changes, including the walk to a
+    ray's next wall when its first or second wall is removed (with batch 1, one ray walked at a time, so that
+    removals needing several batches are exercised). Maps are dense enough that many cells change."""
+    monkeypatch.setattr(cellwise, "SEARCH_BATCH", batch)
+    grid, params, angles, _, y, table = scenes(beam_model, 11, num_beams=30)
+    sampler = CellwiseGibbs(table, y.reshape(-1), params)
+    step = jax.jit(sampler.step)
+    state = sampler.init(jnp.asarray(np.random.default_rng(0).random(grid.shape) < 0.5, jnp.float32))
+    changed = 0
+    for k in range(15):
+        new = step(jax.random.key(k), state)
+        changed += int(jnp.sum(new.walls != state.walls))
+        state = new
+        rows = np.asarray(state.ray_walls)
+        np.testing.assert_array_equal(rows[:-1, :2], rows_from_map(table, state.walls))
+        np.testing.assert_allclose(rows, np.asarray(sampler.ray_walls(state.walls)), rtol=0, atol=0)
+    assert changed > 20
+
+
+def test_sampler_matches_exact_enumeration():
+    """The whole sweep with the beam model and two scans: 3 x 4 grid (4,096 maps enumerated with the model's
+    assess), 2 poses x 6 beams, two max-range readings and one short reading; 64 chains x 300 sweeps. Tolerance
+    0.06 as tests/test_multiscan.py::test_beam_sampler_matches_exact_enumeration (each marginal averages 64 x 250
+    kept sweeps; Monte Carlo standard error <= 0.014)."""
+    grid = Grid((3, 4))
+    params = make_params(0.3, 0.4, 6, grid, 4.0, beam_model="beam")
+    poses = np.array([[0.2, 0.4], [1.8, 2.6]])
+    angles = np.stack([np.linspace(0, 2 * np.pi, 6, endpoint=False) + 0.1 * s for s in range(2)])
+    truth = np.zeros((3, 4), np.float32)
+    truth[2, 3] = truth[0, 3] = truth[2, 0] = 1
+    y = np.asarray(simulate_scan_readings(jax.random.key(5), truth, poses, params, angles), np.float64)
+    y[0, 1] = y[1, 4] = params.cap
+    y[1, 2] = 0.3
+    maps = np.array(list(itertools.product([0.0, 1.0], repeat=12)), np.float32).reshape(-1, 3, 4)
+    args = scan_args(poses, params, angles)
+    lj = np.asarray(jax.jit(jax.vmap(lambda w: multi_scan_model.assess(choices(w, jnp.asarray(y)), args)[0]))(
+        jnp.asarray(maps)), np.float64)
+    w = np.exp(lj - lj.max())
+    exact = np.tensordot(w / w.sum(), maps, axes=1)
+    table = build_ray_table(grid, np.repeat(poses, 6, axis=0), angles.reshape(-1), params.cap)
+    sampler = CellwiseGibbs(table, y.reshape(-1), params)
+    result = run_chains(jax.random.key(3), sampler.algorithm, jnp.zeros((3, 4)), 300, 64)
+    est = np.asarray(result.samples[:, 50:], float).mean(axis=(0, 1))
+    assert np.abs(est - exact).max() < 0.06, (est, exact)
+    assert np.abs(exact - 0.3).max() > 0.3
+
+
+def test_one_chain_runs_and_cells_without_rays_follow_the_prior():
+    """A 1-scan problem on a large grid (most cells never crossed by a ray): one chain under lax.scan runs, and the
+    uncrossed cells are drawn from the prior (mean over 40 sweeps x ~1,500 cells within 5 standard errors)."""
+    grid = Grid((40, 40))
+    params = make_params(0.2, 0.3, 8, grid, 5.0, beam_model="beam")
+    pose = np.array([[20.0, 20.0]])
+    angles = np.linspace(0, 2 * np.pi, 8, endpoint=False)[None]
+    y = np.full((1, 8), 3.0)
+    table = build_ray_table(grid, np.repeat(pose, 8, axis=0), angles.reshape(-1), params.cap)
+    sampler = CellwiseGibbs(table, y.reshape(-1), params)
+    free = table.rays_per_cell().reshape(grid.shape) == 0
+    result = run_chain(jax.random.key(0), sampler.algorithm, jnp.zeros(grid.shape), 40)
+    frac = np.asarray(result.samples)[:, free].mean()
+    se = np.sqrt(0.2 * 0.8 / (40 * free.sum()))
+    assert abs(frac - 0.2) < 5 * se
+
+
+def test_width_groups_and_errors():
+    counts = np.array([0, 1, 8, 9, 16, 17, 100])
+    groups = width_groups(counts)
+    assert [(w, list(c)) for w, c in groups] == [(8, [1, 2]), (16, [3, 4]), (32, [5]), (128, [6])]
+    with pytest.raises(BayesmapError, match="65,537 rays"):
+        width_groups(np.array([65537]))
+    grid, params, angles, _, y, table = scenes("beam", 7)
+    with pytest.raises(BayesmapError, match="readings"):
+        CellwiseGibbs(table, y.reshape(-1)[:-1], params)
