@@ -182,10 +182,28 @@ def test_fast_samplers_refuse_problems_too_large_for_memory(monkeypatch):
 
     pb = room_scans("normal")
     monkeypatch.setattr(problem_module, "MAX_FAST_PAIRS", pb.table.num_pairs - 1)
-    with pytest.raises(BayesmapError, match=f"{pb.table.num_pairs:,} \\(beam, cell\\) pairs.*--method logodds"):
+    with pytest.raises(BayesmapError, match=f"{pb.table.num_pairs:,} \\(beam, cell\\) pairs.*--sampler cellwise"):
         run_inference(pb, "chromatic", 4, progress=False)
+    assert run_inference(pb, "cellwise", 4, progress=False).samples.shape == (4, 12, 9)  # no limit
     monkeypatch.setattr(problem_module, "MAX_FAST_PAIRS", pb.table.num_pairs)
     assert run_inference(pb, "chromatic", 4, progress=False).samples.shape == (4, 12, 9)
+
+
+def test_cellwise_chains_run_one_after_another_with_the_keys_of_chains_at_once(monkeypatch):
+    """Several cellwise chains run one by one (vmap would turn their conditional writes into always-run selects);
+    chain c gets the keys it would get at once, so the samples equal those of the vmap path, and progress reaches
+    the total of all chains."""
+    import bayesmap.problem as problem_module
+
+    pb = room_scans("beam")
+    seen = []
+    one_by_one = run_inference(pb, "cellwise", 12, chains=2, progress=False, on_progress=lambda d, t: seen.append((d, t)))
+    assert one_by_one.samples.shape == (2, 12, 12, 9)
+    assert seen[-1] == (24, 24)
+    monkeypatch.setattr(problem_module, "SEQUENTIAL_CHAINS", ())
+    at_once = run_inference(pb, "cellwise", 12, chains=2, progress=False)
+    np.testing.assert_array_equal(one_by_one.samples, at_once.samples)
+    assert not np.array_equal(one_by_one.samples[0], one_by_one.samples[1])
 
 
 def test_beam_weights_reach_the_model_and_the_summary(tmp_path, monkeypatch, capsys):

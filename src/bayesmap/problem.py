@@ -438,6 +438,8 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
     keys = jax.random.split(jax.random.key(seed), -(-sweeps // chunk))
     with tqdm(total=sweeps * chains if one_by_one else sweeps, unit="sweep", delay=1.0, disable=not progress,
               leave=False) as bar:
+        finished = [0]  # sweeps run so far, all chains (a disabled tqdm does not count)
+
         def run(keys, state, chains, total):
             pieces, done = [], 0
             for key in keys:
@@ -448,9 +450,10 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
                     samples, state = _run_many(jax.random.split(key, chains), state, algorithm, n)
                 pieces.append(np.asarray(samples))
                 done += n
+                finished[0] += n
                 bar.update(n)
                 if on_progress is not None:
-                    on_progress(bar.n, total)
+                    on_progress(finished[0], total)
             return np.concatenate(pieces, axis=-3)
 
         if one_by_one:  # chain c uses the keys chain c would get at once (split of each chunk's key)

@@ -297,15 +297,17 @@ class CellwiseGibbs:
         counts = table.rays_per_cell()
         by_cell = np.argsort(table.pair_cells, kind="stable")  # pairs of a cell in ray order
         start = np.concatenate([[0], np.cumsum(counts)])
-        positions = table.pair_positions
+        rays = table.pair_rays
+        ray_and_position = (rays << 32) | (np.arange(num_pairs) - table.offsets[:-1][rays])  # one gather, not two
         lanes, order = [], []
         for width, cells in width_groups(counts):
             lane = np.arange(width)[None, :]
             valid = lane < counts[cells][:, None]
             pair = by_cell[np.where(valid, start[cells][:, None] + lane, 0)]
+            packed = ray_and_position[pair]
             lanes.append(Lanes(cells=jnp.asarray(cells, jnp.int32),
-                               rays=jnp.asarray(np.where(valid, table.pair_rays[pair], num_rays), jnp.int32),
-                               positions=jnp.asarray(np.where(valid, positions[pair], 0), jnp.int32),
+                               rays=jnp.asarray(np.where(valid, packed >> 32, num_rays), jnp.int32),
+                               positions=jnp.asarray(np.where(valid, packed & 0xFFFFFFFF, 0), jnp.int32),
                                log_lik=jnp.asarray(np.where(valid, pair_ll[pair], 0.0), dtype)))
             order.append(cells)
         self.order = np.concatenate(order) if order else np.zeros(0, np.int64)
