@@ -1,8 +1,6 @@
 """The whole-log single-site sampler (bayesmap.inference.cellwise): conditionals against the multi-scan model's
 assess, the state's per-ray rows against those recomputed from the map, and marginals against exact enumeration."""
 
-import itertools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,9 +12,9 @@ from bayesmap.inference import cellwise
 from bayesmap.grid import Grid
 from bayesmap.inference.cellwise import NONE, CellwiseGibbs, width_groups
 from bayesmap.inference.chains import run_chain, run_chains
-from bayesmap.model import choices, make_params, multi_scan_model, scan_args, simulate_scan_readings
+from bayesmap.model import choices, make_params, multi_scan_model, scan_args
 from bayesmap.raycast import build_ray_table
-from test_multiscan import POSES, scenes
+from test_multiscan import POSES, beam_enumeration_scene, scenes
 
 
 @pytest.mark.parametrize("beam_model", ["normal", "beam"])
@@ -90,22 +88,7 @@ def test_sampler_matches_exact_enumeration():
     assess), 2 poses x 6 beams, two max-range readings and one short reading; 64 chains x 300 sweeps. Tolerance
     0.06 as tests/test_multiscan.py::test_beam_sampler_matches_exact_enumeration (each marginal averages 64 x 250
     kept sweeps; Monte Carlo standard error <= 0.014)."""
-    grid = Grid((3, 4))
-    params = make_params(0.3, 0.4, 6, grid, 4.0, beam_model="beam")
-    poses = np.array([[0.2, 0.4], [1.8, 2.6]])
-    angles = np.stack([np.linspace(0, 2 * np.pi, 6, endpoint=False) + 0.1 * s for s in range(2)])
-    truth = np.zeros((3, 4), np.float32)
-    truth[2, 3] = truth[0, 3] = truth[2, 0] = 1
-    y = np.asarray(simulate_scan_readings(jax.random.key(5), truth, poses, params, angles), np.float64)
-    y[0, 1] = y[1, 4] = params.cap
-    y[1, 2] = 0.3
-    maps = np.array(list(itertools.product([0.0, 1.0], repeat=12)), np.float32).reshape(-1, 3, 4)
-    args = scan_args(poses, params, angles)
-    lj = np.asarray(jax.jit(jax.vmap(lambda w: multi_scan_model.assess(choices(w, jnp.asarray(y)), args)[0]))(
-        jnp.asarray(maps)), np.float64)
-    w = np.exp(lj - lj.max())
-    exact = np.tensordot(w / w.sum(), maps, axes=1)
-    table = build_ray_table(grid, np.repeat(poses, 6, axis=0), angles.reshape(-1), params.cap)
+    table, y, params, exact = beam_enumeration_scene()
     sampler = CellwiseGibbs(table, y.reshape(-1), params)
     result = run_chains(jax.random.key(3), sampler.algorithm, jnp.zeros((3, 4)), 300, 64)
     est = np.asarray(result.samples[:, 50:], float).mean(axis=(0, 1))

@@ -167,17 +167,12 @@ def test_beam_kernel_needs_the_models_max_range():
         FastGibbs(table, y.reshape(-1), params)
 
 
-@pytest.mark.parametrize("block_size, capacity", [(1, 1), (2, None)])
-def test_beam_sampler_matches_exact_enumeration(block_size, capacity):
-    """The whole sweep (not only its conditionals) with the beam model and two scans: 3 x 4 grid (4,096 maps
-    enumerated with log_joint_scans), 2 poses x 6 beams, two readings at exactly the max range (4 m) and one short
-    reading; 64 chains x 300 sweeps. Capacity 1 splits every level and draws blocks over several steps.
-
-    Tolerance 0.06 as in tests/test_fast_exact.py::test_marginals_match_exact_enumeration (each marginal averages
-    64 chains x 250 kept sweeps; its Monte Carlo standard error is <= 0.014)."""
+def beam_enumeration_scene():
+    """Two scans on a 3 x 4 grid with the beam model (max range 4 m): 2 poses x 6 beams, readings simulated from a
+    3-wall map with two set to exactly the max range and one short (0.3 m). Returns ``(table, readings (2, 6),
+    params, exact posterior marginals (3, 4))``, the marginals by enumerating all 4,096 maps with the model's
+    assess."""
     import itertools
-
-    from bayesmap.inference.chains import run_chains
 
     grid = Grid((3, 4))
     params = make_params(0.3, 0.4, 6, grid, 4.0, beam_model="beam")
@@ -195,6 +190,20 @@ def test_beam_sampler_matches_exact_enumeration(block_size, capacity):
     w = np.exp(lj - lj.max())
     exact = np.tensordot(w / w.sum(), maps, axes=1)
     table = build_ray_table(grid, np.repeat(poses, 6, axis=0), angles.reshape(-1), params.cap)
+    return table, y, params, exact
+
+
+@pytest.mark.parametrize("block_size, capacity", [(1, 1), (2, None)])
+def test_beam_sampler_matches_exact_enumeration(block_size, capacity):
+    """The whole sweep (not only its conditionals) with the beam model and two scans: 3 x 4 grid (4,096 maps
+    enumerated with log_joint_scans), 2 poses x 6 beams, two readings at exactly the max range (4 m) and one short
+    reading; 64 chains x 300 sweeps. Capacity 1 splits every level and draws blocks over several steps.
+
+    Tolerance 0.06 as in tests/test_fast_exact.py::test_marginals_match_exact_enumeration (each marginal averages
+    64 chains x 250 kept sweeps; its Monte Carlo standard error is <= 0.014)."""
+    from bayesmap.inference.chains import run_chains
+
+    table, y, params, exact = beam_enumeration_scene()
     fast = FastGibbs(table, y.reshape(-1), params, block_size=block_size, level_capacity=capacity)
     if capacity == 1:
         assert not np.all(np.asarray(fast._steps.commit))  # blocks drawn over several steps are exercised

@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayesmap.errors import BayesmapError
-from bayesmap.inference.chains import SamplingAlgorithm
+from bayesmap.inference.chains import KernelFields, SamplingAlgorithm
 from bayesmap.inference.fast import _log_likelihood_table
 from bayesmap.model import ModelParams
 from bayesmap.raycast import RayTable, check_readings
@@ -98,24 +98,13 @@ class Lanes(NamedTuple):
 
 
 @jax.tree_util.register_pytree_node_class
-class CellwiseKernel:
+class CellwiseKernel(KernelFields):
     """The sweep's data (pytree leaves) and code; built by :class:`CellwiseGibbs`. Problems with the same geometry
     and sensor model (other readings, prior, noise, mixture weights) share one compiled sweep."""
 
     _ARRAYS = ("_lanes", "_free", "_pair_cells", "_pair_ll", "_pair_rays", "_ray_start", "_ray_length", "_max_ll",
                "_logit")
     _STATIC = ("_shape", "_num_rays", "_num_pairs")
-
-    def __init__(self, **fields):
-        for name in self._ARRAYS + self._STATIC:
-            setattr(self, name, fields[name])
-
-    def tree_flatten(self):
-        return tuple(getattr(self, n) for n in self._ARRAYS), tuple(getattr(self, n) for n in self._STATIC)
-
-    @classmethod
-    def tree_unflatten(cls, static, arrays):
-        return cls(**dict(zip(cls._ARRAYS, arrays)), **dict(zip(cls._STATIC, static)))
 
     # -- the per-ray rows ---------------------------------------------------------------------------------------
 

@@ -25,6 +25,27 @@ class SamplingAlgorithm(NamedTuple):
     step: Callable
 
 
+class KernelFields:
+    """Base of a sampler's kernel as a pytree: the attributes named in ``_ARRAYS`` are its leaves (arguments of a
+    compiled chain, so that problems differing only in array values share one compilation), those in ``_STATIC``
+    its static metadata (sizes, flags, names). Subclasses set both tuples, are built with keyword arguments, and are
+    registered with ``jax.tree_util.register_pytree_node_class``."""
+
+    _ARRAYS: tuple[str, ...] = ()
+    _STATIC: tuple[str, ...] = ()
+
+    def __init__(self, **fields):
+        for name in self._ARRAYS + self._STATIC:
+            setattr(self, name, fields[name])
+
+    def tree_flatten(self):
+        return tuple(getattr(self, n) for n in self._ARRAYS), tuple(getattr(self, n) for n in self._STATIC)
+
+    @classmethod
+    def tree_unflatten(cls, static, arrays):
+        return cls(**dict(zip(cls._ARRAYS, arrays)), **dict(zip(cls._STATIC, static)))
+
+
 class GibbsState(NamedTuple):
     """The state of a Gibbs chain: ``walls`` ``(nx, ny)`` float32 of 0.0 / 1.0."""
 

@@ -39,7 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayesmap.errors import BayesmapError
-from bayesmap.inference.chains import SamplingAlgorithm
+from bayesmap.inference.chains import KernelFields, SamplingAlgorithm
 from bayesmap.inference.schedules import (
     block_configurations,
     chromatic_levels,
@@ -431,7 +431,7 @@ class FastGibbs:
 
 
 @jax.tree_util.register_pytree_node_class
-class FastKernel:
+class FastKernel(KernelFields):
     """The fast sweep's data and code: arrays as pytree leaves, sizes and flags as static metadata, so that two
     problems with the same geometry, schedule and sensor model (other readings, prior, noise or mixture weights)
     share one compiled sweep. Built by :class:`FastGibbs`.
@@ -448,17 +448,6 @@ class FastKernel:
     _ARRAYS = ("_steps", "_final_words", "_final_walls", "_final_fix", "_pair_dists", "_pair_cells", "_pair_words",
                "_pair_shift", "_bits", "_sensor", "_pair_ll")
     _STATIC = ("_max_words", "_zero_word", "_chunked", "_dtype", "_beam_model")
-
-    def __init__(self, **fields):
-        for name in self._ARRAYS + self._STATIC:
-            setattr(self, name, fields[name])
-
-    def tree_flatten(self):
-        return tuple(getattr(self, n) for n in self._ARRAYS), tuple(getattr(self, n) for n in self._STATIC)
-
-    @classmethod
-    def tree_unflatten(cls, static, arrays):
-        return cls(**dict(zip(cls._ARRAYS, arrays)), **dict(zip(cls._STATIC, static)))
 
     @property
     def num_configurations(self) -> int:
