@@ -390,7 +390,8 @@ class InferenceResult:
 def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, burn_in: int | None = None,
                   seed: int = 0, progress: bool = True, chains: int = 1,
                   on_progress=None, init: str | None = None) -> InferenceResult:
-    """Run ``chains`` chains of ``sampler`` from the all-free map (at once, ``vmap``) and summarize them.
+    """Run ``chains`` chains of ``sampler`` and summarize them: at once (``vmap``), or one after another for the
+    samplers in :data:`SEQUENTIAL_CHAINS` (with the keys they would get at once, so the samples are the same).
 
     Args:
         problem: the scene.
