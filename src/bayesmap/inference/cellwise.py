@@ -42,7 +42,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.chains import KernelFields, SamplingAlgorithm
-from bayesmap.inference.fast import _log_likelihood_table
+from bayesmap.inference.fast import _log_likelihood_table, pair_log_likelihoods
 from bayesmap.model import ModelParams
 from bayesmap.raycast import RayTable, check_readings
 
@@ -111,7 +111,7 @@ class CellwiseKernel(KernelFields):
     def _pair_log_lik(self, rays, positions):
         """``log p(y_ray | d)`` at a position along each ray (the max distance's for :data:`NONE`)."""
         none = positions >= NONE
-        pair = jnp.where(none, self._num_pairs, self._ray_start[rays] + jnp.where(none, 0, positions).astype(jnp.int32))
+        pair = jnp.where(none, self._num_pairs, self._ray_start[rays] + positions.astype(jnp.int32))
         return jnp.where(none, self._max_ll[rays], self._pair_ll[pair])
 
     def ray_walls(self, walls) -> jax.Array:
@@ -261,7 +261,6 @@ class CellwiseGibbs:
             must be the model's max range ``params.cap``).
 
     Attributes:
-        order: ``(num_cells_crossed,)`` flat indices of the cells crossed by a ray, in sweep order.
         kernel: the :class:`CellwiseKernel`.
         algorithm: the :class:`SamplingAlgorithm` (``init``, ``step``), partials of the kernel as in
             :mod:`bayesmap.inference.fast`.
@@ -279,16 +278,14 @@ class CellwiseGibbs:
         dtype = jnp.result_type(float)
         num_rays, num_pairs = table.num_rays, table.num_pairs
         sensor = tuple(jnp.asarray(a, dtype=dtype) for a in params.sensor_args)
-        pair_ll = np.asarray(_log_likelihood_table(params.beam_model, sensor, jnp.asarray(y[table.pair_rays], dtype),
-                                                   jnp.asarray(table.pair_dists, dtype)))
+        pair_ll = np.asarray(pair_log_likelihoods(table, y, params.beam_model, sensor))
         max_ll = np.asarray(_log_likelihood_table(params.beam_model, sensor, jnp.asarray(y, dtype),
                                                   jnp.asarray(table.max_distance, dtype)))
         counts = table.rays_per_cell()
         by_cell = np.argsort(table.pair_cells, kind="stable")  # pairs of a cell in ray order
         start = np.concatenate([[0], np.cumsum(counts)])
-        rays = table.pair_rays
-        ray_and_position = (rays << 32) | (np.arange(num_pairs) - table.offsets[:-1][rays])  # one gather, not two
-        lanes, order = [], []
+        ray_and_position = (table.pair_rays << 32) | table.pair_positions  # gathered once into the lanes, not twice
+        lanes = []
         for width, cells in width_groups(counts):
             lane = np.arange(width)[None, :]
             valid = lane < counts[cells][:, None]
@@ -298,9 +295,6 @@ class CellwiseGibbs:
                                rays=jnp.asarray(np.where(valid, packed >> 32, num_rays), jnp.int32),
                                positions=jnp.asarray(np.where(valid, packed & 0xFFFFFFFF, 0), jnp.int32),
                                log_lik=jnp.asarray(np.where(valid, pair_ll[pair], 0.0), dtype)))
-            order.append(cells)
-        self.order = np.concatenate(order) if order else np.zeros(0, np.int64)
-        self.table = table
         p = float(params.prior_wall_prob)
         self.kernel = CellwiseKernel(
             _lanes=tuple(lanes), _free=jnp.asarray(counts == 0),

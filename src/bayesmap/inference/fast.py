@@ -137,6 +137,15 @@ def _log_likelihood_table(beam_model, sensor_args, y, d):
     return jnp.where(jnp.isfinite(d), ll, 0.0)
 
 
+def pair_log_likelihoods(table: RayTable, readings: np.ndarray, beam_model: str, sensor_args) -> jax.Array:
+    """``(P,)`` ``log p(y_r | t)`` of the sensor model ``beam_model`` (with ``sensor_args``, scalar arrays of the
+    kernel dtype, as ``params.sensor_args``) for every (ray r, cell) pair of ``table``: ``y_r`` from ``readings``
+    ``(R,)`` (meters), ``t`` the pair's stopping distance (meters)."""
+    dtype = sensor_args[0].dtype
+    return _log_likelihood_table(beam_model, sensor_args, jnp.asarray(readings[table.pair_rays], dtype),
+                                 jnp.asarray(table.pair_dists, dtype))
+
+
 class FastGibbs:
     """The fast Gibbs sampler for one problem (table, readings, parameters) and one schedule.
 
@@ -240,9 +249,7 @@ class FastGibbs:
         "no wall" index, whose value comes from ``Levels.max_ll``); None for ``"normal"``."""
         if self.beam_model == "normal":
             return None
-        table = self.table
-        y = jnp.asarray(self._y[table.pair_rays], dtype=self._dtype)
-        ll = _log_likelihood_table(self.beam_model, self._sensor_args, y, jnp.asarray(table.pair_dists, self._dtype))
+        ll = pair_log_likelihoods(self.table, self._y, self.beam_model, self._sensor_args)
         return jnp.append(ll, jnp.zeros(1, ll.dtype))
 
     def _block_entries(self):
