@@ -73,7 +73,7 @@ def test_new_readings_prior_and_noise_reuse_the_compiled_sweep():
 
     def run(problem):
         algorithm = make_sampler(problem, "block")
-        samples, _ = _run(jax.random.key(0), algorithm.init(jnp.zeros(problem.grid.shape)), algorithm, 7)
+        samples, _, _ = _run(jax.random.key(0), algorithm.init(jnp.zeros(problem.grid.shape)), algorithm, 7)
         return np.asarray(samples)
 
     first = run(tutorial_problem(seed=3))

@@ -75,7 +75,7 @@ def time_sampler(problem: Problem, name: str, sweeps: int, repeats: int, max_swe
     samples = []
     reached = None
     for t in range(1, max_sweeps + 1):
-        out, state = one(jax.random.key(t), state)
+        out, state, _ = one(jax.random.key(t), state)
         samples.append(np.asarray(out[0], dtype=np.float64))
         kept = samples[t // 2:]
         if problem.wrong_visible_cells(sum(kept) / len(kept)) <= ACCURACY_WRONG_CELLS:
@@ -116,7 +116,7 @@ def fresh_chain_seconds(problem: Problem, name: str, sweeps: int = 100) -> float
     """Wall time of a new ``sweeps``-sweep chain from nothing: build the sampler, compile, run."""
     start = time.perf_counter()
     algorithm, state = _start(problem, name)
-    samples, _ = _run(jax.random.key(0), state, algorithm, sweeps)
+    samples, _, _ = _run(jax.random.key(0), state, algorithm, sweeps)
     jax.block_until_ready(samples)
     return time.perf_counter() - start
 

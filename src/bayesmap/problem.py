@@ -373,7 +373,10 @@ class InferenceResult:
     Attributes:
         samples: ``(num_sweeps, nx, ny)`` bool, the map after each sweep (``(num_chains, num_sweeps, nx, ny)``
             with several chains).
-        posterior: ``(nx, ny)`` float64 mean of the samples after the burn-in (over all chains).
+        posterior: ``(nx, ny)`` float64 posterior wall probability per cell, over the sweeps after the burn-in (and
+            all chains): the mean of the conditional wall probabilities the sweeps drew from (Rao-Blackwellized) for
+            samplers whose state records them (``"cellwise"``), else the mean of the samples
+            (``summary["posterior_estimate"]`` says which).
         runtime_s: wall time of the whole run in seconds, compilation included.
         summary: settings and metrics (JSON-serializable).
         diagnostics: with 2 or more chains, per-cell ``{"r_hat": (nx, ny), "ess": (nx, ny)}`` float64 of the kept
@@ -442,31 +445,38 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         finished = [0]  # sweeps run so far, all chains (a disabled tqdm does not count)
 
         def run(keys, state, chains, total):
-            pieces, done = [], 0
+            """``(samples, wall_probs or None)`` of the chunks ``keys``, sweep axis -3."""
+            pieces, prob_pieces, done = [], [], 0
             for key in keys:
                 n = min(chunk, sweeps - done)
                 if chains == 1:
-                    samples, state = _run(key, state, algorithm, n)
+                    samples, state, probs = _run(key, state, algorithm, n)
                 else:
-                    samples, state = _run_many(jax.random.split(key, chains), state, algorithm, n)
+                    samples, state, probs = _run_many(jax.random.split(key, chains), state, algorithm, n)
                 pieces.append(np.asarray(samples))
+                if probs is not None:
+                    prob_pieces.append(np.asarray(probs))
                 done += n
                 finished[0] += n
                 bar.update(n)
                 if on_progress is not None:
                     on_progress(finished[0], total)
-            return np.concatenate(pieces, axis=-3)
+            return np.concatenate(pieces, axis=-3), (np.concatenate(prob_pieces, axis=-3) if prob_pieces else None)
 
         if one_by_one:  # chain c uses the keys chain c would get at once (split of each chunk's key)
             per_chain = jnp.stack([jax.random.split(key, chains) for key in keys])  # (chunks, chains)
-            samples = np.stack([run(per_chain[:, c], algorithm.init(walls0), 1, sweeps * chains) for c in range(chains)])
+            runs = [run(per_chain[:, c], algorithm.init(walls0), 1, sweeps * chains) for c in range(chains)]
+            samples = np.stack([r[0] for r in runs])
+            wall_probs = None if runs[0][1] is None else np.stack([r[1] for r in runs])
         elif chains == 1:
-            samples = run(keys, algorithm.init(walls0), 1, sweeps)
+            samples, wall_probs = run(keys, algorithm.init(walls0), 1, sweeps)
         else:
-            samples = run(keys, jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape)), chains,
-                          sweeps)
+            samples, wall_probs = run(keys, jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape)),
+                                      chains, sweeps)
     runtime = time.perf_counter() - start
-    posterior = posterior_mean(samples, burn_in)
+    # the posterior marginals: Rao-Blackwellized (mean of the conditional probabilities) where the sampler records
+    # them, else the mean of the 0/1 samples
+    posterior = posterior_mean(samples if wall_probs is None else wall_probs, burn_in)
     diagnostics = cell_diagnostics(samples, burn_in) if chains > 1 else None
     summary = {
         "source": problem.source,
@@ -488,6 +498,7 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         "grid": {"shape": list(problem.grid.shape), "resolution": problem.grid.resolution, "origin": list(problem.grid.origin)},
         "max_distance": problem.params.cap,
         "runtime_s": round(runtime, 4),
+        "posterior_estimate": "sample mean" if wall_probs is None else "rao-blackwellized",
         **problem.extra,
     }
     if problem.max_range_mask is not None:

@@ -1,8 +1,9 @@
 """Running Markov chains: the kernel interface, ``lax.scan`` chains, many chains, and per-cell diagnostics.
 
 Every sampler is a :class:`SamplingAlgorithm` in the style of BlackJAX: a pure ``init(walls) -> state`` and a
-``step(key, state) -> state`` kernel that performs one sweep; a state exposes the current map as ``state.walls``.
-Keys are passed explicitly; there is no global state.
+``step(key, state) -> state`` kernel that performs one sweep; a state exposes the current map as ``state.walls``
+and, if the sampler records them, the conditional wall probabilities of the sweep as ``state.wall_prob`` (for
+Rao-Blackwellized posterior marginals). Keys are passed explicitly; there is no global state.
 """
 
 from __future__ import annotations
@@ -58,10 +59,13 @@ class ChainResult(NamedTuple):
     Attributes:
         samples: ``(num_sweeps, nx, ny)`` bool, the map after each sweep.
         final_state: the sampler's state after the last sweep.
+        wall_probs: ``(num_sweeps, nx, ny)`` float32, each sweep's conditional wall probabilities, for samplers whose
+            state records them (``state.wall_prob``); else None.
     """
 
     samples: jax.Array
     final_state: object
+    wall_probs: jax.Array | None = None
 
 
 def _split(algorithm):
@@ -84,10 +88,10 @@ def _join(arrays, static):
 def _chain(key, initial_state, algorithm, num_sweeps: int):
     def body(state, k):
         state = algorithm.step(k, state)
-        return state, state.walls > 0
+        return state, (state.walls > 0, getattr(state, "wall_prob", None))
 
-    final, samples = jax.lax.scan(body, initial_state, jax.random.split(key, num_sweeps))
-    return samples, final
+    final, (samples, wall_probs) = jax.lax.scan(body, initial_state, jax.random.split(key, num_sweeps))
+    return samples, final, wall_probs
 
 
 @partial(jax.jit, static_argnames=("static", "num_sweeps"))
@@ -102,7 +106,8 @@ def _run_many_jit(keys, initial_states, arrays, static, num_sweeps: int):
 
 
 def _run(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int):
-    """``num_sweeps`` sweeps from ``initial_state``, compiled: ``(samples (num_sweeps, nx, ny) bool, final state)``."""
+    """``num_sweeps`` sweeps from ``initial_state``, compiled: ``(samples (num_sweeps, nx, ny) bool, final state,
+    wall_probs (num_sweeps, nx, ny) float32 or None)`` (see :class:`ChainResult`)."""
     arrays, static = _split(algorithm)
     return _run_jit(key, initial_state, arrays, static, int(num_sweeps))
 
@@ -110,7 +115,7 @@ def _run(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int):
 def compile_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, num_chains: int | None = None):
     """Compile a chain of ``num_sweeps`` sweeps (``num_chains`` at once with ``vmap`` if given; ``key`` is then
     ``(num_chains,)`` keys and the state batched) ahead of time; returns ``run(key, initial_state) ->
-    (samples, final_state)``. For timing compilation apart from running."""
+    (samples, final_state, wall_probs)``. For timing compilation apart from running."""
     arrays, static = _split(algorithm)
     fn = _run_jit if num_chains is None else _run_many_jit
     compiled = fn.lower(key, initial_state, arrays, static, int(num_sweeps)).compile()
@@ -137,12 +142,11 @@ def run_chain(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int)
     if int(num_sweeps) != num_sweeps or num_sweeps < 1:
         raise BayesmapError(f"number of sweeps must be an integer >= 1, got {num_sweeps!r}")
     state = algorithm.init(jnp.asarray(initial_walls, dtype=jnp.float32))
-    samples, final = _run(key, state, algorithm, int(num_sweeps))
-    return ChainResult(samples=samples, final_state=final)
+    return ChainResult(*_run(key, state, algorithm, int(num_sweeps)))
 
 
 def _run_many(keys, initial_states, algorithm: SamplingAlgorithm, num_sweeps: int):
-    """Chains at once (``vmap``): ``keys`` ``(C,)``, states batched; samples ``(C, num_sweeps, nx, ny)``."""
+    """Chains at once (``vmap``): ``keys`` ``(C,)``, states batched; as :func:`_run` with a leading ``(C,)`` axis."""
     arrays, static = _split(algorithm)
     return _run_many_jit(keys, initial_states, arrays, static, int(num_sweeps))
 
@@ -154,7 +158,7 @@ def run_chains(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int
         initial_walls: ``(nx, ny)`` shared starting map, or ``(num_chains, nx, ny)`` one per chain.
 
     Returns:
-        :class:`ChainResult` with ``samples`` ``(num_chains, num_sweeps, nx, ny)`` bool.
+        :class:`ChainResult` with ``samples`` ``(num_chains, num_sweeps, nx, ny)`` bool (and ``wall_probs`` alike).
     """
     if int(num_chains) != num_chains or num_chains < 1:
         raise BayesmapError(f"number of chains must be an integer >= 1, got {num_chains!r}")
@@ -164,8 +168,7 @@ def run_chains(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int
     if walls.ndim == 2:
         walls = jnp.broadcast_to(walls, (num_chains,) + walls.shape)
     states = jax.vmap(algorithm.init)(walls)
-    samples, final = _run_many(jax.random.split(key, num_chains), states, algorithm, int(num_sweeps))
-    return ChainResult(samples=samples, final_state=final)
+    return ChainResult(*_run_many(jax.random.split(key, num_chains), states, algorithm, int(num_sweeps)))
 
 
 def posterior_mean(samples, burn_in: int = 0) -> np.ndarray:
