@@ -17,17 +17,18 @@ from bayesmap.raycast import build_ray_table
 from test_multiscan import POSES, beam_enumeration_scene, scenes
 
 
-@pytest.mark.parametrize("beam_model", ["normal", "beam"])
-def test_conditionals_match_the_multi_scan_model(beam_model):
+@pytest.mark.parametrize("beam_model,likelihood_power", [("normal", 1.0), ("beam", 1.0), ("beam", 0.3)])
+def test_conditionals_match_the_multi_scan_model(beam_model, likelihood_power):
     """3 scans in one table, max-range readings at exactly the max range: for random maps every cell's log-odds
-    from the sweep's scoring equals the difference of the model's assess with the cell set to 1 and to 0.
+    from the sweep's scoring equals the difference of the model's assess with the cell set to 1 and to 0; with a
+    likelihood power eta, the prior's log-odds plus eta times the rest of that difference.
     Tolerance 1e-4 as tests/test_multiscan.py::test_fast_conditionals_match_the_multi_scan_model (float64 on both
     sides; the model's float32 prior carries ~3e-6 of rounding); a wrong case of the three (first wall before,
     after, at the cell) changes some difference by far more than 1e-2, and the check below makes sure the data
     are informative."""
     with enable_x64():
         grid, params, angles, _, y, table = scenes(beam_model, 7)
-        sampler = CellwiseGibbs(table, y.reshape(-1), params)
+        sampler = CellwiseGibbs(table, y.reshape(-1), params, likelihood_power=likelihood_power)
         args = scan_args(POSES, params, angles)
         readings = jnp.asarray(y)
 
@@ -47,8 +48,10 @@ def test_conditionals_match_the_multi_scan_model(beam_model):
             walls = (rng.random(grid.shape) < density).astype(np.float64)
             got = np.asarray(sampler.cell_log_odds(walls))
             want = np.asarray(brute(jnp.asarray(walls)))
+            logit = np.log(params.prior_wall_prob / (1 - params.prior_wall_prob))
+            want = logit + likelihood_power * (want - logit)
             np.testing.assert_allclose(got, want, atol=1e-4, rtol=0)
-            assert np.ptp(want) > 5.0
+            assert np.ptp(want) > 2.0
 
 
 def rows_from_map(table, walls):
@@ -123,6 +126,9 @@ def test_width_groups_and_errors():
     grid, params, angles, _, y, table = scenes("beam", 7)
     with pytest.raises(BayesmapError, match="readings"):
         CellwiseGibbs(table, y.reshape(-1)[:-1], params)
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(BayesmapError, match="likelihood_power"):
+            CellwiseGibbs(table, y.reshape(-1), params, likelihood_power=bad)
 
 
 def test_rao_blackwellized_marginals_match_exact_enumeration():

@@ -161,11 +161,11 @@ def test_range_offset_shifts_only_returned_readings_the_model_scores(small_log):
 
     log = read_carmen(small_log)
     pb = log_problem(log, resolution=0.2)
-    assert pb.range_offset == 0.1 and pb.extra["range_offset"] == 0.1  # half a cell by default
+    assert pb.range_offset == 0.2 and pb.extra["range_offset"] == 0.2  # one cell by default
     raw, model, is_max = pb.ray_readings, pb.model_ray_readings, pb.ray_max_range
     assert is_max.any() and (~is_max).any()
     np.testing.assert_array_equal(model[is_max], raw[is_max])  # max-range readings keep the max range
-    np.testing.assert_allclose(model[~is_max], np.maximum(raw[~is_max] - 0.1, 0.0))
+    np.testing.assert_allclose(model[~is_max], np.maximum(raw[~is_max] - 0.2, 0.0))
     # the model's log joint scores the shifted readings; the figures and log-odds keep the measured ones
     walls = np.zeros(pb.grid.shape)
     unshifted = log_problem(log, resolution=0.2, range_offset=0.0)
@@ -213,3 +213,23 @@ def test_beam_weights_reach_the_model_and_the_summary(tmp_path, monkeypatch, cap
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["beam_model"] == "beam"
     assert [summary[k] for k in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")] == pytest.approx([0.7, 0.1, 0.1, 0.1, 0.3])
+
+
+def test_likelihood_power_default_for_logs_and_refusals(small_log):
+    """Logs default to the tempered target (LOG_LIKELIHOOD_POWER), recorded in the summary; bad powers and the
+    reference samplers (which sample the plain posterior through assess) are refused with the value named."""
+    from bayesmap.io.carmen import read_carmen
+    from bayesmap.problem import LOG_LIKELIHOOD_POWER, make_sampler, run_inference
+
+    log = read_carmen(small_log)
+    pb = log_problem(log, resolution=0.2)
+    assert pb.likelihood_power == LOG_LIKELIHOOD_POWER < 1
+    assert log_problem(log, resolution=0.2, likelihood_power=1).likelihood_power == 1.0
+    for bad in (0, -0.5, 2, "x"):
+        with pytest.raises(BayesmapError, match="likelihood_power"):
+            log_problem(log, resolution=0.2, likelihood_power=bad)
+    with pytest.raises(BayesmapError, match="likelihood power 0.1"):
+        make_sampler(pb, "reference-raster")
+    summary = run_inference(pb, "cellwise", 4, progress=False).summary
+    assert summary["likelihood_power"] == LOG_LIKELIHOOD_POWER
+    assert summary["posterior_estimate"] == "rao-blackwellized"

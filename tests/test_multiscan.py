@@ -146,6 +146,25 @@ def test_fast_conditionals_match_the_multi_scan_model(beam_model, block_size):
         assert max_hit_wall and max_no_wall
 
 
+@pytest.mark.parametrize("block_size", [1, 2])
+def test_fast_tempered_conditionals(block_size):
+    """With a likelihood power eta the fast kernel's block log-weights are eta times the posterior's plus (1 - eta)
+    times the prior's (relative to the empty configuration; the posterior's are checked against assess above).
+    Float32, weights of size ~10: tolerance 1e-4."""
+    grid, params, angles, _, y, table = scenes("beam", 7)
+    plain = FastGibbs(table, y.reshape(-1), params, block_size=block_size)
+    tempered = FastGibbs(table, y.reshape(-1), params, block_size=block_size, likelihood_power=0.25)
+    configs = block_configurations(block_size ** 2)
+    p = params.prior_wall_prob
+    log_prior = configs.sum(axis=1) * np.log(p / (1 - p))  # relative to no wall in the block
+    walls = (np.random.default_rng(5).random(grid.shape) < 0.3).astype(np.float32)
+    base = np.asarray(plain.block_log_weights(walls), np.float64)
+    got = np.asarray(tempered.block_log_weights(walls), np.float64)
+    want = 0.25 * (base - base[:, :1]) + 0.75 * log_prior[None, :]
+    np.testing.assert_allclose(got - got[:, :1], want, atol=1e-4, rtol=0)
+    assert np.abs(want - (base - base[:, :1])).max() > 1.0
+
+
 def test_beam_kernel_parameters_are_array_leaves_and_the_sweep_runs():
     """Other mixture weights give a kernel of the same tree structure (no recompilation); a few beam-model sweeps
     keep the state's ray bits equal to those recomputed from the map and move the chain."""

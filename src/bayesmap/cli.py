@@ -156,6 +156,8 @@ def _sensor_params(beam_weights: Optional[str], lambda_short: Optional[float]) -
     return params
 
 
+POWER_HELP = ("--log: power eta in (0, 1] of the likelihood, sampling p(walls) p(readings | walls)^eta (a power posterior "
+              "for beams that are not independent evidence; 1 is the plain posterior; default 0.1 for logs)")
 BEAM_WEIGHTS_HELP = ("beam model: mixture weights HIT,SHORT,MAX,RAND summing to 1 (default 0.8,0.05,0.05,0.1, "
                      "Probabilistic Robotics 6.3)")
 
@@ -192,9 +194,10 @@ def infer(
     resolution: float = typer.Option(0.1, help="grid resolution for real data, meters per cell"),
     method: str = typer.Option("gibbs", "--method", help="gibbs (the posterior, with --sampler) or logodds (classic log-odds mapping, no posterior)"),
     beam_model: Optional[str] = typer.Option(None, "--beam-model", help="sensor model: normal (the tutorial's; default for maps) or beam (robust mixture, Probabilistic Robotics 6.3; default for logs)"),
-    range_offset: Optional[float] = typer.Option(None, "--range-offset", help="meters the model subtracts from each returned reading of a log (default half a cell: a wall cell's reading is expected where the beam enters it, a real surface lies inside it)"),
+    range_offset: Optional[float] = typer.Option(None, "--range-offset", help="meters the model subtracts from each returned reading of a log (default one cell: a wall cell's reading is expected where the beam enters it, a real surface lies inside it)"),
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
     lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help="beam model: rate of short readings, 1/m (default 0.1)"),
+    likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
     sampler: Optional[str] = _sampler_option(None, " (default block; cellwise for several scans of a log)"),
     sweeps: int = typer.Option(100, help="number of Gibbs sweeps"),
     burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: half)"),
@@ -229,8 +232,8 @@ def infer(
         carmen = read_carmen(log)
         noise = resolution / 2 if sensor_noise is None else sensor_noise
         if scan is not None:
-            if range_offset is not None:
-                raise BayesmapError("--range-offset applies to several scans (--scans), not to --scan N")
+            if range_offset is not None or likelihood_power is not None:
+                raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), not to --scan N")
             problem = scan_problem(carmen, scan, resolution=resolution, prior_wall_prob=prior_wall_prob or 0.5,
                                    sensor_noise=noise, beam_model=beam_model or "normal", sensor_params=sensor_params)
             title = f"{log.name} scan {scan}"
@@ -239,11 +242,11 @@ def infer(
             problem = log_problem(carmen, chosen, resolution=resolution,
                                   prior_wall_prob=LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
                                   sensor_noise=noise, beam_model=beam_model or "beam", range_offset=range_offset,
-                                  sensor_params=sensor_params)
+                                  sensor_params=sensor_params, likelihood_power=likelihood_power)
             title = f"{log.name}, {len(chosen)} scans"
     else:
-        if scan is not None or scans is not None:
-            raise BayesmapError("--scan and --scans need --log FILE")
+        if scan is not None or scans is not None or likelihood_power is not None:
+            raise BayesmapError("--scan, --scans and --likelihood-power need --log FILE")
         walls = load_map(map_file) if map_file is not None else tutorial_map()
         center = (float(walls.shape[0] // 2), float(walls.shape[1] // 2))  # the tutorial's GRID_SIZE // 2
         problem = tutorial_problem(walls, pos=pos if pos is not None else center, seed=seed,
@@ -325,7 +328,8 @@ def evaluate(
     max_range: float = typer.Option(20.0, "--max-range", help="--truth: max range of the simulated sensor, meters"),
     sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help="standard deviation of a reading, meters (default half a cell)"),
     prior_wall_prob: float = typer.Option(LOG_PRIOR, "--prior-wall-prob", help="prior probability that a cell is a wall"),
-    range_offset: Optional[float] = typer.Option(None, "--range-offset", help="--log: meters the model subtracts from each returned reading (default half a cell)"),
+    range_offset: Optional[float] = typer.Option(None, "--range-offset", help="--log: meters the model subtracts from each returned reading (default one cell)"),
+    likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
     lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help="beam model: rate of short readings, 1/m (default 0.1)"),
     seed: int = typer.Option(0, help="seed of the chain (and of the simulated scans)"),
@@ -349,13 +353,16 @@ def evaluate(
 
         carmen = read_carmen(log)
         scores = evaluate_log(carmen, parse_scans(scans, len(carmen)), every=every, resolution=resolution,
-                              range_offset=range_offset, **mapping)
+                              range_offset=range_offset, likelihood_power=likelihood_power, **mapping)
         setup = scores["setup"]
         typer.echo(f"{log.name}: mapped {setup['train_scans']} scans, scored the {setup['test_scans']} held out "
                    f"(every {every}-th); grid {setup['grid'][0]} x {setup['grid'][1]} cells of {resolution:g} m; "
                    f"{sampler}, {sweeps} sweeps, {beam_model} model")
     else:
         from bayesmap.evaluate import evaluate_truth
+
+        if likelihood_power is not None or range_offset is not None:
+            raise BayesmapError("--likelihood-power and --range-offset apply to --log, not to --truth")
 
         scores = evaluate_truth(truth, resolution=resolution, num_poses=num_poses, num_angles=num_angles,
                                 max_range=max_range, **mapping)

@@ -214,10 +214,10 @@ def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, f
 def evaluate_log(log, scans=None, every: int = 10, resolution: float = 0.1, sampler: str = "cellwise",
                  sweeps: int = 100, seed: int = 0, prior_wall_prob: float = 0.1, sensor_noise: float | None = None,
                  beam_model: str = "beam", progress: bool = True, range_offset: float | None = None,
-                 sensor_params: dict | None = None) -> dict:
+                 sensor_params: dict | None = None, likelihood_power: float | None = None) -> dict:
     """Held-out evaluation on a log: hold out every ``every``-th of the chosen scans, map the rest with bayesmap
     (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
-    held-out beams (see the module docstring). ``range_offset`` and ``sensor_params``: see
+    held-out beams (see the module docstring). ``range_offset``, ``sensor_params`` and ``likelihood_power``: see
     :func:`bayesmap.problem.log_problem` (log-odds mapping always uses the measured ranges).
 
     Returns:
@@ -235,7 +235,8 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = 0.1, samp
     train, test = scans[train_pos], scans[test_pos]
     grid = log_problem(log, scans, resolution=resolution).grid  # covers all chosen scans, held-out ones too
     kwargs = dict(resolution=resolution, prior_wall_prob=prior_wall_prob, sensor_noise=sensor_noise,
-                  beam_model=beam_model, grid=grid, range_offset=range_offset, sensor_params=sensor_params)
+                  beam_model=beam_model, grid=grid, range_offset=range_offset, sensor_params=sensor_params,
+                  likelihood_power=likelihood_power)
     train_problem = log_problem(log, train, **kwargs)
     test_problem = log_problem(log, test, **kwargs)
     start = time.perf_counter()
@@ -251,7 +252,7 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = 0.1, samp
         "every": int(every), "resolution": float(resolution), "grid": list(grid.shape), "sampler": sampler,
         "sweeps": int(sweeps), "beam_model": beam_model, "sensor_noise": float(train_problem.params.sensor_noise),
         "prior_wall_prob": float(prior_wall_prob), "train_pairs": int(train_problem.table.num_pairs),
-        "range_offset": float(train_problem.range_offset),
+        "range_offset": float(train_problem.range_offset), "likelihood_power": float(train_problem.likelihood_power),
     }
     return scores
 

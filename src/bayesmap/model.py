@@ -83,6 +83,27 @@ class ModelParams(Pytree):
         return (self.sensor_noise, self.z_hit, self.z_short, self.z_max, self.z_rand, self.lambda_short, self.cap)
 
 
+def check_likelihood_power(value) -> float:
+    """Validate the power ``eta`` of a tempered likelihood and return it as a float.
+
+    A sampler run with ``eta`` targets ``p(walls) p(readings | walls) ** eta`` (a power, or "generalized",
+    posterior: Gruenwald 2012, "The safe Bayesian"; Holmes & Walker 2017; Miller & Dunson 2019, "Robust Bayesian
+    inference via coarsening"); ``eta = 1`` is the model's own posterior. The model (:data:`full_model`,
+    :data:`multi_scan_model`) is unchanged: the tempered target's log density is the prior's log-probability plus
+    ``eta`` times the rest of ``assess``'s score.
+
+    Raises:
+        BayesmapError: unless ``0 < eta <= 1`` (the message names the value).
+    """
+    try:
+        eta = float(value)
+    except (TypeError, ValueError):
+        raise BayesmapError(f"likelihood_power must be a number, got {value!r}") from None
+    if not (math.isfinite(eta) and 0.0 < eta <= 1.0):
+        raise BayesmapError(f"likelihood_power must be in (0, 1] (1: the posterior), got {value!r}")
+    return eta
+
+
 def make_params(
     prior_wall_prob: float = 0.5,
     sensor_noise: float = 0.2,

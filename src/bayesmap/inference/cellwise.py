@@ -49,7 +49,7 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.chains import KernelFields, SamplingAlgorithm
 from bayesmap.inference.fast import _log_likelihood_table, pair_log_likelihoods
-from bayesmap.model import ModelParams
+from bayesmap.model import ModelParams, check_likelihood_power
 from bayesmap.raycast import RayTable, check_readings
 
 NONE = float(1 << 22)  # "no such wall": a position beyond every ray (exact in float32)
@@ -272,6 +272,8 @@ class CellwiseGibbs:
         readings: ``(R,)`` ranges, meters, max-range readings equal to the max distance.
         params: model parameters (``prior_wall_prob`` and the sensor model; for ``"beam"`` the table's max distance
             must be the model's max range ``params.cap``).
+        likelihood_power: ``eta`` in (0, 1]: sample ``p(walls) p(readings | walls) ** eta``
+            (:func:`bayesmap.model.check_likelihood_power`); 1, the posterior, by default.
 
     Attributes:
         kernel: the :class:`CellwiseKernel`.
@@ -280,11 +282,12 @@ class CellwiseGibbs:
 
     Raises:
         BayesmapError: on readings that do not match the table's rays, a table whose max distance is not the beam
-            model's max range, or a cell crossed by more than 65,536 rays.
+            model's max range, a bad ``likelihood_power``, or a cell crossed by more than 65,536 rays.
     """
 
-    def __init__(self, table: RayTable, readings, params: ModelParams):
+    def __init__(self, table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0):
         y = check_readings(readings, table.num_rays)
+        eta = check_likelihood_power(likelihood_power)
         if params.beam_model != "normal" and not math.isclose(float(table.max_distance), params.cap, rel_tol=1e-12):
             raise BayesmapError(f"the table's max distance {table.max_distance!r} m is not the model's max range "
                                 f"params.cap = {params.cap!r} m")
@@ -294,6 +297,8 @@ class CellwiseGibbs:
         pair_ll = np.asarray(pair_log_likelihoods(table, y, params.beam_model, sensor))
         max_ll = np.asarray(_log_likelihood_table(params.beam_model, sensor, jnp.asarray(y, dtype),
                                                   jnp.asarray(table.max_distance, dtype)))
+        if eta != 1.0:  # a tempered likelihood: every log-likelihood the sweep looks up, times eta
+            pair_ll, max_ll = eta * pair_ll, eta * max_ll
         counts = table.rays_per_cell()
         by_cell = np.argsort(table.pair_cells, kind="stable")  # pairs of a cell in ray order
         start = np.concatenate([[0], np.cumsum(counts)])
@@ -339,6 +344,6 @@ class CellwiseGibbs:
         return self.kernel.cell_log_odds(walls)
 
 
-def cellwise_gibbs(table: RayTable, readings, params: ModelParams) -> SamplingAlgorithm:
+def cellwise_gibbs(table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0) -> SamplingAlgorithm:
     """The :class:`CellwiseGibbs` sampler's :class:`SamplingAlgorithm`."""
-    return CellwiseGibbs(table, readings, params).algorithm
+    return CellwiseGibbs(table, readings, params, likelihood_power).algorithm

@@ -47,7 +47,7 @@ from bayesmap.inference.schedules import (
     make_blocks,
     split_levels,
 )
-from bayesmap.model import ModelParams
+from bayesmap.model import ModelParams, check_likelihood_power
 from bayesmap.raycast import RayTable, check_readings
 from bayesmap.sensor import normal_logpdf, reading_logpdf
 
@@ -165,6 +165,8 @@ class FastGibbs:
             block crossed by more rays is drawn over several steps. Default: no splitting unless padding every
             level to the largest would cost more than 4 times the real work; then 32 (or the mean entries per
             level if larger).
+        likelihood_power: ``eta`` in (0, 1]: sample ``p(walls) p(readings | walls) ** eta`` (every log-likelihood
+            of a conditional times ``eta``; :func:`bayesmap.model.check_likelihood_power`); 1, the posterior.
 
     Attributes:
         blocks: ``(NB, B)`` int flat cell indices, sweep order.
@@ -184,7 +186,8 @@ class FastGibbs:
     """
 
     def __init__(self, table: RayTable, readings, params: ModelParams, order: str = "raster", block_size: int = 1,
-                 schedule: str = "sequential", pos=None, level_capacity: int | None = None):
+                 schedule: str = "sequential", pos=None, level_capacity: int | None = None,
+                 likelihood_power: float = 1.0):
         if schedule not in SCHEDULES:
             raise BayesmapError(f"unknown schedule {schedule!r}; choose one of {', '.join(SCHEDULES)}")
         self.table = table
@@ -237,6 +240,7 @@ class FastGibbs:
             _pair_shift=jnp.asarray(table.pair_positions % WORD_BITS, dtype=jnp.uint32),
             _bits=jnp.asarray(self._config_bits),
             _sensor=self._sensor_args, _pair_ll=self._pair_log_likelihoods(),
+            _power=jnp.asarray(check_likelihood_power(likelihood_power), dtype=self._dtype),
             _beam_model=params.beam_model, _max_words=self._max_words, _zero_word=self._zero_word,
             _chunked=not bool(np.all(np.asarray(self._steps.commit))), _dtype=jnp.dtype(self._dtype).name)
         self.algorithm = SamplingAlgorithm(init=jax.tree_util.Partial(FastKernel.init, self.kernel),
@@ -453,7 +457,7 @@ class FastKernel(KernelFields):
     then costs no more than the Normal's; the tables are recomputed with the readings, never compiled in."""
 
     _ARRAYS = ("_steps", "_final_words", "_final_walls", "_final_fix", "_pair_dists", "_pair_cells", "_pair_words",
-               "_pair_shift", "_bits", "_sensor", "_pair_ll")
+               "_pair_shift", "_bits", "_sensor", "_pair_ll", "_power")
     _STATIC = ("_max_words", "_zero_word", "_chunked", "_dtype", "_beam_model")
 
     @property
@@ -515,6 +519,7 @@ class FastKernel(KernelFields):
             else:
                 stop_ll, m_ll = lv.stop_ll, jnp.where(found, self._pair_ll[pair], lv.max_ll)
             ll = jnp.where(lv.stop < m_out[None, :], stop_ll, m_ll[None, :])
+        ll = self._power * ll  # a tempered likelihood (1: the posterior; exact)
         num_blocks = lv.log_prior.shape[0]
         # sum over each block's rays with a dense (A, E) mask: scatters are slow loops on the CPU
         mine = lv.slot[None, :] == jnp.arange(num_blocks, dtype=lv.slot.dtype)[:, None]
@@ -583,6 +588,7 @@ class FastKernel(KernelFields):
 
 
 def fast_gibbs(table: RayTable, readings, params: ModelParams, order: str = "raster", block_size: int = 1,
-               schedule: str = "sequential", pos=None) -> SamplingAlgorithm:
+               schedule: str = "sequential", pos=None, likelihood_power: float = 1.0) -> SamplingAlgorithm:
     """The fast exact Gibbs sampler as a :class:`SamplingAlgorithm`; see :class:`FastGibbs` for the arguments."""
-    return FastGibbs(table, readings, params, order, block_size, schedule, pos).algorithm
+    return FastGibbs(table, readings, params, order, block_size, schedule, pos,
+                     likelihood_power=likelihood_power).algorithm
