@@ -195,21 +195,22 @@ class CellwiseKernel(KernelFields):
     def _rewrite(self, lanes, k, new, cur, rows_all):
         """The rows after cell ``k`` of ``lanes`` changes to ``new`` (``cur``, the map in visiting order, already
         has it): the rays whose first or second wall changes get new rows, ``SEARCH_BATCH`` at a time in lane order
-        (each batch: the next changed lanes, their new rows, walks for removed walls, one write per row)."""
+        (each batch: the next changed lanes by ``top_k``, their new rows, walks for removed walls, a write per row:
+        XLA's CPU scatter runs as a loop over all its indices)."""
         rays, positions, log_lik = lanes.rays[k], lanes.positions[k], lanes.log_lik[k]
         rows = rows_all[rays]
         width = rays.shape[0]
         batch = min(width, SEARCH_BATCH)
-        first, second, ll_first, ll_second = rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3]
         q = positions.astype(rows.dtype)
-        before, at, between = q < first, q == first, (q > first) & (q < second)
-        changed = (rays < self._num_rays) & jnp.where(new, before | between, at | (q == second))
+        first, second = rows[:, 0], rows[:, 1]
+        # the rays whose first or second wall changes (none for a cell behind every ray's second wall)
+        changed = (rays < self._num_rays) & jnp.where(new, (q < second) & (q != first), (q == first) | (q == second))
         lane_ids = jnp.arange(width, dtype=jnp.int32)
-        rank = jnp.where(changed, (width - lane_ids).astype(jnp.float32), 0.0)  # top_k: changed lanes in lane order
+        rank = jnp.where(changed, (width - lane_ids).astype(jnp.float32), 0.0)  # largest for the first changed lane
+        lane_data = jnp.concatenate([rows, q[:, None], log_lik[:, None]], axis=1)  # one gather per batch
 
-        def new_rows(lane, ok):
-            r, f, s, lf, ls = rays[lane], first[lane], second[lane], ll_first[lane], ll_second[lane]
-            p, ll = q[lane], log_lik[lane]
+        def new_rows(r, data, ok):
+            f, s, lf, ls, p, ll = (data[:, c] for c in range(6))
 
             def added():
                 b = p < f
@@ -223,24 +224,22 @@ class CellwiseKernel(KernelFields):
 
             return jax.lax.cond(new, added, removed)
 
-        def more(carry):
-            done, _ = carry
-            return jnp.any(changed & (lane_ids > done))
-
-        def one_batch(carry):
-            done, rows_all = carry
+        def one_batch(_, carry):
+            done, rows_all = carry  # done: the last lane rewritten
             got, lane = jax.lax.top_k(jnp.where(lane_ids > done, rank, 0.0), batch)
             ok = got > 0
             num = jnp.sum(ok, dtype=jnp.int32)
             lane = jnp.where(ok, lane, 0)
-            rows_new, dst = new_rows(lane, ok), rays[lane]
+            r = rays[lane]
+            rows_new = new_rows(r, lane_data[lane], ok)
 
-            def put(t, rows_all):  # a write per row: XLA's CPU scatter is a loop over all indices
-                return jax.lax.dynamic_update_slice(rows_all, jax.lax.dynamic_slice_in_dim(rows_new, t, 1), (dst[t], 0))
+            def put(t, rows_all):
+                return jax.lax.dynamic_update_slice(rows_all, jax.lax.dynamic_slice_in_dim(rows_new, t, 1), (r[t], 0))
 
             return lane[num - 1], jax.lax.fori_loop(0, num, put, rows_all)
 
-        return jax.lax.while_loop(more, one_batch, (jnp.int32(-1), rows_all))[1]
+        num_batches = (jnp.sum(changed, dtype=jnp.int32) + batch - 1) // batch
+        return jax.lax.fori_loop(0, num_batches, one_batch, (jnp.int32(-1), rows_all))[1]
 
     def _sweep_group(self, lanes, base, cur, rows_all, probs, u):
         """Every cell of ``lanes`` once, ``BLOCK`` at a time (see the module docstring). ``cur``, ``probs`` and
