@@ -86,6 +86,39 @@ def test_sweeps_keep_the_ray_rows_consistent(beam_model, batch, monkeypatch):
     assert changed > 20
 
 
+@pytest.mark.parametrize("block", [8, 3])
+def test_sweep_is_the_one_cell_at_a_time_sweep(block, monkeypatch):
+    """The sweep scores BLOCK consecutive cells at once and keeps those up to the first draw that changes a row: its
+    draws are exactly those of updating one cell at a time in the visiting order, each drawn with the same uniform
+    from its conditional given the current map (cell_log_odds, the same scoring), then the cells no ray crosses
+    from the prior. Block 3 leaves partial blocks at the ends of groups. Dense maps, so that many cells change."""
+    monkeypatch.setattr(cellwise, "BLOCK", block)
+    grid, params, angles, _, y, table = scenes("beam", 11, num_beams=30)
+    sampler = CellwiseGibbs(table, y.reshape(-1), params)
+    kernel = sampler.kernel
+    order = np.concatenate([np.asarray(lanes.cells) for lanes in kernel._lanes])
+    free = np.asarray(kernel._free)
+    prior = float(jax.nn.sigmoid(kernel._logit))
+    step, log_odds = jax.jit(sampler.step), jax.jit(sampler.cell_log_odds)
+    state = sampler.init(jnp.asarray(np.random.default_rng(1).random(grid.shape) < 0.5, jnp.float32))
+    walls = np.asarray(state.walls).reshape(-1).copy()
+    changed = 0
+    for k in range(4):
+        key = jax.random.key(k)
+        state = step(key, state)
+        u = np.asarray(jax.random.uniform(key, walls.shape))
+        probs = np.full(walls.shape, prior, np.float32)
+        for c in order:
+            probs[c] = np.asarray(jax.nn.sigmoid(log_odds(walls.reshape(grid.shape)))).reshape(-1)[c]
+            new = np.float32(u[c] < probs[c])
+            changed += int(new != walls[c])
+            walls[c] = new
+        walls[free] = u[free] < prior
+        np.testing.assert_array_equal(np.asarray(state.walls).reshape(-1), walls)
+        np.testing.assert_allclose(np.asarray(state.wall_prob).reshape(-1), probs, rtol=1e-6, atol=1e-7)
+    assert changed > 20
+
+
 def test_sampler_matches_exact_enumeration():
     """The whole sweep with the beam model and two scans: 3 x 4 grid (4,096 maps enumerated with the model's
     assess), 2 poses x 6 beams, two max-range readings and one short reading; 64 chains x 300 sweeps. Tolerance
