@@ -25,6 +25,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.grid import Grid
 
 PARALLEL_TOL = 1.0e-10
+_CHUNK_PAIRS = 1 << 20  # pairs per chunk of the numpy passes over all pairs that need temporaries
 
 # The four corners of a cell relative to its center, in the tutorial's order; edge k runs from corner k to
 # corner k - 1 (the tutorial's ``jnp.roll(vertices, 1)``).
@@ -186,13 +187,12 @@ class RayTable:
         rank = np.arange(self.num_cells) if cell_rank is None else np.asarray(cell_rank)
         if len(rank) and (rank.min() < 0 or rank.max() >= 1 << 32):
             raise BayesmapError("cell ranks must lie in [0, 2**32)")
-        keys = np.empty(num, dtype=np.uint64)
-        words = keys.view(np.uint32).reshape(num, 2)  # the low and the high 32 bits of each key
-        low, high = (0, 1) if sys.byteorder == "little" else (1, 0)
-        words[:, low] = np.arange(num, dtype=np.uint32)
-        np.take(rank.astype(np.uint32), self.pair_cells, out=words[:, high], mode="clip")  # (clip: unbuffered)
+        keys = np.arange(num, dtype=np.uint64)  # the pair in the low 32 bits; one buffer throughout
+        high = 1 if sys.byteorder == "little" else 0
+        np.take(rank.astype(np.uint32), self.pair_cells, out=keys.view(np.uint32)[high::2], mode="clip")
         keys.sort()
-        return words[:, low].astype(np.int64)
+        keys &= np.uint64(0xFFFFFFFF)
+        return keys.view(np.int64)
 
     def ray(self, r: int) -> tuple[np.ndarray, np.ndarray]:
         """Cells ``(n,)`` int32 and stopping distances ``(n,)`` (meters) of ray ``r``, in order along the ray."""
@@ -205,12 +205,17 @@ class RayTable:
         is_wall = np.asarray(walls).reshape(-1)[self.pair_cells] > 0
         d = np.where(is_wall, self.pair_dists, self.max_distance)
         out = np.full(self.num_rays, self.max_distance, dtype=self.pair_dists.dtype)
-        np.minimum.at(out, self.pair_rays, d)
+        crossed = self.lengths > 0  # (reduceat reads one value of an empty segment: rays without pairs are left out)
+        out[crossed] = np.minimum(out[crossed], np.minimum.reduceat(d, self.offsets[:-1][crossed]))
         return out
 
     def rays_per_cell(self) -> np.ndarray:
-        """``(num_cells,)`` int: how many rays cross each cell."""
-        return np.bincount(self.pair_cells, minlength=self.num_cells)
+        """``(num_cells,)`` int64: how many rays cross each cell (counted a chunk of pairs at a time: ``np.bincount``
+        copies its input to int64 first)."""
+        counts = np.zeros(self.num_cells, dtype=np.int64)
+        for start in range(0, self.num_pairs, _CHUNK_PAIRS):
+            counts += np.bincount(self.pair_cells[start:start + _CHUNK_PAIRS], minlength=self.num_cells)
+        return counts
 
 
 def _candidate_cells(p, u, s_max, shape):

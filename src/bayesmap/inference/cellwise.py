@@ -116,8 +116,9 @@ def _lanes(table: RayTable, counts: np.ndarray, groups, pair_ll: jax.Array, dtyp
     for (width, cells), pair in zip(groups, np.split(order, bounds)):
         valid = np.arange(width)[None, :] < counts[cells][:, None]
         rays = table.pair_rays[pair]
-        parts.append((cells, valid, pair, _fill_rows(valid, rays, table.num_rays, np.int32),
-                      _fill_rows(valid, pair - table.offsets[rays], 0, np.int32)))
+        lane_rays = _fill_rows(valid, rays, table.num_rays, np.int32)
+        positions = np.subtract(pair, np.take(table.offsets, rays, out=rays), out=rays)  # (in place: fewer pages)
+        parts.append((cells, valid, pair, lane_rays, _fill_rows(valid, positions, 0, np.int32)))
     pair_ll = np.asarray(pair_ll)
     return tuple(Lanes(cells=jnp.asarray(cells, jnp.int32), rays=rays, positions=positions,
                        log_lik=_fill_rows(valid, pair_ll[pair], 0, dtype))
