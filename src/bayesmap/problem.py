@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from functools import cached_property, partial
+from functools import cached_property
 
 import jax
 import jax.numpy as jnp
@@ -21,9 +21,8 @@ from bayesmap.inference.cellwise import cellwise_gibbs
 from bayesmap.inference.chains import SamplingAlgorithm, _run, _run_many, cell_diagnostics, posterior_mean
 from bayesmap.inference.fast import fast_gibbs
 from bayesmap.inference.reference import reference_gibbs, reference_incremental_gibbs
-from bayesmap.model import ModelParams, log_joint, log_joint_scans, make_params, simulate_readings
+from bayesmap.model import ModelParams, log_joint, log_joint_scans, make_params, reading_log_likelihood, simulate_readings
 from bayesmap.raycast import RayTable, angles, build_ray_table, visible_cells
-from bayesmap.sensor import reading_logpdf
 
 TUTORIAL_POS = (10.0, 10.0)
 
@@ -67,14 +66,6 @@ SAMPLERS: dict[str, tuple[str, object]] = {
     "reference-block": ("the tutorial's 2x2 block Gibbs with assess",
                         lambda pb: reference_gibbs(*pb.single_scan(), "raster", 2)),
 }
-
-
-@partial(jax.jit, static_argnames=("beam_model",))
-def _total_log_likelihood(beam_model: str, sensor_args: tuple, readings, distances) -> jax.Array:
-    """``sum log p(y | d)`` over readings ``y`` and distances ``d`` (``(R,)``, meters) of the sensor model: the sum of
-    :func:`~bayesmap.model.reading_log_likelihood` in one compiled call (op by op, the beam model compiles dozens of
-    small programs on first use)."""
-    return jnp.sum(reading_logpdf(beam_model, readings, distances, sensor_args))
 
 
 @dataclass(frozen=True, eq=False)
@@ -197,9 +188,9 @@ class Problem:
         p = float(self.params.prior_wall_prob)
         prior = walls.sum() * math.log(p) + (walls.size - walls.sum()) * math.log1p(-p)
         d = self.table.first_wall_distances(walls)
-        ll = _total_log_likelihood(self.params.beam_model, self.params.sensor_args, jnp.asarray(self.model_ray_readings),
-                                   jnp.asarray(d, dtype=jnp.result_type(float)))
-        return float(prior + float(ll))
+        ll = reading_log_likelihood(jnp.asarray(self.model_ray_readings), jnp.asarray(d, dtype=jnp.result_type(float)),
+                                    self.params)
+        return float(prior + float(jnp.sum(ll)))
 
     @cached_property
     def visible(self) -> np.ndarray | None:
