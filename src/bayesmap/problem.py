@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -18,7 +19,14 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.grid import Grid, tutorial_map
 from bayesmap.inference.cellwise import cellwise_gibbs
-from bayesmap.inference.chains import SamplingAlgorithm, _run, _run_many, cell_diagnostics, posterior_mean
+from bayesmap.inference.chains import (
+    SamplingAlgorithm,
+    _run,
+    _run_many,
+    cell_diagnostics,
+    compile_chain,
+    posterior_mean,
+)
 from bayesmap.inference.fast import fast_gibbs
 from bayesmap.inference.reference import reference_gibbs, reference_incremental_gibbs
 from bayesmap.model import ModelParams, log_joint, log_joint_scans, make_params, reading_log_likelihood, simulate_readings
@@ -426,17 +434,36 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
     if chains > 1 and sweeps - burn_in < 4:
         raise BayesmapError(f"diagnostics of {chains} chains need at least 4 sweeps after the burn-in, got {sweeps - burn_in}")
     start = time.perf_counter()
-    algorithm = make_sampler(problem, sampler)
     init = ("logodds" if problem.multi_scan else "free") if init is None else init
-    if init == "free":
-        walls0 = jnp.zeros(problem.grid.shape, jnp.float32)
-    elif init == "logodds":
-        walls0 = jnp.asarray(run_logodds(problem).posterior > 0.5, jnp.float32)
-    else:
+    if init not in ("free", "logodds"):
         raise BayesmapError(f"unknown chain start {init!r}; choose free or logodds")
     one_by_one = chains > 1 and sampler in SEQUENTIAL_CHAINS
+    at_once = 1 if one_by_one else chains  # chains per compiled run
     chunk = max(1, min(sweeps, 10))
     keys = jax.random.split(jax.random.key(seed), -(-sweeps // chunk))
+    # Setup on two cores (numpy, XLA's compiler and XLA's runtime release the GIL; the results are those of one step
+    # after another): the log-odds start map is computed while the sampler is built, and the chain is compiled while
+    # its first state is computed.
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        if init == "logodds":
+            problem.table.pair_rays  # (built before both threads use them)
+            start_map = pool.submit(run_logodds, problem)
+        algorithm = make_sampler(problem, sampler)
+        if init == "logodds":
+            walls0 = jnp.asarray(start_map.result().posterior > 0.5, jnp.float32)
+        else:
+            walls0 = jnp.zeros(problem.grid.shape, jnp.float32)
+
+        def first_state():
+            if at_once == 1:
+                return algorithm.init(walls0)
+            return jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape))
+
+        key_shape = jax.ShapeDtypeStruct((at_once,) if at_once > 1 else (), keys.dtype)
+        compiled = pool.submit(compile_chain, key_shape, jax.eval_shape(first_state), algorithm, chunk,
+                               at_once if at_once > 1 else None)
+        state0 = first_state()
+        compiled.result()  # JAX keeps the compiled chain: the first chunk below does not compile it again
     with tqdm(total=sweeps * chains if one_by_one else sweeps, unit="sweep", delay=1.0, disable=not progress,
               leave=False) as bar:
         finished = [0]  # sweeps run so far, all chains (a disabled tqdm does not count)
@@ -459,12 +486,9 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
 
         if one_by_one:  # chain c uses the keys chain c would get at once (split of each chunk's key)
             per_chain = jnp.stack([jax.random.split(key, chains) for key in keys])  # (chunks, chains)
-            samples = np.stack([run(per_chain[:, c], algorithm.init(walls0), 1, sweeps * chains) for c in range(chains)])
-        elif chains == 1:
-            samples = run(keys, algorithm.init(walls0), 1, sweeps)
+            samples = np.stack([run(per_chain[:, c], state0, 1, sweeps * chains) for c in range(chains)])
         else:
-            samples = run(keys, jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape)), chains,
-                          sweeps)
+            samples = run(keys, state0, chains, sweeps)
     runtime = time.perf_counter() - start
     posterior = posterior_mean(samples, burn_in)
     diagnostics = cell_diagnostics(samples, burn_in) if chains > 1 else None
