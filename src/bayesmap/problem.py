@@ -441,9 +441,10 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
     at_once = 1 if one_by_one else chains  # chains per compiled run
     chunk = max(1, min(sweeps, 10))
     keys = jax.random.split(jax.random.key(seed), -(-sweeps // chunk))
-    # Setup on two cores (numpy, XLA's compiler and XLA's runtime release the GIL; the results are those of one step
-    # after another): the log-odds start map is computed while the sampler is built, and the chain is compiled while
-    # its first state is computed.
+    # Two cores (numpy, XLA's compiler and XLA's runtime release the GIL; the results are those of one step after
+    # another): the log-odds start map is computed while the sampler is built, the chain is compiled while its first
+    # state is computed, and while the chain runs (on one core) the summary's log joint, evaluated op by op, compiles
+    # its small XLA programs on the start map (the calls below then find them compiled).
     with ThreadPoolExecutor(max_workers=1) as pool:
         if init == "logodds":
             problem.table.pair_rays  # (built before both threads use them)
@@ -464,32 +465,34 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
                                at_once if at_once > 1 else None)
         state0 = first_state()
         compiled.result()  # JAX keeps the compiled chain: the first chunk below does not compile it again
-    with tqdm(total=sweeps * chains if one_by_one else sweeps, unit="sweep", delay=1.0, disable=not progress,
-              leave=False) as bar:
-        finished = [0]  # sweeps run so far, all chains (a disabled tqdm does not count)
+        warm = pool.submit(problem.log_joint, np.asarray(walls0) > 0.5)  # (bool, as the samples)
+        with tqdm(total=sweeps * chains if one_by_one else sweeps, unit="sweep", delay=1.0, disable=not progress,
+                  leave=False) as bar:
+            finished = [0]  # sweeps run so far, all chains (a disabled tqdm does not count)
 
-        def run(keys, state, chains, total):
-            pieces, done = [], 0
-            for key in keys:
-                n = min(chunk, sweeps - done)
-                if chains == 1:
-                    samples, state = _run(key, state, algorithm, n)
-                else:
-                    samples, state = _run_many(jax.random.split(key, chains), state, algorithm, n)
-                pieces.append(np.asarray(samples))
-                done += n
-                finished[0] += n
-                bar.update(n)
-                if on_progress is not None:
-                    on_progress(finished[0], total)
-            return np.concatenate(pieces, axis=-3)
+            def run(keys, state, chains, total):
+                pieces, done = [], 0
+                for key in keys:
+                    n = min(chunk, sweeps - done)
+                    if chains == 1:
+                        samples, state = _run(key, state, algorithm, n)
+                    else:
+                        samples, state = _run_many(jax.random.split(key, chains), state, algorithm, n)
+                    pieces.append(np.asarray(samples))
+                    done += n
+                    finished[0] += n
+                    bar.update(n)
+                    if on_progress is not None:
+                        on_progress(finished[0], total)
+                return np.concatenate(pieces, axis=-3)
 
-        if one_by_one:  # chain c uses the keys chain c would get at once (split of each chunk's key)
-            per_chain = jnp.stack([jax.random.split(key, chains) for key in keys])  # (chunks, chains)
-            samples = np.stack([run(per_chain[:, c], state0, 1, sweeps * chains) for c in range(chains)])
-        else:
-            samples = run(keys, state0, chains, sweeps)
-    runtime = time.perf_counter() - start
+            if one_by_one:  # chain c uses the keys chain c would get at once (split of each chunk's key)
+                per_chain = jnp.stack([jax.random.split(key, chains) for key in keys])  # (chunks, chains)
+                samples = np.stack([run(per_chain[:, c], state0, 1, sweeps * chains) for c in range(chains)])
+            else:
+                samples = run(keys, state0, chains, sweeps)
+        runtime = time.perf_counter() - start
+        warm.result()
     posterior = posterior_mean(samples, burn_in)
     diagnostics = cell_diagnostics(samples, burn_in) if chains > 1 else None
     summary = {
