@@ -117,7 +117,7 @@ def _lanes(table: RayTable, counts: np.ndarray, groups, pair_ll: jax.Array, dtyp
         valid = np.arange(width)[None, :] < counts[cells][:, None]
         rays = table.pair_rays[pair]
         lane_rays = _fill_rows(valid, rays, table.num_rays, np.int32)
-        positions = np.subtract(pair, np.take(table.offsets, rays, out=rays), out=rays)  # (in place: fewer pages)
+        positions = np.subtract(pair, np.take(table.offsets, rays, out=rays, mode="clip"), out=rays)  # (in place)
         parts.append((cells, valid, pair, lane_rays, _fill_rows(valid, positions, 0, np.int32)))
     pair_ll = np.asarray(pair_ll)
     return tuple(Lanes(cells=jnp.asarray(cells, jnp.int32), rays=rays, positions=positions,
