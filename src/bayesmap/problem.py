@@ -37,7 +37,7 @@ TUTORIAL_POS = (10.0, 10.0)
 MAX_FAST_PAIRS = 8_000_000
 """Most (beam, cell) pairs the level-based fast samplers (:data:`LEVEL_SAMPLERS`) take: they need about 1.9 KB per
 pair (measured: 11.4 GB peak for CSAIL's 6.1 million pairs), so a whole log at 0.1 m (Intel: 42 million pairs) would
-exhaust memory. The ``cellwise`` sampler needs about 25 bytes per pair and has no limit."""
+exhaust memory. The ``cellwise`` sampler needs about 22 bytes per pair and has no limit."""
 
 LEVEL_SAMPLERS = ("block", "raster", "outward", "chromatic", "chromatic-block")
 """The samplers of :mod:`bayesmap.inference.fast` (levels of blocks updated at once)."""
@@ -370,7 +370,7 @@ def make_sampler(problem: Problem, name: str) -> SamplingAlgorithm:
         raise BayesmapError(
             f"{problem.source or 'this problem'} has {pairs:,} (beam, cell) pairs; the sampler {name!r} takes at most "
             f"{MAX_FAST_PAIRS:,} (about 1.9 KB each, {pairs * 1.9e-6:.0f} GB here): use --sampler cellwise (about "
-            "25 bytes per pair), map fewer scans (--scans ::k) or use coarser cells (--resolution)")
+            "22 bytes per pair), map fewer scans (--scans ::k) or use coarser cells (--resolution)")
     return SAMPLERS[name][1](problem)
 
 

@@ -13,7 +13,8 @@ resolution, so the tutorial's unit cells and maps in meters are the same code.
 from __future__ import annotations
 
 import math
-import sys
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property, partial
 
@@ -25,7 +26,8 @@ from bayesmap.errors import BayesmapError
 from bayesmap.grid import Grid
 
 PARALLEL_TOL = 1.0e-10
-_CHUNK_PAIRS = 1 << 20  # pairs per chunk of the numpy passes over all pairs that need temporaries
+_CHUNK_PAIRS = 1 << 18  # pairs per chunk of numpy passes over all pairs (temporaries of <= 2 MB: malloc reuses them)
+TRACE_THREADS = 4  # most threads tracing chunks of rays in build_ray_table (at most one per core)
 
 # The four corners of a cell relative to its center, in the tutorial's order; edge k runs from corner k to
 # corner k - 1 (the tutorial's ``jnp.roll(vertices, 1)``).
@@ -180,16 +182,19 @@ class RayTable:
         """``(P,)`` int64 pair indices sorted by ``cell_rank[cell]`` (``(num_cells,)`` ints below ``2**32``; default
         the flat cell index), the pairs of equal rank in pair order (ray by ray): ``np.argsort(cell_rank[pair_cells],
         kind="stable")``, computed as one sort of 64-bit keys ``rank << 32 | pair`` (numpy sorts those with a SIMD
-        quicksort, several times faster than its stable sort of 32-bit keys)."""
+        quicksort, several times faster than its stable sort of 32-bit keys), in the one buffer it returns."""
         num = self.num_pairs
         if num >= 1 << 32:
             raise BayesmapError(f"{num:,} pairs: at most 2**32 are supported")
         rank = np.arange(self.num_cells) if cell_rank is None else np.asarray(cell_rank)
         if len(rank) and (rank.min() < 0 or rank.max() >= 1 << 32):
             raise BayesmapError("cell ranks must lie in [0, 2**32)")
-        keys = np.arange(num, dtype=np.uint64)  # the pair in the low 32 bits; one buffer throughout
-        high = 1 if sys.byteorder == "little" else 0
-        np.take(rank.astype(np.uint32), self.pair_cells, out=keys.view(np.uint32)[high::2], mode="clip")
+        rank = rank.astype(np.uint64) << np.uint64(32)
+        keys = np.empty(num, dtype=np.uint64)
+        for start in range(0, num, _CHUNK_PAIRS):
+            part = keys[start:start + _CHUNK_PAIRS]
+            np.take(rank, self.pair_cells[start:start + _CHUNK_PAIRS], out=part)
+            part |= np.arange(start, start + len(part), dtype=np.uint64)
         keys.sort()
         keys &= np.uint64(0xFFFFFFFF)
         return keys.view(np.int64)
@@ -600,7 +605,7 @@ def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None
         beam_angles: ``(R,)`` world-frame beam angles, radians.
         max_distance: cap in meters (finite, ``>= 0``); default :attr:`Grid.default_max_distance`.
         chunk: about how many (ray, cell) slots to trace at once (whole rays; bounds the temporaries, about 150
-            bytes per slot).
+            bytes per slot); up to :data:`TRACE_THREADS` chunks are traced at a time, one per core.
 
     Returns:
         The table: for each ray every cell whose tutorial distance (:func:`cell_hit_distance`, in JAX's default
@@ -634,7 +639,8 @@ def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None
     (the start cell and the first cell entered always share one; cells around a vertex may) are ordered by flat
     cell index, as the reference builder's sort does.
 
-    Time and memory are O(pairs): about 8 bytes per pair for the result plus the temporaries of one chunk.
+    Time and memory are O(pairs): about 8 bytes per pair for the result plus the temporaries of the chunks being
+    traced.
 
     Raises:
         BayesmapError: if a sensor position is not finite or lies outside the grid, a beam angle is not finite,
@@ -667,22 +673,29 @@ def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None
     capacity = int(ends[-1]) + 1024 if num_rays else 0
     cells = np.empty(capacity, dtype=np.int32)
     dists = np.empty(capacity, dtype=p_t.dtype)
-    used = 0
+    chunks = []  # slices of whole rays, about `chunk` slots each
     start = 0
     while start < num_rays:
         done = int(ends[start - 1]) if start else 0
         stop = max(start + 1, int(np.searchsorted(ends, done + max(int(chunk), 1), side="right")))
-        sl = slice(start, stop)
-        n, c, d = _trace_chunk(p[sl], u[sl], p_t[sl], u_t[sl], {k: v[sl] for k, v in trav.items()}, grid.shape, cap)
-        counts[sl] = n
-        if used + len(c) > len(cells):  # more exact corner cells than fast slots: grow (rare)
-            grow = max(len(cells) // 2, len(c), 1024)
-            cells = np.concatenate([cells[:used], np.empty(len(cells) - used + grow, dtype=cells.dtype)])
-            dists = np.concatenate([dists[:used], np.empty(len(dists) - used + grow, dtype=dists.dtype)])
-        cells[used:used + len(c)] = c
-        dists[used:used + len(d)] = d
-        used += len(c)
+        chunks.append(slice(start, stop))
         start = stop
+
+    def trace(sl):
+        return _trace_chunk(p[sl], u[sl], p_t[sl], u_t[sl], {k: v[sl] for k, v in trav.items()}, grid.shape, cap)
+
+    used = 0
+    # chunks are independent: traced on up to TRACE_THREADS threads (numpy releases the GIL), gathered in order
+    with ThreadPoolExecutor(max_workers=max(1, min(TRACE_THREADS, os.cpu_count() or 1))) as pool:
+        for sl, (n, c, d) in zip(chunks, pool.map(trace, chunks)):
+            counts[sl] = n
+            if used + len(c) > len(cells):  # more exact corner cells than fast slots: grow (rare)
+                grow = max(len(cells) // 2, len(c), 1024)
+                cells = np.concatenate([cells[:used], np.empty(len(cells) - used + grow, dtype=cells.dtype)])
+                dists = np.concatenate([dists[:used], np.empty(len(dists) - used + grow, dtype=dists.dtype)])
+            cells[used:used + len(c)] = c
+            dists[used:used + len(d)] = d
+            used += len(c)
     cells.resize(used, refcheck=False)
     dists.resize(used, refcheck=False)
     dists *= dists.dtype.type(grid.resolution)

@@ -104,33 +104,44 @@ def _lanes(table: RayTable, counts: np.ndarray, groups, pair_ll: jax.Array, dtyp
 
     The pairs are sorted once into the order of the lanes (group by group, cells ascending, a cell's pairs in ray
     order), so that each group's pairs are one contiguous slice, written row by row into its padded ``(n, W)``
-    arrays. Memory besides the lanes: the sorted pair indices (8 bytes per pair) and one group's temporaries.
+    arrays, a block of rows at a time. Memory besides the lanes: the sorted pair indices (8 bytes per pair) and
+    one block's temporaries (fresh pages cost more than the work on them).
     """
     if not groups:
         return ()
     rank = np.zeros(table.num_cells, dtype=np.int64)
     rank[np.concatenate([cells for _, cells in groups])] = np.arange(sum(len(cells) for _, cells in groups))
     order = table.pairs_by_cell(rank)
-    bounds = np.cumsum([int(counts[cells].sum()) for _, cells in groups])[:-1]
+    firsts = np.cumsum([0] + [int(counts[cells].sum()) for _, cells in groups])  # each group's first sorted pair
     parts = []
-    for (width, cells), pair in zip(groups, np.split(order, bounds)):
-        valid = np.arange(width)[None, :] < counts[cells][:, None]
-        rays = table.pair_rays[pair]
-        lane_rays = _fill_rows(valid, rays, table.num_rays, np.int32)
-        positions = np.subtract(pair, np.take(table.offsets, rays, out=rays, mode="clip"), out=rays)  # (in place)
-        parts.append((cells, valid, pair, lane_rays, _fill_rows(valid, positions, 0, np.int32)))
+    for (width, cells), first in zip(groups, firsts):
+        rays = np.full((len(cells), width), table.num_rays, dtype=np.int32)
+        positions = np.zeros((len(cells), width), dtype=np.int32)
+        for rows, valid, pair in _row_blocks(counts[cells], width, order, first):
+            ray = table.pair_rays[pair]
+            rays[rows][valid] = ray
+            positions[rows][valid] = pair - table.offsets[ray]
+        parts.append((rays, positions))
     pair_ll = np.asarray(pair_ll)
-    return tuple(Lanes(cells=jnp.asarray(cells, jnp.int32), rays=rays, positions=positions,
-                       log_lik=_fill_rows(valid, pair_ll[pair], 0, dtype))
-                 for cells, valid, pair, rays, positions in parts)
+    lanes = []
+    for (width, cells), first, (rays, positions) in zip(groups, firsts, parts):
+        log_lik = np.zeros((len(cells), width), dtype=dtype)
+        for rows, valid, pair in _row_blocks(counts[cells], width, order, first):
+            log_lik[rows][valid] = pair_ll[pair]
+        lanes.append(Lanes(cells=jnp.asarray(cells, jnp.int32), rays=jnp.asarray(rays),
+                           positions=jnp.asarray(positions), log_lik=jnp.asarray(log_lik)))
+    return tuple(lanes)
 
 
-def _fill_rows(valid: np.ndarray, values: np.ndarray, pad, dtype) -> jax.Array:
-    """A ``valid.shape`` array of ``dtype``: ``values`` (one per True entry of the bool ``valid``) written in row-major
-    order into the True entries, ``pad`` elsewhere."""
-    out = np.full(valid.shape, pad, dtype=dtype)
-    out[valid] = values
-    return jnp.asarray(out)
+def _row_blocks(num: np.ndarray, width: int, order: np.ndarray, first: int):
+    """Blocks of about 2**18 lanes of a width group whose cells have ``num`` ``(n,)`` pairs each, the group's pairs
+    being ``order[first:first + num.sum()]``: yields ``(rows, valid, pairs)``, a slice of the rows, their
+    ``(rows, width)`` bool lanes that hold a pair, and those pairs (row by row) from ``order``."""
+    bounds = first + np.concatenate([[0], np.cumsum(num)])
+    step = max(1, (1 << 18) // width)
+    for start in range(0, len(num), step):
+        rows = slice(start, min(start + step, len(num)))
+        yield rows, np.arange(width) < num[rows, None], order[bounds[rows.start]:bounds[rows.stop]]
 
 
 @jax.tree_util.register_pytree_node_class
