@@ -12,8 +12,10 @@ from bayesmap.inference import cellwise
 from bayesmap.grid import Grid
 from bayesmap.inference.cellwise import NONE, CellwiseGibbs, width_groups
 from bayesmap.inference.chains import run_chain, run_chains
+from bayesmap.inference.fast import pair_log_likelihoods
 from bayesmap.model import choices, make_params, multi_scan_model, scan_args
 from bayesmap.raycast import build_ray_table
+from bayesmap.sensor import reading_logpdf
 from test_multiscan import POSES, beam_enumeration_scene, scenes
 
 
@@ -52,6 +54,64 @@ def test_conditionals_match_the_multi_scan_model(beam_model, likelihood_power):
             want = logit + likelihood_power * (want - logit)
             np.testing.assert_allclose(got, want, atol=1e-4, rtol=0)
             assert np.ptp(want) > 2.0
+
+
+@pytest.mark.parametrize("x64", [False, True])
+@pytest.mark.parametrize("beam_model", ["normal", "beam"])
+def test_pair_log_likelihoods_are_the_sensor_model(beam_model, x64):
+    """fast.pair_log_likelihoods (the per-pair table of the fast and cellwise samplers, which computes the beam
+    model's point mass only for the pairs of max-range readings) equals reading_logpdf at each pair's reading and
+    stopping distance, element by element, then a 0; with max-range readings (at and beyond the max range),
+    readings just below it on rays whose last cells are near the max range, readings of 0, and stopping distances
+    near 0 (sensors just inside a cell edge), in float32 and float64. Tolerance: a few units of rounding (the same
+    operations in one jitted call; in practice the bits are equal)."""
+    with enable_x64(x64):
+        grid = Grid((12, 12))
+        params = make_params(0.3, 0.05, 16, grid, 6.0, beam_model=beam_model)
+        poses = np.array([[3.4999, 5.0], [6.0, 6.5001], [8.2, 3.3]])
+        rng = np.random.default_rng(0)
+        angles = rng.uniform(-np.pi, np.pi, (3, 16))
+        angles[:, :4] = [0.0, np.pi / 2, np.pi, -np.pi / 2]  # straight out of the cell whose edge is 1e-4 away
+        table = build_ray_table(grid, np.repeat(poses, 16, axis=0), angles.reshape(-1), params.cap)
+        m = params.cap
+        y = rng.uniform(0.0, m, table.num_rays)
+        y[::5], y[1::7], y[2::6], y[3::9] = m, 2 * m, m - 0.01, 0.0
+        dtype = jnp.result_type(float)
+        sensor_args = tuple(jnp.asarray(a, dtype) for a in params.sensor_args)
+        got = np.asarray(pair_log_likelihoods(table, y, beam_model, sensor_args))
+        want = np.asarray(reading_logpdf(beam_model, jnp.asarray(y[table.pair_rays], dtype),
+                                         jnp.asarray(table.pair_dists, dtype), sensor_args))
+        assert got.shape == (table.num_pairs + 1,) and got.dtype == dtype and got[-1] == 0.0
+        tol = 8 * np.finfo(dtype).eps
+        np.testing.assert_allclose(got[:-1], want, rtol=tol, atol=tol)
+        # the scene has what the test is about
+        at_max = y[table.pair_rays] >= m
+        assert at_max.any() and (~at_max).any() and np.isfinite(want).all()
+        assert table.pair_dists.min() < 1e-3 and table.pair_dists[~at_max].max() > m - 0.3
+
+
+def test_lanes_hold_each_cells_pairs_in_ray_order():
+    """Each cell crossed by a ray is in exactly one group of lanes (the width of its count); its row holds its pairs
+    in ray order (ray, position along the ray, the pair's log-likelihood), then padding (ray R, position 0, 0)."""
+    grid, params, angles, _, y, table = scenes("beam", 5, num_beams=30)
+    kernel = CellwiseGibbs(table, y.reshape(-1), params).kernel
+    pair_ll = np.asarray(kernel._pair_ll)
+    counts = table.rays_per_cell()
+    seen = []
+    for (width, cells), lanes in zip(width_groups(counts), kernel._lanes, strict=True):
+        np.testing.assert_array_equal(np.asarray(lanes.cells), cells)
+        rays, positions, log_lik = (np.asarray(a) for a in (lanes.rays, lanes.positions, lanes.log_lik))
+        assert rays.shape == positions.shape == log_lik.shape == (len(cells), width)
+        for row, cell in enumerate(cells):
+            pairs = np.flatnonzero(table.pair_cells == cell)
+            n = len(pairs)
+            np.testing.assert_array_equal(rays[row, :n], table.pair_rays[pairs])
+            np.testing.assert_array_equal(positions[row, :n], table.pair_positions[pairs])
+            np.testing.assert_array_equal(log_lik[row, :n], pair_ll[pairs])
+            assert (rays[row, n:] == table.num_rays).all() and (positions[row, n:] == 0).all()
+            assert (log_lik[row, n:] == 0).all()
+        seen.extend(cells)
+    np.testing.assert_array_equal(np.sort(seen), np.flatnonzero(counts))
 
 
 def rows_from_map(table, walls):

@@ -42,6 +42,17 @@ def test_reading_on_a_cell_edge_hits_the_cell_entered_there():
     assert logodds[6, 1] == 0.0
 
 
+def test_a_reading_just_short_of_a_cell_edge_does_not_enter_the_cell():
+    # readings are float64, table distances float32: one float64 ulp short of 4.5 (where cell 5 is entered; the
+    # reading rounds to 4.5 in float32) the beam ends in cell 4
+    table = corridor_table([0.0, 1.0], [0.0])
+    assert table.pair_dists.dtype == np.float32
+    logodds = logodds_map(table, [np.nextafter(4.5, 0.0)])
+    assert logodds[4, 1] == pytest.approx(HIT, abs=EPS)
+    assert logodds[3, 1] == pytest.approx(MISS, abs=EPS)
+    assert logodds[5, 1] == 0.0
+
+
 @pytest.mark.parametrize("reading, hit_cell", [(0.3, 9), (0.6, 8)])
 def test_sensor_cell_counts_as_entered_at_zero(reading, hit_cell):
     # beam along -x from cell (9, 1): the sensor's cell and cell 8 share the table distance 0.5 (the sensor's cell

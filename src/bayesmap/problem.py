@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -18,7 +19,14 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.grid import Grid, tutorial_map
 from bayesmap.inference.cellwise import cellwise_gibbs
-from bayesmap.inference.chains import SamplingAlgorithm, _run, _run_many, cell_diagnostics, posterior_mean
+from bayesmap.inference.chains import (
+    SamplingAlgorithm,
+    _run,
+    _run_many,
+    cell_diagnostics,
+    compile_chain,
+    posterior_mean,
+)
 from bayesmap.inference.fast import fast_gibbs
 from bayesmap.inference.reference import reference_gibbs, reference_incremental_gibbs
 from bayesmap.model import (ModelParams, check_likelihood_power, log_joint, log_joint_scans, make_params,
@@ -30,7 +38,7 @@ TUTORIAL_POS = (10.0, 10.0)
 MAX_FAST_PAIRS = 8_000_000
 """Most (beam, cell) pairs the level-based fast samplers (:data:`LEVEL_SAMPLERS`) take: they need about 1.9 KB per
 pair (measured: 11.4 GB peak for CSAIL's 6.1 million pairs), so a whole log at 0.1 m (Intel: 42 million pairs) would
-exhaust memory. The ``cellwise`` sampler needs about 25 bytes per pair and has no limit."""
+exhaust memory. The ``cellwise`` sampler needs about 22 bytes per pair and has no limit."""
 
 LEVEL_SAMPLERS = ("block", "raster", "outward", "chromatic", "chromatic-block")
 """The samplers of :mod:`bayesmap.inference.fast` (levels of blocks updated at once)."""
@@ -390,7 +398,7 @@ def make_sampler(problem: Problem, name: str) -> SamplingAlgorithm:
         raise BayesmapError(
             f"{problem.source or 'this problem'} has {pairs:,} (beam, cell) pairs; the sampler {name!r} takes at most "
             f"{MAX_FAST_PAIRS:,} (about 1.9 KB each, {pairs * 1.9e-6:.0f} GB here): use --sampler cellwise (about "
-            "25 bytes per pair), map fewer scans (--scans ::k) or use coarser cells (--resolution)")
+            "22 bytes per pair), map fewer scans (--scans ::k) or use coarser cells (--resolution)")
     return SAMPLERS[name][1](problem)
 
 
@@ -457,51 +465,71 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
     if chains > 1 and sweeps - burn_in < 4:
         raise BayesmapError(f"diagnostics of {chains} chains need at least 4 sweeps after the burn-in, got {sweeps - burn_in}")
     start = time.perf_counter()
-    algorithm = make_sampler(problem, sampler)
     init = ("logodds" if problem.multi_scan else "free") if init is None else init
-    if init == "free":
-        walls0 = jnp.zeros(problem.grid.shape, jnp.float32)
-    elif init == "logodds":
-        walls0 = jnp.asarray(run_logodds(problem).posterior > 0.5, jnp.float32)
-    else:
+    if init not in ("free", "logodds"):
         raise BayesmapError(f"unknown chain start {init!r}; choose free or logodds")
     one_by_one = chains > 1 and sampler in SEQUENTIAL_CHAINS
+    at_once = 1 if one_by_one else chains  # chains per compiled run
     chunk = max(1, min(sweeps, 10))
     keys = jax.random.split(jax.random.key(seed), -(-sweeps // chunk))
-    with tqdm(total=sweeps * chains if one_by_one else sweeps, unit="sweep", delay=1.0, disable=not progress,
-              leave=False) as bar:
-        finished = [0]  # sweeps run so far, all chains (a disabled tqdm does not count)
-
-        def run(keys, state, chains, total):
-            """``(samples, wall_probs or None)`` of the chunks ``keys``, sweep axis -3."""
-            pieces, prob_pieces, done = [], [], 0
-            for key in keys:
-                n = min(chunk, sweeps - done)
-                if chains == 1:
-                    samples, state, probs = _run(key, state, algorithm, n)
-                else:
-                    samples, state, probs = _run_many(jax.random.split(key, chains), state, algorithm, n)
-                pieces.append(np.asarray(samples))
-                if probs is not None:
-                    prob_pieces.append(np.asarray(probs))
-                done += n
-                finished[0] += n
-                bar.update(n)
-                if on_progress is not None:
-                    on_progress(finished[0], total)
-            return np.concatenate(pieces, axis=-3), (np.concatenate(prob_pieces, axis=-3) if prob_pieces else None)
-
-        if one_by_one:  # chain c uses the keys chain c would get at once (split of each chunk's key)
-            per_chain = jnp.stack([jax.random.split(key, chains) for key in keys])  # (chunks, chains)
-            runs = [run(per_chain[:, c], algorithm.init(walls0), 1, sweeps * chains) for c in range(chains)]
-            samples = np.stack([r[0] for r in runs])
-            wall_probs = None if runs[0][1] is None else np.stack([r[1] for r in runs])
-        elif chains == 1:
-            samples, wall_probs = run(keys, algorithm.init(walls0), 1, sweeps)
+    # Two cores (numpy, XLA's compiler and XLA's runtime release the GIL; the results are those of one step after
+    # another): the log-odds start map is computed while the sampler is built, the chain is compiled while its first
+    # state is computed, and while the chain runs (on one core) the summary's log joint, evaluated op by op, compiles
+    # its small XLA programs on the start map (the calls below then find them compiled).
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        if init == "logodds":
+            problem.table.pair_rays  # (built before both threads use them)
+            start_map = pool.submit(run_logodds, problem)
+        algorithm = make_sampler(problem, sampler)
+        if init == "logodds":
+            walls0 = jnp.asarray(start_map.result().posterior > 0.5, jnp.float32)
         else:
-            samples, wall_probs = run(keys, jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape)),
-                                      chains, sweeps)
-    runtime = time.perf_counter() - start
+            walls0 = jnp.zeros(problem.grid.shape, jnp.float32)
+
+        def first_state():
+            if at_once == 1:
+                return algorithm.init(walls0)
+            return jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape))
+
+        key_shape = jax.ShapeDtypeStruct((at_once,) if at_once > 1 else (), keys.dtype)
+        compiled = pool.submit(compile_chain, key_shape, jax.eval_shape(first_state), algorithm, chunk,
+                               at_once if at_once > 1 else None)
+        state0 = first_state()
+        compiled.result()  # JAX keeps the compiled chain: the first chunk below does not compile it again
+        warm = pool.submit(problem.log_joint, np.asarray(walls0) > 0.5)  # (bool, as the samples)
+        with tqdm(total=sweeps * chains if one_by_one else sweeps, unit="sweep", delay=1.0, disable=not progress,
+                  leave=False) as bar:
+            finished = [0]  # sweeps run so far, all chains (a disabled tqdm does not count)
+
+            def run(keys, state, chains, total):
+                """``(samples, wall_probs or None)`` of the chunks ``keys``, sweep axis -3."""
+                pieces, prob_pieces, done = [], [], 0
+                for key in keys:
+                    n = min(chunk, sweeps - done)
+                    if chains == 1:
+                        samples, state, probs = _run(key, state, algorithm, n)
+                    else:
+                        samples, state, probs = _run_many(jax.random.split(key, chains), state, algorithm, n)
+                    pieces.append(np.asarray(samples))
+                    if probs is not None:
+                        prob_pieces.append(np.asarray(probs))
+                    done += n
+                    finished[0] += n
+                    bar.update(n)
+                    if on_progress is not None:
+                        on_progress(finished[0], total)
+                return (np.concatenate(pieces, axis=-3),
+                        np.concatenate(prob_pieces, axis=-3) if prob_pieces else None)
+
+            if one_by_one:  # chain c uses the keys chain c would get at once (split of each chunk's key)
+                per_chain = jnp.stack([jax.random.split(key, chains) for key in keys])  # (chunks, chains)
+                runs = [run(per_chain[:, c], state0, 1, sweeps * chains) for c in range(chains)]
+                samples = np.stack([r[0] for r in runs])
+                wall_probs = None if runs[0][1] is None else np.stack([r[1] for r in runs])
+            else:
+                samples, wall_probs = run(keys, state0, chains, sweeps)
+        runtime = time.perf_counter() - start
+        warm.result()
     # the posterior marginals: Rao-Blackwellized (mean of the conditional probabilities) where the sampler records
     # them, else the mean of the 0/1 samples
     posterior = posterior_mean(samples if wall_probs is None else wall_probs, burn_in)

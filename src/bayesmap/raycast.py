@@ -13,6 +13,8 @@ resolution, so the tutorial's unit cells and maps in meters are the same code.
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property, partial
 
@@ -24,6 +26,8 @@ from bayesmap.errors import BayesmapError
 from bayesmap.grid import Grid
 
 PARALLEL_TOL = 1.0e-10
+_CHUNK_PAIRS = 1 << 18  # pairs per chunk of numpy passes over all pairs (temporaries of <= 2 MB: malloc reuses them)
+TRACE_THREADS = 4  # most threads tracing chunks of rays in build_ray_table (at most one per core)
 
 # The four corners of a cell relative to its center, in the tutorial's order; edge k runs from corner k to
 # corner k - 1 (the tutorial's ``jnp.roll(vertices, 1)``).
@@ -167,6 +171,34 @@ class RayTable:
         """``(P,)`` int64 position of each pair along its ray (0 = closest to the sensor)."""
         return np.arange(self.num_pairs) - np.repeat(self.offsets[:-1], self.lengths)
 
+    def ray_pairs(self, rays) -> np.ndarray:
+        """``(n,)`` int64 indices of the pairs of ``rays`` (ints, ascending for ascending pairs), ray by ray."""
+        rays = np.asarray(rays, dtype=np.int64).reshape(-1)
+        lengths = self.lengths[rays]
+        ends = np.cumsum(lengths)
+        return np.arange(int(ends[-1]) if len(ends) else 0) + np.repeat(self.offsets[rays] - (ends - lengths), lengths)
+
+    def pairs_by_cell(self, cell_rank=None) -> np.ndarray:
+        """``(P,)`` int64 pair indices sorted by ``cell_rank[cell]`` (``(num_cells,)`` ints below ``2**32``; default
+        the flat cell index), the pairs of equal rank in pair order (ray by ray): ``np.argsort(cell_rank[pair_cells],
+        kind="stable")``, computed as one sort of 64-bit keys ``rank << 32 | pair`` (numpy sorts those with a SIMD
+        quicksort, several times faster than its stable sort of 32-bit keys), in the one buffer it returns."""
+        num = self.num_pairs
+        if num >= 1 << 32:
+            raise BayesmapError(f"{num:,} pairs: at most 2**32 are supported")
+        rank = np.arange(self.num_cells) if cell_rank is None else np.asarray(cell_rank)
+        if len(rank) and (rank.min() < 0 or rank.max() >= 1 << 32):
+            raise BayesmapError("cell ranks must lie in [0, 2**32)")
+        rank = rank.astype(np.uint64) << np.uint64(32)
+        keys = np.empty(num, dtype=np.uint64)
+        for start in range(0, num, _CHUNK_PAIRS):
+            part = keys[start:start + _CHUNK_PAIRS]
+            np.take(rank, self.pair_cells[start:start + _CHUNK_PAIRS], out=part)
+            part |= np.arange(start, start + len(part), dtype=np.uint64)
+        keys.sort()
+        keys &= np.uint64(0xFFFFFFFF)
+        return keys.view(np.int64)
+
     def ray(self, r: int) -> tuple[np.ndarray, np.ndarray]:
         """Cells ``(n,)`` int32 and stopping distances ``(n,)`` (meters) of ray ``r``, in order along the ray."""
         sl = slice(int(self.offsets[r]), int(self.offsets[r + 1]))
@@ -178,12 +210,17 @@ class RayTable:
         is_wall = np.asarray(walls).reshape(-1)[self.pair_cells] > 0
         d = np.where(is_wall, self.pair_dists, self.max_distance)
         out = np.full(self.num_rays, self.max_distance, dtype=self.pair_dists.dtype)
-        np.minimum.at(out, self.pair_rays, d)
+        crossed = self.lengths > 0  # (reduceat reads one value of an empty segment: rays without pairs are left out)
+        out[crossed] = np.minimum(out[crossed], np.minimum.reduceat(d, self.offsets[:-1][crossed]))
         return out
 
     def rays_per_cell(self) -> np.ndarray:
-        """``(num_cells,)`` int: how many rays cross each cell."""
-        return np.bincount(self.pair_cells, minlength=self.num_cells)
+        """``(num_cells,)`` int64: how many rays cross each cell (counted a chunk of pairs at a time: ``np.bincount``
+        copies its input to int64 first)."""
+        counts = np.zeros(self.num_cells, dtype=np.int64)
+        for start in range(0, self.num_pairs, _CHUNK_PAIRS):
+            counts += np.bincount(self.pair_cells[start:start + _CHUNK_PAIRS], minlength=self.num_cells)
+        return counts
 
 
 def _candidate_cells(p, u, s_max, shape):
@@ -568,7 +605,7 @@ def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None
         beam_angles: ``(R,)`` world-frame beam angles, radians.
         max_distance: cap in meters (finite, ``>= 0``); default :attr:`Grid.default_max_distance`.
         chunk: about how many (ray, cell) slots to trace at once (whole rays; bounds the temporaries, about 150
-            bytes per slot).
+            bytes per slot); up to :data:`TRACE_THREADS` chunks are traced at a time, one per core.
 
     Returns:
         The table: for each ray every cell whose tutorial distance (:func:`cell_hit_distance`, in JAX's default
@@ -602,7 +639,8 @@ def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None
     (the start cell and the first cell entered always share one; cells around a vertex may) are ordered by flat
     cell index, as the reference builder's sort does.
 
-    Time and memory are O(pairs): about 8 bytes per pair for the result plus the temporaries of one chunk.
+    Time and memory are O(pairs): about 8 bytes per pair for the result plus the temporaries of the chunks being
+    traced.
 
     Raises:
         BayesmapError: if a sensor position is not finite or lies outside the grid, a beam angle is not finite,
@@ -635,22 +673,29 @@ def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None
     capacity = int(ends[-1]) + 1024 if num_rays else 0
     cells = np.empty(capacity, dtype=np.int32)
     dists = np.empty(capacity, dtype=p_t.dtype)
-    used = 0
+    chunks = []  # slices of whole rays, about `chunk` slots each
     start = 0
     while start < num_rays:
         done = int(ends[start - 1]) if start else 0
         stop = max(start + 1, int(np.searchsorted(ends, done + max(int(chunk), 1), side="right")))
-        sl = slice(start, stop)
-        n, c, d = _trace_chunk(p[sl], u[sl], p_t[sl], u_t[sl], {k: v[sl] for k, v in trav.items()}, grid.shape, cap)
-        counts[sl] = n
-        if used + len(c) > len(cells):  # more exact corner cells than fast slots: grow (rare)
-            grow = max(len(cells) // 2, len(c), 1024)
-            cells = np.concatenate([cells[:used], np.empty(len(cells) - used + grow, dtype=cells.dtype)])
-            dists = np.concatenate([dists[:used], np.empty(len(dists) - used + grow, dtype=dists.dtype)])
-        cells[used:used + len(c)] = c
-        dists[used:used + len(d)] = d
-        used += len(c)
+        chunks.append(slice(start, stop))
         start = stop
+
+    def trace(sl):
+        return _trace_chunk(p[sl], u[sl], p_t[sl], u_t[sl], {k: v[sl] for k, v in trav.items()}, grid.shape, cap)
+
+    used = 0
+    # chunks are independent: traced on up to TRACE_THREADS threads (numpy releases the GIL), gathered in order
+    with ThreadPoolExecutor(max_workers=max(1, min(TRACE_THREADS, os.cpu_count() or 1))) as pool:
+        for sl, (n, c, d) in zip(chunks, pool.map(trace, chunks)):
+            counts[sl] = n
+            if used + len(c) > len(cells):  # more exact corner cells than fast slots: grow (rare)
+                grow = max(len(cells) // 2, len(c), 1024)
+                cells = np.concatenate([cells[:used], np.empty(len(cells) - used + grow, dtype=cells.dtype)])
+                dists = np.concatenate([dists[:used], np.empty(len(dists) - used + grow, dtype=dists.dtype)])
+            cells[used:used + len(c)] = c
+            dists[used:used + len(d)] = d
+            used += len(c)
     cells.resize(used, refcheck=False)
     dists.resize(used, refcheck=False)
     dists *= dists.dtype.type(grid.resolution)

@@ -35,7 +35,7 @@ Gelfand & Smith 1990, sec. 2.3; Liu, Wong & Kong 1994). Unlike the 0/1 mean it a
 none or all of the kept sweeps, which matters for scores such as the held-out AUC.
 
 Memory: per pair, 12 bytes in the sweep's lanes (ray, position, looked-up log-likelihood; at most twice that with
-the padding, 1.16x on the Intel log) plus 12 bytes of tables (cell, log-likelihood, ray, for the lookups and
+the padding, 1.16x on the Intel log) plus 8 bytes of tables (cell and log-likelihood, for the lookups and
 :meth:`CellwiseKernel.init`); per ray, one row of 4 numbers; per cell, its place in the visiting order.
 
 The kernel is exact: each update draws the cell from its full conditional, the same transition as the reference
@@ -116,13 +116,60 @@ class Lanes(NamedTuple):
     log_lik: jax.Array
 
 
+def _lanes(table: RayTable, counts: np.ndarray, groups, pair_ll: jax.Array, dtype) -> tuple[Lanes, ...]:
+    """The sweep's :class:`Lanes`, one per width group (``groups`` from :func:`width_groups` of ``counts``, the
+    table's rays per cell); ``pair_ll`` ``(P + 1,)`` of ``dtype`` from
+    :func:`~bayesmap.inference.fast.pair_log_likelihoods`, read last (it may still be computing).
+
+    The pairs are sorted once into the order of the lanes (group by group, cells ascending, a cell's pairs in ray
+    order), so that each group's pairs are one contiguous slice, written row by row into its padded ``(n, W)``
+    arrays, a block of rows at a time. Memory besides the lanes: the sorted pair indices (8 bytes per pair) and
+    one block's temporaries (fresh pages cost more than the work on them).
+    """
+    if not groups:
+        return ()
+    rank = np.zeros(table.num_cells, dtype=np.int64)
+    rank[np.concatenate([cells for _, cells in groups])] = np.arange(sum(len(cells) for _, cells in groups))
+    order = table.pairs_by_cell(rank)
+    firsts = np.cumsum([0] + [int(counts[cells].sum()) for _, cells in groups])  # each group's first sorted pair
+    parts = []
+    for (width, cells), first in zip(groups, firsts):
+        rays = np.full((len(cells), width), table.num_rays, dtype=np.int32)
+        positions = np.zeros((len(cells), width), dtype=np.int32)
+        for rows, valid, pair in _row_blocks(counts[cells], width, order, first):
+            ray = table.pair_rays[pair]
+            rays[rows][valid] = ray
+            positions[rows][valid] = pair - table.offsets[ray]
+        parts.append((rays, positions))
+    pair_ll = np.asarray(pair_ll)
+    lanes = []
+    for (width, cells), first, (rays, positions) in zip(groups, firsts, parts):
+        log_lik = np.zeros((len(cells), width), dtype=dtype)
+        for rows, valid, pair in _row_blocks(counts[cells], width, order, first):
+            log_lik[rows][valid] = pair_ll[pair]
+        lanes.append(Lanes(cells=jnp.asarray(cells, jnp.int32), rays=jnp.asarray(rays),
+                           positions=jnp.asarray(positions), log_lik=jnp.asarray(log_lik)))
+    return tuple(lanes)
+
+
+def _row_blocks(num: np.ndarray, width: int, order: np.ndarray, first: int):
+    """Blocks of about 2**18 lanes of a width group whose cells have ``num`` ``(n,)`` pairs each, the group's pairs
+    being ``order[first:first + num.sum()]``: yields ``(rows, valid, pairs)``, a slice of the rows, their
+    ``(rows, width)`` bool lanes that hold a pair, and those pairs (row by row) from ``order``."""
+    bounds = first + np.concatenate([[0], np.cumsum(num)])
+    step = max(1, (1 << 18) // width)
+    for start in range(0, len(num), step):
+        rows = slice(start, min(start + step, len(num)))
+        yield rows, np.arange(width) < num[rows, None], order[bounds[rows.start]:bounds[rows.stop]]
+
+
 @jax.tree_util.register_pytree_node_class
 class CellwiseKernel(KernelFields):
     """The sweep's data (pytree leaves) and code; built by :class:`CellwiseGibbs`. Problems with the same geometry
     and sensor model (other readings, prior, noise, mixture weights) share one compiled sweep."""
 
-    _ARRAYS = ("_lanes", "_free", "_rank", "_pair_cells", "_pair_ll", "_pair_rays", "_ray_start", "_ray_length",
-               "_max_ll", "_logit")
+    _ARRAYS = ("_lanes", "_free", "_rank", "_pair_cells", "_pair_ll", "_ray_start", "_ray_length", "_max_ll",
+               "_logit")
     _STATIC = ("_shape", "_num_rays", "_num_pairs")
 
     # -- the per-ray rows ---------------------------------------------------------------------------------------
@@ -134,17 +181,29 @@ class CellwiseKernel(KernelFields):
         return jnp.where(none, self._max_ll[rays], self._pair_ll[pair])
 
     def ray_walls(self, walls) -> jax.Array:
-        """The state's rows ``(R + 1, 4)`` for the map ``walls`` ``(nx, ny)`` (see :class:`CellwiseState`)."""
+        """The state's rows ``(R + 1, 4)`` for the map ``walls`` ``(nx, ny)`` (see :class:`CellwiseState`).
+
+        The pairs of a ray are contiguous in the table and in order along it, so one reverse cumulative minimum over
+        all pairs of ``pair index if wall else P`` gives, at each pair, the first wall at or after it; a ray's first
+        wall is that value at its first pair, its second wall the value just after the first (walls beyond the ray's
+        last pair belong to other rays: none). On the CPU this is several times faster than segment minima by ray
+        (scatters).
+        """
         dtype = self._pair_ll.dtype
-        on = jnp.asarray(walls).reshape(-1)[self._pair_cells[:-1]] > 0
-        positions = (jnp.arange(self._num_pairs, dtype=jnp.int32) - self._ray_start[self._pair_rays]).astype(dtype)
-        num = self._num_rays + 1
-        first = jax.ops.segment_min(jnp.where(on, positions, NONE), self._pair_rays, num_segments=num)
-        first = jnp.minimum(first, NONE)
-        later = on & (positions > first[self._pair_rays])
-        second = jnp.minimum(jax.ops.segment_min(jnp.where(later, positions, NONE), self._pair_rays,
-                                                 num_segments=num), NONE)
-        rays = jnp.arange(num, dtype=jnp.int32)
+        num_pairs = self._num_pairs
+        pair = jnp.arange(num_pairs + 1, dtype=jnp.int32)
+        on = (jnp.asarray(walls).reshape(-1)[self._pair_cells] > 0) & (pair < num_pairs)
+        next_wall = jax.lax.cummin(jnp.where(on, pair, num_pairs), reverse=True)  # (P + 1,) pair indices
+        start = self._ray_start
+        end = start + self._ray_length
+
+        def position(wall):  # a ray's wall (pair index) as its position along the ray, NONE if not on the ray
+            return jnp.where(wall < end, (wall - start).astype(dtype), NONE)
+
+        first = next_wall[start]
+        second = next_wall[jnp.minimum(first + 1, num_pairs)]
+        first, second = position(first), position(second)
+        rays = jnp.arange(self._num_rays + 1, dtype=jnp.int32)
         rows = jnp.stack([first, second, self._pair_log_lik(rays, first), self._pair_log_lik(rays, second)], axis=1)
         return rows.at[self._num_rays].set(jnp.array([-1.0, -1.0, 0.0, 0.0], dtype))  # the padding lanes' row
 
@@ -334,34 +393,22 @@ class CellwiseGibbs:
         dtype = jnp.result_type(float)
         num_rays, num_pairs = table.num_rays, table.num_pairs
         sensor = tuple(jnp.asarray(a, dtype=dtype) for a in params.sensor_args)
-        pair_ll = np.asarray(pair_log_likelihoods(table, y, params.beam_model, sensor))
-        max_ll = np.asarray(_log_likelihood_table(params.beam_model, sensor, jnp.asarray(y, dtype),
-                                                  jnp.asarray(table.max_distance, dtype)))
+        # dispatched first: XLA computes the log-likelihoods while numpy sorts the pairs into the lanes
+        max_ll = _log_likelihood_table(params.beam_model, sensor, jnp.asarray(y, dtype),
+                                       jnp.asarray(table.max_distance, dtype))
+        pair_ll = pair_log_likelihoods(table, y, params.beam_model, sensor)
         if eta != 1.0:  # a tempered likelihood: every log-likelihood the sweep looks up, times eta
             pair_ll, max_ll = eta * pair_ll, eta * max_ll
         counts = table.rays_per_cell()
-        by_cell = np.argsort(table.pair_cells, kind="stable")  # pairs of a cell in ray order
-        start = np.concatenate([[0], np.cumsum(counts)])
-        ray_and_position = (table.pair_rays << 32) | table.pair_positions  # gathered once into the lanes, not twice
-        lanes = []
-        for width, cells in width_groups(counts):
-            lane = np.arange(width)[None, :]
-            valid = lane < counts[cells][:, None]
-            pair = by_cell[np.where(valid, start[cells][:, None] + lane, 0)]
-            packed = ray_and_position[pair]
-            lanes.append(Lanes(cells=jnp.asarray(cells, jnp.int32),
-                               rays=jnp.asarray(np.where(valid, packed >> 32, num_rays), jnp.int32),
-                               positions=jnp.asarray(np.where(valid, packed & 0xFFFFFFFF, 0), jnp.int32),
-                               log_lik=jnp.asarray(np.where(valid, pair_ll[pair], 0.0), dtype)))
+        lanes = _lanes(table, counts, width_groups(counts), pair_ll, dtype)
         order = np.concatenate([np.asarray(group.cells) for group in lanes])  # the visiting order
         rank = np.zeros(len(counts), np.int32)  # each cell's place in it (0 for cells no ray crosses)
         rank[order] = np.arange(len(order), dtype=np.int32)
         p = float(params.prior_wall_prob)
         self.kernel = CellwiseKernel(
-            _lanes=tuple(lanes), _free=jnp.asarray(counts == 0), _rank=jnp.asarray(rank),
+            _lanes=lanes, _free=jnp.asarray(counts == 0), _rank=jnp.asarray(rank),
             _pair_cells=jnp.asarray(np.append(table.pair_cells, 0), jnp.int32),
-            _pair_ll=jnp.asarray(np.append(pair_ll, 0.0), dtype),
-            _pair_rays=jnp.asarray(table.pair_rays, jnp.int32),
+            _pair_ll=pair_ll,
             _ray_start=jnp.asarray(np.append(table.offsets[:-1], num_pairs), jnp.int32),
             _ray_length=jnp.asarray(np.append(table.lengths, 0), jnp.int32),
             _max_ll=jnp.asarray(np.append(max_ll, 0.0), dtype),

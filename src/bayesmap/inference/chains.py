@@ -115,7 +115,9 @@ def _run(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int):
 def compile_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, num_chains: int | None = None):
     """Compile a chain of ``num_sweeps`` sweeps (``num_chains`` at once with ``vmap`` if given; ``key`` is then
     ``(num_chains,)`` keys and the state batched) ahead of time; returns ``run(key, initial_state) ->
-    (samples, final_state, wall_probs)``. For timing compilation apart from running."""
+    (samples, final_state, wall_probs)``. ``key`` and ``initial_state`` may be ``jax.ShapeDtypeStruct``s. For
+    timing compilation apart from running, or to compile on another thread: JAX keeps the executable, so that the
+    first :func:`_run` (:func:`_run_many`) with such arguments does not compile again."""
     arrays, static = _split(algorithm)
     fn = _run_jit if num_chains is None else _run_many_jit
     compiled = fn.lower(key, initial_state, arrays, static, int(num_sweeps)).compile()

@@ -49,7 +49,7 @@ from bayesmap.inference.schedules import (
 )
 from bayesmap.model import ModelParams, check_likelihood_power
 from bayesmap.raycast import RayTable, check_readings
-from bayesmap.sensor import normal_logpdf, reading_logpdf
+from bayesmap.sensor import beam_log_density, beam_log_max_mass, normal_logpdf, reading_logpdf
 
 SCHEDULES = ("sequential", "chromatic")
 WORD_BITS = 32
@@ -137,13 +137,36 @@ def _log_likelihood_table(beam_model, sensor_args, y, d):
     return jnp.where(jnp.isfinite(d), ll, 0.0)
 
 
+@partial(jax.jit, static_argnames=("beam_model",))
+def _pair_log_likelihood_table(beam_model, sensor_args, y, d, max_pairs):
+    """:func:`pair_log_likelihoods` from the readings ``y`` ``(P,)`` and distances ``d`` ``(P,)`` of the pairs and the
+    pairs ``max_pairs`` ``(K,)`` int whose reading is at or beyond the beam model's max range."""
+    if beam_model == "beam":  # what beam_logpdf selects, each part only where it is selected
+        ll = beam_log_density(y, d, *sensor_args)
+        ll = ll.at[max_pairs].set(beam_log_max_mass(d[max_pairs], *sensor_args), indices_are_sorted=True,
+                                  unique_indices=True)
+    else:
+        ll = reading_logpdf(beam_model, y, d, sensor_args)
+    return jnp.append(jnp.where(jnp.isfinite(d), ll, 0.0), jnp.zeros(1, ll.dtype))
+
+
 def pair_log_likelihoods(table: RayTable, readings: np.ndarray, beam_model: str, sensor_args) -> jax.Array:
-    """``(P,)`` ``log p(y_r | t)`` of the sensor model ``beam_model`` (with ``sensor_args``, scalar arrays of the
-    kernel dtype, as ``params.sensor_args``) for every (ray r, cell) pair of ``table``: ``y_r`` from ``readings``
-    ``(R,)`` (meters), ``t`` the pair's stopping distance (meters)."""
+    """``(P + 1,)`` ``log p(y_r | t)`` of the sensor model ``beam_model`` (with ``sensor_args``, scalar arrays of the
+    kernel dtype, as ``params.sensor_args``) for every (ray r, cell) pair of ``table``, then a 0 (the index ``P``
+    pads lookups): ``y_r`` from ``readings`` ``(R,)`` (meters), ``t`` the pair's stopping distance (meters).
+
+    Equal to ``reading_logpdf(beam_model, y, t, sensor_args)`` element by element (the same operations), computed in
+    one jitted call; for the beam model the point mass at the max range (:func:`~bayesmap.sensor.beam_log_max_mass`)
+    is computed only for the pairs of max-range readings. The result is dispatched asynchronously (the caller can
+    work on while it is computed)."""
     dtype = sensor_args[0].dtype
-    return _log_likelihood_table(beam_model, sensor_args, jnp.asarray(readings[table.pair_rays], dtype),
-                                 jnp.asarray(table.pair_dists, dtype))
+    y = np.asarray(readings, dtype=dtype)
+    if beam_model == "beam":
+        max_pairs = table.ray_pairs(np.flatnonzero(y >= np.asarray(sensor_args[-1])))
+    else:
+        max_pairs = np.zeros(0, dtype=np.int64)
+    return _pair_log_likelihood_table(beam_model, sensor_args, np.repeat(y, table.lengths),
+                                      np.asarray(table.pair_dists, dtype=dtype), max_pairs)
 
 
 class FastGibbs:
@@ -253,15 +276,14 @@ class FastGibbs:
         "no wall" index, whose value comes from ``Levels.max_ll``); None for ``"normal"``."""
         if self.beam_model == "normal":
             return None
-        ll = pair_log_likelihoods(self.table, self._y, self.beam_model, self._sensor_args)
-        return jnp.append(ll, jnp.zeros(1, ll.dtype))
+        return pair_log_likelihoods(self.table, self._y, self.beam_model, self._sensor_args)
 
     def _block_entries(self):
         """All (block, ray) entries: ``(block, ray, pos (M, B), stop (M, B))`` sorted by block then ray."""
         table, blocks = self.table, self.blocks
         nb, size = blocks.shape
         num_rays = max(table.num_rays, 1)
-        by_cell = np.argsort(table.pair_cells, kind="stable")
+        by_cell = table.pairs_by_cell()
         cell_start = np.searchsorted(table.pair_cells[by_cell], np.arange(table.num_cells + 1))
         member_cell = blocks.reshape(-1)
         counts = cell_start[member_cell + 1] - cell_start[member_cell]
