@@ -116,10 +116,21 @@ class Lanes(NamedTuple):
     log_lik: jax.Array
 
 
-def _lanes(table: RayTable, counts: np.ndarray, groups, pair_ll: jax.Array, dtype) -> tuple[Lanes, ...]:
+def _visiting_rank(groups, num_cells: int) -> np.ndarray:
+    """``(num_cells,)`` int32: each cell's place in the sweep's visiting order (the cells of ``groups``, from
+    :func:`width_groups`, group after group); 0 for cells no ray crosses."""
+    rank = np.zeros(num_cells, dtype=np.int32)
+    if groups:
+        order = np.concatenate([cells for _, cells in groups])
+        rank[order] = np.arange(len(order), dtype=np.int32)
+    return rank
+
+
+def _lanes(table: RayTable, counts: np.ndarray, groups, rank: np.ndarray, pair_ll: jax.Array,
+           dtype) -> tuple[Lanes, ...]:
     """The sweep's :class:`Lanes`, one per width group (``groups`` from :func:`width_groups` of ``counts``, the
-    table's rays per cell); ``pair_ll`` ``(P + 1,)`` of ``dtype`` from
-    :func:`~bayesmap.inference.fast.pair_log_likelihoods`, read last (it may still be computing).
+    table's rays per cell; ``rank`` the cells' visiting order, :func:`_visiting_rank`); ``pair_ll`` ``(P + 1,)`` of
+    ``dtype`` from :func:`~bayesmap.inference.fast.pair_log_likelihoods`, read last (it may still be computing).
 
     The pairs are sorted once into the order of the lanes (group by group, cells ascending, a cell's pairs in ray
     order), so that each group's pairs are one contiguous slice, written row by row into its padded ``(n, W)``
@@ -128,8 +139,6 @@ def _lanes(table: RayTable, counts: np.ndarray, groups, pair_ll: jax.Array, dtyp
     """
     if not groups:
         return ()
-    rank = np.zeros(table.num_cells, dtype=np.int64)
-    rank[np.concatenate([cells for _, cells in groups])] = np.arange(sum(len(cells) for _, cells in groups))
     order = table.pairs_by_cell(rank)
     firsts = np.cumsum([0] + [int(counts[cells].sum()) for _, cells in groups])  # each group's first sorted pair
     parts = []
@@ -400,10 +409,9 @@ class CellwiseGibbs:
         if eta != 1.0:  # a tempered likelihood: every log-likelihood the sweep looks up, times eta
             pair_ll, max_ll = eta * pair_ll, eta * max_ll
         counts = table.rays_per_cell()
-        lanes = _lanes(table, counts, width_groups(counts), pair_ll, dtype)
-        order = np.concatenate([np.asarray(group.cells) for group in lanes])  # the visiting order
-        rank = np.zeros(len(counts), np.int32)  # each cell's place in it (0 for cells no ray crosses)
-        rank[order] = np.arange(len(order), dtype=np.int32)
+        groups = width_groups(counts)
+        rank = _visiting_rank(groups, table.num_cells)
+        lanes = _lanes(table, counts, groups, rank, pair_ll, dtype)
         p = float(params.prior_wall_prob)
         self.kernel = CellwiseKernel(
             _lanes=lanes, _free=jnp.asarray(counts == 0), _rank=jnp.asarray(rank),
