@@ -161,15 +161,20 @@ class RayTable:
         """``(R,)`` int64 number of cells on each ray (computed once; do not modify)."""
         return np.diff(self.offsets)
 
+    def per_pair(self, values) -> np.ndarray:
+        """``(P,)`` each ray's value of ``values`` ``(R,)`` (any dtype), repeated for its pairs: ``values[pair_rays]``
+        without building or reading :attr:`pair_rays` (faster)."""
+        return np.repeat(np.asarray(values), self.lengths)
+
     @cached_property
     def pair_rays(self) -> np.ndarray:
         """``(P,)`` int64 ray of each pair."""
-        return np.repeat(np.arange(self.num_rays), self.lengths)
+        return self.per_pair(np.arange(self.num_rays))
 
     @cached_property
     def pair_positions(self) -> np.ndarray:
         """``(P,)`` int64 position of each pair along its ray (0 = closest to the sensor)."""
-        return np.arange(self.num_pairs) - np.repeat(self.offsets[:-1], self.lengths)
+        return np.arange(self.num_pairs) - self.per_pair(self.offsets[:-1])
 
     def ray_pairs(self, rays) -> np.ndarray:
         """``(n,)`` int64 indices of the pairs of ``rays`` (ints, ascending for ascending pairs), ray by ray."""

@@ -165,7 +165,7 @@ def pair_log_likelihoods(table: RayTable, readings: np.ndarray, beam_model: str,
         max_pairs = table.ray_pairs(np.flatnonzero(y >= np.asarray(sensor_args[-1])))
     else:
         max_pairs = np.zeros(0, dtype=np.int64)
-    return _pair_log_likelihood_table(beam_model, sensor_args, np.repeat(y, table.lengths),
+    return _pair_log_likelihood_table(beam_model, sensor_args, table.per_pair(y),
                                       np.asarray(table.pair_dists, dtype=dtype), max_pairs)
 
 

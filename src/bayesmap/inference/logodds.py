@@ -142,26 +142,22 @@ def beam_hits_and_misses(table: RayTable, readings, max_range_mask=None) -> tupl
                 f"max_range_mask must be a bool array of shape ({num_rays},), got {is_max.dtype} {is_max.shape}"
             )
     rays = table.pair_rays
-
-    def per_pair(values):  # a value per ray, repeated for its pairs (faster than indexing with ``rays``)
-        return np.repeat(values, table.lengths)
-
     nx, ny = table.grid.shape
     ij = table.grid.cell_index(table.origins)  # (R, 2) cell containing each ray's sensor
     inside = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
     sensor_cell = np.where(inside, ij[:, 0] * ny + ij[:, 1], -1).astype(np.int32)
-    is_sensor = table.pair_cells == per_pair(sensor_cell)
+    is_sensor = table.pair_cells == table.per_pair(sensor_cell)
     # the sensor's cell is entered at distance 0; d <= y exactly when d <= the largest number of the distances'
     # dtype that is <= y (compared in that dtype: no float64 copy of every pair's reading)
     y_down = y.astype(table.pair_dists.dtype)
     y_down = np.where(y_down > y, np.nextafter(y_down, -np.inf), y_down)
-    entered = (table.pair_dists <= per_pair(y_down)) | is_sensor
+    entered = (table.pair_dists <= table.per_pair(y_down)) | is_sensor
     # no hit where the endpoint is not a cell of the table: max-range beams, readings at or beyond the table's
     # max distance, and endpoints outside the grid
     no_hit = is_max | (y >= table.max_distance) | (y >= _grid_exit_distances(table))
     # hit: the last non-sensor cell entered by y (pair distances increase along each ray, so these cells are a
     # prefix of the ray's non-sensor cells); if there is none, the sensor's cell
-    candidate = entered & ~is_sensor & ~per_pair(no_hit)
+    candidate = entered & ~is_sensor & ~table.per_pair(no_hit)
     idx = np.flatnonzero(candidate)
     ray_of = rays[idx]
     last = np.r_[ray_of[1:] != ray_of[:-1], True] if len(idx) else np.zeros(0, dtype=bool)
@@ -179,7 +175,7 @@ def beam_hits_and_misses(table: RayTable, readings, max_range_mask=None) -> tupl
     hit_entry = np.full(num_rays, np.inf, dtype=entry.dtype)  # (entry's dtype holds its values exactly)
     hit_idx = np.flatnonzero(hit)
     hit_entry[rays[hit_idx]] = entry[hit_idx]
-    miss = entered & (entry < per_pair(hit_entry))
+    miss = entered & (entry < table.per_pair(hit_entry))
     return hit, miss
 
 
