@@ -52,18 +52,21 @@ LOG_PRIOR = 0.1
 of their cells occupied, and with 0.5 the robust beam model explains a long beam's reading as a sensor failure rather
 than as free space (the prior odds of "no wall in 100 cells" are 2^-100 against a likelihood ratio of at most 9)."""
 
+def _fast(order: str, block_size: int, schedule: str):
+    """Factory of a :func:`~bayesmap.inference.fast.fast_gibbs` sampler for a problem (its table, readings,
+    parameters, first sensor position and likelihood power)."""
+    return lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, order, block_size, schedule,
+                                 pb.ray_origins[0], pb.likelihood_power)
+
+
 # name -> (description, factory(problem) -> SamplingAlgorithm)
 SAMPLERS: dict[str, tuple[str, object]] = {
-    "block": ("2x2 block Gibbs, fast (ray-cell table), raster order",
-              lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, "raster", 2, "sequential", pb.ray_origins[0], pb.likelihood_power)),
-    "raster": ("single-site Gibbs, fast, raster order",
-               lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, "raster", 1, "sequential", pb.ray_origins[0], pb.likelihood_power)),
-    "outward": ("single-site Gibbs, fast, sensor-outward order",
-                lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, "outward", 1, "sequential", pb.ray_origins[0], pb.likelihood_power)),
+    "block": ("2x2 block Gibbs, fast (ray-cell table), raster order", _fast("raster", 2, "sequential")),
+    "raster": ("single-site Gibbs, fast, raster order", _fast("raster", 1, "sequential")),
+    "outward": ("single-site Gibbs, fast, sensor-outward order", _fast("outward", 1, "sequential")),
     "chromatic": ("single-site Gibbs, fast, chromatic (colour classes updated in parallel)",
-                  lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, "raster", 1, "chromatic", pb.ray_origins[0], pb.likelihood_power)),
-    "chromatic-block": ("2x2 block Gibbs, fast, chromatic",
-                        lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, "raster", 2, "chromatic", pb.ray_origins[0], pb.likelihood_power)),
+                  _fast("raster", 1, "chromatic")),
+    "chromatic-block": ("2x2 block Gibbs, fast, chromatic", _fast("raster", 2, "chromatic")),
     "cellwise": ("single-site Gibbs, one cell at a time, each ray's first two walls in the state (whole logs)",
                  lambda pb: cellwise_gibbs(pb.table, pb.model_ray_readings, pb.params, pb.likelihood_power)),
     "reference-raster": ("the tutorial's single-site Gibbs with assess, raster order",
