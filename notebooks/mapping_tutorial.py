@@ -27,16 +27,17 @@ import jax.numpy as jnp
 import numpy as np
 from IPython.display import Image, display
 
-from bayesmap.animation import chain_gif
-from bayesmap.grid import format_map, tutorial_map
+from bayesmap.viz.animation import chain_gif
+from bayesmap.io.ascii import format_map, tutorial_map
 from bayesmap.inference.chains import cell_diagnostics, posterior_mean, run_chain, run_chains
 from bayesmap.inference.importance import importance_sampling, resample
 from bayesmap.io.carmen import read_carmen
-from bayesmap.model import log_joint, simulate, walls_prior
-from bayesmap.plots import figure_bytes, plot_convergence, plot_importance, plot_map, plot_posterior
-from bayesmap.problem import make_sampler, scan_problem, tutorial_problem
-from bayesmap.raycast import sensor_distances
-from bayesmap.report import chain_log_joints, chain_wrong_cells
+from bayesmap.model.generative import log_joint, simulate, walls_prior
+from bayesmap.viz.plots import figure_bytes, plot_convergence, plot_importance, plot_map, plot_posterior
+from bayesmap.inference.registry import make_sampler
+from bayesmap.scenes import scan_problem, tutorial_problem
+from bayesmap.geometry.raycast import sensor_distances
+from bayesmap.viz.report import chain_log_joints, chain_wrong_cells
 
 
 def show(fig):

@@ -10,14 +10,14 @@ SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 @pytest.fixture(scope="session")
 def tutorial():
-    from bayesmap.problem import tutorial_problem
+    from bayesmap.scenes import tutorial_problem
 
     return tutorial_problem()
 
 
 @pytest.fixture(scope="session")
 def tutorial_low_prior():
-    from bayesmap.problem import tutorial_problem
+    from bayesmap.scenes import tutorial_problem
 
     return tutorial_problem(prior_wall_prob=0.05)
 
@@ -32,7 +32,7 @@ def intel_log():
 
 def random_scene(rng, max_side=8, metric=False):
     """A random small grid, position inside it, map and beam angles (numpy)."""
-    from bayesmap.grid import Grid
+    from bayesmap.geometry.grid import Grid
 
     shape = (int(rng.integers(3, max_side + 1)), int(rng.integers(3, max_side + 1)))
     if metric:

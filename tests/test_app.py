@@ -12,7 +12,7 @@ import pytest
 
 from bayesmap.app import SETTINGS, Explorer
 from bayesmap.errors import BayesmapError
-from bayesmap.grid import format_map, tutorial_map
+from bayesmap.io.ascii import format_map, tutorial_map
 
 
 def test_starts_from_the_tutorial_scene():
@@ -20,7 +20,7 @@ def test_starts_from_the_tutorial_scene():
     assert np.array_equal(ex.walls, tutorial_map())
     assert tuple(ex.pos) == (10.0, 10.0)
     # the readings are the tutorial's (seed 0): the same problem as the CLI's demo
-    from bayesmap.problem import tutorial_problem
+    from bayesmap.scenes import tutorial_problem
 
     assert np.array_equal(ex.problem.readings, tutorial_problem().readings)
 

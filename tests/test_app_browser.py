@@ -196,7 +196,7 @@ def test_draw_drag_sensor_and_infer(open_page):
     # corner (15, 4) is hidden behind its neighbours from (11, 9): no beam reaches it, it stays at the prior)
     import numpy as np
 
-    from bayesmap.problem import tutorial_problem
+    from bayesmap.scenes import tutorial_problem
 
     truth = np.zeros((21, 21), np.float32)
     truth[tuple(np.array(sorted(drawn | painted)).T)] = 1.0

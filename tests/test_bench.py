@@ -2,7 +2,7 @@
 
 import json
 
-from test_cli import run_cli
+from helpers import run_cli
 
 FIELDS = {"reference_s_per_sweep", "fast_s_per_sweep", "ratio", "compile_s", "time_to_accuracy_s"}
 

@@ -9,17 +9,7 @@ import numpy as np
 import pytest
 
 from bayesmap.cli import main
-
-
-def run_cli(monkeypatch, capsys, *args):
-    monkeypatch.setattr(sys, "argv", ["bayesmap", *map(str, args)])
-    code = 0
-    try:
-        main()
-    except SystemExit as exc:
-        code = exc.code
-    out, err = capsys.readouterr()
-    return code, out, err
+from helpers import run_cli
 
 
 def test_infer_on_a_map_file_writes_all_outputs(tmp_path, monkeypatch, capsys):
@@ -52,7 +42,7 @@ def test_infer_on_a_real_scan(intel_log, tmp_path, monkeypatch, capsys):
     summary = json.loads((tmp_path / "scan" / "summary.json").read_text())
     assert summary["grid"]["resolution"] == 0.1 and summary["num_angles"] == 180
     from bayesmap.io.carmen import read_carmen
-    from bayesmap.problem import scan_problem
+    from bayesmap.scenes import scan_problem
 
     problem = scan_problem(read_carmen(intel_log), 100, sensor_noise=0.05)
     posterior = np.load(tmp_path / "scan" / "posterior.npy")

@@ -30,9 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from bayesmap.errors import BayesmapError
-from bayesmap.grid import Grid, format_map, parse_map, tutorial_map
-from bayesmap.problem import TUTORIAL_POS, InferenceResult, Problem, run_inference, tutorial_problem
-from bayesmap.raycast import sensor_distances
+from bayesmap.geometry.grid import Grid
+from bayesmap.io.ascii import format_map, parse_map, tutorial_map
+from bayesmap.scenes import TUTORIAL_POS, Problem, tutorial_problem
+from bayesmap.inference.driver import InferenceResult, run_inference
+from bayesmap.geometry.raycast import sensor_distances
 
 SAMPLER = "block"
 
@@ -87,7 +89,7 @@ class Explorer:
         walls: ``(nx, ny)`` float32 0/1, the drawn (true) map.
         pos: ``(2,)`` float64 sensor position (meters).
         prior_wall_prob, sensor_noise, num_angles, sweeps: the settings (see :data:`SETTINGS`).
-        result: the last :class:`~bayesmap.problem.InferenceResult`, or None.
+        result: the last :class:`~bayesmap.inference.driver.InferenceResult`, or None.
         stale: True when the map, sensor or a setting changed since the last run.
         runs: number of runs started in this session.
         running: True while a run is going.
@@ -205,7 +207,7 @@ class Explorer:
         return number
 
     def load_map_text(self, text: str, source: str = "map") -> None:
-        """Replace the drawn map by an ASCII map (see :func:`bayesmap.grid.parse_map`); the sensor stays if it is
+        """Replace the drawn map by an ASCII map (see :func:`bayesmap.io.ascii.parse_map`); the sensor stays if it is
         still on a free cell inside the new grid, else it moves to the free cell nearest the center.
 
         Raises:
@@ -226,12 +228,12 @@ class Explorer:
         self._problem = None
 
     def map_text(self) -> str:
-        """The drawn map in the ASCII format (:func:`bayesmap.grid.format_map`)."""
+        """The drawn map in the ASCII format (:func:`bayesmap.io.ascii.format_map`)."""
         return format_map(self.walls)
 
     @property
     def problem(self) -> Problem:
-        """The scene as a :class:`~bayesmap.problem.Problem`, readings simulated with this session's seed
+        """The scene as a :class:`~bayesmap.scenes.Problem`, readings simulated with this session's seed
         (recomputed after every change)."""
         if self._problem is None:
             self._problem = tutorial_problem(self.walls, tuple(self.pos), seed=self.seed,

@@ -26,8 +26,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bayesmap.inference.chains import _run, compile_chain
-from bayesmap.problem import SAMPLERS, Problem, make_sampler, tutorial_problem
+from bayesmap.inference.chains import run_chain_from, compile_chain
+from bayesmap.inference.registry import SAMPLERS, make_sampler
+from bayesmap.scenes import Problem, tutorial_problem
 
 # fast sampler -> (reference sampler, tutorial baseline seconds per sweep or None, note)
 PAIRS: dict[str, tuple[str, float | None, str]] = {
@@ -63,7 +64,7 @@ def time_sampler(problem: Problem, name: str, sweeps: int, repeats: int, max_swe
 
     Args:
         problem: a scene with a known true map.
-        name: a key of :data:`bayesmap.problem.SAMPLERS`.
+        name: a key of :data:`bayesmap.inference.registry.SAMPLERS`.
         sweeps: sweeps per timed chain for the steady state.
         repeats: timed chains; the fastest counts.
         max_sweeps: give up on the accuracy after this many sweeps (``time_to_accuracy_s`` is then None).
@@ -116,7 +117,7 @@ def fresh_chain_seconds(problem: Problem, name: str, sweeps: int = 100) -> float
     """Wall time of a new ``sweeps``-sweep chain from nothing: build the sampler, compile, run."""
     start = time.perf_counter()
     algorithm, state = _start(problem, name)
-    samples, _, _ = _run(jax.random.key(0), state, algorithm, sweeps)
+    samples, _, _ = run_chain_from(jax.random.key(0), state, algorithm, sweeps)
     jax.block_until_ready(samples)
     return time.perf_counter() - start
 
@@ -146,7 +147,7 @@ def run_bench(samplers=None, fast_sweeps: int = 200, reference_sweeps: int = 5, 
     problem.visible  # noqa: B018 -- computed once, outside every timing
     # warm up JAX (backend start, first compilation) so that it is not charged to the first sampler timed
     warm, state = _start(problem, "chromatic")
-    jax.block_until_ready(_run(jax.random.key(0), state, warm, 2))
+    jax.block_until_ready(run_chain_from(jax.random.key(0), state, warm, 2))
     say = progress or (lambda msg: None)
     fast_cache: dict[str, tuple] = {}
     ref_cache: dict[str, Timing] = {}

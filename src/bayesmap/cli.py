@@ -14,9 +14,42 @@ import tempfile
 from pathlib import Path
 from typing import Optional
 
+import numpy as np
 import typer
 
 from bayesmap.errors import BayesmapError
+
+def parse_scans(spec: str | None, num_scans: int) -> np.ndarray:
+    """Scan indices from a spec: None or ``"all"`` (every scan), ``"i"`` (one), ``"a:b"`` or ``"a:b:step"``
+    (Python slice syntax, any part may be empty), or a comma-separated list of those.
+
+    Raises:
+        BayesmapError: on a malformed spec, an index out of range, or no scan selected.
+    """
+    if spec is None or spec.strip().lower() == "all":
+        return np.arange(num_scans)
+    chosen = []
+    for part in spec.split(","):
+        part = part.strip()
+        try:
+            if ":" in part:
+                bits = [int(b) if b.strip() else None for b in part.split(":")]
+                if len(bits) > 3 or (len(bits) == 3 and bits[2] is not None and bits[2] <= 0):
+                    raise ValueError
+                chosen.append(np.arange(num_scans)[slice(*bits)])
+            else:
+                index = int(part)
+        except ValueError:  # (BayesmapError is a ValueError too: none is raised inside)
+            raise BayesmapError(f"bad scan selection {part!r}: use an index, a range a:b or a:b:step, or 'all'") from None
+        if ":" not in part:
+            if not (-num_scans <= index < num_scans):
+                raise BayesmapError(f"scan {index} is out of range: the log has {num_scans} scans (0..{num_scans - 1})")
+            chosen.append(np.array([index % num_scans]))
+    scans = np.unique(np.concatenate(chosen)) if chosen else np.zeros(0, int)
+    if len(scans) == 0:
+        raise BayesmapError(f"the scan selection {spec!r} selects no scan of the {num_scans}")
+    return scans
+
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Bayesian occupancy-grid mapping from range scans, with honest uncertainty.")
@@ -24,7 +57,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True,
 OUTPUT_FILES = ("posterior.npy", "readings.npy", "posterior.png", "summary.json")
 DIAGNOSTICS_FILE = "diagnostics.npz"  # written with --chains >= 2
 REPORT_FILE = "report.html"  # written by demo, and by infer --report
-LOG_PRIOR = 0.1  # bayesmap.problem.LOG_PRIOR (not imported here: the CLI imports JAX only when a command runs)
+LOG_PRIOR = 0.1  # bayesmap.scenes.LOG_PRIOR (not imported here: the CLI imports JAX only when a command runs)
 ROSMAP_STEM = "map"  # infer --rosmap writes map.pgm and map.yaml (ROS map_server)
 ROSMAP_FILES = (ROSMAP_STEM + ".pgm", ROSMAP_STEM + ".yaml")
 
@@ -79,8 +112,8 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
                    rosmap: bool = False) -> tuple[dict, list[str]]:
     """Map ``problem`` (Gibbs sampling, or log-odds mapping with ``method="logodds"``) and write the outputs into
     ``out``; returns the summary and the names of the files written."""
-    from bayesmap.plots import figure_bytes, plot_posterior
-    from bayesmap.problem import run_inference, run_logodds
+    from bayesmap.viz.plots import figure_bytes, plot_posterior
+    from bayesmap.inference.driver import run_inference, run_logodds
 
     _check_output_dir(out, force)
     if method == "logodds":
@@ -114,7 +147,7 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
 
         files.update(encode_rosmap(ROSMAP_STEM, result.posterior, problem.grid))
     if report:
-        from bayesmap.report import build_report
+        from bayesmap.viz.report import build_report
 
         files[REPORT_FILE] = build_report(problem, result, title=title, seed=seed).encode("utf-8")
     _write_outputs(out, files)
@@ -163,7 +196,7 @@ BEAM_WEIGHTS_HELP = ("beam model: mixture weights HIT,SHORT,MAX,RAND summing to 
 
 
 def _sampler_option(default: Optional[str], note: str = ""):
-    from bayesmap.problem import SAMPLERS
+    from bayesmap.inference.registry import SAMPLERS
 
     return typer.Option(default, "--sampler", help=f"one of: {', '.join(SAMPLERS)}{note}")
 
@@ -177,7 +210,7 @@ def demo(
 ) -> None:
     """The tutorial map, readings simulated with the tutorial's key, 2x2 block Gibbs; prints a summary, writes figures
     and report.html."""
-    from bayesmap.problem import tutorial_problem
+    from bayesmap.scenes import tutorial_problem
 
     problem = tutorial_problem()
     summary, written = _run_and_write(problem, "block", sweeps, None, seed, out, force,
@@ -214,8 +247,9 @@ def infer(
 ) -> None:
     """Infer the walls from simulated readings on a map file, or from a real CARMEN log (all scans, a selection, or
     one scan)."""
-    from bayesmap.grid import load_map, tutorial_map
-    from bayesmap.problem import log_problem, parse_scans, scan_problem, tutorial_problem
+    from bayesmap.io.ascii import load_map, tutorial_map
+    from bayesmap.scenes import log_problem, scan_problem, tutorial_problem
+    from bayesmap.cli import parse_scans
 
     if method not in ("gibbs", "logodds"):
         raise BayesmapError(f"unknown method {method!r}; choose gibbs or logodds")
@@ -277,7 +311,7 @@ def bench(
     import platform
 
     from bayesmap.bench import format_table, run_bench
-    from bayesmap.grid import write_atomic
+    from bayesmap.io.files import write_atomic
 
     for name, value, least in (("--sweeps", sweeps, 1), ("--reference-sweeps", reference_sweeps, 1),
                                ("--repeats", repeats, 1), ("--chains", chains, 1)):
@@ -338,7 +372,7 @@ def evaluate(
 ) -> None:
     """Score bayesmap against log-odds mapping: on held-out beams of a log (occupancy AUC, predictive NLL), or
     against a known floor plan (accuracy, AUC, Brier score)."""
-    from bayesmap.grid import write_atomic
+    from bayesmap.io.files import write_atomic
 
     if (log is None) == (truth is None):
         raise BayesmapError("give either --log FILE or --truth FILE")
@@ -347,9 +381,9 @@ def evaluate(
     mapping = dict(sampler=sampler, sweeps=sweeps, seed=seed, sensor_noise=sensor_noise, beam_model=beam_model,
                    prior_wall_prob=prior_wall_prob, sensor_params=_sensor_params(beam_weights, lambda_short))
     if log is not None:
-        from bayesmap.evaluate import evaluate_log
+        from bayesmap.evaluation.heldout import evaluate_log
         from bayesmap.io.carmen import read_carmen
-        from bayesmap.problem import parse_scans
+        from bayesmap.cli import parse_scans
 
         carmen = read_carmen(log)
         scores = evaluate_log(carmen, parse_scans(scans, len(carmen)), every=every, resolution=resolution,
@@ -359,7 +393,7 @@ def evaluate(
                    f"(every {every}-th); grid {setup['grid'][0]} x {setup['grid'][1]} cells of {resolution:g} m; "
                    f"{sampler}, {sweeps} sweeps, {beam_model} model")
     else:
-        from bayesmap.evaluate import evaluate_truth
+        from bayesmap.evaluation.heldout import evaluate_truth
 
         if likelihood_power is not None or range_offset is not None:
             raise BayesmapError("--likelihood-power and --range-offset apply to --log, not to --truth")

@@ -57,8 +57,8 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.chains import KernelFields, SamplingAlgorithm
 from bayesmap.inference.fast import _log_likelihood_table, pair_log_likelihoods
-from bayesmap.model import ModelParams, check_likelihood_power
-from bayesmap.raycast import RayTable, check_readings
+from bayesmap.model.generative import ModelParams, check_likelihood_power
+from bayesmap.geometry.raytable import RayTable, check_readings
 
 NONE = float(1 << 22)  # "no such wall": a position beyond every ray (exact in float32)
 SEARCH_CHUNK = 32  # cells read per step of the walk along a ray to its next wall
@@ -381,7 +381,7 @@ class CellwiseGibbs:
         params: model parameters (``prior_wall_prob`` and the sensor model; for ``"beam"`` the table's max distance
             must be the model's max range ``params.cap``).
         likelihood_power: ``eta`` in (0, 1]: sample ``p(walls) p(readings | walls) ** eta``
-            (:func:`bayesmap.model.check_likelihood_power`); 1, the posterior, by default.
+            (:func:`bayesmap.model.generative.check_likelihood_power`); 1, the posterior, by default.
 
     Attributes:
         kernel: the :class:`CellwiseKernel`.

@@ -105,11 +105,22 @@ def _run_many_jit(keys, initial_states, arrays, static, num_sweeps: int):
     return jax.vmap(lambda k, s: _chain(k, s, algorithm, num_sweeps))(keys, initial_states)
 
 
-def _run(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int):
-    """``num_sweeps`` sweeps from ``initial_state``, compiled: ``(samples (num_sweeps, nx, ny) bool, final state,
-    wall_probs (num_sweeps, nx, ny) float32 or None)`` (see :class:`ChainResult`)."""
+def run_chain_from(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int) -> ChainResult:
+    """Run ``num_sweeps`` sweeps of ``algorithm`` from a sampler state (``algorithm.init(walls)``, or the
+    ``final_state`` of an earlier run, to continue a chain), compiled with ``jax.lax.scan``.
+
+    Args:
+        key: a JAX PRNG key (split into one key per sweep).
+        initial_state: the sampler's state.
+        algorithm: the sampler.
+        num_sweeps: number of sweeps (an int >= 1; not checked here, see :func:`run_chain`).
+
+    Returns:
+        :class:`ChainResult`: ``samples`` ``(num_sweeps, nx, ny)`` bool, the final state, and ``wall_probs``
+        ``(num_sweeps, nx, ny)`` float32 or None.
+    """
     arrays, static = _split(algorithm)
-    return _run_jit(key, initial_state, arrays, static, int(num_sweeps))
+    return ChainResult(*_run_jit(key, initial_state, arrays, static, int(num_sweeps)))
 
 
 def compile_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, num_chains: int | None = None):
@@ -117,7 +128,7 @@ def compile_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: 
     ``(num_chains,)`` keys and the state batched) ahead of time; returns ``run(key, initial_state) ->
     (samples, final_state, wall_probs)``. ``key`` and ``initial_state`` may be ``jax.ShapeDtypeStruct``s. For
     timing compilation apart from running, or to compile on another thread: JAX keeps the executable, so that the
-    first :func:`_run` (:func:`_run_many`) with such arguments does not compile again."""
+    first :func:`run_chain_from` (:func:`run_chains_from`) with such arguments does not compile again."""
     arrays, static = _split(algorithm)
     fn = _run_jit if num_chains is None else _run_many_jit
     compiled = fn.lower(key, initial_state, arrays, static, int(num_sweeps)).compile()
@@ -144,13 +155,14 @@ def run_chain(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int)
     if int(num_sweeps) != num_sweeps or num_sweeps < 1:
         raise BayesmapError(f"number of sweeps must be an integer >= 1, got {num_sweeps!r}")
     state = algorithm.init(jnp.asarray(initial_walls, dtype=jnp.float32))
-    return ChainResult(*_run(key, state, algorithm, int(num_sweeps)))
+    return run_chain_from(key, state, algorithm, int(num_sweeps))
 
 
-def _run_many(keys, initial_states, algorithm: SamplingAlgorithm, num_sweeps: int):
-    """Chains at once (``vmap``): ``keys`` ``(C,)``, states batched; as :func:`_run` with a leading ``(C,)`` axis."""
+def run_chains_from(keys, initial_states, algorithm: SamplingAlgorithm, num_sweeps: int) -> ChainResult:
+    """``C`` chains at once (``vmap``) from their states: ``keys`` ``(C,)``, states batched on a leading ``(C,)``
+    axis; as :func:`run_chain_from` with a leading ``(C,)`` axis on every output."""
     arrays, static = _split(algorithm)
-    return _run_many_jit(keys, initial_states, arrays, static, int(num_sweeps))
+    return ChainResult(*_run_many_jit(keys, initial_states, arrays, static, int(num_sweeps)))
 
 
 def run_chains(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int, num_chains: int) -> ChainResult:
@@ -170,7 +182,7 @@ def run_chains(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int
     if walls.ndim == 2:
         walls = jnp.broadcast_to(walls, (num_chains,) + walls.shape)
     states = jax.vmap(algorithm.init)(walls)
-    return ChainResult(*_run_many(jax.random.split(key, num_chains), states, algorithm, int(num_sweeps)))
+    return run_chains_from(jax.random.split(key, num_chains), states, algorithm, int(num_sweeps))
 
 
 def posterior_mean(samples, burn_in: int = 0) -> np.ndarray:

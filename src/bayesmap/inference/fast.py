@@ -9,7 +9,7 @@ is the table's stopping distance of each block cell on that ray. The block's con
 
 up to a constant that does not depend on ``c`` (``shared/DESIGN.md``, "The fast conditional"; for one cell it is
 the prior log-odds plus, per ray, ``log p(y | d1) - log p(y | d0)``). ``log p(y | d)`` is the model's sensor model
-(:mod:`bayesmap.sensor`, ``params.beam_model``): the tutorial's ``log N(y; d, sensor_noise)`` or the robust beam
+(:mod:`bayesmap.model.sensor`, ``params.beam_model``): the tutorial's ``log N(y; d, sensor_noise)`` or the robust beam
 mixture; a ray with no wall within the max distance has ``d = table.max_distance``, exactly as in the model.
 Rays may come from several scans (poses): the table holds each ray's own origin.
 
@@ -47,9 +47,9 @@ from bayesmap.inference.schedules import (
     make_blocks,
     split_levels,
 )
-from bayesmap.model import ModelParams, check_likelihood_power
-from bayesmap.raycast import RayTable, check_readings
-from bayesmap.sensor import beam_log_density, beam_log_max_mass, normal_logpdf, reading_logpdf
+from bayesmap.model.generative import ModelParams, check_likelihood_power
+from bayesmap.geometry.raytable import RayTable, check_readings
+from bayesmap.model.sensor import beam_log_density, beam_log_max_mass, normal_logpdf, reading_logpdf
 
 SCHEDULES = ("sequential", "chromatic")
 WORD_BITS = 32
@@ -156,7 +156,7 @@ def pair_log_likelihoods(table: RayTable, readings: np.ndarray, beam_model: str,
     pads lookups): ``y_r`` from ``readings`` ``(R,)`` (meters), ``t`` the pair's stopping distance (meters).
 
     Equal to ``reading_logpdf(beam_model, y, t, sensor_args)`` element by element (the same operations), computed in
-    one jitted call; for the beam model the point mass at the max range (:func:`~bayesmap.sensor.beam_log_max_mass`)
+    one jitted call; for the beam model the point mass at the max range (:func:`~bayesmap.model.sensor.beam_log_max_mass`)
     is computed only for the pairs of max-range readings. The result is dispatched asynchronously (the caller can
     work on while it is computed)."""
     dtype = sensor_args[0].dtype
@@ -189,7 +189,7 @@ class FastGibbs:
             level to the largest would cost more than 4 times the real work; then 32 (or the mean entries per
             level if larger).
         likelihood_power: ``eta`` in (0, 1]: sample ``p(walls) p(readings | walls) ** eta`` (every log-likelihood
-            of a conditional times ``eta``; :func:`bayesmap.model.check_likelihood_power`); 1, the posterior.
+            of a conditional times ``eta``; :func:`bayesmap.model.generative.check_likelihood_power`); 1, the posterior.
 
     Attributes:
         blocks: ``(NB, B)`` int flat cell indices, sweep order.

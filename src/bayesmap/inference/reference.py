@@ -27,8 +27,8 @@ from genjax import ChoiceMapBuilder as C
 
 from bayesmap.inference.chains import GibbsState, SamplingAlgorithm
 from bayesmap.inference.schedules import block_configurations, make_blocks
-from bayesmap.model import ModelParams, choices, full_model, model_args
-from bayesmap.raycast import check_readings
+from bayesmap.model.generative import ModelParams, choices, full_model, model_args
+from bayesmap.geometry.raytable import check_readings
 
 
 def _prepare(readings, pos, params: ModelParams, beam_angles):
@@ -45,7 +45,7 @@ def block_log_weights(walls, block_cells, readings, args):
         walls: ``(nx, ny)`` current map.
         block_cells: ``(B,)`` flat cell indices of the block.
         readings: ``(K,)`` meters.
-        args: the model's arguments (:func:`bayesmap.model.model_args`).
+        args: the model's arguments (:func:`bayesmap.model.generative.model_args`).
 
     Returns:
         ``(2**B,)`` log joint of each configuration of :func:`block_configurations` (B is static).

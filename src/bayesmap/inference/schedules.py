@@ -30,7 +30,7 @@ import itertools
 import numpy as np
 
 from bayesmap.errors import BayesmapError
-from bayesmap.grid import Grid
+from bayesmap.geometry.grid import Grid
 
 ORDERS = ("raster", "outward")
 
@@ -88,7 +88,7 @@ def block_configurations(block_cells: int) -> np.ndarray:
 
 
 def cell_rays(table) -> list[np.ndarray]:
-    """For each cell, the sorted distinct rays of ``table`` (a :class:`~bayesmap.raycast.RayTable`) that cross it:
+    """For each cell, the sorted distinct rays of ``table`` (a :class:`~bayesmap.geometry.raytable.RayTable`) that cross it:
     a list of ``num_cells`` int64 arrays."""
     stride = max(table.num_rays, 1)
     key = np.unique(table.pair_cells.astype(np.int64) * stride + table.pair_rays)
@@ -115,7 +115,7 @@ def dependency_levels(blocks: np.ndarray, table) -> np.ndarray:
 
     Args:
         blocks: ``(NB, B)`` flat cell indices, in sweep order.
-        table: the scene's :class:`~bayesmap.raycast.RayTable`.
+        table: the scene's :class:`~bayesmap.geometry.raytable.RayTable`.
 
     Returns:
         ``(num_levels, width)`` int32 block indices; padding ``NB`` (no block). Within a level, blocks keep their

@@ -35,7 +35,8 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.io.files import read_bytes
-from bayesmap.grid import Grid, write_atomic
+from bayesmap.geometry.grid import Grid
+from bayesmap.io.files import write_atomic
 
 #: map_server's defaults (also what ``write_rosmap`` writes): 205 (unknown grey) reads as p = 0.196..., which is
 #: above ``FREE_THRESH`` and below ``OCCUPIED_THRESH``.
@@ -424,7 +425,7 @@ def encode_rosmap(stem: str, occupancy, grid: Grid, free_thresh: float = FREE_TH
         BayesmapError: as :func:`write_rosmap`, except for the file checks.
     """
     if not isinstance(grid, Grid):
-        raise BayesmapError(f"grid must be a bayesmap.grid.Grid, got {grid!r}")
+        raise BayesmapError(f"grid must be a bayesmap.geometry.grid.Grid, got {grid!r}")
     occ = np.asarray(occupancy, dtype=np.float64)
     if occ.shape != grid.shape:
         raise BayesmapError(f"occupancy has shape {occ.shape}, but the grid is {grid.shape}")

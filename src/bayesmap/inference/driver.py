@@ -1,0 +1,228 @@
+"""Running inference on a scene: chains of a sampler (or log-odds mapping), their posterior and a summary."""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bayesmap.errors import BayesmapError
+from bayesmap.inference.chains import run_chain_from, run_chains_from, cell_diagnostics, compile_chain, posterior_mean
+from bayesmap.inference.registry import SAMPLERS, SEQUENTIAL_CHAINS, make_sampler
+from bayesmap.scenes import Problem
+
+@dataclass
+class InferenceResult:
+    """What :func:`run_inference` returns.
+
+    Attributes:
+        samples: ``(num_sweeps, nx, ny)`` bool, the map after each sweep (``(num_chains, num_sweeps, nx, ny)``
+            with several chains).
+        posterior: ``(nx, ny)`` float64 posterior wall probability per cell, over the sweeps after the burn-in (and
+            all chains): the mean of the conditional wall probabilities the sweeps drew from (Rao-Blackwellized) for
+            samplers whose state records them (``"cellwise"``), else the mean of the samples
+            (``summary["posterior_estimate"]`` says which).
+        runtime_s: wall time of the whole run in seconds, compilation included.
+        summary: settings and metrics (JSON-serializable).
+        diagnostics: with 2 or more chains, per-cell ``{"r_hat": (nx, ny), "ess": (nx, ny)}`` float64 of the kept
+            sweeps (:func:`~bayesmap.inference.chains.cell_diagnostics`); else None.
+    """
+
+    samples: np.ndarray
+    posterior: np.ndarray
+    runtime_s: float
+    summary: dict
+    diagnostics: dict | None = None
+
+
+def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, burn_in: int | None = None,
+                  seed: int = 0, progress: bool = True, chains: int = 1,
+                  on_progress=None, init: str | None = None) -> InferenceResult:
+    """Run ``chains`` chains of ``sampler`` and summarize them: at once (``vmap``), or one after another for the
+    samplers in :data:`SEQUENTIAL_CHAINS` (with the keys they would get at once, so the samples are the same).
+
+    Args:
+        problem: the scene.
+        sampler: a key of :data:`SAMPLERS`.
+        sweeps: number of sweeps (>= 1).
+        burn_in: sweeps dropped before averaging; default half of them.
+        seed: the chain's PRNG seed.
+        progress: show a progress bar (tqdm, on stderr) when the run takes longer than a second.
+        chains: number of independent chains (keys split from ``seed``); with 2 or more the summary reports the
+            worst split R-hat and the smallest effective sample size over the cells that change.
+        init: the chains' first map: ``"free"`` (no walls; the tutorial's, default for one scan) or ``"logodds"``
+            (the cells log-odds mapping calls occupied, :func:`run_logodds`; default for several scans). Where the
+            chain starts does not change its stationary distribution; with the robust beam model a chain started
+            from the empty map can take very long to clear the spurious walls it draws first (a reading far beyond a
+            wrong wall is only "random" under the mixture, so wrong walls on a beam hold each other in place).
+        on_progress: called as ``on_progress(done, total)`` after every chunk of at most 10 sweeps (from the
+            thread that runs the chain), for a progress display such as the app's.
+
+    Raises:
+        BayesmapError: on an unknown sampler, or a bad number of sweeps, burn-in or chains; with several chains,
+            on fewer than 4 kept sweeps (too few for R-hat).
+    """
+    if int(chains) != chains or chains < 1:
+        raise BayesmapError(f"number of chains must be an integer >= 1, got {chains!r}")
+    if int(sweeps) != sweeps or sweeps < 1:
+        raise BayesmapError(f"number of sweeps must be an integer >= 1, got {sweeps!r}")
+    burn_in = sweeps // 2 if burn_in is None else burn_in
+    if int(burn_in) != burn_in or not (0 <= burn_in < sweeps):
+        raise BayesmapError(f"burn-in must be an integer between 0 and {sweeps - 1} (sweeps - 1), got {burn_in!r}")
+    from tqdm import tqdm
+
+    if chains > 1 and sweeps - burn_in < 4:
+        raise BayesmapError(f"diagnostics of {chains} chains need at least 4 sweeps after the burn-in, got {sweeps - burn_in}")
+    start = time.perf_counter()
+    init = ("logodds" if problem.multi_scan else "free") if init is None else init
+    if init not in ("free", "logodds"):
+        raise BayesmapError(f"unknown chain start {init!r}; choose free or logodds")
+    one_by_one = chains > 1 and sampler in SEQUENTIAL_CHAINS
+    at_once = 1 if one_by_one else chains  # chains per compiled run
+    chunk = max(1, min(sweeps, 10))
+    keys = jax.random.split(jax.random.key(seed), -(-sweeps // chunk))
+    # Two cores (numpy, XLA's compiler and XLA's runtime release the GIL; the results are those of one step after
+    # another): the log-odds start map is computed while the sampler is built, the chain is compiled while its first
+    # state is computed, and while the chain runs (on one core) the summary's log joint, evaluated op by op, compiles
+    # its small XLA programs on the start map (the calls below then find them compiled).
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        if init == "logodds":
+            problem.table.pair_rays  # (built before both threads use them)
+            start_map = pool.submit(run_logodds, problem)
+        algorithm = make_sampler(problem, sampler)
+        if init == "logodds":
+            walls0 = jnp.asarray(start_map.result().posterior > 0.5, jnp.float32)
+        else:
+            walls0 = jnp.zeros(problem.grid.shape, jnp.float32)
+
+        def first_state():
+            if at_once == 1:
+                return algorithm.init(walls0)
+            return jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape))
+
+        key_shape = jax.ShapeDtypeStruct((at_once,) if at_once > 1 else (), keys.dtype)
+        compiled = pool.submit(compile_chain, key_shape, jax.eval_shape(first_state), algorithm, chunk,
+                               at_once if at_once > 1 else None)
+        state0 = first_state()
+        compiled.result()  # JAX keeps the compiled chain: the first chunk below does not compile it again
+        warm = pool.submit(problem.log_joint, np.asarray(walls0) > 0.5)  # (bool, as the samples)
+        with tqdm(total=sweeps * chains if one_by_one else sweeps, unit="sweep", delay=1.0, disable=not progress,
+                  leave=False) as bar:
+            finished = [0]  # sweeps run so far, all chains (a disabled tqdm does not count)
+
+            def run(keys, state, chains, total):
+                """``(samples, wall_probs or None)`` of the chunks ``keys``, sweep axis -3."""
+                pieces, prob_pieces, done = [], [], 0
+                for key in keys:
+                    n = min(chunk, sweeps - done)
+                    if chains == 1:
+                        samples, state, probs = run_chain_from(key, state, algorithm, n)
+                    else:
+                        samples, state, probs = run_chains_from(jax.random.split(key, chains), state, algorithm, n)
+                    pieces.append(np.asarray(samples))
+                    if probs is not None:
+                        prob_pieces.append(np.asarray(probs))
+                    done += n
+                    finished[0] += n
+                    bar.update(n)
+                    if on_progress is not None:
+                        on_progress(finished[0], total)
+                return (np.concatenate(pieces, axis=-3),
+                        np.concatenate(prob_pieces, axis=-3) if prob_pieces else None)
+
+            if one_by_one:  # chain c uses the keys chain c would get at once (split of each chunk's key)
+                per_chain = jnp.stack([jax.random.split(key, chains) for key in keys])  # (chunks, chains)
+                runs = [run(per_chain[:, c], state0, 1, sweeps * chains) for c in range(chains)]
+                samples = np.stack([r[0] for r in runs])
+                wall_probs = None if runs[0][1] is None else np.stack([r[1] for r in runs])
+            else:
+                samples, wall_probs = run(keys, state0, chains, sweeps)
+        runtime = time.perf_counter() - start
+        warm.result()
+    # the posterior marginals: Rao-Blackwellized (mean of the conditional probabilities) where the sampler records
+    # them, else the mean of the 0/1 samples
+    posterior = posterior_mean(samples if wall_probs is None else wall_probs, burn_in)
+    diagnostics = cell_diagnostics(samples, burn_in) if chains > 1 else None
+    summary = {
+        "source": problem.source,
+        "sampler": sampler,
+        "sampler_description": SAMPLERS[sampler][0],
+        "sweeps": int(sweeps),
+        "burn_in": int(burn_in),
+        "seed": int(seed),
+        "chains": int(chains),
+        "init": init,
+        "prior_wall_prob": float(problem.params.prior_wall_prob),
+        "sensor_noise": float(problem.params.sensor_noise),
+        "num_angles": int(np.shape(problem.beam_angles)[-1]),
+        **({"num_scans": problem.num_scans, "num_beams": int(problem.table.num_rays)} if problem.multi_scan
+           else {"pos": [float(v) for v in problem.pos]}),
+        "beam_model": problem.params.beam_model,
+        **({name: float(getattr(problem.params, name)) for name in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")}
+           if problem.params.beam_model == "beam" else {}),
+        "grid": {"shape": list(problem.grid.shape), "resolution": problem.grid.resolution, "origin": list(problem.grid.origin)},
+        "max_distance": problem.params.cap,
+        "runtime_s": round(runtime, 4),
+        "posterior_estimate": "sample mean" if wall_probs is None else "rao-blackwellized",
+        "likelihood_power": float(problem.likelihood_power),
+        **problem.extra,
+    }
+    if problem.max_range_mask is not None:
+        summary["max_range_readings"] = int(problem.max_range_mask.sum())
+    if problem.truth is not None:
+        summary["visible_cells"] = int(problem.visible.sum())
+        summary["wrong_visible_cells"] = problem.wrong_visible_cells(posterior)
+        summary["log_joint_truth"] = problem.log_joint(problem.truth)
+    last = samples[-1] if chains == 1 else samples[0, -1]
+    summary["log_joint_final_sample"] = problem.log_joint(last)
+    if diagnostics is not None:
+        varying = np.isfinite(diagnostics["r_hat"])
+        summary["cells_varying"] = int(varying.sum())
+        summary["r_hat_max"] = float(diagnostics["r_hat"][varying].max()) if varying.any() else None
+        summary["ess_min"] = float(diagnostics["ess"][varying].min()) if varying.any() else None
+    return InferenceResult(samples=samples, posterior=posterior, runtime_s=runtime, summary=summary, diagnostics=diagnostics)
+
+
+def run_logodds(problem: Problem, params=None) -> InferenceResult:
+    """Map ``problem`` with classic log-odds occupancy mapping (:func:`bayesmap.inference.logodds.logodds_map`,
+    one update per scan, in scan order) instead of a posterior: the baseline users know.
+
+    Returns:
+        An :class:`InferenceResult` whose ``posterior`` is the occupancy probability per cell (not a posterior),
+        with no samples (``(0, nx, ny)``) and a summary like :func:`run_inference`'s.
+    """
+    from bayesmap.inference.logodds import LogOddsParams, logodds_map, occupancy
+
+    params = LogOddsParams() if params is None else params
+    start = time.perf_counter()
+    table = problem.table
+    table_s = time.perf_counter() - start
+    logodds = logodds_map(table, problem.ray_readings, problem.ray_max_range, problem.scan_of_ray, params)
+    runtime = time.perf_counter() - start
+    prob = occupancy(logodds)
+    summary = {
+        "source": problem.source,
+        "method": "logodds",
+        "sampler": "logodds",
+        "sampler_description": f"log-odds occupancy mapping, inverse sensor model (p_hit {params.p_hit}, p_miss "
+                               f"{params.p_miss}, clamping {params.clamp_min}-{params.clamp_max})",
+        "num_angles": int(np.shape(problem.beam_angles)[-1]),
+        **({"num_scans": problem.num_scans, "num_beams": int(table.num_rays)} if problem.multi_scan
+           else {"pos": [float(v) for v in problem.pos]}),
+        "grid": {"shape": list(problem.grid.shape), "resolution": problem.grid.resolution, "origin": list(problem.grid.origin)},
+        "max_distance": problem.params.cap,
+        "ray_cell_pairs": int(table.num_pairs),
+        "table_s": round(table_s, 4),
+        "update_s": round(runtime - table_s, 4),
+        "runtime_s": round(runtime, 4),
+        **problem.extra,
+    }
+    if problem.truth is not None:
+        summary["visible_cells"] = int(problem.visible.sum())
+        summary["wrong_visible_cells"] = problem.wrong_visible_cells(prob)
+    empty = np.zeros((0,) + problem.grid.shape, dtype=bool)
+    return InferenceResult(samples=empty, posterior=prob, runtime_s=runtime, summary=summary)

@@ -1,0 +1,340 @@
+"""The tutorial's generative model in GenJAX: the source of truth for every sampler.
+
+* prior: each cell is a wall with probability ``prior_wall_prob``, independently (``genjax.flip`` repeated over
+  the grid) at address ``"walls"``;
+* sensor model: each beam's range reading given the exact distance to the first wall (``genjax`` distribution
+  vmapped over beams) at address ``"readings"``. ``params.beam_model`` picks it (:mod:`bayesmap.model.sensor`):
+  ``"normal"`` (default) is the tutorial's ``Normal(exact distance, sensor_noise)`` (``genjax.normal``, unchanged);
+  ``"beam"`` is the robust beam mixture of *Probabilistic Robotics* sec. 6.3 with a point mass at the max range.
+
+:data:`full_model` is the tutorial's single scan; its arguments are ``(pos, params, beam_angles)``: the sensor
+position (world meters; the tutorial's unit cells by default), the :class:`ModelParams` and the beam angles
+(radians; the tutorial's ``angles(num_angles)`` unless given). :func:`model_args` builds them.
+
+:data:`multi_scan_model` is the same map seen by ``S`` scans, each from its own pose with its own ``K`` beam angles:
+arguments ``(poses (S, 2), params, beam_angles (S, K))``, readings ``(S, K)`` at ``"readings"``. A pose here is
+a position and the scan's *world-frame* beam angles: the heading ``theta`` is already added to the angles (CARMEN
+logs give world-frame angles; otherwise pass ``theta + angles_in_sensor_frame``). Every scan has the same number
+of beams ``K``; scans with different numbers of beams are not supported (resample them to a common ``K``).
+:func:`scan_args` builds and checks the arguments. The max distance ``params.cap`` is also the sensor's max range.
+"""
+
+from __future__ import annotations
+
+import math
+
+import genjax
+import jax
+import jax.numpy as jnp
+import numpy as np
+from genjax import ChoiceMapBuilder as C
+from genjax import Pytree
+
+from bayesmap.model import sensor
+from bayesmap.errors import BayesmapError
+from bayesmap.geometry.grid import Grid
+from bayesmap.geometry.raycast import first_hit_distances as _sensor_distances, angles
+
+
+@Pytree.dataclass
+class ModelParams(Pytree):
+    """Parameters of the tutorial's model (a JAX pytree).
+
+    Attributes:
+        prior_wall_prob: prior probability that a cell is a wall, in (0, 1) (dynamic: changing it does not
+            recompile).
+        sensor_noise: standard deviation of a range reading in meters, > 0 (dynamic); for the beam model the hit
+            component's ``sigma_hit``.
+        num_angles: number of beams for the tutorial's equally spaced angles (static).
+        grid: the grid geometry (static); default: the tutorial's 21 x 21 unit cells.
+        max_distance: cap on distances in meters (static); default: twice the grid's larger side (42 m for the
+            tutorial). It is also the sensor's max range (the beam model's point mass sits there).
+        beam_model: the sensor model, ``"normal"`` (the tutorial's) or ``"beam"`` (the robust mixture), static:
+            see :mod:`bayesmap.model.sensor`.
+        z_hit, z_short, z_max, z_rand: the beam mixture's weights (dynamic; >= 0, sum 1; PR eq. 6.12); unused by
+            ``"normal"``. Defaults :data:`bayesmap.model.sensor.BEAM_DEFAULTS` (0.8, 0.05, 0.05, 0.1).
+        lambda_short: rate of the beam model's short component, 1/m (dynamic; PR eq. 6.7); default 0.1.
+    """
+
+    prior_wall_prob: float = 0.5
+    sensor_noise: float = 0.2
+    num_angles: int = Pytree.static(default=100)
+    grid: Grid = Pytree.static(default=Grid(shape=(21, 21)))
+    max_distance: float | None = Pytree.static(default=None)
+    beam_model: str = Pytree.static(default="normal")
+    z_hit: float = sensor.BEAM_DEFAULTS["z_hit"]
+    z_short: float = sensor.BEAM_DEFAULTS["z_short"]
+    z_max: float = sensor.BEAM_DEFAULTS["z_max"]
+    z_rand: float = sensor.BEAM_DEFAULTS["z_rand"]
+    lambda_short: float = sensor.BEAM_DEFAULTS["lambda_short"]
+
+    @property
+    def cap(self) -> float:
+        """The max distance in meters (``max_distance`` or the grid's default)."""
+        return self.grid.default_max_distance if self.max_distance is None else float(self.max_distance)
+
+    @property
+    def sensor_args(self) -> tuple:
+        """The sensor model's parameters after the exact distance (see :func:`bayesmap.model.sensor.reading_logpdf`):
+        ``(sensor_noise,)`` for ``"normal"``; ``(sensor_noise, z_hit, z_short, z_max, z_rand, lambda_short, cap)``
+        for ``"beam"`` (meters, 1/m). Pytree leaves stay traced under jit; ``cap`` is a Python float."""
+        if self.beam_model == "normal":
+            return (self.sensor_noise,)
+        return (self.sensor_noise, self.z_hit, self.z_short, self.z_max, self.z_rand, self.lambda_short, self.cap)
+
+
+def check_likelihood_power(value) -> float:
+    """Validate the power ``eta`` of a tempered likelihood and return it as a float.
+
+    A sampler run with ``eta`` targets ``p(walls) p(readings | walls) ** eta`` (a power, or "generalized",
+    posterior: Gruenwald 2012, "The safe Bayesian"; Holmes & Walker 2017; Miller & Dunson 2019, "Robust Bayesian
+    inference via coarsening"); ``eta = 1`` is the model's own posterior. The model (:data:`full_model`,
+    :data:`multi_scan_model`) is unchanged: the tempered target's log density is the prior's log-probability plus
+    ``eta`` times the rest of ``assess``'s score.
+
+    Raises:
+        BayesmapError: unless ``0 < eta <= 1`` (the message names the value).
+    """
+    try:
+        eta = float(value)
+    except (TypeError, ValueError):
+        raise BayesmapError(f"likelihood_power must be a number, got {value!r}") from None
+    if not (math.isfinite(eta) and 0.0 < eta <= 1.0):
+        raise BayesmapError(f"likelihood_power must be in (0, 1] (1: the posterior), got {value!r}")
+    return eta
+
+
+def make_params(
+    prior_wall_prob: float = 0.5,
+    sensor_noise: float = 0.2,
+    num_angles: int = 100,
+    grid: Grid | None = None,
+    max_distance: float | None = None,
+    *,
+    beam_model: str = "normal",
+    z_hit: float = sensor.BEAM_DEFAULTS["z_hit"],
+    z_short: float = sensor.BEAM_DEFAULTS["z_short"],
+    z_max: float = sensor.BEAM_DEFAULTS["z_max"],
+    z_rand: float = sensor.BEAM_DEFAULTS["z_rand"],
+    lambda_short: float = sensor.BEAM_DEFAULTS["lambda_short"],
+) -> ModelParams:
+    """Build :class:`ModelParams` after checking every value.
+
+    The first five arguments keep their positions; the sensor model's are keyword-only: ``beam_model``
+    (``"normal"`` or ``"beam"``), the mixture weights ``z_hit, z_short, z_max, z_rand`` and ``lambda_short`` (1/m),
+    see :mod:`bayesmap.model.sensor` (checked for either model).
+
+    Raises:
+        BayesmapError: if ``prior_wall_prob`` is not in (0, 1), ``sensor_noise`` is not finite and > 0,
+            ``num_angles`` is not an integer >= 1, ``max_distance`` is not finite and > 0, ``beam_model`` is
+            unknown, or the mixture parameters are bad (:func:`bayesmap.model.sensor.check_sensor_params`); the message
+            names the bad value.
+    """
+    p = float(prior_wall_prob)
+    if not (0.0 < p < 1.0):
+        raise BayesmapError(f"prior_wall_prob must be strictly between 0 and 1, got {prior_wall_prob!r}")
+    noise = float(sensor_noise)
+    if not (math.isfinite(noise) and noise > 0):
+        raise BayesmapError(f"sensor_noise must be a finite number > 0 (meters), got {sensor_noise!r}")
+    if int(num_angles) != num_angles or num_angles < 1:
+        raise BayesmapError(f"num_angles must be an integer >= 1, got {num_angles!r}")
+    if max_distance is not None and not (math.isfinite(float(max_distance)) and float(max_distance) > 0):
+        raise BayesmapError(f"max_distance must be a finite number > 0 (meters), got {max_distance!r}")
+    weights = sensor.check_sensor_params(beam_model, z_hit, z_short, z_max, z_rand, lambda_short)
+    return ModelParams(
+        prior_wall_prob=p,
+        sensor_noise=noise,
+        num_angles=int(num_angles),
+        grid=grid or Grid(shape=(21, 21)),
+        max_distance=None if max_distance is None else float(max_distance),
+        beam_model=beam_model,
+        **dict(zip(("z_hit", "z_short", "z_max", "z_rand", "lambda_short"), weights)),
+    )
+
+
+def walls_prior(shape: tuple[int, int]):
+    """The prior over walls as a generative function of ``prior_wall_prob``: ``(nx, ny)`` independent flips."""
+    return genjax.flip.repeat(n=shape[1]).repeat(n=shape[0])
+
+
+@genjax.gen
+def sensor_model_single(pos, walls, params: ModelParams, angle):
+    """One beam, a scalar reading (meters) at address ``()`` given the exact distance ``d`` to the first wall
+    (capped at ``params.cap``): ``Normal(d, sensor_noise)`` for ``beam_model="normal"`` (the tutorial's, through
+    ``genjax.normal`` exactly as before), the beam mixture :data:`bayesmap.model.sensor.beam_reading` for ``"beam"``."""
+    exact = _sensor_distances(walls, pos, angle[None], params.grid, params.cap)[0]
+    if params.beam_model == "normal":
+        return genjax.normal(exact, params.sensor_noise) @ ()
+    return sensor.reading_distribution(params.beam_model)(exact, *params.sensor_args) @ ()
+
+
+sensor_model = sensor_model_single.vmap(in_axes=(None, None, None, 0))
+"""All beams of a scan: arguments ``(pos, walls, params, beam_angles (K,))``, readings ``(K,)``."""
+
+
+@genjax.gen
+def full_model(pos, params: ModelParams, beam_angles):
+    """The tutorial's full model: walls from the prior at ``"walls"``, readings at ``"readings"``.
+
+    Returns ``(walls, readings)``: ``(nx, ny)`` bool and ``(K,)`` float (meters).
+    """
+    walls = walls_prior(params.grid.shape)(params.prior_wall_prob) @ "walls"
+    readings = sensor_model(pos, walls, params, beam_angles) @ "readings"
+    return walls, readings
+
+
+scan_sensor_model = sensor_model.vmap(in_axes=(0, None, None, 0))
+"""All beams of ``S`` scans: arguments ``(poses (S, 2), walls, params, beam_angles (S, K))``, readings ``(S, K)``."""
+
+
+@genjax.gen
+def multi_scan_model(poses, params: ModelParams, beam_angles):
+    """One map seen by ``S`` scans: walls from the prior at ``"walls"``, readings ``(S, K)`` at ``"readings"``.
+
+    Args (see :func:`scan_args`):
+        poses: ``(S, 2)`` sensor positions, world meters.
+        params: the model parameters (the sensor model is ``params.beam_model``).
+        beam_angles: ``(S, K)`` world-frame beam angles, radians (heading included).
+
+    Returns ``(walls, readings)``: ``(nx, ny)`` bool and ``(S, K)`` float (meters). Given the walls, scans and beams
+    are independent, so its log joint is the prior plus the sum over scans of :data:`sensor_model`'s score.
+    """
+    walls = walls_prior(params.grid.shape)(params.prior_wall_prob) @ "walls"
+    readings = scan_sensor_model(poses, walls, params, beam_angles) @ "readings"
+    return walls, readings
+
+
+def scan_args(poses, params: ModelParams, beam_angles) -> tuple:
+    """The argument tuple of :data:`multi_scan_model`: ``(poses (S, 2), params, beam_angles (S, K))`` as JAX arrays
+    of the default float dtype.
+
+    Args:
+        poses: ``(S, 2)`` sensor positions, world meters (``(2,)`` is one scan). Only the position: fold the
+            heading into ``beam_angles``.
+        params: the model parameters.
+        beam_angles: ``(S, K)`` world-frame beam angles, radians (``(K,)`` is one scan).
+
+    Raises:
+        BayesmapError: if ``poses`` is not ``(S, 2)``, ``beam_angles`` not ``(S, K)`` with the same ``S`` and
+            ``K >= 1``, or a value is not finite.
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    beam_angles = np.asarray(beam_angles, dtype=np.float64)
+    if poses.ndim == 1:
+        poses = poses[None]
+    if beam_angles.ndim == 1:
+        beam_angles = beam_angles[None]
+    if poses.ndim != 2 or poses.shape[1] != 2 or poses.shape[0] < 1:
+        raise BayesmapError(f"poses must have shape (S, 2) (positions in meters), got {poses.shape}")
+    if beam_angles.ndim != 2 or beam_angles.shape[0] != poses.shape[0] or beam_angles.shape[1] < 1:
+        raise BayesmapError(f"beam_angles must have shape (S, K) = ({poses.shape[0]}, K) with K >= 1, got {beam_angles.shape}")
+    if not (np.all(np.isfinite(poses)) and np.all(np.isfinite(beam_angles))):
+        raise BayesmapError("poses and beam angles must be finite")
+    dtype = jnp.result_type(float)
+    return jnp.asarray(poses, dtype=dtype), params, jnp.asarray(beam_angles, dtype=dtype)
+
+
+@jax.jit
+def _assess_scans(walls, readings, args):
+    return multi_scan_model.assess(choices(walls, readings), args)[0]
+
+
+def log_joint_scans(walls, readings, poses, params: ModelParams, beam_angles):
+    """``log p(walls, readings)`` under :data:`multi_scan_model`: exactly its ``assess`` score.
+
+    Args:
+        walls: ``(nx, ny)`` array of 0/1 (float or bool).
+        readings: ``(S, K)`` range readings in meters (max-range readings equal to ``params.cap``).
+        poses: ``(S, 2)`` sensor positions, world meters.
+        params: the model parameters.
+        beam_angles: ``(S, K)`` world-frame beam angles, radians.
+
+    Returns:
+        A scalar JAX float.
+
+    Raises:
+        BayesmapError: on shapes that do not match (:func:`scan_args`) or readings not ``(S, K)``.
+    """
+    args = scan_args(poses, params, beam_angles)
+    readings = jnp.asarray(readings)
+    if readings.shape != args[2].shape:
+        raise BayesmapError(f"readings must have shape {tuple(args[2].shape)} (S, K), got {tuple(readings.shape)}")
+    return _assess_scans(jnp.asarray(walls, dtype=jnp.float32), readings, args)
+
+
+def simulate_scan_readings(key, walls, poses, params: ModelParams, beam_angles):
+    """Range readings ``(S, K)`` (meters) for the map ``walls`` ``(nx, ny)`` from ``S`` scans, simulated from the
+    sensor model (:data:`scan_sensor_model`) with ``key``; see :func:`scan_args` for the shapes.
+
+    Raises:
+        BayesmapError: on shapes that do not match.
+    """
+    poses, params, beam_angles = scan_args(poses, params, beam_angles)
+    trace = scan_sensor_model.simulate(key, (poses, jnp.asarray(walls), params, beam_angles))
+    return trace.get_retval()
+
+
+def reading_log_likelihood(readings, distances, params: ModelParams):
+    """Per-beam log-likelihood ``log p(y | d)`` of readings ``y`` given exact distances ``d`` (meters, same shape)
+    under ``params.beam_model``: :func:`bayesmap.model.sensor.reading_logpdf` with ``params.sensor_args``."""
+    return sensor.reading_logpdf(params.beam_model, jnp.asarray(readings), jnp.asarray(distances), params.sensor_args)
+
+
+def model_args(pos, params: ModelParams, beam_angles=None) -> tuple:
+    """The argument tuple of :data:`full_model`: ``(pos (2,), params, beam_angles (K,))``; the beam angles
+    default to the tutorial's ``angles(params.num_angles)``."""
+    if beam_angles is None:
+        beam_angles = angles(params.num_angles)
+    return (jnp.asarray(pos, dtype=jnp.result_type(float)), params, jnp.asarray(beam_angles))
+
+
+def choices(walls, readings):
+    """The choice map ``{"walls": walls, "readings": readings}``."""
+    return C["walls"].set(jnp.asarray(walls)) | C["readings"].set(jnp.asarray(readings))
+
+
+@jax.jit
+def _assess(walls, readings, args):
+    return full_model.assess(choices(walls, readings), args)[0]
+
+
+def log_joint(walls, readings, pos, params: ModelParams, beam_angles=None):
+    """``log p(walls, readings)`` under the full model: exactly ``full_model.assess``'s score.
+
+    Args:
+        walls: ``(nx, ny)`` array of 0/1 (float or bool).
+        readings: ``(K,)`` range readings in meters.
+        pos: ``(2,)`` sensor position, world meters.
+        params: the model parameters.
+        beam_angles: ``(K,)`` radians; default the tutorial's ``angles(params.num_angles)``.
+
+    Returns:
+        A scalar JAX float.
+    """
+    return _assess(jnp.asarray(walls, dtype=jnp.float32), jnp.asarray(readings), model_args(pos, params, beam_angles))
+
+
+def simulate_readings(key, walls, pos, params: ModelParams, beam_angles=None):
+    """Noisy range readings ``(K,)`` (meters) for the map ``walls`` ``(nx, ny)``, simulated from the sensor model
+    with ``key`` (the tutorial's ``sensor_model.simulate``: with key 0 on the tutorial map, the tutorial's
+    readings)."""
+    pos, params, beam_angles = model_args(pos, params, beam_angles)
+    trace = sensor_model.simulate(key, (pos, jnp.asarray(walls), params, beam_angles))
+    return trace.get_retval()
+
+
+def simulate(key, pos, params: ModelParams, beam_angles=None):
+    """Sample ``(walls (nx, ny) bool, readings (K,))`` from the full model's prior predictive."""
+    trace = full_model.simulate(key, model_args(pos, params, beam_angles))
+    return trace.get_retval()
+
+
+def prior_log_odds(params: ModelParams):
+    """``log(p / (1 - p))`` of the prior wall probability."""
+    p = jnp.asarray(params.prior_wall_prob)
+    return jnp.log(p) - jnp.log1p(-p)
+
+
+def as_numpy_walls(walls) -> np.ndarray:
+    """``walls`` as a float32 numpy array of 0.0 / 1.0."""
+    return (np.asarray(walls) > 0).astype(np.float32)

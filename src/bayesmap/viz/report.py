@@ -1,0 +1,184 @@
+"""``report.html``: one self-contained, offline page with the settings, runtime, metrics, every figure and the
+chain's animation of an inference run (``bayesmap demo``, ``bayesmap infer --report``).
+
+Everything is inline: figures are PNG data URIs, the animation a GIF data URI plus the slider page of
+:func:`bayesmap.viz.animation.chain_html` in an ``<iframe srcdoc>``; there is no script, style sheet, font or image
+from anywhere else, so the file opens the same without a network.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+
+import jax
+import numpy as np
+
+from bayesmap.model.generative import log_joint
+
+# grids up to this many cells get the importance-sampling figure (it runs the full model once per particle)
+IMPORTANCE_MAX_CELLS = 2500
+IMPORTANCE_PARTICLES = 1000
+MAX_DRAWN_BEAMS = 3000  # beams drawn in the scan figures of a multi-scan problem (evenly spaced)
+
+_STYLE = """
+body { font-family: system-ui, -apple-system, "Segoe UI", sans-serif; margin: 2em auto; max-width: 1100px;
+       color: #222; line-height: 1.45; padding: 0 1em; }
+h1 { font-size: 1.6em; margin-bottom: 0.2em; } h2 { font-size: 1.25em; margin-top: 2em; border-bottom: 1px solid #ccc; }
+table.settings { border-collapse: collapse; font-size: 0.95em; }
+table.settings td { padding: 0.2em 1.2em 0.2em 0; vertical-align: top; }
+table.settings td:first-child { color: #555; }
+.metrics { display: flex; flex-wrap: wrap; gap: 1em; margin: 1em 0; }
+.metric { border: 1px solid #ccc; border-radius: 6px; padding: 0.6em 1em; min-width: 10em; }
+.metric .value { font-size: 1.4em; font-weight: 600; } .metric .label { color: #555; font-size: 0.9em; }
+figure { margin: 1.5em 0; } figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
+figcaption { color: #444; font-size: 0.95em; margin-top: 0.3em; }
+iframe.chain { width: 100%; height: 520px; border: 1px solid #ccc; }
+"""
+
+
+def _data_uri(data: bytes, mime: str) -> str:
+    return f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
+
+
+def _figure(png: bytes, caption: str, gid: str) -> str:
+    alt = html.escape(caption, quote=True)
+    return (f'<figure id="{gid}"><img src="{_data_uri(png, "image/png")}" alt="{alt}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+def chain_log_joints(problem, samples) -> np.ndarray:
+    """Log joint (GenJAX ``assess``) of every sample: ``samples`` ``(T, nx, ny)`` or ``(C, T, nx, ny)`` ->
+    ``(T,)`` or ``(C, T)`` float64. For several scans: :meth:`~bayesmap.scenes.Problem.log_joint` (``assess``, or
+    the ray-cell table's equal sum on large problems), one sample at a time."""
+    arr = np.asarray(samples, dtype=np.float32)
+    flat = arr.reshape((-1,) + arr.shape[-2:])
+    if problem.multi_scan:
+        return np.array([problem.log_joint(w) for w in flat], dtype=np.float64).reshape(arr.shape[:-2])
+    score = jax.jit(jax.vmap(lambda w: log_joint(w, problem.model_readings, problem.pos, problem.params, problem.beam_angles)))
+    out = np.concatenate([np.asarray(score(flat[i:i + 25]), dtype=np.float64) for i in range(0, len(flat), 25)])
+    return out.reshape(arr.shape[:-2])
+
+
+def chain_wrong_cells(problem, samples) -> np.ndarray | None:
+    """Visible cells each sample gets wrong (``(T,)`` or ``(C, T)`` int), or None without a true map."""
+    if problem.truth is None:
+        return None
+    visible = problem.visible
+    truth = np.asarray(problem.truth) > 0
+    arr = np.asarray(samples) > 0
+    return np.sum((arr != truth) & visible, axis=(-2, -1))
+
+
+def build_report(problem, result, *, title: str, seed: int = 0, importance: bool | None = None,
+                 max_frames: int = 60) -> str:
+    """The report of one run as an HTML string (UTF-8, self-contained).
+
+    Args:
+        problem: the :class:`~bayesmap.scenes.Problem` that was solved.
+        result: its :class:`~bayesmap.inference.driver.InferenceResult`.
+        title: the page's title.
+        seed: key of the importance-sampling run.
+        importance: draw the importance-sampling figure; default: for grids of at most
+            :data:`IMPORTANCE_MAX_CELLS` cells.
+        max_frames: frames of the chain animation.
+    """
+    from bayesmap.viz.animation import chain_animation
+    from bayesmap.viz.plots import figure_bytes, plot_convergence, plot_importance, plot_map, plot_posterior
+
+    summary = result.summary
+    grid = problem.grid
+    samples = np.asarray(result.samples)
+    burn_in = int(summary["burn_in"])
+    if problem.multi_scan:
+        # every beam of every scan, at most MAX_DRAWN_BEAMS of them (evenly spaced) to keep the figures light
+        keep = np.unique(np.linspace(0, problem.table.num_rays - 1, min(MAX_DRAWN_BEAMS, problem.table.num_rays)).astype(int))
+        scan = dict(origins=problem.ray_origins[keep], beam_angles=problem.ray_angles[keep],
+                    readings=problem.ray_readings[keep],
+                    max_range_mask=None if problem.ray_max_range is None else problem.ray_max_range[keep])
+    else:
+        scan = dict(pos=problem.pos, beam_angles=problem.beam_angles, readings=problem.readings,
+                    max_range_mask=problem.max_range_mask)
+    metric = grid.resolution != 1.0 or tuple(grid.origin) != (-0.5, -0.5)
+    unit = "m" if metric else "cells"
+    figures = []
+    if problem.truth is not None:
+        figures.append(_figure(figure_bytes(plot_map(grid, problem.truth, title="The map, the rays and the readings", **scan)),
+                               "The true map (walls black), the sensor, its rays and the noisy readings (dots).", "fig-map"))
+    figures.append(_figure(figure_bytes(plot_map(grid, None, title="What the robot sees", **scan)),
+                           f"The data alone: rays from the sensor to each reading, axes in {unit}.", "fig-scan"))
+    figures.append(_figure(figure_bytes(plot_posterior(grid, result.posterior, truth=problem.truth, std=True,
+                                                       title="Posterior wall probability", **scan)),
+                           f"Left: posterior probability that each cell is a wall (mean of sweeps {burn_in + 1}-"
+                           f"{summary['sweeps']}{', all chains' if samples.ndim == 4 else ''}); true walls outlined "
+                           "when known. Right: posterior standard deviation (0 = certain, 0.5 = a coin flip).",
+                           "fig-posterior"))
+    log_joints = chain_log_joints(problem, samples)
+    wrong = chain_wrong_cells(problem, samples)
+    truth_lj = summary.get("log_joint_truth")
+    figures.append(_figure(figure_bytes(plot_convergence(log_joints, wrong, burn_in=burn_in, truth_log_joint=truth_lj,
+                                                         title="Convergence")),
+                           "Log joint of each sweep's sample (higher is better)"
+                           + ("; the true map's log joint for reference; below, visible cells each sample gets wrong."
+                              if wrong is not None else ".") + " The dashed line ends the burn-in.", "fig-convergence"))
+    if importance is None:
+        importance = grid.num_cells <= IMPORTANCE_MAX_CELLS and not problem.multi_scan
+    ess_text = None
+    if importance:
+        from bayesmap.inference.importance import importance_sampling
+
+        imp = importance_sampling(jax.random.key(seed), problem.model_readings, problem.pos, problem.params,
+                                  IMPORTANCE_PARTICLES, problem.beam_angles)
+        ess_text = f"{float(imp.ess):.2f} of {IMPORTANCE_PARTICLES:,}"
+        figures.append(_figure(figure_bytes(plot_importance(np.asarray(imp.log_weights), float(imp.ess))),
+                               f"Importance sampling with {IMPORTANCE_PARTICLES:,} maps drawn from the prior: the "
+                               f"normalized log-weights. Effective sample size {ess_text}: one map takes (almost) all "
+                               "the weight, which is why the tutorial turns to Gibbs sampling.", "fig-importance"))
+    chain = samples[0] if samples.ndim == 4 else samples
+    gif, page = chain_animation(grid, chain, truth=problem.truth, pos=None if problem.multi_scan else problem.pos,
+                                max_frames=max_frames,
+                                title="Gibbs chain: sample and running mean")
+
+    metrics = [("runtime", f"{summary['runtime_s']:.2f} s", "compilation included")]
+    if "wrong_visible_cells" in summary:
+        metrics.append(("wrong visible cells", f"{summary['wrong_visible_cells']} of {summary['visible_cells']}",
+                        "posterior mean rounded, against the true map"))
+    if summary.get("r_hat_max") is not None:
+        metrics.append(("worst split R-hat", f"{summary['r_hat_max']:.3f}", f"{summary['chains']} chains"))
+        metrics.append(("smallest ESS", f"{summary['ess_min']:.0f}", "bulk effective sample size"))
+    metrics.append(("log joint, last sample", f"{summary['log_joint_final_sample']:.1f}",
+                    f"true map: {truth_lj:.1f}" if truth_lj is not None else "GenJAX assess"))
+    if ess_text:
+        metrics.append(("importance sampling ESS", ess_text, "particles"))
+    metric_html = "".join(f'<div class="metric"><div class="value">{html.escape(v)}</div>'
+                          f'<div class="label">{html.escape(k)}<br>{html.escape(note)}</div></div>'
+                          for k, v, note in metrics)
+    rows = []
+    for key, value in summary.items():
+        if isinstance(value, float):
+            value = f"{value:.6g}"
+        elif isinstance(value, (dict, list)):
+            value = ", ".join(f"{k}: {v}" for k, v in value.items()) if isinstance(value, dict) else str(value)
+        rows.append(f"<tr><td>{html.escape(str(key))}</td><td>{html.escape(str(value))}</td></tr>")
+    stamp = _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    return f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">
+<title>{html.escape(title)}</title><style>{_STYLE}</style></head>
+<body>
+<h1>{html.escape(title)}</h1>
+<p>{html.escape(summary['source'])}: {summary['num_angles']} beams, grid {grid.shape[0]} x {grid.shape[1]} cells of
+{grid.resolution:g} m; {html.escape(summary['sampler_description'])}, {summary['sweeps']} sweeps. Written by bayesmap
+on {stamp}.</p>
+<div class="metrics" id="metrics">{metric_html}</div>
+<h2>Figures</h2>
+{''.join(figures)}
+<h2>The chain</h2>
+<p>Left, the sample after each sweep; right, the running mean of the samples so far{' (first chain)' if samples.ndim == 4 else ''}.</p>
+<figure id="fig-animation"><img src="{_data_uri(gif, 'image/gif')}" alt="Animation of the Gibbs chain">
+<figcaption>The chain as an animation.</figcaption></figure>
+<iframe class="chain" id="chain-slider-page" title="Gibbs chain with a slider" srcdoc="{html.escape(page, quote=True)}"></iframe>
+<h2>Settings</h2>
+<table class="settings" id="settings">{''.join(rows)}</table>
+</body></html>
+"""

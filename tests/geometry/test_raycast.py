@@ -1,0 +1,144 @@
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import random_scene
+
+from bayesmap.errors import BayesmapError
+from bayesmap.geometry.grid import Grid
+from bayesmap.io.ascii import tutorial_map
+from bayesmap.geometry.raycast import angles, sensor_distances
+from bayesmap.geometry.raytable import build_ray_table, check_readings, visible_cells
+
+
+def slab_distances(walls, pos, beam_angles, grid, max_distance):
+    """Independent float64 reference: ray-box (slab) intersection with every wall cell.
+
+    The tutorial's distance to a cell is where the ray first meets the cell's boundary: the entry distance if the
+    sensor is outside the cell, the exit distance if it is inside."""
+    out = []
+    p = (np.asarray(pos, float) - np.asarray(grid.origin)) / grid.resolution  # corner frame: cell (i, j) = [i, i+1]
+    for a in beam_angles:
+        u = np.array([math.cos(a), math.sin(a)])
+        best = max_distance / grid.resolution
+        for i, j in zip(*np.nonzero(walls > 0)):
+            lo, hi = np.array([i, j], float), np.array([i + 1, j + 1], float)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t1, t2 = (lo - p) / u, (hi - p) / u
+            t_enter = np.max(np.minimum(t1, t2))
+            t_exit = np.min(np.maximum(t1, t2))
+            if t_exit < max(t_enter, 0):
+                continue
+            best = min(best, t_enter if t_enter >= 0 else t_exit)
+        out.append(best * grid.resolution)
+    return np.array(out)
+
+
+def test_analytic_cases():
+    walls = np.zeros((21, 21), np.float32)
+    walls[15, 10] = 1  # straight ahead along +x: near edge at x = 14.5
+    walls[12, 12] = 1  # on the diagonal: corner (11.5, 11.5)
+    d = np.asarray(sensor_distances(walls, [10, 10], jnp.array([0.0, math.pi / 4, math.pi])))
+    assert d == pytest.approx([4.5, 1.5 * math.sqrt(2), 42.0], abs=1e-5)
+
+
+def test_sensor_inside_a_wall_cell_sees_its_far_edge():
+    walls = np.zeros((5, 5), np.float32)
+    walls[2, 2] = 1
+    d = np.asarray(sensor_distances(walls, [2.25, 2.0], jnp.array([0.0, math.pi])))
+    assert d == pytest.approx([0.25, 0.75], abs=1e-6)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_sensor_distances_match_an_independent_implementation(seed):
+    rng = np.random.default_rng(seed)
+    grid, pos, walls, beam_angles = random_scene(rng, max_side=12, metric=seed % 2 == 1)
+    got = np.asarray(sensor_distances(walls, pos, beam_angles, grid=grid))
+    want = slab_distances(walls, pos, beam_angles, grid, grid.default_max_distance)
+    assert got == pytest.approx(want, abs=1e-5 * max(1.0, grid.resolution * 10))
+
+
+def test_tutorial_scene_matches_independent_implementation():
+    walls = tutorial_map()
+    a = np.asarray(angles(100))
+    got = np.asarray(sensor_distances(walls, [10, 10], a))
+    assert got == pytest.approx(slab_distances(walls, [10, 10], a, Grid((21, 21)), 42.0), abs=1e-5)
+
+
+def test_sensor_distances_jit_and_vmap():
+    walls = jnp.asarray(tutorial_map())
+    positions = jnp.array([[10.0, 10.0], [3.3, 17.2], [15.5, 9.25]])
+    batched = jax.jit(jax.vmap(lambda p: sensor_distances(walls, p, angles(16))))(positions)
+    for k in range(3):
+        assert np.asarray(batched[k]) == pytest.approx(np.asarray(sensor_distances(walls, positions[k], angles(16))), abs=1e-6)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_ray_table_first_wall_equals_sensor_distances(seed):
+    rng = np.random.default_rng(100 + seed)
+    grid, pos, walls, beam_angles = random_scene(rng, max_side=25, metric=seed % 2 == 0)
+    table = build_ray_table(grid, pos, beam_angles)
+    for _ in range(3):
+        walls = (rng.random(grid.shape) < rng.uniform(0.05, 0.7)).astype(np.float32)
+        want = np.asarray(sensor_distances(walls, pos, beam_angles, grid=grid))
+        assert table.first_wall_distances(walls) == pytest.approx(want, abs=1e-5 * max(1, grid.resolution * 10))
+
+
+def test_ray_table_many_poses_and_sparsity():
+    grid = Grid((21, 21))
+    poses = np.array([[10.0, 10.0], [3.0, 4.5], [17.2, 15.9]])
+    a = np.asarray(angles(50))
+    origins = np.repeat(poses, len(a), axis=0)
+    table = build_ray_table(grid, origins, np.tile(a, 3))
+    walls = tutorial_map()
+    for s, p in enumerate(poses):
+        want = np.asarray(sensor_distances(walls, p, a))
+        assert table.first_wall_distances(walls)[s * 50:(s + 1) * 50] == pytest.approx(want, abs=1e-5)
+    # each ray's pairs sorted by distance; storage is the real pairs only, far fewer than rays x cells
+    same_ray = np.diff(table.pair_rays) == 0
+    assert np.all(np.diff(table.pair_dists)[same_ray] >= 0)
+    assert table.pair_cells.shape == table.pair_dists.shape == (table.num_pairs,)
+    assert table.num_pairs < 0.2 * table.num_rays * table.num_cells
+
+
+def test_pairs_by_cell_and_ray_pairs():
+    """RayTable.pairs_by_cell is numpy's stable argsort of the pairs by cell (or by a rank per cell, with ties kept in
+    pair order), and RayTable.ray_pairs lists the pairs of the given rays, ray by ray."""
+    grid = Grid((21, 21))
+    poses = np.array([[10.0, 10.0], [3.0, 4.5], [17.2, 15.9]])
+    a = np.asarray(angles(50))
+    table = build_ray_table(grid, np.repeat(poses, len(a), axis=0), np.tile(a, 3))
+    np.testing.assert_array_equal(table.pairs_by_cell(), np.argsort(table.pair_cells, kind="stable"))
+    rank = np.random.default_rng(0).integers(0, 5, table.num_cells)  # many cells per rank
+    np.testing.assert_array_equal(table.pairs_by_cell(rank), np.argsort(rank[table.pair_cells], kind="stable"))
+    assert table.pairs_by_cell(rank).dtype == np.int64
+    with pytest.raises(BayesmapError, match="cell ranks"):
+        table.pairs_by_cell(rank - 1)
+    rays = np.array([0, 3, 4, 77, table.num_rays - 1])
+    want = np.concatenate([np.arange(table.offsets[r], table.offsets[r + 1]) for r in rays])
+    np.testing.assert_array_equal(table.ray_pairs(rays), want)
+    assert table.ray_pairs([]).shape == (0,)
+
+
+def test_tutorial_scene_table_and_visible_cells():
+    table = build_ray_table(Grid((21, 21)), [10, 10], np.asarray(angles(100)))
+    assert 1500 <= table.num_pairs <= 1700  # "about 1,600 (ray, cell) pairs"
+    assert visible_cells(table, tutorial_map()).sum() == 217  # the tutorial's measured figure
+
+
+def test_position_outside_grid_is_an_error():
+    with pytest.raises(BayesmapError, match="outside the grid"):
+        build_ray_table(Grid((21, 21)), [21.0, 3.0], [0.0])
+
+
+@pytest.mark.parametrize("readings, match", [
+    ([1.0, 2.0], "expected 3 readings, got 2"),
+    ([1.0, float("nan"), 2.0], "reading 1 is nan"),
+    ([1.0, 2.0, float("inf")], "reading 2 is inf"),
+    ([1.0, -0.5, 2.0], "reading 1 is -0.5"),
+])
+def test_bad_readings(readings, match):
+    with pytest.raises(BayesmapError, match=match):
+        check_readings(readings, 3)

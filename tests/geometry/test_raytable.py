@@ -1,0 +1,279 @@
+"""The closed-form ray-cell table builder (``build_ray_table``) against the reference builder
+(``_build_ray_table_exact``, the original candidate-and-sort algorithm) and against the definition itself (every
+cell's tutorial distance, ``cell_hit_distance``, on small grids).
+
+Tolerance: offsets and cells (hence the order along each ray) must be identical; distances must agree to 1e-5
+relative + 1e-5 cells absolute (``assert_same_table``). The builder actually reproduces the distances to the last bit
+(same two float roundings as the edge arithmetic); ``test_distances_are_bit_identical`` checks that on the tutorial
+scene and the Intel scans.
+"""
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from bayesmap.errors import BayesmapError
+from bayesmap.geometry.grid import Grid
+from bayesmap.io.ascii import tutorial_map
+from bayesmap.geometry.raytable import RayTable, _build_ray_table_exact, build_ray_table
+from bayesmap.geometry.raycast import angles, cell_hit_distance, sensor_distances, unit_dir
+
+RTOL = 1e-5
+ATOL_CELLS = 1e-5
+
+
+def assert_same_table(got: RayTable, want: RayTable):
+    """Identical offsets and cells; distances within RTOL + ATOL_CELLS (meters: times the resolution)."""
+    assert got.offsets.dtype == np.int64 and got.pair_cells.dtype == np.int32
+    assert got.pair_dists.dtype == want.pair_dists.dtype
+    np.testing.assert_array_equal(got.offsets, want.offsets, err_msg="pairs per ray differ")
+    np.testing.assert_array_equal(got.pair_cells, want.pair_cells, err_msg="cells or their order differ")
+    np.testing.assert_allclose(got.pair_dists, want.pair_dists, rtol=RTOL, atol=ATOL_CELLS * got.grid.resolution)
+    assert got.max_distance == want.max_distance
+    np.testing.assert_array_equal(got.origins, want.origins)
+    np.testing.assert_array_equal(got.beam_angles, want.beam_angles)
+
+
+@jax.jit
+def _hit(p, u, cells):
+    return cell_hit_distance(p, u, cells)
+
+
+def brute_table(grid, origins, beam_angles, max_distance=None) -> RayTable:
+    """The definition: for every ray and every cell of the grid the tutorial's distance (``cell_hit_distance`` in
+    JAX's default dtype, from the same cell-frame origin and direction the model uses); keep it if below the max
+    distance; sort by distance, ties by flat index. Small grids only (rays x cells evaluations)."""
+    beam_angles = np.asarray(beam_angles, dtype=np.float64).reshape(-1)
+    origins = np.broadcast_to(np.asarray(origins, dtype=np.float64), (len(beam_angles), 2))
+    max_distance = grid.default_max_distance if max_distance is None else float(max_distance)
+    cap = max_distance / grid.resolution
+    dtype = jnp.result_type(float)
+    p = np.asarray(grid.to_cell_coords(jnp.asarray(origins, dtype=dtype)))
+    u = np.asarray(unit_dir(jnp.asarray(beam_angles, dtype=dtype)))
+    nx, ny = grid.shape
+    ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    cells = np.stack([ii.ravel(), jj.ravel()], axis=-1).astype(dtype)
+    rays, pairs, dists, counts = np.arange(len(beam_angles)), [], [], []
+    r_all = np.repeat(rays, grid.num_cells)
+    c_all = np.tile(np.arange(grid.num_cells), len(rays))
+    n = len(r_all)
+    size = max(256, 1 << max(n - 1, 1).bit_length())  # pad: few compiled sizes
+    pad = np.zeros(size - n, dtype=np.int64)
+    ridx, cidx = np.concatenate([r_all, pad]), np.concatenate([c_all, pad])
+    d = np.asarray(_hit(p[ridx], u[ridx], cells[cidx]))[:n].reshape(len(rays), grid.num_cells)
+    for r in rays:
+        keep = np.flatnonzero(d[r] < cap)
+        order = np.lexsort((keep, d[r][keep]))
+        pairs.append(keep[order])
+        dists.append(d[r][keep[order]])
+        counts.append(len(keep))
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    dist = np.concatenate(dists) if dists else np.zeros(0, dtype=dtype)
+    return RayTable(grid=grid, offsets=offsets,
+                    pair_cells=(np.concatenate(pairs) if pairs else np.zeros(0)).astype(np.int32),
+                    pair_dists=dist * dist.dtype.type(grid.resolution), origins=np.array(origins),
+                    beam_angles=beam_angles, max_distance=max_distance)
+
+
+def check_all(grid, origins, beam_angles, max_distance=None, brute=True):
+    """The fast table equals the reference builder's and (small grids) the definition's."""
+    table = build_ray_table(grid, origins, beam_angles, max_distance)
+    assert_same_table(table, _build_ray_table_exact(grid, origins, beam_angles, max_distance))
+    if brute:
+        assert_same_table(table, brute_table(grid, origins, beam_angles, max_distance))
+    return table
+
+
+def test_the_comparison_can_fail():
+    grid = Grid((21, 21))
+    table = build_ray_table(grid, [10.3, 9.6], np.asarray(angles(20)))
+    ref = _build_ray_table_exact(grid, [10.3, 9.6], np.asarray(angles(20)))
+    swapped = ref.pair_cells.copy()
+    swapped[[3, 4]] = swapped[[4, 3]]
+    with pytest.raises(AssertionError):
+        assert_same_table(table, dataclasses.replace(ref, pair_cells=swapped))
+    nudged = ref.pair_dists.copy()
+    nudged[5] += 1e-3
+    with pytest.raises(AssertionError):
+        assert_same_table(table, dataclasses.replace(ref, pair_dists=nudged))
+    with pytest.raises(AssertionError):
+        assert_same_table(table, _build_ray_table_exact(grid, [10.3, 9.6], np.asarray(angles(20)), 5.0))
+
+
+def test_tutorial_scene():
+    a = np.asarray(angles(100))
+    table = check_all(Grid((21, 21)), [10, 10], a)
+    assert 1500 <= table.num_pairs <= 1700
+    # the sensor's own cell is listed where the ray leaves it: half a cell along +x
+    cells, dists = table.ray(0)
+    assert 10 * 21 + 10 in cells[:2] and dists[0] == pytest.approx(0.5)
+    walls = tutorial_map()
+    want = np.asarray(sensor_distances(walls, [10, 10], a))
+    assert table.first_wall_distances(walls) == pytest.approx(want, abs=1e-5)
+
+
+def test_distances_are_bit_identical():
+    rng = np.random.default_rng(5)
+    for args in [(Grid((21, 21)), [10, 10], np.asarray(angles(100))),
+                 (Grid((40, 30), 0.05, (3.3, -1.7)), [4.0, -0.9], rng.uniform(-4, 4, 300))]:
+        np.testing.assert_array_equal(build_ray_table(*args).pair_dists, _build_ray_table_exact(*args).pair_dists)
+
+
+def test_distances_are_bit_identical_on_intel(intel_log):
+    args = intel_scans(intel_log, 3)
+    np.testing.assert_array_equal(build_ray_table(*args).pair_dists, _build_ray_table_exact(*args).pair_dists)
+
+
+@st.composite
+def scenes(draw):
+    nx, ny = draw(st.integers(1, 12)), draw(st.integers(1, 12))
+    res = draw(st.sampled_from([1.0, 0.1, 0.25, 0.7])) if draw(st.booleans()) else draw(st.floats(0.01, 3.0))
+    origin = (draw(st.floats(-50, 50)), draw(st.floats(-50, 50)))
+    grid = Grid((nx, ny), res, origin)
+    xmin, xmax, ymin, ymax = grid.extent
+    n = draw(st.integers(1, 12))
+    fx = draw(st.lists(st.floats(0, 1), min_size=n, max_size=n))
+    fy = draw(st.lists(st.floats(0, 1), min_size=n, max_size=n))
+    pos = np.stack([xmin + np.array(fx) * (xmax - xmin), ymin + np.array(fy) * (ymax - ymin)], axis=-1)
+    pos = np.clip(pos, [xmin, ymin], [xmax, ymax])
+    beams = np.array(draw(st.lists(st.floats(-2 * math.pi, 4 * math.pi), min_size=n, max_size=n)))
+    md = draw(st.none() | st.floats(0.0, 3.0 * max(nx, ny) * res))
+    return grid, pos, beams, md
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scenes())
+def test_random_scenes(scene):
+    check_all(*scene)
+
+
+def test_several_poses_at_once():
+    grid = Grid((21, 21))
+    poses = np.array([[10.0, 10.0], [3.0, 4.5], [17.2, 15.9], [0.1, 20.4], [-0.5, -0.5]])
+    a = np.asarray(angles(50))
+    origins = np.repeat(poses, len(a), axis=0)
+    table = check_all(grid, origins, np.tile(a, len(poses)))
+    # each scan's rays equal a table of that scan alone
+    for s, p in enumerate(poses):
+        alone = build_ray_table(grid, p, a)
+        lo, hi = table.offsets[s * 50], table.offsets[(s + 1) * 50]
+        np.testing.assert_array_equal(table.pair_cells[lo:hi], alone.pair_cells)
+        np.testing.assert_array_equal(table.offsets[s * 50:(s + 1) * 50 + 1] - lo, alone.offsets)
+
+
+def _corner_and_edge_positions(grid, rng, n):
+    """World positions on cell corners (interior and border), edge midpoints and other points of edges."""
+    nx, ny = grid.shape
+    ox, oy = grid.origin
+    i = rng.integers(0, nx + 1, n).astype(float)
+    j = rng.integers(0, ny + 1, n).astype(float)
+    kind = rng.integers(0, 3, n)
+    i = np.where(kind == 1, np.minimum(i + rng.choice([0.5, 0.25, 0.8], n), nx), i)
+    j = np.where(kind == 2, np.minimum(j + rng.choice([0.5, 1 / 3], n), ny), j)
+    return np.stack([ox + i * grid.resolution, oy + j * grid.resolution], axis=-1)
+
+
+@pytest.mark.parametrize("res, origin", [(1.0, (-0.5, -0.5)), (0.1, (-2.3, 7.1)), (0.25, (0.0, 0.0)),
+                                         (0.7, (-1000.35, 512.0))])
+def test_sensors_on_corners_and_edges_axis_aligned_and_diagonal_rays(res, origin):
+    rng = np.random.default_rng(int(res * 100))
+    grid = Grid((9, 7), res, origin)
+    pos = _corner_and_edge_positions(grid, rng, 40)
+    special = np.arange(-8, 17) * math.pi / 4  # axis-aligned and 45-degree rays, several turns
+    origins = np.repeat(pos, len(special), axis=0)
+    check_all(grid, origins, np.tile(special, len(pos)))
+    # lines through grid vertices at other slopes (2:1, 1:3, ...), and the same rays nudged by an ulp or so
+    slopes = np.arctan2(*np.array([[1, 2], [2, 1], [1, 3], [-3, 1], [-2, -1], [3, -2]]).T)
+    nudged = np.concatenate([slopes, slopes + 1e-7, slopes - 1e-9, special + 3e-8])
+    origins = np.repeat(pos[:12], len(nudged), axis=0)
+    check_all(grid, origins, np.tile(nudged, 12))
+
+
+def test_tutorial_corners_and_cell_centers():
+    grid = Grid((21, 21))
+    pos = np.array([[9.5, 9.5], [10.0, 9.5], [9.5, 10.0], [-0.5, -0.5], [20.5, 20.5], [20.5, 3.0], [3.0, -0.5],
+                    [0.0, 0.0], [20.0, 20.0]])
+    a = np.concatenate([np.asarray(angles(100)), np.arange(8) * math.pi / 4])
+    check_all(grid, np.repeat(pos, len(a), axis=0), np.tile(a, len(pos)))
+
+
+def test_rays_along_the_grid_border():
+    # the reference builder used to drop these (0 / 0 in its exit distance): compare with the definition too
+    grid = Grid((9, 10), 0.1, (-1.185, -2.638))
+    xmin, xmax, ymin, ymax = grid.extent
+    pos = np.array([[xmin, ymin], [xmin + 0.4, ymax], [xmax, ymin + 0.3], [xmax, ymax], [xmin, ymin + 0.5]])
+    a = np.arange(8) * math.pi / 2
+    table = check_all(grid, np.repeat(pos, len(a), axis=0), np.tile(a, len(pos)))
+    cells, _ = table.ray(1 * len(a) + 0)  # from the top border along +x: the border row's cells, to the end
+    assert len(cells) >= 5 and np.all(cells % grid.shape[1] == grid.shape[1] - 1)
+
+
+@pytest.mark.parametrize("max_distance", [0.0, 0.5, 1.0, 2.5, 3.0, 3.5, 4.2426406871, 7.77, 30.0])
+def test_max_distance_ending_inside_the_grid(max_distance):
+    grid = Grid((15, 12))
+    rng = np.random.default_rng(7)
+    pos = np.concatenate([rng.uniform(0, 11, (6, 2)), [[7.0, 5.0], [6.5, 4.5], [7.0, 4.5]]])
+    a = np.concatenate([rng.uniform(0, 2 * math.pi, 30), np.arange(8) * math.pi / 4])
+    table = check_all(grid, np.repeat(pos, len(a), axis=0), np.tile(a, len(pos)), max_distance)
+    assert np.all(table.pair_dists < max_distance) if table.num_pairs else True
+
+
+def test_degenerate_inputs():
+    check_all(Grid((1, 1)), [0.0, 0.0], [0.3])
+    check_all(Grid((1, 5), 0.5), [[-0.3, 1.2], [-0.25, -0.25]], [math.pi / 2, 1.0])
+    empty = build_ray_table(Grid((4, 4)), np.zeros((0, 2)), [])
+    assert empty.num_rays == 0 and empty.num_pairs == 0 and empty.offsets.tolist() == [0]
+    zero = check_all(Grid((4, 4)), [1.2, 2.3], angles(8), 0.0)
+    assert zero.num_pairs == 0
+
+
+def test_chunk_size_does_not_change_the_table():
+    grid = Grid((30, 20), 0.2, (1.0, -3.0))
+    rng = np.random.default_rng(3)
+    xmin, xmax, ymin, ymax = grid.extent
+    pos = np.stack([rng.uniform(xmin, xmax, 200), rng.uniform(ymin, ymax, 200)], axis=-1)
+    a = rng.uniform(0, 2 * math.pi, 200)
+    want = build_ray_table(grid, pos, a)
+    for chunk in (1, 37, 1000):
+        got = build_ray_table(grid, pos, a, chunk=chunk)
+        np.testing.assert_array_equal(got.offsets, want.offsets)
+        np.testing.assert_array_equal(got.pair_cells, want.pair_cells)
+        np.testing.assert_array_equal(got.pair_dists, want.pair_dists)
+    assert_same_table(want, _build_ray_table_exact(grid, pos, a))
+
+
+def intel_scans(path, num_scans, resolution=0.1):
+    """Rays of the first ``num_scans`` scans of the Intel log, on the grid covering them (as ``scan_problem``)."""
+    from bayesmap.io.carmen import read_carmen
+
+    log = read_carmen(path)
+    idx = np.arange(num_scans)
+    ends = np.concatenate([log.endpoints(i)[~log.is_max_range[i]] for i in idx])
+    grid = Grid.covering(np.vstack([ends, log.poses[idx, :2]]), resolution=resolution, margin=1.0)
+    origins = np.repeat(log.poses[idx, :2], log.angles.shape[1], axis=0)
+    return grid, origins, log.angles[idx].reshape(-1), float(log.max_range)
+
+
+def test_intel_log_three_scans(intel_log):
+    grid, origins, beams, max_range = intel_scans(intel_log, 3)
+    table = check_all(grid, origins, beams, max_range, brute=False)
+    assert table.num_rays == 3 * 180 and table.num_pairs > 30_000
+
+
+def test_bad_inputs():
+    grid = Grid((5, 5))
+    with pytest.raises(BayesmapError, match="outside the grid"):
+        build_ray_table(grid, [[1.0, 1.0], [5.0, 1.0]], [0.0, 1.0])
+    with pytest.raises(BayesmapError, match="finite numbers"):
+        build_ray_table(grid, [[1.0, float("nan")]], [0.0])
+    with pytest.raises(BayesmapError, match="beam angle 1 is nan"):
+        build_ray_table(grid, [1.0, 1.0], [0.0, float("nan")])
+    for bad in (-1.0, float("inf"), float("nan")):
+        with pytest.raises(BayesmapError, match="max distance"):
+            build_ray_table(grid, [1.0, 1.0], [0.0], bad)

@@ -1,0 +1,80 @@
+"""Helpers shared by several test modules: scenes, checks and a CLI runner (not tests themselves)."""
+
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bayesmap.cli import main
+from bayesmap.geometry.grid import Grid
+from bayesmap.geometry.raytable import build_ray_table
+from bayesmap.model.generative import choices, make_params, multi_scan_model, scan_args, simulate_scan_readings
+
+
+POSES = np.array([[1.2, 1.1], [4.3, 5.2], [2.6, 3.9]])  # three scans inside a 6 x 7 grid, meters
+
+
+def scenes(beam_model, seed, max_distance=6.0, num_beams=10):
+    """Grid, params, poses (3, 2), world-frame angles (3, K) (each scan its own headings), truth map, readings
+    (3, K) simulated from the model with about a quarter set to exactly the max range, and the ray table."""
+    rng = np.random.default_rng(seed)
+    grid = Grid((6, 7))
+    params = make_params(0.3, 0.4, num_beams, grid, max_distance, beam_model=beam_model)
+    angles = rng.uniform(-np.pi, np.pi, (len(POSES), num_beams))
+    truth = (rng.random(grid.shape) < 0.25).astype(np.float32)
+    y = np.asarray(simulate_scan_readings(jax.random.key(seed), truth, POSES, params, angles), np.float64)
+    y = np.maximum(y, 0.0)  # the Normal can go below 0 next to a wall; a real sensor cannot (as in problem.py)
+    y[rng.random(y.shape) < 0.25] = params.cap  # max-range readings, exactly at the max range
+    table = build_ray_table(grid, np.repeat(POSES, num_beams, axis=0), angles.reshape(-1), params.cap)
+    return grid, params, angles, truth, y, table
+
+
+def beam_enumeration_scene():
+    """Two scans on a 3 x 4 grid with the beam model (max range 4 m): 2 poses x 6 beams, readings simulated from a
+    3-wall map with two set to exactly the max range and one short (0.3 m). Returns ``(table, readings (2, 6),
+    params, exact posterior marginals (3, 4))``, the marginals by enumerating all 4,096 maps with the model's
+    assess."""
+    import itertools
+
+    grid = Grid((3, 4))
+    params = make_params(0.3, 0.4, 6, grid, 4.0, beam_model="beam")
+    poses = np.array([[0.2, 0.4], [1.8, 2.6]])
+    angles = np.stack([np.linspace(0, 2 * np.pi, 6, endpoint=False) + 0.1 * s for s in range(2)])
+    truth = np.zeros((3, 4), np.float32)
+    truth[2, 3] = truth[0, 3] = truth[2, 0] = 1
+    y = np.asarray(simulate_scan_readings(jax.random.key(5), truth, poses, params, angles), np.float64)
+    y[0, 1] = y[1, 4] = params.cap  # max-range readings
+    y[1, 2] = 0.3  # a short reading
+    maps = np.array(list(itertools.product([0.0, 1.0], repeat=12)), np.float32).reshape(-1, 3, 4)
+    args = scan_args(poses, params, angles)
+    lj = np.asarray(jax.jit(jax.vmap(lambda w: multi_scan_model.assess(choices(w, jnp.asarray(y)), args)[0]))(
+        jnp.asarray(maps)), np.float64)
+    w = np.exp(lj - lj.max())
+    exact = np.tensordot(w / w.sum(), maps, axes=1)
+    table = build_ray_table(grid, np.repeat(poses, 6, axis=0), angles.reshape(-1), params.cap)
+    return table, y, params, exact
+
+
+def sweeps_keep_ray_bits(fast, state, num_sweeps: int) -> int:
+    """Run ``num_sweeps`` sweeps of ``fast`` (a FastGibbs) from ``state`` (keys 0, 1, ...), asserting after each that
+    the state's ray bits equal those recomputed from its map; returns how many cells changed in all."""
+    step = jax.jit(fast.step)
+    changed = 0
+    for k in range(num_sweeps):
+        new = step(jax.random.key(k), state)
+        changed += int(jnp.sum(new.walls != state.walls))
+        state = new
+        assert np.array_equal(np.asarray(state.ray_bits), np.asarray(fast.ray_bits(state.walls)))
+    return changed
+
+
+def run_cli(monkeypatch, capsys, *args):
+    monkeypatch.setattr(sys, "argv", ["bayesmap", *map(str, args)])
+    code = 0
+    try:
+        main()
+    except SystemExit as exc:
+        code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err

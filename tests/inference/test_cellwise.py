@@ -1,0 +1,254 @@
+"""The whole-log single-site sampler (bayesmap.inference.cellwise): conditionals against the multi-scan model's
+assess, the state's per-ray rows against those recomputed from the map, and marginals against exact enumeration."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.experimental import enable_x64
+
+from bayesmap.errors import BayesmapError
+from bayesmap.inference import cellwise
+from bayesmap.geometry.grid import Grid
+from bayesmap.inference.cellwise import NONE, CellwiseGibbs, width_groups
+from bayesmap.inference.chains import run_chain, run_chains
+from bayesmap.inference.fast import pair_log_likelihoods
+from bayesmap.model.generative import choices, make_params, multi_scan_model, scan_args
+from bayesmap.geometry.raytable import build_ray_table
+from bayesmap.model.sensor import reading_logpdf
+from helpers import POSES, beam_enumeration_scene, scenes
+
+
+@pytest.mark.parametrize("beam_model,likelihood_power", [("normal", 1.0), ("beam", 1.0), ("beam", 0.3)])
+def test_conditionals_match_the_multi_scan_model(beam_model, likelihood_power):
+    """3 scans in one table, max-range readings at exactly the max range: for random maps every cell's log-odds
+    from the sweep's scoring equals the difference of the model's assess with the cell set to 1 and to 0; with a
+    likelihood power eta, the prior's log-odds plus eta times the rest of that difference.
+    Tolerance 1e-4 as tests/test_multiscan.py::test_fast_conditionals_match_the_multi_scan_model (float64 on both
+    sides; the model's float32 prior carries ~3e-6 of rounding); a wrong case of the three (first wall before,
+    after, at the cell) changes some difference by far more than 1e-2, and the check below makes sure the data
+    are informative."""
+    with enable_x64():
+        grid, params, angles, _, y, table = scenes(beam_model, 7)
+        sampler = CellwiseGibbs(table, y.reshape(-1), params, likelihood_power=likelihood_power)
+        args = scan_args(POSES, params, angles)
+        readings = jnp.asarray(y)
+
+        @jax.jit
+        def brute(walls):
+            flat = walls.reshape(-1)
+
+            def diff(c):
+                on = multi_scan_model.assess(choices(flat.at[c].set(1.0).reshape(grid.shape), readings), args)[0]
+                off = multi_scan_model.assess(choices(flat.at[c].set(0.0).reshape(grid.shape), readings), args)[0]
+                return on - off
+
+            return jax.vmap(diff)(jnp.arange(flat.size)).reshape(grid.shape)
+
+        rng = np.random.default_rng(3)
+        for density in (0.15, 0.35, 0.6):
+            walls = (rng.random(grid.shape) < density).astype(np.float64)
+            got = np.asarray(sampler.cell_log_odds(walls))
+            want = np.asarray(brute(jnp.asarray(walls)))
+            logit = np.log(params.prior_wall_prob / (1 - params.prior_wall_prob))
+            want = logit + likelihood_power * (want - logit)
+            np.testing.assert_allclose(got, want, atol=1e-4, rtol=0)
+            assert np.ptp(want) > 2.0
+
+
+@pytest.mark.parametrize("x64", [False, True])
+@pytest.mark.parametrize("beam_model", ["normal", "beam"])
+def test_pair_log_likelihoods_are_the_sensor_model(beam_model, x64):
+    """fast.pair_log_likelihoods (the per-pair table of the fast and cellwise samplers, which computes the beam
+    model's point mass only for the pairs of max-range readings) equals reading_logpdf at each pair's reading and
+    stopping distance, element by element, then a 0; with max-range readings (at and beyond the max range),
+    readings just below it on rays whose last cells are near the max range, readings of 0, and stopping distances
+    near 0 (sensors just inside a cell edge), in float32 and float64. Tolerance: a few units of rounding (the same
+    operations in one jitted call; in practice the bits are equal)."""
+    with enable_x64(x64):
+        grid = Grid((12, 12))
+        params = make_params(0.3, 0.05, 16, grid, 6.0, beam_model=beam_model)
+        poses = np.array([[3.4999, 5.0], [6.0, 6.5001], [8.2, 3.3]])
+        rng = np.random.default_rng(0)
+        angles = rng.uniform(-np.pi, np.pi, (3, 16))
+        angles[:, :4] = [0.0, np.pi / 2, np.pi, -np.pi / 2]  # straight out of the cell whose edge is 1e-4 away
+        table = build_ray_table(grid, np.repeat(poses, 16, axis=0), angles.reshape(-1), params.cap)
+        m = params.cap
+        y = rng.uniform(0.0, m, table.num_rays)
+        y[::5], y[1::7], y[2::6], y[3::9] = m, 2 * m, m - 0.01, 0.0
+        dtype = jnp.result_type(float)
+        sensor_args = tuple(jnp.asarray(a, dtype) for a in params.sensor_args)
+        got = np.asarray(pair_log_likelihoods(table, y, beam_model, sensor_args))
+        want = np.asarray(reading_logpdf(beam_model, jnp.asarray(y[table.pair_rays], dtype),
+                                         jnp.asarray(table.pair_dists, dtype), sensor_args))
+        assert got.shape == (table.num_pairs + 1,) and got.dtype == dtype and got[-1] == 0.0
+        tol = 8 * np.finfo(dtype).eps
+        np.testing.assert_allclose(got[:-1], want, rtol=tol, atol=tol)
+        # the scene has what the test is about
+        at_max = y[table.pair_rays] >= m
+        assert at_max.any() and (~at_max).any() and np.isfinite(want).all()
+        assert table.pair_dists.min() < 1e-3 and table.pair_dists[~at_max].max() > m - 0.3
+
+
+def test_lanes_hold_each_cells_pairs_in_ray_order():
+    """Each cell crossed by a ray is in exactly one group of lanes (the width of its count); its row holds its pairs
+    in ray order (ray, position along the ray, the pair's log-likelihood), then padding (ray R, position 0, 0)."""
+    grid, params, angles, _, y, table = scenes("beam", 5, num_beams=30)
+    kernel = CellwiseGibbs(table, y.reshape(-1), params).kernel
+    pair_ll = np.asarray(kernel._pair_ll)
+    counts = table.rays_per_cell()
+    seen = []
+    for (width, cells), lanes in zip(width_groups(counts), kernel._lanes, strict=True):
+        np.testing.assert_array_equal(np.asarray(lanes.cells), cells)
+        rays, positions, log_lik = (np.asarray(a) for a in (lanes.rays, lanes.positions, lanes.log_lik))
+        assert rays.shape == positions.shape == log_lik.shape == (len(cells), width)
+        for row, cell in enumerate(cells):
+            pairs = np.flatnonzero(table.pair_cells == cell)
+            n = len(pairs)
+            np.testing.assert_array_equal(rays[row, :n], table.pair_rays[pairs])
+            np.testing.assert_array_equal(positions[row, :n], table.pair_positions[pairs])
+            np.testing.assert_array_equal(log_lik[row, :n], pair_ll[pairs])
+            assert (rays[row, n:] == table.num_rays).all() and (positions[row, n:] == 0).all()
+            assert (log_lik[row, n:] == 0).all()
+        seen.extend(cells)
+    np.testing.assert_array_equal(np.sort(seen), np.flatnonzero(counts))
+
+
+def rows_from_map(table, walls):
+    """Per ray (first position, second position) of walls along it, recomputed in plain numpy."""
+    on = np.asarray(walls).reshape(-1)[table.pair_cells] > 0
+    out = np.full((table.num_rays, 2), NONE)
+    for r in range(table.num_rays):
+        pos = np.nonzero(on[table.offsets[r]:table.offsets[r + 1]])[0][:2]
+        out[r, :len(pos)] = pos
+    return out
+
+
+@pytest.mark.parametrize("beam_model, batch", [("normal", 16), ("beam", 16), ("beam", 1)])
+def test_sweeps_keep_the_ray_rows_consistent(beam_model, batch, monkeypatch):
+    """After each sweep, the state's first and second wall of every ray (and their log-likelihoods) equal those
+    recomputed from the new map: the rows are rewritten exactly when a cell changes, including the walk to a
+    ray's next wall when its first or second wall is removed (with batch 1, one ray walked at a time, so that
+    removals needing several batches are exercised). Maps are dense enough that many cells change."""
+    monkeypatch.setattr(cellwise, "SEARCH_BATCH", batch)
+    grid, params, angles, _, y, table = scenes(beam_model, 11, num_beams=30)
+    sampler = CellwiseGibbs(table, y.reshape(-1), params)
+    step = jax.jit(sampler.step)
+    state = sampler.init(jnp.asarray(np.random.default_rng(0).random(grid.shape) < 0.5, jnp.float32))
+    changed = 0
+    for k in range(15):
+        new = step(jax.random.key(k), state)
+        changed += int(jnp.sum(new.walls != state.walls))
+        state = new
+        rows = np.asarray(state.ray_walls)
+        np.testing.assert_array_equal(rows[:-1, :2], rows_from_map(table, state.walls))
+        np.testing.assert_allclose(rows, np.asarray(sampler.ray_walls(state.walls)), rtol=0, atol=0)
+    assert changed > 20
+
+
+@pytest.mark.parametrize("block", [8, 3])
+def test_sweep_is_the_one_cell_at_a_time_sweep(block, monkeypatch):
+    """The sweep scores BLOCK consecutive cells at once and keeps those up to the first draw that changes a row: its
+    draws are exactly those of updating one cell at a time in the visiting order, each drawn with the same uniform
+    from its conditional given the current map (cell_log_odds, the same scoring), then the cells no ray crosses
+    from the prior. Block 3 leaves partial blocks at the ends of groups. Dense maps, so that many cells change."""
+    monkeypatch.setattr(cellwise, "BLOCK", block)
+    grid, params, angles, _, y, table = scenes("beam", 11, num_beams=30)
+    sampler = CellwiseGibbs(table, y.reshape(-1), params)
+    kernel = sampler.kernel
+    order = np.concatenate([np.asarray(lanes.cells) for lanes in kernel._lanes])
+    free = np.asarray(kernel._free)
+    prior = float(jax.nn.sigmoid(kernel._logit))
+    step, log_odds = jax.jit(sampler.step), jax.jit(sampler.cell_log_odds)
+    state = sampler.init(jnp.asarray(np.random.default_rng(1).random(grid.shape) < 0.5, jnp.float32))
+    walls = np.asarray(state.walls).reshape(-1).copy()
+    changed = 0
+    for k in range(4):
+        key = jax.random.key(k)
+        state = step(key, state)
+        u = np.asarray(jax.random.uniform(key, walls.shape))
+        probs = np.full(walls.shape, prior, np.float32)
+        for c in order:
+            probs[c] = np.asarray(jax.nn.sigmoid(log_odds(walls.reshape(grid.shape)))).reshape(-1)[c]
+            new = np.float32(u[c] < probs[c])
+            changed += int(new != walls[c])
+            walls[c] = new
+        walls[free] = u[free] < prior
+        np.testing.assert_array_equal(np.asarray(state.walls).reshape(-1), walls)
+        np.testing.assert_allclose(np.asarray(state.wall_prob).reshape(-1), probs, rtol=1e-6, atol=1e-7)
+    assert changed > 20
+
+
+def test_sampler_matches_exact_enumeration():
+    """The whole sweep with the beam model and two scans: 3 x 4 grid (4,096 maps enumerated with the model's
+    assess), 2 poses x 6 beams, two max-range readings and one short reading; 64 chains x 300 sweeps. Tolerance
+    0.06 as tests/test_multiscan.py::test_beam_sampler_matches_exact_enumeration (each marginal averages 64 x 250
+    kept sweeps; Monte Carlo standard error <= 0.014)."""
+    table, y, params, exact = beam_enumeration_scene()
+    sampler = CellwiseGibbs(table, y.reshape(-1), params)
+    result = run_chains(jax.random.key(3), sampler.algorithm, jnp.zeros((3, 4)), 300, 64)
+    est = np.asarray(result.samples[:, 50:], float).mean(axis=(0, 1))
+    assert np.abs(est - exact).max() < 0.06, (est, exact)
+    assert np.abs(exact - 0.3).max() > 0.3
+
+
+def test_one_chain_runs_and_cells_without_rays_follow_the_prior():
+    """A 1-scan problem on a large grid (most cells never crossed by a ray): one chain under lax.scan runs, and the
+    uncrossed cells are drawn from the prior (mean over 40 sweeps x ~1,500 cells within 5 standard errors)."""
+    grid = Grid((40, 40))
+    params = make_params(0.2, 0.3, 8, grid, 5.0, beam_model="beam")
+    pose = np.array([[20.0, 20.0]])
+    angles = np.linspace(0, 2 * np.pi, 8, endpoint=False)[None]
+    y = np.full((1, 8), 3.0)
+    table = build_ray_table(grid, np.repeat(pose, 8, axis=0), angles.reshape(-1), params.cap)
+    sampler = CellwiseGibbs(table, y.reshape(-1), params)
+    free = table.rays_per_cell().reshape(grid.shape) == 0
+    result = run_chain(jax.random.key(0), sampler.algorithm, jnp.zeros(grid.shape), 40)
+    frac = np.asarray(result.samples)[:, free].mean()
+    se = np.sqrt(0.2 * 0.8 / (40 * free.sum()))
+    assert abs(frac - 0.2) < 5 * se
+    np.testing.assert_allclose(np.asarray(result.wall_probs)[:, free], 0.2, rtol=1e-6)  # their recorded probability
+
+
+def test_width_groups_and_errors():
+    counts = np.array([0, 1, 8, 9, 16, 17, 100])
+    groups = width_groups(counts)
+    assert [(w, list(c)) for w, c in groups] == [(8, [1, 2]), (16, [3, 4]), (32, [5]), (128, [6])]
+    with pytest.raises(BayesmapError, match="65,537 rays"):
+        width_groups(np.array([65537]))
+    grid, params, angles, _, y, table = scenes("beam", 7)
+    with pytest.raises(BayesmapError, match="readings"):
+        CellwiseGibbs(table, y.reshape(-1)[:-1], params)
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(BayesmapError, match="likelihood_power"):
+            CellwiseGibbs(table, y.reshape(-1), params, likelihood_power=bad)
+
+
+def test_rao_blackwellized_marginals_match_exact_enumeration():
+    """The sweep's conditional wall probabilities (``state.wall_prob``), averaged over 64 chains x 250 kept sweeps,
+    estimate the exact marginals of the two-scan beam scene. Their error is at most that of the 0/1 mean (standard
+    error <= 0.014); tolerance 0.03, half the 0/1 test's. The chain's draws are the same with or without them."""
+    table, y, params, exact = beam_enumeration_scene()
+    sampler = CellwiseGibbs(table, y.reshape(-1), params)
+    result = run_chains(jax.random.key(3), sampler.algorithm, jnp.zeros((3, 4)), 300, 64)
+    probs = np.asarray(result.wall_probs)
+    assert probs.shape == (64, 300, 3, 4) and probs.dtype == np.float32
+    est = probs[:, 50:].astype(float).mean(axis=(0, 1))
+    assert np.abs(est - exact).max() < 0.03, (est, exact)
+    # each draw is a draw from the recorded probability: where it is (near) 0 or 1 the cell follows it
+    samples = np.asarray(result.samples)
+    assert not samples[probs < 1e-6].any() and samples[probs > 1 - 1e-6].all()
+
+
+def test_wall_prob_of_the_last_cell_is_its_conditional_given_the_final_map():
+    """The last cell a sweep updates is drawn given the final map of the sweep: its recorded probability equals the
+    sigmoid of :meth:`CellwiseKernel.cell_log_odds` on that map (float32 rounding)."""
+    grid, params, angles, _, y, table = scenes("beam", 7)
+    sampler = CellwiseGibbs(table, y.reshape(-1), params)
+    last = int(sampler.kernel._lanes[-1].cells[-1])
+    state = sampler.init(jnp.zeros(grid.shape))
+    for k in range(5):
+        state = sampler.step(jax.random.key(k), state)
+        cond = np.asarray(jax.nn.sigmoid(sampler.cell_log_odds(state.walls))).reshape(-1)
+        prob = np.asarray(state.wall_prob).reshape(-1)
+        np.testing.assert_allclose(prob[last], cond[last], rtol=1e-5, atol=1e-6)

@@ -1,0 +1,73 @@
+"""report.html: one self-contained offline file; it opens in headless Chromium with the network blocked."""
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+CHROMIUM = Path("/usr/bin/chromium")
+ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    """``bayesmap infer --report`` on a small room (2 chains, 20 sweeps)."""
+    out = tmp_path_factory.mktemp("report")
+    (out / "room.txt").write_text("XXXXXXXX\nX......X\nX..XX..X\nX......X\nXXXXXXXX\n")
+    run = subprocess.run([sys.executable, "-m", "bayesmap.cli", "infer", "--map", str(out / "room.txt"), "--pos", "1", "2",
+                          "--sweeps", "20", "--chains", "2", "--report", "--out", str(out / "run")],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "report.html" in run.stdout
+    return out / "run" / "report.html"
+
+
+def test_report_is_self_contained(report):
+    text = report.read_text(encoding="utf-8")
+    assert not re.search(r"https?://|//cdn|<script[^>]+src=|<link[^>]+href=|@import|url\(", text)
+    # every figure of issue "figures": map, what the robot sees, posterior (+ std), convergence, importance, GIF
+    for gid in ("fig-map", "fig-scan", "fig-posterior", "fig-convergence", "fig-importance", "fig-animation"):
+        assert f'id="{gid}"' in text
+    assert text.count("data:image/png;base64,") >= 5 and text.count("data:image/gif;base64,") == 1
+    assert "wrong visible cells" in text and "worst split R-hat" in text and "runtime" in text
+    assert 'id="chain-slider-page"' in text and "chain-slider" in text  # the slider page, inline (srcdoc)
+
+
+def test_report_opens_offline_in_chromium(report):
+    assert CHROMIUM.exists(), "Debian's chromium is needed (make installs it with apt-get)"
+    from playwright.sync_api import sync_playwright
+
+    attempted = []
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=["--no-sandbox"])
+        try:
+            page = browser.new_page(viewport={"width": 1200, "height": 900})
+
+            def route(r):
+                if r.request.url.startswith("file://"):
+                    return r.continue_()
+                attempted.append(r.request.url)
+                return r.abort()
+
+            page.route("**/*", route)
+            page.goto(report.as_uri(), wait_until="load")
+            images = page.evaluate("""() => Array.from(document.images).map(i => [i.complete, i.naturalWidth, i.alt])""")
+            assert len(images) >= 6
+            assert all(done and width > 100 for done, width, _ in images), images
+            frame = page.frame_locator("#chain-slider-page")
+            sweep = frame.locator("#chain-sweep")
+            before = sweep.inner_text()
+            slider = frame.locator("#chain-slider")
+            slider.focus()
+            slider.press("End")
+            assert sweep.inner_text() != before and "20" in sweep.inner_text()
+            frame_img = frame.locator("#chain-frame")
+            assert frame_img.evaluate("i => i.complete && i.naturalWidth > 100")
+            ARTIFACTS.mkdir(exist_ok=True)
+            shot = page.screenshot(full_page=True, path=str(ARTIFACTS / "report.png"))
+            assert len(shot) > 10_000
+        finally:
+            browser.close()
+    assert attempted == []  # nothing tried to reach the network
