@@ -8,8 +8,9 @@ private helpers, undocumented attributes): never a reference that could not be r
 --strict`` stays quiet.
 
 Targets resolve like Sphinx's Python domain: a full path (``bayesmap.inference.chains.run_chain``) as it is,
-otherwise relative to the object's own scope, then each enclosing class and module outwards; names imported into a
-module resolve to the object they import. ``~`` shows only the last component; ``title <target>`` shows the title.
+otherwise relative to the object's own scope, then each enclosing class and module outwards (names imported into a
+module resolve to the object they import), and last, as Sphinx does, the one rendered object whose path ends with
+the target, if exactly one does. ``~`` shows only the last component; ``title <target>`` shows the title.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ def _rendered(obj, root: str) -> bool:
     return parts[0] == root and len(parts) > 1 and public and bool(obj.docstring and obj.docstring.value.strip())
 
 
-def _resolve(obj, target: str, collection, root: str):
+def _resolve(obj, target: str, collection, root: str, index: dict):
     scopes = []
     scope = obj if (obj.is_module or obj.is_class) else obj.parent
     while scope is not None:
@@ -53,10 +54,12 @@ def _resolve(obj, target: str, collection, root: str):
         found = _lookup(collection, path)
         if found is not None:
             return found
-    return None
+    matches = index.get(target.split(".")[-1], [])
+    matches = [m for m in matches if m.path == target or m.path.endswith("." + target)]
+    return matches[0] if len(matches) == 1 else None
 
 
-def _rewrite(obj, collection, root: str) -> None:
+def _rewrite(obj, collection, root: str, index: dict) -> None:
     if not obj.docstring:
         return
 
@@ -68,7 +71,7 @@ def _rewrite(obj, collection, root: str) -> None:
         else:
             target = text.lstrip("~").rstrip("()")
             shown = text.lstrip("~").split(".")[-1] if text.startswith("~") else text.lstrip("~")
-        found = _resolve(obj, target.lstrip("~").rstrip("()"), collection, root)
+        found = _resolve(obj, target.lstrip("~").rstrip("()"), collection, root, index)
         if found is not None and _rendered(found, root):
             return f"[`{shown}`][{found.path}]"
         return f"`{shown}`"
@@ -80,9 +83,14 @@ class SphinxRoles(griffe.Extension):
     """Rewrite the roles of every docstring of a package once it is loaded (see the module docstring)."""
 
     def on_package(self, *, pkg: griffe.Module, loader: griffe.GriffeLoader, **kwargs) -> None:
-        collection = loader.modules_collection
-        stack = [pkg]
+        objects, stack = [], [pkg]
         while stack:
             obj = stack.pop()
-            _rewrite(obj, collection, pkg.name)
+            objects.append(obj)
             stack.extend(member for member in obj.members.values() if not member.is_alias)
+        index: dict[str, list] = {}
+        for obj in objects:
+            if _rendered(obj, pkg.name):
+                index.setdefault(obj.name, []).append(obj)
+        for obj in objects:
+            _rewrite(obj, loader.modules_collection, pkg.name, index)
