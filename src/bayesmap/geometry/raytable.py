@@ -115,17 +115,17 @@ class RayTable:
 
     def ray(self, r: int) -> tuple[np.ndarray, np.ndarray]:
         """Cells ``(n,)`` int32 and stopping distances ``(n,)`` (meters) of ray ``r``, in order along the ray."""
-        sl = slice(int(self.offsets[r]), int(self.offsets[r + 1]))
-        return self.pair_cells[sl], self.pair_dists[sl]
+        pairs = slice(int(self.offsets[r]), int(self.offsets[r + 1]))
+        return self.pair_cells[pairs], self.pair_dists[pairs]
 
     def first_wall_distances(self, walls) -> np.ndarray:
         """Distance of each ray to its first wall (meters, ``(R,)``), capped at ``max_distance``; equals
         :func:`sensor_distances` for every ray."""
         is_wall = np.asarray(walls).reshape(-1)[self.pair_cells] > 0
-        d = np.where(is_wall, self.pair_dists, self.max_distance)
+        wall_dists = np.where(is_wall, self.pair_dists, self.max_distance)
         out = np.full(self.num_rays, self.max_distance, dtype=self.pair_dists.dtype)
         crossed = self.lengths > 0  # (reduceat reads one value of an empty segment: rays without pairs are left out)
-        out[crossed] = np.minimum(out[crossed], np.minimum.reduceat(d, self.offsets[:-1][crossed]))
+        out[crossed] = np.minimum(out[crossed], np.minimum.reduceat(wall_dists, self.offsets[:-1][crossed]))
         return out
 
     def rays_per_cell(self) -> np.ndarray:
@@ -287,12 +287,12 @@ def _broadcast_origins(origins, num_rays: int) -> np.ndarray:
     Raises:
         BayesmapError: if ``origins`` has another shape.
     """
-    arr = np.asarray(origins, dtype=np.float64)
+    values = np.asarray(origins, dtype=np.float64)
     try:
-        return np.broadcast_to(arr, (num_rays, 2))
+        return np.broadcast_to(values, (num_rays, 2))
     except ValueError:
         raise BayesmapError(f"sensor origins must have shape ({num_rays}, 2) or (2,) (meters), "
-                            f"got shape {arr.shape}") from None
+                            f"got shape {values.shape}") from None
 
 
 def build_ray_table_reference(grid: Grid, origins, beam_angles, max_distance: float | None = None,
@@ -454,12 +454,12 @@ def _flat_index(cell_i, cell_j, shape):
     return np.where((cell_i >= 0) & (cell_i < nx) & (cell_j >= 0) & (cell_j < ny), cell_i * ny + cell_j, -1)
 
 
-def _trace_chunk(p, u, p_t, u_t, traversal: _Traversal, shape, max_cells: float):
+def _trace_chunk(p, u, p_table, u_table, traversal: _Traversal, shape, max_cells: float):
     """The sorted (ray, cell) pairs of a chunk of rays: see :func:`build_ray_table` for the algorithm.
 
     Args:
         p, u: ``(n, 2)`` float64 ray origins / unit directions in cell coordinates (the table dtype's values).
-        p_t, u_t: the same in the table's dtype.
+        p_table, u_table: the same in the table's dtype.
         traversal: :func:`_traversal` of these rays.
         shape: the grid's ``(nx, ny)``.
         max_cells: the max distance in cells.
@@ -478,7 +478,7 @@ def _trace_chunk(p, u, p_t, u_t, traversal: _Traversal, shape, max_cells: float)
     # slot 0 of a ray is the cell it starts in, slot m >= 1 the cell entered at its m-th grid-line crossing
     first = np.zeros(num_rays + 1, dtype=np.int64)
     np.cumsum(1 + traversal.count[:, 0] + traversal.count[:, 1], out=first[1:])
-    flat, dist, near = _trace_slots(p, u, p_t, u_t, traversal, shape, first)
+    flat, dist, near = _trace_slots(p, u, p_table, u_table, traversal, shape, first)
     keep = (flat >= 0) & (dist < max_cells)
     exact_keys = _near_vertex_keys(near, shape)
     if len(exact_keys):
@@ -486,16 +486,16 @@ def _trace_chunk(p, u, p_t, u_t, traversal: _Traversal, shape, max_cells: float)
     counts, cells, dists = _compact_slots(flat, dist, keep, first)
     del flat, dist, keep
     if len(exact_keys):
-        counts, cells, dists = _insert_exact_pairs(counts, cells, dists, exact_keys, p_t, u_t, shape, max_cells)
+        counts, cells, dists = _insert_exact_pairs(counts, cells, dists, exact_keys, p_table, u_table, shape, max_cells)
     _resort_unordered_rays(counts, cells, dists)
     return counts, cells, dists
 
 
-def _trace_slots(p, u, p_t, u_t, traversal: _Traversal, shape, first):
+def _trace_slots(p, u, p_table, u_table, traversal: _Traversal, shape, first):
     """Cell and distance of every slot of a chunk of rays, and the crossings near grid vertices.
 
     Args:
-        p, u, p_t, u_t, traversal, shape: as in :func:`_trace_chunk`.
+        p, u, p_table, u_table, traversal, shape: as in :func:`_trace_chunk`.
         first: ``(n + 1,)`` int64 first slot of each ray (``first[-1]`` slots in all).
 
     Returns:
@@ -508,15 +508,15 @@ def _trace_slots(p, u, p_t, u_t, traversal: _Traversal, shape, first):
     count, s0, slope = traversal.count, traversal.s0, traversal.slope
     largest_component = np.abs(u).max(axis=1)
     s_top = np.max(np.where(count > 0, s0 + (count - 1) / np.where(slope > 0, slope, 1.0), 0.0), axis=1)
-    screen_tol = (_vertex_tol(s_top, np.abs(p).max(axis=1) + 2.0 * s_top + 1.0, p_t.dtype) * largest_component
+    screen_tol = (_vertex_tol(s_top, np.abs(p).max(axis=1) + 2.0 * s_top + 1.0, p_table.dtype) * largest_component
                   * (1.0 + 1e-6))
     flat = np.empty(total, dtype=np.int64)  # -1: outside the grid
-    dist = np.empty(total, dtype=p_t.dtype)
+    dist = np.empty(total, dtype=p_table.dtype)
     is_x = np.zeros(total, dtype=bool)
     near = []
     for axis in (0, 1):
         if count[:, axis].any():
-            near.append(_axis_crossings(axis, p, u, p_t, u_t, traversal, head, screen_tol, largest_component,
+            near.append(_axis_crossings(axis, p, u, p_table, u_table, traversal, head, screen_tol, largest_component,
                                         shape, flat, dist, is_x))
     del is_x
     # the start cell is left at the first crossing (or never, within the max distance)
@@ -526,7 +526,7 @@ def _trace_slots(p, u, p_t, u_t, traversal: _Traversal, shape, first):
     return flat, dist, (_NearVertex(*(np.concatenate(parts) for parts in zip(*near))) if near else None)
 
 
-def _axis_crossings(axis, p, u, p_t, u_t, traversal: _Traversal, head, screen_tol, largest_component, shape,
+def _axis_crossings(axis, p, u, p_table, u_table, traversal: _Traversal, head, screen_tol, largest_component, shape,
                     flat, dist, is_x) -> _NearVertex:
     """Fill in the slots of the rays' crossings of the grid lines of ``axis`` (0 first, then 1), in place.
 
@@ -537,7 +537,7 @@ def _axis_crossings(axis, p, u, p_t, u_t, traversal: _Traversal, head, screen_to
     """
     counts = traversal.count[:, axis]
     start, step = traversal.start, traversal.step
-    dtype = p_t.dtype
+    dtype = p_table.dtype
 
     def per_crossing(values):
         return np.repeat(values, counts)
@@ -549,7 +549,7 @@ def _axis_crossings(axis, p, u, p_t, u_t, traversal: _Traversal, head, screen_to
     u_axis = per_crossing(u[:, axis])
     s = (line - per_crossing(p[:, axis])) / u_axis
     # the distance in the table's dtype with the same two roundings as the tutorial's edge arithmetic
-    d = (line.astype(dtype) - per_crossing(p_t[:, axis])) / per_crossing(u_t[:, axis])
+    d = (line.astype(dtype) - per_crossing(p_table[:, axis])) / per_crossing(u_table[:, axis])
     if axis == 0:
         # merge the two arithmetic sequences without sorting: x-crossing k comes after k x-crossings and
         # after the ceil((s_x(k) - s0_y) |u_y|) y-crossings with a smaller parameter
@@ -621,7 +621,7 @@ def _compact_slots(flat, dist, keep, first):
     return counts, flat[keep].astype(np.int32), dist[keep]
 
 
-def _insert_exact_pairs(counts, fast_cells, fast_dists, exact_keys, p_t, u_t, shape, max_cells: float):
+def _insert_exact_pairs(counts, fast_cells, fast_dists, exact_keys, p_table, u_table, shape, max_cells: float):
     """Evaluate the pairs ``exact_keys`` (``ray * num_cells + flat``) with the exact edge arithmetic
     (:func:`_exact_pair_distances`) and insert those below ``max_cells`` in their rays by (distance, flat index),
     with a vectorized bisection within each ray's fast pairs. Returns the new ``(counts, cells, dists)``."""
@@ -630,8 +630,8 @@ def _insert_exact_pairs(counts, fast_cells, fast_dists, exact_keys, p_t, u_t, sh
     num_cells = shape[0] * ny
     rays = exact_keys // num_cells
     cells = exact_keys % num_cells
-    cell_indices = np.stack([cells // ny, cells % ny], axis=-1).astype(p_t.dtype)
-    dists = _exact_pair_distances(p_t[rays], u_t[rays], cell_indices)
+    cell_indices = np.stack([cells // ny, cells % ny], axis=-1).astype(p_table.dtype)
+    dists = _exact_pair_distances(p_table[rays], u_table[rays], cell_indices)
     ok = dists < max_cells
     rays, cells, dists = rays[ok], cells[ok].astype(np.int32), dists[ok]
     order = np.lexsort((cells, dists, rays))
@@ -698,34 +698,34 @@ def _ray_chunks(slot_ends: np.ndarray, chunk: int) -> list[slice]:
     return chunks
 
 
-def _trace_rays(p_t, u_t, shape, max_cells: float, chunk: int):
+def _trace_rays(p_table, u_table, shape, max_cells: float, chunk: int):
     """``(counts (R,) int64, cells (P,) int32, dists (P,) table dtype, in cells)`` of all rays, traced by chunks of
     ``chunk`` slots of whole rays on up to :data:`TRACE_THREADS` threads (numpy releases the GIL), gathered in order."""
-    p = p_t.astype(np.float64)
-    u = u_t.astype(np.float64)
-    traversal = _traversal(p, u, shape, max_cells, p_t.dtype)
+    p = p_table.astype(np.float64)
+    u = u_table.astype(np.float64)
+    traversal = _traversal(p, u, shape, max_cells, p_table.dtype)
     num_rays = len(p)
     slot_ends = np.cumsum(1 + traversal.count.sum(axis=1))
     counts = np.zeros(num_rays, dtype=np.int64)
     capacity = int(slot_ends[-1]) + 1024 if num_rays else 0
     cells = np.empty(capacity, dtype=np.int32)
-    dists = np.empty(capacity, dtype=p_t.dtype)
+    dists = np.empty(capacity, dtype=p_table.dtype)
 
     def trace(rays):
-        return _trace_chunk(p[rays], u[rays], p_t[rays], u_t[rays], traversal.rows(rays), shape, max_cells)
+        return _trace_chunk(p[rays], u[rays], p_table[rays], u_table[rays], traversal.rows(rays), shape, max_cells)
 
     used = 0
     chunks = _ray_chunks(slot_ends, chunk)
     with ThreadPoolExecutor(max_workers=max(1, min(TRACE_THREADS, os.cpu_count() or 1))) as pool:
-        for rays, (n, c, d) in zip(chunks, pool.map(trace, chunks)):
-            counts[rays] = n
-            if used + len(c) > len(cells):  # more exact corner cells than fast slots: grow (rare)
-                grow = max(len(cells) // 2, len(c), 1024)
+        for rays, (ray_counts, chunk_cells, chunk_dists) in zip(chunks, pool.map(trace, chunks)):
+            counts[rays] = ray_counts
+            if used + len(chunk_cells) > len(cells):  # more exact corner cells than fast slots: grow (rare)
+                grow = max(len(cells) // 2, len(chunk_cells), 1024)
                 cells = np.concatenate([cells[:used], np.empty(len(cells) - used + grow, dtype=cells.dtype)])
                 dists = np.concatenate([dists[:used], np.empty(len(dists) - used + grow, dtype=dists.dtype)])
-            cells[used:used + len(c)] = c
-            dists[used:used + len(d)] = d
-            used += len(c)
+            cells[used:used + len(chunk_cells)] = chunk_cells
+            dists[used:used + len(chunk_dists)] = chunk_dists
+            used += len(chunk_cells)
     cells.resize(used, refcheck=False)
     dists.resize(used, refcheck=False)
     return counts, cells, dists
@@ -783,8 +783,8 @@ def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None
     """
     origins, beam_angles, max_distance = _checked_rays(grid, origins, beam_angles, max_distance)
     max_cells = max_distance / grid.resolution
-    p_t, u_t = _cell_frame(grid, origins, beam_angles)
-    counts, cells, dists = _trace_rays(p_t, u_t, grid.shape, max_cells, chunk)
+    p_table, u_table = _cell_frame(grid, origins, beam_angles)
+    counts, cells, dists = _trace_rays(p_table, u_table, grid.shape, max_cells, chunk)
     dists *= dists.dtype.type(grid.resolution)
     offsets = np.zeros(len(beam_angles) + 1, dtype=np.int64)
     np.cumsum(counts, out=offsets[1:])
@@ -884,10 +884,10 @@ def check_readings(readings, num_rays: int) -> np.ndarray:
     Raises:
         BayesmapError: on the wrong length or a NaN, infinite or negative value (names the first offender).
     """
-    arr = np.asarray(readings, dtype=np.float64).reshape(-1)
-    if arr.shape != (num_rays,):
-        raise BayesmapError(f"expected {num_rays} readings, got {arr.size}")
-    bad = np.flatnonzero(~np.isfinite(arr) | (arr < 0))
+    values = np.asarray(readings, dtype=np.float64).reshape(-1)
+    if values.shape != (num_rays,):
+        raise BayesmapError(f"expected {num_rays} readings, got {values.size}")
+    bad = np.flatnonzero(~np.isfinite(values) | (values < 0))
     if len(bad):
-        raise BayesmapError(f"reading {bad[0]} is {arr[bad[0]]!r}: readings must be finite and >= 0 (meters)")
-    return arr
+        raise BayesmapError(f"reading {bad[0]} is {values[bad[0]]!r}: readings must be finite and >= 0 (meters)")
+    return values
