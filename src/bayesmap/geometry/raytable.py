@@ -161,7 +161,10 @@ class RayTable:
         Cost: the tracing is proportional to the replaced rays (their grid-line crossings, the same work as a table
         of those rays alone), not to the table. Assembling the result copies each per-pair array once, in one
         contiguous block per run of consecutive replaced or kept rays (a memory copy, no per-pair Python loop, no
-        sort), and the per-ray arrays once (``O(num_rays)``).
+        sort), and the per-ray arrays once (``O(num_rays)``). Measured on the Intel table (every third scan at 0.1 m:
+        54,720 rays, 13.4 M pairs), moving two scans takes about 50 ms (half of it the copy) against 2.7 s for a
+        rebuild, once JAX has compiled the cell-frame arithmetic for that number of rays (about a second on the
+        first call with a new ``M``).
 
         Raises:
             BayesmapError: if a ray index is not an integer, outside ``[0, num_rays)`` or repeated; if the numbers
