@@ -1,11 +1,12 @@
 """The closed-form ray-cell table builder (``build_ray_table``) against the reference builder
-(``_build_ray_table_exact``, the original candidate-and-sort algorithm) and against the definition itself (every
+(``build_ray_table_reference``, the original candidate-and-sort algorithm) and against the definition itself (every
 cell's tutorial distance, ``cell_hit_distance``, on small grids).
 
 Tolerance: offsets and cells (hence the order along each ray) must be identical; distances must agree to 1e-5
 relative + 1e-5 cells absolute (``assert_same_table``). The builder actually reproduces the distances to the last bit
 (same two float roundings as the edge arithmetic); ``test_distances_are_bit_identical`` checks that on the tutorial
-scene and the Intel scans.
+scene and the Intel scans. ``RayTable.replace_rays`` (moving some scans or rays) must give exactly, field for field,
+the table built from scratch at the new poses (``assert_identical_tables``).
 """
 
 import dataclasses
@@ -18,10 +19,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from conftest import random_scene
+
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.io.ascii import tutorial_map
-from bayesmap.geometry.raytable import RayTable, _build_ray_table_exact, build_ray_table
+from bayesmap.geometry.raytable import RayTable, build_ray_table_reference, build_ray_table
 from bayesmap.geometry.raycast import angles, cell_hit_distance, sensor_distances, unit_dir
 
 RTOL = 1e-5
@@ -84,7 +87,7 @@ def brute_table(grid, origins, beam_angles, max_distance=None) -> RayTable:
 def check_all(grid, origins, beam_angles, max_distance=None, brute=True):
     """The fast table equals the reference builder's and (small grids) the definition's."""
     table = build_ray_table(grid, origins, beam_angles, max_distance)
-    assert_same_table(table, _build_ray_table_exact(grid, origins, beam_angles, max_distance))
+    assert_same_table(table, build_ray_table_reference(grid, origins, beam_angles, max_distance))
     if brute:
         assert_same_table(table, brute_table(grid, origins, beam_angles, max_distance))
     return table
@@ -93,7 +96,7 @@ def check_all(grid, origins, beam_angles, max_distance=None, brute=True):
 def test_the_comparison_can_fail():
     grid = Grid((21, 21))
     table = build_ray_table(grid, [10.3, 9.6], np.asarray(angles(20)))
-    ref = _build_ray_table_exact(grid, [10.3, 9.6], np.asarray(angles(20)))
+    ref = build_ray_table_reference(grid, [10.3, 9.6], np.asarray(angles(20)))
     swapped = ref.pair_cells.copy()
     swapped[[3, 4]] = swapped[[4, 3]]
     with pytest.raises(AssertionError):
@@ -103,7 +106,7 @@ def test_the_comparison_can_fail():
     with pytest.raises(AssertionError):
         assert_same_table(table, dataclasses.replace(ref, pair_dists=nudged))
     with pytest.raises(AssertionError):
-        assert_same_table(table, _build_ray_table_exact(grid, [10.3, 9.6], np.asarray(angles(20)), 5.0))
+        assert_same_table(table, build_ray_table_reference(grid, [10.3, 9.6], np.asarray(angles(20)), 5.0))
 
 
 def test_tutorial_scene():
@@ -122,12 +125,12 @@ def test_distances_are_bit_identical():
     rng = np.random.default_rng(5)
     for args in [(Grid((21, 21)), [10, 10], np.asarray(angles(100))),
                  (Grid((40, 30), 0.05, (3.3, -1.7)), [4.0, -0.9], rng.uniform(-4, 4, 300))]:
-        np.testing.assert_array_equal(build_ray_table(*args).pair_dists, _build_ray_table_exact(*args).pair_dists)
+        np.testing.assert_array_equal(build_ray_table(*args).pair_dists, build_ray_table_reference(*args).pair_dists)
 
 
 def test_distances_are_bit_identical_on_intel(intel_log):
     args = intel_scans(intel_log, 3)
-    np.testing.assert_array_equal(build_ray_table(*args).pair_dists, _build_ray_table_exact(*args).pair_dists)
+    np.testing.assert_array_equal(build_ray_table(*args).pair_dists, build_ray_table_reference(*args).pair_dists)
 
 
 @st.composite
@@ -245,7 +248,7 @@ def test_chunk_size_does_not_change_the_table():
         np.testing.assert_array_equal(got.offsets, want.offsets)
         np.testing.assert_array_equal(got.pair_cells, want.pair_cells)
         np.testing.assert_array_equal(got.pair_dists, want.pair_dists)
-    assert_same_table(want, _build_ray_table_exact(grid, pos, a))
+    assert_same_table(want, build_ray_table_reference(grid, pos, a))
 
 
 def intel_scans(path, num_scans, resolution=0.1):
@@ -274,6 +277,116 @@ def test_bad_inputs():
         build_ray_table(grid, [[1.0, float("nan")]], [0.0])
     with pytest.raises(BayesmapError, match="beam angle 1 is nan"):
         build_ray_table(grid, [1.0, 1.0], [0.0, float("nan")])
+    with pytest.raises(BayesmapError, match=r"got shape \(3,\)"):
+        build_ray_table(grid, [1.0, 1.0, 1.0], [0.0, 1.0])
     for bad in (-1.0, float("inf"), float("nan")):
         with pytest.raises(BayesmapError, match="max distance"):
             build_ray_table(grid, [1.0, 1.0], [0.0], bad)
+
+
+def assert_identical_tables(got: RayTable, want: RayTable):
+    """Every field equal: arrays with np.array_equal (same dtype, same bits), the rest with ==."""
+    for field in dataclasses.fields(RayTable):
+        a, b = getattr(got, field.name), getattr(want, field.name)
+        if isinstance(b, np.ndarray):
+            assert a.dtype == b.dtype, field.name
+            np.testing.assert_array_equal(a, b, err_msg=field.name)
+        else:
+            assert a == b, field.name
+
+
+def _positions_inside(grid, rng, n):
+    xmin, xmax, ymin, ymax = grid.extent
+    return np.stack([rng.uniform(xmin, xmax, n), rng.uniform(ymin, ymax, n)], axis=-1)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_replace_rays_equals_a_rebuild(seed):
+    """Scans at random poses (some on cell corners and edges, with axis-aligned and diagonal beams); moving some
+    whole scans and some single rays gives exactly the table built from scratch at the new poses, cached per-pair
+    views included, and leaves the original table as it was."""
+    rng = np.random.default_rng(seed)
+    grid, _, _, beam_angles = random_scene(rng, max_side=12, metric=seed % 2 == 1)
+    beam_angles = np.concatenate([beam_angles, np.arange(8) * math.pi / 4])
+    num_beams, num_scans = len(beam_angles), int(rng.integers(2, 6))
+
+    def poses(n):
+        special = _corner_and_edge_positions(grid, rng, n)
+        return np.where(rng.random((n, 1)) < 0.5, special, _positions_inside(grid, rng, n))
+
+    origins = np.repeat(poses(num_scans), num_beams, axis=0)
+    headings = np.repeat(rng.choice([0.0, math.pi / 2, rng.uniform(-math.pi, math.pi)], num_scans), num_beams)
+    ray_angles = np.tile(beam_angles, num_scans) + headings
+    table = build_ray_table(grid, origins, ray_angles)
+    if seed % 3:  # views computed before the replacement are spliced, the others computed afresh
+        table.pair_rays, table.pair_positions
+    saved = {name: np.copy(getattr(table, name)) for name in ("offsets", "pair_cells", "pair_dists", "origins",
+                                                               "beam_angles")}
+    moved = rng.choice(num_scans, int(rng.integers(1, num_scans + 1)), replace=False)
+    rays = np.concatenate([s * num_beams + np.arange(num_beams) for s in moved]
+                          + [rng.choice(num_scans * num_beams, 3, replace=False)])
+    rays = rng.permutation(np.unique(rays))  # any order
+    new_origins, new_angles = origins.copy(), ray_angles.copy()
+    new_origins[rays] = np.repeat(poses(len(rays) // num_beams + 1), num_beams, axis=0)[:len(rays)]
+    new_angles[rays] += rng.choice([0.0, math.pi / 4, rng.uniform(-math.pi, math.pi)])
+    got = table.replace_rays(rays, new_origins[rays], new_angles[rays], chunk=int(rng.choice([1, 50, 1 << 18])))
+    want = build_ray_table(grid, new_origins, new_angles)
+    assert_identical_tables(got, want)
+    for view in ("lengths", "pair_rays", "pair_positions"):
+        np.testing.assert_array_equal(getattr(got, view), getattr(want, view), err_msg=view)
+    assert not (np.array_equal(got.offsets, table.offsets) and np.array_equal(got.pair_cells, table.pair_cells))
+    for name, values in saved.items():
+        np.testing.assert_array_equal(getattr(table, name), values, err_msg=name)
+
+
+def test_replace_rays_of_intel_scans(intel_log):
+    """Moving two scans of a real log (pose shifted by 0.37 m and turned by 0.2 rad) equals a rebuild."""
+    grid, origins, beams, max_range = intel_scans(intel_log, 6)
+    table = build_ray_table(grid, origins, beams, max_range)
+    table.pair_rays
+    rays = np.concatenate([np.arange(180, 360), np.arange(4 * 180, 5 * 180)])
+    new_origins, new_angles = origins.copy(), beams.copy()
+    new_origins[rays] += [0.37, -0.21]
+    new_angles[rays] += 0.2
+    got = table.replace_rays(rays, new_origins[rays], new_angles[rays])
+    want = build_ray_table(grid, new_origins, new_angles, max_range)
+    assert_identical_tables(got, want)
+    np.testing.assert_array_equal(got.pair_rays, want.pair_rays)
+    assert not np.array_equal(got.offsets, table.offsets)
+
+
+def test_replace_no_rays_or_all_rays():
+    grid = Grid((9, 7), 0.25, (1.0, -2.0))
+    rng = np.random.default_rng(4)
+    origins, a = _positions_inside(grid, rng, 30), rng.uniform(0, 2 * math.pi, 30)
+    table = build_ray_table(grid, origins, a)
+    assert_identical_tables(table.replace_rays([], np.zeros((0, 2)), []), table)
+    new_origins, new_a = _positions_inside(grid, rng, 30), rng.uniform(0, 2 * math.pi, 30)
+    assert_identical_tables(table.replace_rays(np.arange(30)[::-1], new_origins[::-1], new_a[::-1]),
+                            build_ray_table(grid, new_origins, new_a))
+    # one origin for all replaced rays
+    want_origins = origins.copy()
+    want_origins[[3, 4]] = [1.5, -1.0]
+    assert_identical_tables(table.replace_rays([4, 3], [1.5, -1.0], a[[4, 3]]),
+                            build_ray_table(grid, want_origins, a))
+
+
+def test_replace_rays_bad_inputs():
+    grid = Grid((5, 5))
+    table = build_ray_table(grid, [[1.0, 1.0], [2.0, 3.0], [4.0, 0.5]], [0.0, 1.0, 2.0])
+    with pytest.raises(BayesmapError, match="ray 1 is listed twice"):
+        table.replace_rays([1, 2, 1], [2.0, 2.0], [0.0, 0.1, 0.2])
+    with pytest.raises(BayesmapError, match=r"ray index 3 is outside \[0, 3\)"):
+        table.replace_rays([0, 3], [2.0, 2.0], [0.0, 0.1])
+    with pytest.raises(BayesmapError, match="ray index -1"):
+        table.replace_rays([-1], [2.0, 2.0], [0.0])
+    with pytest.raises(BayesmapError, match="must be integers"):
+        table.replace_rays([0.5], [2.0, 2.0], [0.0])
+    with pytest.raises(BayesmapError, match="2 rays to replace but 1 beam angles"):
+        table.replace_rays([0, 1], [2.0, 2.0], [0.0])
+    with pytest.raises(BayesmapError, match=r"shape \(2, 2\) or \(2,\).*got shape \(3, 2\)"):
+        table.replace_rays([0, 1], np.ones((3, 2)), [0.0, 1.0])
+    with pytest.raises(BayesmapError, match="outside the grid"):
+        table.replace_rays([0], [7.0, 1.0], [0.0])
+    with pytest.raises(BayesmapError, match="beam angle 0 is nan"):
+        table.replace_rays([0], [2.0, 1.0], [float("nan")])

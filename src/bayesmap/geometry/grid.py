@@ -43,14 +43,14 @@ class Grid:
         shape = tuple(self.shape)
         if len(shape) != 2 or any(int(n) != n or n < 1 for n in shape):
             raise BayesmapError(f"grid shape must be two positive integers, got {self.shape!r}")
-        res = float(self.resolution)
-        if not math.isfinite(res) or res <= 0:
+        resolution = float(self.resolution)
+        if not math.isfinite(resolution) or resolution <= 0:
             raise BayesmapError(f"grid resolution must be a finite number > 0 (meters per cell), got {self.resolution!r}")
         origin = tuple(float(v) for v in self.origin)
         if len(origin) != 2 or not all(math.isfinite(v) for v in origin):
             raise BayesmapError(f"grid origin must be two finite numbers (meters), got {self.origin!r}")
         object.__setattr__(self, "shape", (int(shape[0]), int(shape[1])))
-        object.__setattr__(self, "resolution", res)
+        object.__setattr__(self, "resolution", resolution)
         object.__setattr__(self, "origin", origin)
 
     @property
@@ -93,13 +93,13 @@ class Grid:
 
     def check_inside(self, xy, what: str = "sensor position") -> None:
         """Raise :class:`BayesmapError` naming ``xy`` unless it is a finite point inside the grid."""
-        arr = np.asarray(xy, dtype=np.float64).reshape(-1)
-        if arr.shape != (2,) or not np.all(np.isfinite(arr)):
+        point = np.asarray(xy, dtype=np.float64).reshape(-1)
+        if point.shape != (2,) or not np.all(np.isfinite(point)):
             raise BayesmapError(f"{what} must be two finite numbers (x, y), got {xy!r}")
-        if not self.contains(arr):
+        if not self.contains(point):
             xmin, xmax, ymin, ymax = self.extent
             raise BayesmapError(
-                f"{what} ({arr[0]:g}, {arr[1]:g}) is outside the grid "
+                f"{what} ({point[0]:g}, {point[1]:g}) is outside the grid "
                 f"[{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}]"
             )
 
@@ -111,11 +111,11 @@ class Grid:
         Raises:
             BayesmapError: if there are no finite points.
         """
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
-        if len(pts) == 0:
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        points = points[np.all(np.isfinite(points), axis=1)]
+        if len(points) == 0:
             raise BayesmapError("cannot build a grid covering no points")
-        lo = np.floor((pts.min(axis=0) - margin) / resolution) * resolution
-        hi = np.ceil((pts.max(axis=0) + margin) / resolution) * resolution
+        lo = np.floor((points.min(axis=0) - margin) / resolution) * resolution
+        hi = np.ceil((points.max(axis=0) + margin) / resolution) * resolution
         shape = np.maximum(np.round((hi - lo) / resolution).astype(int), 1)
         return cls(shape=(int(shape[0]), int(shape[1])), resolution=resolution, origin=(float(lo[0]), float(lo[1])))

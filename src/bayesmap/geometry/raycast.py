@@ -68,15 +68,28 @@ def cell_hit_distance(p, u, cell):
 
 @partial(jax.jit, static_argnames=("grid", "max_distance"))
 def first_hit_distances(walls, pos, beam_angles, grid: Grid, max_distance: float):
+    """The jitted core of :func:`sensor_distances` (which fills in the defaults), for callers that already have a
+    :class:`Grid` and a max distance: every ray against every cell (``K x nx ny`` edge tests).
+
+    Args:
+        walls: ``(nx, ny)`` JAX array, cells > 0 are walls.
+        pos: ``(2,)`` sensor position, world meters.
+        beam_angles: ``(K,)`` world-frame beam angles, radians.
+        grid: the grid (static).
+        max_distance: the max distance, meters (static).
+
+    Returns:
+        ``(K,)`` distances in meters, JAX's default float dtype, at most ``max_distance``.
+    """
     p = grid.to_cell_coords(jnp.asarray(pos))
     ii, jj = jnp.meshgrid(jnp.arange(grid.shape[0]), jnp.arange(grid.shape[1]), indexing="ij")
     cells = jnp.stack([ii.ravel(), jj.ravel()], axis=-1)
     is_wall = walls.reshape(-1) > 0
-    cap = max_distance / grid.resolution
+    max_cells = max_distance / grid.resolution
 
     def one_ray(angle):
-        t = cell_hit_distance(p, unit_dir(angle)[None, :], cells)
-        return jnp.minimum(jnp.min(jnp.where(is_wall, t, jnp.inf)), cap)
+        distances = cell_hit_distance(p, unit_dir(angle)[None, :], cells)
+        return jnp.minimum(jnp.min(jnp.where(is_wall, distances, jnp.inf)), max_cells)
 
     return jax.vmap(one_ray)(beam_angles) * grid.resolution
 
@@ -90,7 +103,7 @@ def sensor_distances(walls, pos, beam_angles, grid: Grid | None = None, max_dist
         beam_angles: ``(K,)`` beam angles in radians, world frame.
         grid: the grid geometry; default: the tutorial convention for ``walls.shape`` (resolution 1, cell
             ``(i, j)`` centered at ``(i, j)``).
-        max_distance: cap in meters; default :attr:`Grid.default_max_distance` (42 on the tutorial map).
+        max_distance: the max distance, meters; default :attr:`Grid.default_max_distance` (42 on the tutorial map).
 
     Returns:
         ``(K,)`` float array of distances in meters. Jit-able and vmap-able in ``walls``, ``pos`` and
