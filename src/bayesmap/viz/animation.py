@@ -1,12 +1,12 @@
 """Animations of a Gibbs chain: frames (PIL images), an animated GIF, and a self-contained offline HTML page.
 
 A chain's ``samples`` is ``(num_sweeps, nx, ny)`` bool (``samples[t - 1]`` is the map after sweep ``t``), with the
-grid conventions of :mod:`bayesmap.viz.plots`: cell ``(i, j)`` has ``i`` along x and ``j`` along y, images are drawn
+grid conventions of :mod:`bayesmap.viz.common`: cell ``(i, j)`` has ``i`` along x and ``j`` along y, images are drawn
 transposed with ``origin="lower"`` in world coordinates and equal aspect.
 
 Each frame has two panels side by side: on the left the sample after sweep ``t`` (walls black, free cells white),
 on the right the running mean of sweeps ``1..t`` (the Monte Carlo estimate of P(wall), grey scale 0 = white to
-1 = black, the colour map of :func:`bayesmap.viz.plots.plot_posterior`), with the true walls outlined in red and the
+1 = black, the colour map of :func:`bayesmap.viz.maps.plot_posterior`), with the true walls outlined in red and the
 sensor marked as a red dot when given. The figure is built and laid out once (Agg canvas, never ``pyplot``);
 each frame only updates the two images' data (``AxesImage.set_data``) and the titles, redraws those on a saved
 background and composites the fixed overlays (see :class:`_ChainFigure`), so 100 frames of a 21 x 21 chain
@@ -34,16 +34,16 @@ from PIL import Image
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.viz.plots import (
+from bayesmap.viz.common import (
     SENSOR_COLOR,
     TRUTH_COLOR,
-    _check_cells,
-    _check_grid,
-    _check_point,
-    _draw_gridlines,
-    _draw_truth,
-    _interpolation,
-    _is_unit_grid,
+    check_cells,
+    check_grid,
+    check_point,
+    draw_gridlines,
+    draw_truth,
+    image_interpolation,
+    is_unit_grid,
 )
 
 __all__ = ["chain_animation", "chain_frames", "chain_gif", "chain_html", "frame_sweeps"]
@@ -182,7 +182,7 @@ class _ChainFigure:
         fig.get_layout_engine().set(w_pad=0.02, h_pad=0.02, wspace=0.04)
         self.canvas = FigureCanvasAgg(fig)
         self.fig = fig
-        self.unit = "cells" if _is_unit_grid(grid) else "m"
+        self.unit = "cells" if is_unit_grid(grid) else "m"
         k = min(width / DEFAULT_SIZE_PX[0], height / DEFAULT_SIZE_PX[1])
         k = min(max(k, MIN_TEXT_SCALE), MAX_TEXT_SCALE)  # scale of text and markers
         blank = np.zeros(grid.shape[::-1], dtype=np.float32)
@@ -204,15 +204,15 @@ class _ChainFigure:
                 cmap=CMAP,
                 vmin=0.0,
                 vmax=1.0,
-                interpolation=_interpolation(grid),
+                interpolation=image_interpolation(grid),
                 zorder=1,
                 gid=gid,
             )
             self.images.append(image)
             self.titles.append(ax.set_title(" ", fontsize=8 * k, pad=3))
-            _draw_gridlines(ax, grid, alpha=0.35)
+            draw_gridlines(ax, grid, alpha=0.35)
             if truth is not None:
-                _draw_truth(ax, truth, grid)
+                draw_truth(ax, truth, grid)
                 outline = next(a for a in ax.get_children() if a.get_gid() == "truth")
                 outline.set_linewidth(outline.get_linewidth() * k)
             if pos is not None:
@@ -401,10 +401,10 @@ def _render(
     grid, samples, *, truth=None, pos=None, every=1, max_frames=100, size_px=DEFAULT_SIZE_PX
 ) -> tuple[list[Image.Image], np.ndarray, int]:
     """:func:`chain_frames`, also returning the sweep of each frame ``(F,)`` and the chain length ``T``."""
-    grid = _check_grid(grid)
+    grid = check_grid(grid)
     walls = _check_samples(samples, grid)
-    truth = None if truth is None else _check_cells(truth, grid, "truth")
-    pos = None if pos is None else _check_point(pos, "pos")
+    truth = None if truth is None else check_cells(truth, grid, "truth")
+    pos = None if pos is None else check_point(pos, "pos")
     size = _check_size(size_px)
     total = walls.shape[0]
     sweeps = frame_sweeps(total, every=every, max_frames=max_frames)
