@@ -185,43 +185,57 @@ class _ChainFigure:
         self.unit = "cells" if is_unit_grid(grid) else "m"
         k = min(width / DEFAULT_SIZE_PX[0], height / DEFAULT_SIZE_PX[1])
         k = min(max(k, MIN_TEXT_SCALE), MAX_TEXT_SCALE)  # scale of text and markers
-        blank = np.zeros(grid.shape[::-1], dtype=np.float32)
         self.axes = fig.subplots(1, 2)
         self.images = []
         self.titles = []
         overlays = []
         for ax, gid in zip(self.axes, ("sample", "mean")):
-            xmin, xmax, ymin, ymax = grid.extent
-            ax.set_xlim(xmin, xmax)
-            ax.set_ylim(ymin, ymax)
-            ax.set_aspect("equal")
-            ax.tick_params(labelsize=6 * k, length=2 * k, pad=1)
-            ax.set_xlabel(f"x ({self.unit})", fontsize=7 * k, labelpad=1)
-            image = ax.imshow(
-                blank,
-                origin="lower",
-                extent=grid.extent,
-                cmap=CMAP,
-                vmin=0.0,
-                vmax=1.0,
-                interpolation=image_interpolation(grid),
-                zorder=1,
-                gid=gid,
-            )
-            self.images.append(image)
-            self.titles.append(ax.set_title(" ", fontsize=8 * k, pad=3))
-            draw_gridlines(ax, grid, alpha=0.35)
-            if truth is not None:
-                draw_truth(ax, truth, grid)
-                outline = next(a for a in ax.get_children() if a.get_gid() == "truth")
-                outline.set_linewidth(outline.get_linewidth() * k)
-            if pos is not None:
-                ax.plot([pos[0]], [pos[1]], ls="none", marker="o", ms=5.5 * k, color=SENSOR_COLOR, mec="white",
-                        mew=0.7 * k, zorder=6, gid="sensor")
-            # the axes frame (spines) is drawn over the image too
-            on_top = [a for a in ax.get_children() if a.get_gid() in ("gridlines", "truth", "sensor")]
-            overlays += sorted(on_top + list(ax.spines.values()), key=lambda a: a.get_zorder())
+            overlays += self._draw_panel(ax, gid, truth, pos, k)
         self.axes[0].set_ylabel(f"y ({self.unit})", fontsize=7 * k, labelpad=1)
+        colorbar = self._draw_colorbar_and_legend(truth, pos, k)
+        self.suptitle = fig.suptitle(" ", fontsize=9 * k)
+        self._freeze_layout(colorbar)
+        self._cache_layers(overlays)
+
+    def _draw_panel(self, ax, gid: str, truth, pos, k: float) -> list:
+        """One map panel: an empty image (gid ``gid``), its title, grid lines, true-wall outline and sensor, text
+        and markers scaled by ``k``; returns the artists drawn over the image (the overlays), in drawing order."""
+        grid = self.grid
+        xmin, xmax, ymin, ymax = grid.extent
+        ax.set_xlim(xmin, xmax)
+        ax.set_ylim(ymin, ymax)
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=6 * k, length=2 * k, pad=1)
+        ax.set_xlabel(f"x ({self.unit})", fontsize=7 * k, labelpad=1)
+        image = ax.imshow(
+            np.zeros(grid.shape[::-1], dtype=np.float32),
+            origin="lower",
+            extent=grid.extent,
+            cmap=CMAP,
+            vmin=0.0,
+            vmax=1.0,
+            interpolation=image_interpolation(grid),
+            zorder=1,
+            gid=gid,
+        )
+        self.images.append(image)
+        self.titles.append(ax.set_title(" ", fontsize=8 * k, pad=3))
+        draw_gridlines(ax, grid, alpha=0.35)
+        if truth is not None:
+            draw_truth(ax, truth, grid)
+            outline = next(a for a in ax.get_children() if a.get_gid() == "truth")
+            outline.set_linewidth(outline.get_linewidth() * k)
+        if pos is not None:
+            ax.plot([pos[0]], [pos[1]], ls="none", marker="o", ms=5.5 * k, color=SENSOR_COLOR, mec="white",
+                    mew=0.7 * k, zorder=6, gid="sensor")
+        # the axes frame (spines) is drawn over the image too
+        on_top = [a for a in ax.get_children() if a.get_gid() in ("gridlines", "truth", "sensor")]
+        return sorted(on_top + list(ax.spines.values()), key=lambda a: a.get_zorder())
+
+    def _draw_colorbar_and_legend(self, truth, pos, k: float):
+        """The P(wall) colour bar of the right panel and the legend (true walls, sensor) below; returns the
+        colour bar."""
+        fig = self.fig
         colorbar = fig.colorbar(self.images[1], ax=self.axes[1], fraction=0.05, pad=0.02, aspect=25)
         colorbar.set_label("P(wall)", fontsize=7 * k, labelpad=1)
         colorbar.ax.tick_params(labelsize=6 * k, length=2 * k, pad=1)
@@ -236,10 +250,12 @@ class _ChainFigure:
         if handles:
             fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=6 * k, frameon=False,
                        handlelength=1.4, borderpad=0.1, columnspacing=1.0)
-        self.suptitle = fig.suptitle(" ", fontsize=9 * k)
-        self._freeze_layout(colorbar)
+        return colorbar
 
-        # background: everything but the images, titles and overlays
+    def _cache_layers(self, overlays: list) -> None:
+        """Render the fixed layers once: the background (everything but the images, titles and overlays) and the
+        overlays alone on a transparent canvas, kept as straight-alpha RGBA where they cover pixels."""
+        fig = self.fig
         dynamic = self.images + self.titles + [self.suptitle] + overlays
         for artist in dynamic:
             artist.set_animated(True)
@@ -249,7 +265,6 @@ class _ChainFigure:
         self.background = self.canvas.copy_from_bbox(fig.bbox)
         for image in self.images:
             image.set_visible(True)
-        # overlay: the overlays alone on a transparent canvas
         renderer = self.canvas.get_renderer()
         renderer.clear()
         for artist in overlays:

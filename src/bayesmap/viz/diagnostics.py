@@ -152,6 +152,35 @@ def _particles(num: int) -> str:
     return f"{num:,} particle" + ("" if num == 1 else "s")
 
 
+def _histogram(finite: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(counts, edges)`` of the finite normalized log-weights: sqrt(N) bins (10 to :data:`MAX_HISTOGRAM_BINS`),
+    or one bar of width 0.2 centred on them when they are all equal."""
+    top = float(finite.max())
+    if top == finite.min():
+        return np.array([finite.size]), top + np.array([-0.1, 0.1])
+    bins = int(np.clip(np.ceil(np.sqrt(finite.size)), 10, MAX_HISTOGRAM_BINS))
+    return np.histogram(finite, bins=bins)
+
+
+def _draw_ess_box(ax, ess: float, num: int, zero_weight: int) -> None:
+    """The text box (gid ``"importance-ess"``, top left): "ESS e of N particles" and the count of -inf weights."""
+    lines = [f"ESS {ess:,.1f} of {_particles(num)}"]
+    if zero_weight:
+        lines.append(f"{zero_weight:,} with log-weight -inf (weight 0), not drawn")
+    ax.text(
+        0.02,
+        0.97,
+        "\n".join(lines),
+        transform=ax.transAxes,
+        ha="left",
+        va="top",
+        fontsize="small",
+        bbox=dict(boxstyle="round,pad=0.4", facecolor="white", edgecolor="#8c8c8c", alpha=0.9),
+        zorder=4,
+        gid="importance-ess",
+    )
+
+
 def plot_importance(log_weights, ess=None, *, title="Importance sampling: normalized log-weights", ax=None) -> Figure:
     """Draw the histogram of the normalized log importance weights, the largest weight and the effective sample size.
 
@@ -189,11 +218,7 @@ def plot_importance(log_weights, ess=None, *, title="Importance sampling: normal
     else:
         fig = ax.get_figure(root=True)
     top = float(finite.max())
-    if top == finite.min():  # all finite weights equal: one bar centred on them
-        counts, edges = np.array([finite.size]), top + np.array([-0.1, 0.1])
-    else:
-        bins = int(np.clip(np.ceil(np.sqrt(finite.size)), 10, MAX_HISTOGRAM_BINS))
-        counts, edges = np.histogram(finite, bins=bins)
+    counts, edges = _histogram(finite)
     label = f"{_particles(finite.size)} (finite log-weight)" if zero_weight else _particles(finite.size)
     ax.stairs(
         counts,
@@ -215,21 +240,7 @@ def plot_importance(log_weights, ess=None, *, title="Importance sampling: normal
         gid="importance-max",
         label=f"largest weight: log w = {top:.3g} (w = {np.exp(top):.3g})",
     )
-    lines = [f"ESS {ess:,.1f} of {_particles(num)}"]
-    if zero_weight:
-        lines.append(f"{zero_weight:,} with log-weight -inf (weight 0), not drawn")
-    ax.text(
-        0.02,
-        0.97,
-        "\n".join(lines),
-        transform=ax.transAxes,
-        ha="left",
-        va="top",
-        fontsize="small",
-        bbox=dict(boxstyle="round,pad=0.4", facecolor="white", edgecolor="#8c8c8c", alpha=0.9),
-        zorder=4,
-        gid="importance-ess",
-    )
+    _draw_ess_box(ax, ess, num, zero_weight)
     if len(counts) == 1:  # a lone bar would fill the axes (sticky edges): show it narrow
         ax.set_xlim(top - 1.0, top + 1.0)
     # headroom above the tallest bar for the text box
