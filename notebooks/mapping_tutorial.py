@@ -33,11 +33,13 @@ from bayesmap.inference.chains import cell_diagnostics, posterior_mean, run_chai
 from bayesmap.inference.importance import importance_sampling, resample
 from bayesmap.io.carmen import read_carmen
 from bayesmap.model.generative import log_joint, simulate, walls_prior
-from bayesmap.viz.plots import figure_bytes, plot_convergence, plot_importance, plot_map, plot_posterior
+from bayesmap.viz.common import figure_bytes
+from bayesmap.viz.diagnostics import plot_convergence, plot_importance
+from bayesmap.viz.maps import plot_map, plot_posterior
 from bayesmap.inference.registry import make_sampler
 from bayesmap.scenes import scan_problem, tutorial_problem
 from bayesmap.geometry.raycast import sensor_distances
-from bayesmap.viz.report import chain_log_joints, chain_wrong_cells
+from bayesmap.inference.traces import chain_log_joints, chain_wrong_cells
 
 
 def show(fig):

@@ -78,3 +78,24 @@ def run_cli(monkeypatch, capsys, *args):
         code = exc.code
     out, err = capsys.readouterr()
     return code, out, err
+
+
+# -- figures (tests/viz) ---------------------------------------------------------------------------------------
+
+POS = np.array([10.0, 10.0])  # the tutorial's sensor position (cells of its unit grid)
+
+
+def blurred(walls):
+    """A fake posterior: the true map blurred with a 3 x 3 binomial kernel, squeezed into [0.1, 0.9]."""
+    out = np.asarray(walls, dtype=np.float64)
+    kernel = np.array([1.0, 2.0, 1.0]) / 4
+    for axis in (0, 1):
+        out = np.apply_along_axis(lambda v: np.convolve(np.pad(v, 1, mode="edge"), kernel, mode="valid"), axis, out)
+    return 0.1 + 0.8 * out
+
+
+def by_gid(ax, gid):
+    """The one artist of ``ax`` with this gid (fails the test if there is none or more than one)."""
+    found = [a for a in ax.get_children() if a.get_gid() == gid]
+    assert len(found) == 1, f"expected one artist with gid {gid!r}, found {len(found)}"
+    return found[0]

@@ -17,8 +17,8 @@ It does what the tutorial's final interactive widget does, offline and without J
 Each browser tab gets its own :class:`Explorer`, so tabs are independent sessions. The page's scripts and styles are
 NiceGUI's own, served by the app itself: nothing is fetched from the network.
 
-The logic lives in :class:`Explorer` (plain Python, tested without a browser); :func:`build_page` wires it to
-NiceGUI elements and :func:`run_app` serves it.
+The logic lives in :class:`Explorer` (plain Python, tested without a browser); :class:`ExplorerPage` builds the
+NiceGUI elements panel by panel and wires them to it (:func:`build_page`), and :func:`run_app` serves it.
 """
 
 from __future__ import annotations
@@ -390,88 +390,151 @@ def _legend_gradient(heatmap: bool) -> str:
 # -- NiceGUI ---------------------------------------------------------------------------------------------------
 
 
-def build_page(explorer: Explorer | None = None) -> Explorer:
-    """Build the explorer's page for the current NiceGUI client (one :class:`Explorer` per browser tab).
+class ExplorerPage:
+    """The NiceGUI page of one :class:`Explorer`: the header, the map panel, the controls panel, and the handlers
+    that connect them to the explorer. Build it inside a NiceGUI page function (it creates its elements in the
+    current client); :func:`build_page` does.
 
-    Returns the page's explorer."""
-    from nicegui import events, run, ui
+    Args:
+        explorer: the session's state; default a new :class:`Explorer` of the tutorial's scene.
 
-    ex = explorer or Explorer()
-    drag = {"mode": None, "paint": None, "last": None}
-    view = {"sample": None, "heatmap": False}
+    Attributes:
+        ex: the explorer.
+        image: the drawing (an ``interactive_image`` whose content is :meth:`Explorer.svg`).
+    """
 
-    ui.page_title("bayesmap explorer")
-    ui.label("bayesmap: Bayesian occupancy-grid mapping").classes("text-h5")
-    ui.label("Click a cell to toggle a wall, drag to paint, drag the orange sensor to move it. "
-             "Run inference to infer the walls from the beams' noisy range readings.").classes("text-body2 text-grey-8")
+    def __init__(self, explorer: Explorer | None = None):
+        from nicegui import ui
 
-    message = ui.label("").classes("bm-message text-negative text-body1")
+        self.ui = ui
+        self.ex = explorer or Explorer()
+        self.drag = {"mode": None, "paint": None, "last": None}
+        self._build_header()
+        with ui.row().classes("items-start no-wrap gap-6"):
+            self._build_map_panel()
+            with ui.column().classes("gap-1").style("min-width: 360px"):
+                self._build_settings()
+                self._build_run_controls()
+                self._build_view_controls()
+                self._build_file_controls()
+        self._connect()
+        self.redraw()
 
-    def show_error(text: str) -> None:
-        message.set_text(text)
-        ui.notify(text, type="negative")
+    # -- the elements, top to bottom and left to right ---------------------------------------------------------
 
-    def clear_error() -> None:
-        message.set_text("")
+    def _build_header(self) -> None:
+        """Title, instructions and the line where errors are shown."""
+        ui = self.ui
+        ui.page_title("bayesmap explorer")
+        ui.label("bayesmap: Bayesian occupancy-grid mapping").classes("text-h5")
+        ui.label("Click a cell to toggle a wall, drag to paint, drag the orange sensor to move it. "
+                 "Run inference to infer the walls from the beams' noisy range readings.").classes("text-body2 text-grey-8")
+        self.message = ui.label("").classes("bm-message text-negative text-body1")
 
-    with ui.row().classes("items-start no-wrap gap-6"):
-        width, height = ex.image_size()
-        with ui.column().style(f"width: {width}px") as left:
-            image = ui.interactive_image(size=(width, height), content="", cross=False, sanitize=False,
-                                         events=["mousedown", "mousemove", "mouseup", "mouseleave"])
-            image.classes("bm-map").style(f"width: {width}px; height: {height}px; cursor: crosshair")
+    def _build_map_panel(self) -> None:
+        """The drawing, the colour scale of the inferred walls and the status line."""
+        ui = self.ui
+        width, height = self.ex.image_size()
+        with ui.column().style(f"width: {width}px") as self.left:
+            self.image = ui.interactive_image(size=(width, height), content="", cross=False, sanitize=False,
+                                              events=["mousedown", "mousemove", "mouseup", "mouseleave"])
+            self.image.classes("bm-map").style(f"width: {width}px; height: {height}px; cursor: crosshair")
             with ui.row().classes("items-center no-wrap gap-2"):
                 ui.label("inferred wall probability: 0").classes("text-caption")
-                legend = ui.element("div").classes("bm-legend").style("width: 160px; height: 12px; border: 1px solid #999")
+                self.legend = ui.element("div").classes("bm-legend").style("width: 160px; height: 12px; border: 1px solid #999")
                 ui.label("1").classes("text-caption")
-            status = ui.label("").classes("bm-status text-body2")
-        with ui.column().classes("gap-1").style("min-width: 360px"):
-            fields = {}
-            for name, setting in SETTINGS.items():
-                with ui.row().classes("items-center no-wrap w-full"):
-                    ui.label(setting.label).classes("w-40")
-                    slider = ui.slider(min=setting.low, max=setting.high, step=setting.step,
-                                       value=getattr(ex, name)).classes(f"bm-slider-{name} w-40")
-                    number = ui.input(value=str(getattr(ex, name))).classes(f"bm-field-{name} w-20").props("dense")
-                fields[name] = (slider, number)
-            with ui.row():
-                run_button = ui.button("Run inference").classes("bm-run")
-                ui.button("Clear walls", on_click=lambda: (ex.clear_walls(), redraw())).classes("bm-clear-walls").props("outline")
-                ui.button("Clear inferred walls", on_click=lambda: (ex.clear_inferred(), redraw())).classes("bm-clear-inferred").props("outline")
-            progress = ui.linear_progress(value=0.0, show_value=False).classes("bm-progress")
-            progress.set_visibility(False)
-            ui.separator()
-            average = ui.switch("show average", value=True).classes("bm-average")
-            with ui.row().classes("items-center no-wrap w-full"):
-                ui.label("sample").classes("w-16")
-                sample_slider = ui.slider(min=1, max=2, step=1, value=1).classes("bm-sample w-56").props("label")
-                sample_label = ui.label("").classes("bm-sample-label")
-            heat = ui.toggle(["opacity", "heatmap"], value="opacity").classes("bm-style")
-            ui.separator()
-            ui.label("Map file (ASCII: 'X' wall, '.' free; line i, column j is cell (i, j))").classes("text-caption")
-            with ui.row().classes("items-center"):
-                upload = ui.upload(label="Load map", auto_upload=True, max_files=1).classes("bm-upload").props("accept=.txt,text/plain flat bordered")
-                ui.button("Save map", on_click=lambda: ui.download.content(ex.map_text().encode(), "map.txt")).classes("bm-save").props("outline")
+            self.status = ui.label("").classes("bm-status text-body2")
 
-    def redraw() -> None:
+    def _build_settings(self) -> None:
+        """One slider and one text field per setting of :data:`SETTINGS`."""
+        ui = self.ui
+        self.fields = {}
+        for name, setting in SETTINGS.items():
+            with ui.row().classes("items-center no-wrap w-full"):
+                ui.label(setting.label).classes("w-40")
+                slider = ui.slider(min=setting.low, max=setting.high, step=setting.step,
+                                   value=getattr(self.ex, name)).classes(f"bm-slider-{name} w-40")
+                number = ui.input(value=str(getattr(self.ex, name))).classes(f"bm-field-{name} w-20").props("dense")
+            self.fields[name] = (slider, number)
+
+    def _build_run_controls(self) -> None:
+        """Run inference, Clear walls, Clear inferred walls, and the progress bar of a run."""
+        ui, ex = self.ui, self.ex
+        with ui.row():
+            self.run_button = ui.button("Run inference").classes("bm-run")
+            ui.button("Clear walls", on_click=lambda: (ex.clear_walls(), self.redraw())).classes("bm-clear-walls").props("outline")
+            ui.button("Clear inferred walls", on_click=lambda: (ex.clear_inferred(), self.redraw())).classes("bm-clear-inferred").props("outline")
+        self.progress = ui.linear_progress(value=0.0, show_value=False).classes("bm-progress")
+        self.progress.set_visibility(False)
+
+    def _build_view_controls(self) -> None:
+        """What to show after a run: the average or one sample, as opacity or heatmap."""
+        ui = self.ui
+        ui.separator()
+        self.average = ui.switch("show average", value=True).classes("bm-average")
+        with ui.row().classes("items-center no-wrap w-full"):
+            ui.label("sample").classes("w-16")
+            self.sample_slider = ui.slider(min=1, max=2, step=1, value=1).classes("bm-sample w-56").props("label")
+            self.sample_label = ui.label("").classes("bm-sample-label")
+        self.heat = ui.toggle(["opacity", "heatmap"], value="opacity").classes("bm-style")
+
+    def _build_file_controls(self) -> None:
+        """Load an ASCII map file, save the drawn map."""
+        ui, ex = self.ui, self.ex
+        ui.separator()
+        ui.label("Map file (ASCII: 'X' wall, '.' free; line i, column j is cell (i, j))").classes("text-caption")
+        with ui.row().classes("items-center"):
+            self.upload = ui.upload(label="Load map", auto_upload=True, max_files=1).classes("bm-upload").props("accept=.txt,text/plain flat bordered")
+            ui.button("Save map", on_click=lambda: ui.download.content(ex.map_text().encode(), "map.txt")).classes("bm-save").props("outline")
+
+    def _connect(self) -> None:
+        """Wire the elements' events to the handlers below."""
+        self.image.on_mouse(self.on_mouse)
+        for name, (slider, number) in self.fields.items():
+            slider.on_value_change(lambda e, n=name, s=slider: self.apply_setting(n, e.value, s))
+            number.on("keydown.enter", lambda _e, n=name, f=number: self.apply_setting(n, f.value, f))
+            number.on("blur", lambda _e, n=name, f=number: self.apply_setting(n, f.value, f))
+        self.run_button.on_click(self.run_clicked)
+        self.average.on_value_change(lambda _e: self.redraw())
+        self.sample_slider.on_value_change(lambda _e: self.redraw())
+        self.heat.on_value_change(lambda _e: self.redraw())
+        self.upload.on_upload(self.on_upload)
+
+    # -- handlers ------------------------------------------------------------------------------------------------
+
+    def show_error(self, text: str) -> None:
+        """Show ``text`` on the error line and as a notification."""
+        self.message.set_text(text)
+        self.ui.notify(text, type="negative")
+
+    def clear_error(self) -> None:
+        """Empty the error line."""
+        self.message.set_text("")
+
+    def redraw(self) -> None:
+        """Redraw the map, the colour scale, the sample controls and the status line from the explorer's state."""
+        ex = self.ex
         result_on = ex.result is not None
-        shown = ex.shown(None if (average.value or not result_on) else int(sample_slider.value) - 1)
-        image.content = ex.svg(shown, heatmap=heat.value == "heatmap")
-        legend.style(f"background: {_legend_gradient(heat.value == 'heatmap')}")
-        sample_slider.set_enabled(result_on and not average.value)
+        shown = ex.shown(None if (self.average.value or not result_on) else int(self.sample_slider.value) - 1)
+        self.image.content = ex.svg(shown, heatmap=self.heat.value == "heatmap")
+        self.legend.style(f"background: {_legend_gradient(self.heat.value == 'heatmap')}")
+        self.sample_slider.set_enabled(result_on and not self.average.value)
         if result_on:
             n = len(ex.result.samples)
-            sample_slider.props(f"max={n}")
-            sample_label.set_text("average of sweeps %d-%d" % (ex.result.summary["burn_in"] + 1, n) if average.value
-                                  else f"sweep {int(sample_slider.value)} of {n}")
+            self.sample_slider.props(f"max={n}")
+            self.sample_label.set_text("average of sweeps %d-%d" % (ex.result.summary["burn_in"] + 1, n)
+                                       if self.average.value else f"sweep {int(self.sample_slider.value)} of {n}")
         else:
-            sample_label.set_text("no inference yet")
-        status.set_text(ex.status())
+            self.sample_label.set_text("no inference yet")
+        self.status.set_text(ex.status())
 
-    def on_mouse(e: events.MouseEventArguments) -> None:
+    def on_mouse(self, e) -> None:
+        """Mouse down on the sensor starts moving it, elsewhere toggles the cell and starts painting; moves with the
+        button held move the sensor or paint; button up or leaving the drawing ends the drag."""
+        ex, drag = self.ex, self.drag
         xy = ex.to_world(e.image_x, e.image_y)
         if e.type == "mousedown":
-            clear_error()
+            self.clear_error()
             if np.hypot(*(xy - ex.pos)) <= 0.6 * ex.grid.resolution:
                 drag["mode"] = "sensor"
                 return
@@ -481,69 +544,65 @@ def build_page(explorer: Explorer | None = None) -> Explorer:
             new = ex.toggle(cell)
             drag["mode"] = "paint" if new is not None else None
             drag["paint"], drag["last"] = new, cell
-            redraw()
+            self.redraw()
         elif e.type == "mousemove" and drag["mode"] and (e.buttons & 1):
             if drag["mode"] == "sensor":
                 if ex.move_sensor(xy):
-                    redraw()
+                    self.redraw()
             else:
                 cell = ex.cell_at(xy)
                 if cell is not None and cell != drag["last"]:
                     drag["last"] = cell
                     ex.set_wall(cell, drag["paint"])
-                    redraw()
+                    self.redraw()
         elif e.type in ("mouseup", "mouseleave") or not (e.buttons & 1):
             drag["mode"] = None
 
-    image.on_mouse(on_mouse)
-
-    def apply_setting(name: str, value, source) -> None:
-        slider, number = fields[name]
+    def apply_setting(self, name: str, value, source) -> None:
+        """Set ``name`` from its slider or text field (``source``) and sync the other one; a bad value is shown
+        as an error and the field is reset."""
+        slider, number = self.fields[name]
         try:
-            value = ex.set_setting(name, value)
+            value = self.ex.set_setting(name, value)
         except BayesmapError as err:
-            show_error(str(err))
-            number.value = str(getattr(ex, name))
+            self.show_error(str(err))
+            number.value = str(getattr(self.ex, name))
             return
-        clear_error()
+        self.clear_error()
         if source is not slider and slider.value != value:
             slider.value = value
         if source is not number:
             number.value = str(value)
-        redraw()
+        self.redraw()
 
-    for name, (slider, number) in fields.items():
-        slider.on_value_change(lambda e, n=name, s=slider: apply_setting(n, e.value, s))
-        number.on("keydown.enter", lambda _e, n=name, f=number: apply_setting(n, f.value, f))
-        number.on("blur", lambda _e, n=name, f=number: apply_setting(n, f.value, f))
+    async def run_clicked(self) -> None:
+        """Run inference in a worker thread with a progress bar (a click while a run is going only warns)."""
+        from nicegui import run
 
-    async def run_clicked() -> None:
+        ui, ex = self.ui, self.ex
         if not ex.start_run():
             ui.notify("inference is already running", type="warning")
             return
-        clear_error()
-        run_button.disable()
-        progress.set_visibility(True)
-        progress.value = 0.0
-        poll = ui.timer(0.1, lambda: (progress.set_value(ex.progress), status.set_text(ex.status())))
+        self.clear_error()
+        self.run_button.disable()
+        self.progress.set_visibility(True)
+        self.progress.value = 0.0
+        poll = ui.timer(0.1, lambda: (self.progress.set_value(ex.progress), self.status.set_text(ex.status())))
         try:
             await run.io_bound(ex.run)
         except BayesmapError as err:
-            show_error(str(err))
+            self.show_error(str(err))
         finally:
             poll.cancel()
-            run_button.enable()
-            progress.set_visibility(False)
+            self.run_button.enable()
+            self.progress.set_visibility(False)
             if ex.result is not None:
-                sample_slider.value = len(ex.result.samples)
-            redraw()
+                self.sample_slider.value = len(ex.result.samples)
+            self.redraw()
 
-    run_button.on_click(run_clicked)
-    average.on_value_change(lambda _e: redraw())
-    sample_slider.on_value_change(lambda _e: redraw())
-    heat.on_value_change(lambda _e: redraw())
-
-    async def on_upload(e: events.UploadEventArguments) -> None:
+    async def on_upload(self, e) -> None:
+        """Load an uploaded ASCII map and resize the drawing to it (errors shown, the map unchanged)."""
+        ex = self.ex
         name = e.file.name or "uploaded file"
         try:
             data = await e.file.read()
@@ -553,22 +612,26 @@ def build_page(explorer: Explorer | None = None) -> Explorer:
                 raise BayesmapError(f"{name}: not a text file (expected an ASCII map of 'X' and '.')") from None
             ex.load_map_text(text, source=name)
         except BayesmapError as err:
-            show_error(str(err))
+            self.show_error(str(err))
         else:
-            clear_error()
+            self.clear_error()
             width, height = ex.image_size()
-            image._props["size"] = (width, height)
-            image.update()
-            image.style(f"width: {width}px; height: {height}px")
-            left.style(f"width: {width}px")
-            redraw()
-            ui.notify(f"loaded {name}: {ex.grid.shape[0]} x {ex.grid.shape[1]} cells")
+            self.image._props["size"] = (width, height)
+            self.image.update()
+            self.image.style(f"width: {width}px; height: {height}px")
+            self.left.style(f"width: {width}px")
+            self.redraw()
+            self.ui.notify(f"loaded {name}: {ex.grid.shape[0]} x {ex.grid.shape[1]} cells")
         finally:
-            upload.reset()
+            self.upload.reset()
 
-    upload.on_upload(on_upload)
-    redraw()
-    return ex
+
+def build_page(explorer: Explorer | None = None) -> Explorer:
+    """Build the explorer's page (an :class:`ExplorerPage`) for the current NiceGUI client (one :class:`Explorer`
+    per browser tab).
+
+    Returns the page's explorer."""
+    return ExplorerPage(explorer).ex
 
 
 def run_app(host: str = "127.0.0.1", port: int = 8080, show: bool = True) -> None:

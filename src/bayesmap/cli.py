@@ -112,7 +112,8 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
                    rosmap: bool = False) -> tuple[dict, list[str]]:
     """Map ``problem`` (Gibbs sampling, or log-odds mapping with ``method="logodds"``) and write the outputs into
     ``out``; returns the summary and the names of the files written."""
-    from bayesmap.viz.plots import figure_bytes, plot_posterior
+    from bayesmap.viz.common import figure_bytes
+    from bayesmap.viz.maps import plot_posterior, plot_posterior_path
     from bayesmap.inference.driver import run_inference, run_logodds
 
     _check_output_dir(out, force)
@@ -122,10 +123,7 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
         result = run_inference(problem, sampler=sampler, sweeps=sweeps, burn_in=burn_in, seed=seed, chains=chains)
     if problem.multi_scan:
         # a whole log: the posterior with its standard deviation and the robot's path (too many beams to draw)
-        fig = plot_posterior(problem.grid, result.posterior, title=title, std=method != "logodds")
-        path = problem.pos.reshape(-1, 2)
-        for ax in fig.axes[: 2 if method != "logodds" else 1]:
-            ax.plot(path[:, 0], path[:, 1], color="tab:blue", lw=0.6, alpha=0.7, label="sensor path")
+        fig = plot_posterior_path(problem.grid, result.posterior, problem.pos, title=title, std=method != "logodds")
     else:
         fig = plot_posterior(problem.grid, result.posterior, truth=problem.truth, pos=problem.pos,
                              beam_angles=problem.beam_angles, readings=problem.readings,
@@ -147,9 +145,11 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
 
         files.update(encode_rosmap(ROSMAP_STEM, result.posterior, problem.grid))
     if report:
+        from bayesmap.inference.traces import chain_traces
         from bayesmap.viz.report import build_report
 
-        files[REPORT_FILE] = build_report(problem, result, title=title, seed=seed).encode("utf-8")
+        traces = chain_traces(problem, result, seed=seed)
+        files[REPORT_FILE] = build_report(problem, result, traces, title=title).encode("utf-8")
     _write_outputs(out, files)
     return result.summary, list(files)
 

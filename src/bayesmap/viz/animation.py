@@ -1,12 +1,12 @@
 """Animations of a Gibbs chain: frames (PIL images), an animated GIF, and a self-contained offline HTML page.
 
 A chain's ``samples`` is ``(num_sweeps, nx, ny)`` bool (``samples[t - 1]`` is the map after sweep ``t``), with the
-grid conventions of :mod:`bayesmap.viz.plots`: cell ``(i, j)`` has ``i`` along x and ``j`` along y, images are drawn
+grid conventions of :mod:`bayesmap.viz.common`: cell ``(i, j)`` has ``i`` along x and ``j`` along y, images are drawn
 transposed with ``origin="lower"`` in world coordinates and equal aspect.
 
 Each frame has two panels side by side: on the left the sample after sweep ``t`` (walls black, free cells white),
 on the right the running mean of sweeps ``1..t`` (the Monte Carlo estimate of P(wall), grey scale 0 = white to
-1 = black, the colour map of :func:`bayesmap.viz.plots.plot_posterior`), with the true walls outlined in red and the
+1 = black, the colour map of :func:`bayesmap.viz.maps.plot_posterior`), with the true walls outlined in red and the
 sensor marked as a red dot when given. The figure is built and laid out once (Agg canvas, never ``pyplot``);
 each frame only updates the two images' data (``AxesImage.set_data``) and the titles, redraws those on a saved
 background and composites the fixed overlays (see :class:`_ChainFigure`), so 100 frames of a 21 x 21 chain
@@ -34,16 +34,16 @@ from PIL import Image
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.viz.plots import (
+from bayesmap.viz.common import (
     SENSOR_COLOR,
     TRUTH_COLOR,
-    _check_cells,
-    _check_grid,
-    _check_point,
-    _draw_gridlines,
-    _draw_truth,
-    _interpolation,
-    _is_unit_grid,
+    check_cells,
+    check_grid,
+    check_point,
+    draw_gridlines,
+    draw_truth,
+    image_interpolation,
+    is_unit_grid,
 )
 
 __all__ = ["chain_animation", "chain_frames", "chain_gif", "chain_html", "frame_sweeps"]
@@ -182,46 +182,60 @@ class _ChainFigure:
         fig.get_layout_engine().set(w_pad=0.02, h_pad=0.02, wspace=0.04)
         self.canvas = FigureCanvasAgg(fig)
         self.fig = fig
-        self.unit = "cells" if _is_unit_grid(grid) else "m"
+        self.unit = "cells" if is_unit_grid(grid) else "m"
         k = min(width / DEFAULT_SIZE_PX[0], height / DEFAULT_SIZE_PX[1])
         k = min(max(k, MIN_TEXT_SCALE), MAX_TEXT_SCALE)  # scale of text and markers
-        blank = np.zeros(grid.shape[::-1], dtype=np.float32)
         self.axes = fig.subplots(1, 2)
         self.images = []
         self.titles = []
         overlays = []
         for ax, gid in zip(self.axes, ("sample", "mean")):
-            xmin, xmax, ymin, ymax = grid.extent
-            ax.set_xlim(xmin, xmax)
-            ax.set_ylim(ymin, ymax)
-            ax.set_aspect("equal")
-            ax.tick_params(labelsize=6 * k, length=2 * k, pad=1)
-            ax.set_xlabel(f"x ({self.unit})", fontsize=7 * k, labelpad=1)
-            image = ax.imshow(
-                blank,
-                origin="lower",
-                extent=grid.extent,
-                cmap=CMAP,
-                vmin=0.0,
-                vmax=1.0,
-                interpolation=_interpolation(grid),
-                zorder=1,
-                gid=gid,
-            )
-            self.images.append(image)
-            self.titles.append(ax.set_title(" ", fontsize=8 * k, pad=3))
-            _draw_gridlines(ax, grid, alpha=0.35)
-            if truth is not None:
-                _draw_truth(ax, truth, grid)
-                outline = next(a for a in ax.get_children() if a.get_gid() == "truth")
-                outline.set_linewidth(outline.get_linewidth() * k)
-            if pos is not None:
-                ax.plot([pos[0]], [pos[1]], ls="none", marker="o", ms=5.5 * k, color=SENSOR_COLOR, mec="white",
-                        mew=0.7 * k, zorder=6, gid="sensor")
-            # the axes frame (spines) is drawn over the image too
-            on_top = [a for a in ax.get_children() if a.get_gid() in ("gridlines", "truth", "sensor")]
-            overlays += sorted(on_top + list(ax.spines.values()), key=lambda a: a.get_zorder())
+            overlays += self._draw_panel(ax, gid, truth, pos, k)
         self.axes[0].set_ylabel(f"y ({self.unit})", fontsize=7 * k, labelpad=1)
+        colorbar = self._draw_colorbar_and_legend(truth, pos, k)
+        self.suptitle = fig.suptitle(" ", fontsize=9 * k)
+        self._freeze_layout(colorbar)
+        self._cache_layers(overlays)
+
+    def _draw_panel(self, ax, gid: str, truth, pos, k: float) -> list:
+        """One map panel: an empty image (gid ``gid``), its title, grid lines, true-wall outline and sensor, text
+        and markers scaled by ``k``; returns the artists drawn over the image (the overlays), in drawing order."""
+        grid = self.grid
+        xmin, xmax, ymin, ymax = grid.extent
+        ax.set_xlim(xmin, xmax)
+        ax.set_ylim(ymin, ymax)
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=6 * k, length=2 * k, pad=1)
+        ax.set_xlabel(f"x ({self.unit})", fontsize=7 * k, labelpad=1)
+        image = ax.imshow(
+            np.zeros(grid.shape[::-1], dtype=np.float32),
+            origin="lower",
+            extent=grid.extent,
+            cmap=CMAP,
+            vmin=0.0,
+            vmax=1.0,
+            interpolation=image_interpolation(grid),
+            zorder=1,
+            gid=gid,
+        )
+        self.images.append(image)
+        self.titles.append(ax.set_title(" ", fontsize=8 * k, pad=3))
+        draw_gridlines(ax, grid, alpha=0.35)
+        if truth is not None:
+            draw_truth(ax, truth, grid)
+            outline = next(a for a in ax.get_children() if a.get_gid() == "truth")
+            outline.set_linewidth(outline.get_linewidth() * k)
+        if pos is not None:
+            ax.plot([pos[0]], [pos[1]], ls="none", marker="o", ms=5.5 * k, color=SENSOR_COLOR, mec="white",
+                    mew=0.7 * k, zorder=6, gid="sensor")
+        # the axes frame (spines) is drawn over the image too
+        on_top = [a for a in ax.get_children() if a.get_gid() in ("gridlines", "truth", "sensor")]
+        return sorted(on_top + list(ax.spines.values()), key=lambda a: a.get_zorder())
+
+    def _draw_colorbar_and_legend(self, truth, pos, k: float):
+        """The P(wall) colour bar of the right panel and the legend (true walls, sensor) below; returns the
+        colour bar."""
+        fig = self.fig
         colorbar = fig.colorbar(self.images[1], ax=self.axes[1], fraction=0.05, pad=0.02, aspect=25)
         colorbar.set_label("P(wall)", fontsize=7 * k, labelpad=1)
         colorbar.ax.tick_params(labelsize=6 * k, length=2 * k, pad=1)
@@ -236,10 +250,12 @@ class _ChainFigure:
         if handles:
             fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=6 * k, frameon=False,
                        handlelength=1.4, borderpad=0.1, columnspacing=1.0)
-        self.suptitle = fig.suptitle(" ", fontsize=9 * k)
-        self._freeze_layout(colorbar)
+        return colorbar
 
-        # background: everything but the images, titles and overlays
+    def _cache_layers(self, overlays: list) -> None:
+        """Render the fixed layers once: the background (everything but the images, titles and overlays) and the
+        overlays alone on a transparent canvas, kept as straight-alpha RGBA where they cover pixels."""
+        fig = self.fig
         dynamic = self.images + self.titles + [self.suptitle] + overlays
         for artist in dynamic:
             artist.set_animated(True)
@@ -249,7 +265,6 @@ class _ChainFigure:
         self.background = self.canvas.copy_from_bbox(fig.bbox)
         for image in self.images:
             image.set_visible(True)
-        # overlay: the overlays alone on a transparent canvas
         renderer = self.canvas.get_renderer()
         renderer.clear()
         for artist in overlays:
@@ -401,10 +416,10 @@ def _render(
     grid, samples, *, truth=None, pos=None, every=1, max_frames=100, size_px=DEFAULT_SIZE_PX
 ) -> tuple[list[Image.Image], np.ndarray, int]:
     """:func:`chain_frames`, also returning the sweep of each frame ``(F,)`` and the chain length ``T``."""
-    grid = _check_grid(grid)
+    grid = check_grid(grid)
     walls = _check_samples(samples, grid)
-    truth = None if truth is None else _check_cells(truth, grid, "truth")
-    pos = None if pos is None else _check_point(pos, "pos")
+    truth = None if truth is None else check_cells(truth, grid, "truth")
+    pos = None if pos is None else check_point(pos, "pos")
     size = _check_size(size_px)
     total = walls.shape[0]
     sweeps = frame_sweeps(total, every=every, max_frames=max_frames)

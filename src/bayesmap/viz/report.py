@@ -4,6 +4,9 @@ chain's animation of an inference run (``bayesmap demo``, ``bayesmap infer --rep
 Everything is inline: figures are PNG data URIs, the animation a GIF data URI plus the slider page of
 :func:`bayesmap.viz.animation.chain_html` in an ``<iframe srcdoc>``; there is no script, style sheet, font or image
 from anywhere else, so the file opens the same without a network.
+
+The report only renders: the per-sweep log joints, wrong cells and the importance-sampling run it draws are
+computed by the caller (:func:`bayesmap.inference.traces.chain_traces`) and passed in.
 """
 
 from __future__ import annotations
@@ -12,14 +15,15 @@ import base64
 import datetime as _dt
 import html
 
-import jax
 import numpy as np
 
-from bayesmap.model.generative import log_joint
+from bayesmap.viz.animation import chain_animation
+from bayesmap.viz.common import figure_bytes, is_unit_grid
+from bayesmap.viz.diagnostics import plot_convergence, plot_importance
+from bayesmap.viz.maps import plot_map, plot_posterior
 
-# grids up to this many cells get the importance-sampling figure (it runs the full model once per particle)
-IMPORTANCE_MAX_CELLS = 2500
-IMPORTANCE_PARTICLES = 1000
+__all__ = ["build_report"]
+
 MAX_DRAWN_BEAMS = 3000  # beams drawn in the scan figures of a multi-scan problem (evenly spaced)
 
 _STYLE = """
@@ -48,60 +52,25 @@ def _figure(png: bytes, caption: str, gid: str) -> str:
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
-def chain_log_joints(problem, samples) -> np.ndarray:
-    """Log joint (GenJAX ``assess``) of every sample: ``samples`` ``(T, nx, ny)`` or ``(C, T, nx, ny)`` ->
-    ``(T,)`` or ``(C, T)`` float64. For several scans: :meth:`~bayesmap.scenes.Problem.log_joint` (``assess``, or
-    the ray-cell table's equal sum on large problems), one sample at a time."""
-    arr = np.asarray(samples, dtype=np.float32)
-    flat = arr.reshape((-1,) + arr.shape[-2:])
+def _scan(problem) -> dict:
+    """The scan keywords of :func:`~bayesmap.viz.maps.plot_map`: the one scan, or for several scans every beam of
+    every scan, at most :data:`MAX_DRAWN_BEAMS` of them (evenly spaced) to keep the figures light."""
     if problem.multi_scan:
-        return np.array([problem.log_joint(w) for w in flat], dtype=np.float64).reshape(arr.shape[:-2])
-    score = jax.jit(jax.vmap(lambda w: log_joint(w, problem.model_readings, problem.pos, problem.params, problem.beam_angles)))
-    out = np.concatenate([np.asarray(score(flat[i:i + 25]), dtype=np.float64) for i in range(0, len(flat), 25)])
-    return out.reshape(arr.shape[:-2])
-
-
-def chain_wrong_cells(problem, samples) -> np.ndarray | None:
-    """Visible cells each sample gets wrong (``(T,)`` or ``(C, T)`` int), or None without a true map."""
-    if problem.truth is None:
-        return None
-    visible = problem.visible
-    truth = np.asarray(problem.truth) > 0
-    arr = np.asarray(samples) > 0
-    return np.sum((arr != truth) & visible, axis=(-2, -1))
-
-
-def build_report(problem, result, *, title: str, seed: int = 0, importance: bool | None = None,
-                 max_frames: int = 60) -> str:
-    """The report of one run as an HTML string (UTF-8, self-contained).
-
-    Args:
-        problem: the :class:`~bayesmap.scenes.Problem` that was solved.
-        result: its :class:`~bayesmap.inference.driver.InferenceResult`.
-        title: the page's title.
-        seed: key of the importance-sampling run.
-        importance: draw the importance-sampling figure; default: for grids of at most
-            :data:`IMPORTANCE_MAX_CELLS` cells.
-        max_frames: frames of the chain animation.
-    """
-    from bayesmap.viz.animation import chain_animation
-    from bayesmap.viz.plots import figure_bytes, plot_convergence, plot_importance, plot_map, plot_posterior
-
-    summary = result.summary
-    grid = problem.grid
-    samples = np.asarray(result.samples)
-    burn_in = int(summary["burn_in"])
-    if problem.multi_scan:
-        # every beam of every scan, at most MAX_DRAWN_BEAMS of them (evenly spaced) to keep the figures light
         keep = np.unique(np.linspace(0, problem.table.num_rays - 1, min(MAX_DRAWN_BEAMS, problem.table.num_rays)).astype(int))
-        scan = dict(origins=problem.ray_origins[keep], beam_angles=problem.ray_angles[keep],
+        return dict(origins=problem.ray_origins[keep], beam_angles=problem.ray_angles[keep],
                     readings=problem.ray_readings[keep],
                     max_range_mask=None if problem.ray_max_range is None else problem.ray_max_range[keep])
-    else:
-        scan = dict(pos=problem.pos, beam_angles=problem.beam_angles, readings=problem.readings,
-                    max_range_mask=problem.max_range_mask)
-    metric = grid.resolution != 1.0 or tuple(grid.origin) != (-0.5, -0.5)
-    unit = "m" if metric else "cells"
+    return dict(pos=problem.pos, beam_angles=problem.beam_angles, readings=problem.readings,
+                max_range_mask=problem.max_range_mask)
+
+
+def _map_figures(problem, result) -> list[str]:
+    """The true map with the scan (when known), the scan alone and the posterior with its standard deviation."""
+    summary = result.summary
+    grid = problem.grid
+    scan = _scan(problem)
+    burn_in = int(summary["burn_in"])
+    unit = "cells" if is_unit_grid(grid) else "m"
     figures = []
     if problem.truth is not None:
         figures.append(_figure(figure_bytes(plot_map(grid, problem.truth, title="The map, the rays and the readings", **scan)),
@@ -111,35 +80,43 @@ def build_report(problem, result, *, title: str, seed: int = 0, importance: bool
     figures.append(_figure(figure_bytes(plot_posterior(grid, result.posterior, truth=problem.truth, std=True,
                                                        title="Posterior wall probability", **scan)),
                            f"Left: posterior probability that each cell is a wall (mean of sweeps {burn_in + 1}-"
-                           f"{summary['sweeps']}{', all chains' if samples.ndim == 4 else ''}); true walls outlined "
+                           f"{summary['sweeps']}{', all chains' if np.ndim(result.samples) == 4 else ''}); true walls outlined "
                            "when known. Right: posterior standard deviation (0 = certain, 0.5 = a coin flip).",
                            "fig-posterior"))
-    log_joints = chain_log_joints(problem, samples)
-    wrong = chain_wrong_cells(problem, samples)
-    truth_lj = summary.get("log_joint_truth")
-    figures.append(_figure(figure_bytes(plot_convergence(log_joints, wrong, burn_in=burn_in, truth_log_joint=truth_lj,
-                                                         title="Convergence")),
-                           "Log joint of each sweep's sample (higher is better)"
-                           + ("; the true map's log joint for reference; below, visible cells each sample gets wrong."
-                              if wrong is not None else ".") + " The dashed line ends the burn-in.", "fig-convergence"))
-    if importance is None:
-        importance = grid.num_cells <= IMPORTANCE_MAX_CELLS and not problem.multi_scan
-    ess_text = None
-    if importance:
-        from bayesmap.inference.importance import importance_sampling
+    return figures
 
-        imp = importance_sampling(jax.random.key(seed), problem.model_readings, problem.pos, problem.params,
-                                  IMPORTANCE_PARTICLES, problem.beam_angles)
-        ess_text = f"{float(imp.ess):.2f} of {IMPORTANCE_PARTICLES:,}"
+
+def _importance_ess(traces) -> str | None:
+    """"ESS of N" of the importance-sampling run, or None without one."""
+    if traces.importance is None:
+        return None
+    return f"{float(traces.importance.ess):.2f} of {len(traces.importance.log_weights):,}"
+
+
+def _diagnostic_figures(result, traces) -> list[str]:
+    """The convergence of the chains and, when given, the importance weights."""
+    summary = result.summary
+    wrong = traces.wrong_cells
+    figures = [_figure(figure_bytes(plot_convergence(traces.log_joints, wrong, burn_in=int(summary["burn_in"]),
+                                                     truth_log_joint=summary.get("log_joint_truth"),
+                                                     title="Convergence")),
+                       "Log joint of each sweep's sample (higher is better)"
+                       + ("; the true map's log joint for reference; below, visible cells each sample gets wrong."
+                          if wrong is not None else ".") + " The dashed line ends the burn-in.", "fig-convergence")]
+    imp = traces.importance
+    if imp is not None:
+        num = len(imp.log_weights)
         figures.append(_figure(figure_bytes(plot_importance(np.asarray(imp.log_weights), float(imp.ess))),
-                               f"Importance sampling with {IMPORTANCE_PARTICLES:,} maps drawn from the prior: the "
-                               f"normalized log-weights. Effective sample size {ess_text}: one map takes (almost) all "
-                               "the weight, which is why the tutorial turns to Gibbs sampling.", "fig-importance"))
-    chain = samples[0] if samples.ndim == 4 else samples
-    gif, page = chain_animation(grid, chain, truth=problem.truth, pos=None if problem.multi_scan else problem.pos,
-                                max_frames=max_frames,
-                                title="Gibbs chain: sample and running mean")
+                               f"Importance sampling with {num:,} maps drawn from the prior: the "
+                               f"normalized log-weights. Effective sample size {_importance_ess(traces)}: one map takes "
+                               "(almost) all the weight, which is why the tutorial turns to Gibbs sampling.",
+                               "fig-importance"))
+    return figures
 
+
+def _metrics_html(summary: dict, ess_text: str | None) -> str:
+    """The boxes of headline numbers: runtime, accuracy, R-hat and ESS of the chains, log joint, importance ESS."""
+    truth_lj = summary.get("log_joint_truth")
     metrics = [("runtime", f"{summary['runtime_s']:.2f} s", "compilation included")]
     if "wrong_visible_cells" in summary:
         metrics.append(("wrong visible cells", f"{summary['wrong_visible_cells']} of {summary['visible_cells']}",
@@ -151,9 +128,13 @@ def build_report(problem, result, *, title: str, seed: int = 0, importance: bool
                     f"true map: {truth_lj:.1f}" if truth_lj is not None else "GenJAX assess"))
     if ess_text:
         metrics.append(("importance sampling ESS", ess_text, "particles"))
-    metric_html = "".join(f'<div class="metric"><div class="value">{html.escape(v)}</div>'
-                          f'<div class="label">{html.escape(k)}<br>{html.escape(note)}</div></div>'
-                          for k, v, note in metrics)
+    return "".join(f'<div class="metric"><div class="value">{html.escape(v)}</div>'
+                   f'<div class="label">{html.escape(k)}<br>{html.escape(note)}</div></div>'
+                   for k, v, note in metrics)
+
+
+def _settings_html(summary: dict) -> str:
+    """The summary as table rows, one setting or metric per row."""
     rows = []
     for key, value in summary.items():
         if isinstance(value, float):
@@ -161,6 +142,30 @@ def build_report(problem, result, *, title: str, seed: int = 0, importance: bool
         elif isinstance(value, (dict, list)):
             value = ", ".join(f"{k}: {v}" for k, v in value.items()) if isinstance(value, dict) else str(value)
         rows.append(f"<tr><td>{html.escape(str(key))}</td><td>{html.escape(str(value))}</td></tr>")
+    return "".join(rows)
+
+
+def build_report(problem, result, traces, *, title: str, max_frames: int = 60) -> str:
+    """The report of one run as an HTML string (UTF-8, self-contained). It only renders what it is given.
+
+    Args:
+        problem: the :class:`~bayesmap.scenes.Problem` that was solved (grid, scan, true map).
+        result: its :class:`~bayesmap.inference.driver.InferenceResult` (``samples`` ``(T, nx, ny)`` or
+            ``(C, T, nx, ny)`` bool, ``posterior`` ``(nx, ny)``, ``summary``).
+        traces: the :class:`~bayesmap.inference.traces.ChainTraces` of the run (log joints and wrong cells per
+            sweep, optional importance-sampling run: its figure and ESS are shown when it is not None).
+        title: the page's title.
+        max_frames: frames of the chain animation.
+    """
+    summary = result.summary
+    grid = problem.grid
+    samples = np.asarray(result.samples)
+    figures = _map_figures(problem, result) + _diagnostic_figures(result, traces)
+    chain = samples[0] if samples.ndim == 4 else samples
+    gif, page = chain_animation(grid, chain, truth=problem.truth, pos=None if problem.multi_scan else problem.pos,
+                                max_frames=max_frames,
+                                title="Gibbs chain: sample and running mean")
+    metric_html = _metrics_html(summary, _importance_ess(traces))
     stamp = _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">
@@ -179,6 +184,6 @@ on {stamp}.</p>
 <figcaption>The chain as an animation.</figcaption></figure>
 <iframe class="chain" id="chain-slider-page" title="Gibbs chain with a slider" srcdoc="{html.escape(page, quote=True)}"></iframe>
 <h2>Settings</h2>
-<table class="settings" id="settings">{''.join(rows)}</table>
+<table class="settings" id="settings">{_settings_html(summary)}</table>
 </body></html>
 """
