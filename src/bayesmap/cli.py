@@ -17,7 +17,7 @@ from typing import Optional
 import numpy as np
 import typer
 
-from bayesmap import scenes  # the scene defaults (scenes imports JAX only when a scene is built)
+from bayesmap import scenes  # the scene defaults
 from bayesmap.errors import BayesmapError
 
 def parse_scans(spec: str | None, num_scans: int) -> np.ndarray:

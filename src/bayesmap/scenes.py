@@ -19,10 +19,12 @@ A :class:`Problem` keeps apart what the sensor observed and what the map sampler
 :meth:`Problem.with_poses` returns the same scene at other poses (same observations, parameters and truth); its
 table is built again on first use. A pose kernel (the next step, poses as random variables) composes with the map
 kernels of :mod:`bayesmap.inference` as a Gibbs sweep over two blocks: (1) propose or draw new poses given the
-current map; (2) find the scans whose pose changed (:meth:`Problem.moved_scans`); (3) rebuild only those scans'
-rows of the ray-cell table (:meth:`Problem.rays_of_scans` gives their ray indices, ``RayTable`` rebuilds rows for
-chosen scans); (4) run map sweeps on the updated table. Map samplers never read the observations' sensor-frame
-angles directly, so they do not change when poses move.
+current map, targeting ``p(poses | walls, readings, odometry)``, proportional to ``p(readings | walls, poses)`` (only
+the moved scans' beams change it) times the odometry's motion model; (2) find the scans whose pose changed
+(:meth:`Problem.moved_scans`); (3) rebuild only those scans' rows of the ray-cell table (:meth:`Problem.rays_of_scans`
+gives their ray indices, ``RayTable`` rebuilds rows for chosen scans) and recompute the map sampler's per-ray state
+(first walls) on those rays; (4) run map sweeps on the updated table. Map samplers never read the sensor-frame
+angles, only the table and the readings, so they need no change when poses move.
 
 The world-frame angles of a log are kept exactly as :mod:`bayesmap.io.carmen` computed them
 (``Problem.world_angles``, dropped by :meth:`Problem.with_poses`): ``theta + (angle - theta)`` can differ from
@@ -35,19 +37,25 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-
-if TYPE_CHECKING:
-    from bayesmap.geometry.raytable import RayTable
-    from bayesmap.model.generative import ModelParams
-
-# JAX (the model, the ray table) is imported inside the functions that use it: the CLI reads the defaults below
-# without starting JAX.
+from bayesmap.geometry.raycast import angles
+from bayesmap.geometry.raytable import RayTable, build_ray_table, visible_cells
+from bayesmap.io.ascii import tutorial_map
+from bayesmap.model.generative import (
+    ModelParams,
+    check_likelihood_power,
+    log_joint,
+    log_joint_scans,
+    make_params,
+    reading_log_likelihood,
+    simulate_readings,
+)
 
 # ---------------------------------------------------------------------------------------------------------------
 # Scene defaults: every default of a scene, in one place
@@ -280,6 +288,7 @@ class Problem:
 
     @property
     def grid(self) -> Grid:
+        """The grid of the map (``params.grid``)."""
         return self.params.grid
 
     @property
@@ -399,8 +408,6 @@ class Problem:
     @cached_property
     def table(self) -> RayTable:
         """The ray-cell table of all beams (``ray_table``, or built on first use)."""
-        from bayesmap.geometry.raytable import build_ray_table
-
         if self.ray_table is not None:
             return self.ray_table
 
@@ -421,8 +428,6 @@ class Problem:
         """``log p(walls, readings)``: the GenJAX model's ``assess`` (:func:`~bayesmap.model.generative.log_joint`, or
         :func:`~bayesmap.model.generative.log_joint_scans` for several scans) when the problem is small enough for the
         dense geometry (beams x cells <= 2e7), else :meth:`table_log_joint` (equal to it, tested)."""
-        from bayesmap.model.generative import log_joint, log_joint_scans
-
         if not self.multi_scan:
             return float(log_joint(walls, self.model_readings, self.pos, self.params, self.beam_angles))
         if self.table.num_rays * self.grid.num_cells <= 2e7:
@@ -433,10 +438,6 @@ class Problem:
         """``log p(walls, readings)`` from the ray-cell table: the prior's log-probability plus, per beam,
         the sensor model's log-density of its reading at the distance of its first wall (the max distance if none).
         Memory and time grow with the table's pairs, not beams x cells."""
-        import jax.numpy as jnp
-
-        from bayesmap.model.generative import reading_log_likelihood
-
         walls = np.asarray(walls) > 0.5
         p = float(self.params.prior_wall_prob)
         prior = walls.sum() * math.log(p) + (walls.size - walls.sum()) * math.log1p(-p)
@@ -448,8 +449,6 @@ class Problem:
     @cached_property
     def visible(self) -> np.ndarray | None:
         """``(nx, ny)`` bool cells seen by a ray given the true map (None without a truth); computed once."""
-        from bayesmap.geometry.raytable import visible_cells
-
         return None if self.truth is None else visible_cells(self.table, self.truth)
 
     def wrong_visible_cells(self, posterior) -> int | None:
@@ -476,12 +475,6 @@ def tutorial_problem(walls=None, pos=TUTORIAL_POS, seed: int = TUTORIAL_SEED, pr
     Raises:
         BayesmapError: on bad parameters or a sensor position outside the grid.
     """
-    import jax
-
-    from bayesmap.geometry.raycast import angles
-    from bayesmap.io.ascii import tutorial_map
-    from bayesmap.model.generative import make_params, simulate_readings
-
     walls = tutorial_map() if walls is None else (np.asarray(walls) > 0.5).astype(np.float32)
     grid = Grid(shape=walls.shape)
     params = make_params(prior_wall_prob, sensor_noise, num_angles, grid, beam_model=beam_model, **(sensor_params or {}))
@@ -553,8 +546,6 @@ def scan_problem(log, index: int, resolution: float = RESOLUTION, prior_wall_pro
     Raises:
         BayesmapError: on an index out of range or bad parameters.
     """
-    from bayesmap.model.generative import make_params
-
     log.check_index(index)
     scans = _log_scans(log, np.array([index]), resolution, margin, None)
     obs = scans.observations
@@ -594,8 +585,6 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
     Raises:
         BayesmapError: on bad parameters or scan indices, or a sensor position outside ``grid``.
     """
-    from bayesmap.model.generative import check_likelihood_power, make_params
-
     scans = np.arange(len(log)) if scans is None else np.asarray(scans, dtype=np.int64).reshape(-1)
     chosen = _log_scans(log, scans, resolution, margin, grid)
     obs, grid = chosen.observations, chosen.grid
