@@ -30,6 +30,18 @@ def intel_log():
     return path
 
 
+@pytest.fixture(scope="module")
+def small_log(tmp_path_factory, intel_log):
+    """The first 12 scans of the Intel log, as a plain CARMEN file."""
+    import gzip
+
+    path = tmp_path_factory.mktemp("log") / "intel12.log"
+    with gzip.open(intel_log, "rt") as handle:
+        lines = [line for line in handle if line.startswith("FLASER")][:12]
+    path.write_text("".join(lines))
+    return path
+
+
 def random_scene(rng, max_side=8, metric=False):
     """A random small grid, position inside it, map and beam angles (numpy)."""
     from bayesmap.geometry.grid import Grid

@@ -80,6 +80,23 @@ def run_cli(monkeypatch, capsys, *args):
     return code, out, err
 
 
+def room_scans(beam_model: str, seed: int = 0):
+    """A 12 x 9 unit-cell room with an inner wall, seen by 3 scans of 24 beams from different positions: a
+    :class:`bayesmap.scenes.Problem` with the true map and readings simulated from the model (max distance 15 m)."""
+    from bayesmap.scenes import Problem
+
+    walls = np.zeros((12, 9), np.float32)
+    walls[0, :] = walls[-1, :] = walls[:, 0] = walls[:, -1] = 1
+    walls[6, 3:7] = 1
+    grid = Grid((12, 9))
+    poses = np.array([[2.3, 2.1], [9.2, 6.4], [3.7, 6.6]])
+    angles = np.linspace(0, 2 * np.pi, 24, endpoint=False)[None] + np.array([[0.0], [0.1], [0.2]])
+    params = make_params(0.3, 0.25, 24, grid, max_distance=15.0, beam_model=beam_model)
+    readings = np.asarray(simulate_scan_readings(jax.random.key(seed), walls, poses, params, angles), np.float64)
+    readings = np.clip(readings, 0.0, 15.0)
+    return Problem.from_world_frame(params, poses, angles, readings, truth=walls, max_range_mask=readings >= 15.0)
+
+
 # -- figures (tests/viz) ---------------------------------------------------------------------------------------
 
 POS = np.array([10.0, 10.0])  # the tutorial's sensor position (cells of its unit grid)

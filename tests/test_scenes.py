@@ -1,37 +1,18 @@
-"""Many scans: the multi-scan Problem, scan selections, whole logs through the CLI, log-odds, ROS export, evaluate."""
+"""Scenes: observations and poses, the multi-scan Problem, the scene defaults, scans of a log, scan selections."""
 
 from __future__ import annotations
 
-import gzip
-import json
+import math
 
-import jax
 import numpy as np
 import pytest
 
 from bayesmap.errors import BayesmapError
-from bayesmap.geometry.grid import Grid
-from bayesmap.io.rosmap import read_rosmap, write_pgm
-from bayesmap.model.generative import log_joint_scans, make_params, simulate_scan_readings
-from bayesmap.scenes import Problem, log_problem
+from bayesmap.model.generative import log_joint_scans
+from bayesmap.scenes import Observations, Problem, log_problem, scan_problem
 from bayesmap.cli import parse_scans
-from bayesmap.inference.driver import run_inference, run_logodds
-from helpers import run_cli
-
-
-def room_scans(beam_model: str, seed: int = 0) -> Problem:
-    """A 12 x 9 unit-cell room with an inner wall, seen by 3 scans of 24 beams from different positions."""
-    walls = np.zeros((12, 9), np.float32)
-    walls[0, :] = walls[-1, :] = walls[:, 0] = walls[:, -1] = 1
-    walls[6, 3:7] = 1
-    grid = Grid((12, 9))
-    poses = np.array([[2.3, 2.1], [9.2, 6.4], [3.7, 6.6]])
-    angles = np.linspace(0, 2 * np.pi, 24, endpoint=False)[None] + np.array([[0.0], [0.1], [0.2]])
-    params = make_params(0.3, 0.25, 24, grid, max_distance=15.0, beam_model=beam_model)
-    readings = np.asarray(simulate_scan_readings(jax.random.key(seed), walls, poses, params, angles), np.float64)
-    readings = np.clip(readings, 0.0, 15.0)
-    return Problem(params=params, pos=poses, beam_angles=angles, readings=readings, truth=walls,
-                   max_range_mask=readings >= 15.0)
+from bayesmap.inference.driver import run_logodds
+from helpers import room_scans
 
 
 @pytest.mark.parametrize("beam_model", ["normal", "beam"])
@@ -45,37 +26,116 @@ def test_table_log_joint_equals_assess_of_the_multi_scan_model(beam_model):
         assert pb.log_joint(walls) == pytest.approx(dense, rel=1e-6)  # small problem: assess itself
 
 
-def test_multi_scan_problem_layout_and_gibbs():
+def test_multi_scan_problem_layout():
     pb = room_scans("beam")
     assert pb.multi_scan and pb.num_scans == 3 and pb.table.num_rays == 72
     assert np.array_equal(pb.scan_of_ray, np.repeat([0, 1, 2], 24))
     assert np.array_equal(pb.ray_origins[24], pb.pos[1]) and pb.ray_angles[25] == pb.beam_angles[1, 1]
+    assert pb.poses.shape == (3, 3) and pb.observations.readings.shape == (3, 24)
     with pytest.raises(BayesmapError, match="take one scan; this problem has 3"):
         pb.single_scan()
-    result = run_inference(pb, "block", 60, progress=False)
-    assert result.summary["num_scans"] == 3 and result.summary["beam_model"] == "beam"
-    assert result.summary["init"] == "logodds"
-    # three viewpoints see the room's 99 visible cells; about 20% of the beam model's readings are outliers (short,
-    # random, failures: 14 of 72 beams), each of which can leave at most one cell in doubt: measured 3-5 wrong over
-    # seeds 0-2 (and 0-3 with the Normal model's readings, which have no outliers)
-    assert result.summary["visible_cells"] == 99 and result.summary["wrong_visible_cells"] <= 8, result.summary
-    with pytest.raises(BayesmapError, match="unknown chain start 'magic'"):
-        run_inference(pb, "block", 10, init="magic", progress=False)
 
 
-def test_logodds_marks_the_walls_the_beams_hit():
+def test_tutorial_is_one_scan_at_heading_zero(tutorial):
+    assert not tutorial.multi_scan and tutorial.num_scans == 1
+    assert np.array_equal(tutorial.poses, [[10.0, 10.0, 0.0]])
+    assert tutorial.pos.shape == (2,) and tutorial.readings.shape == tutorial.beam_angles.shape == (100,)
+    assert np.array_equal(tutorial.beam_angles, tutorial.observations.beam_angles[0])  # theta 0: frames agree
+    readings, pos, _, angles = tutorial.single_scan()
+    assert np.array_equal(readings, tutorial.readings) and np.array_equal(pos, [10.0, 10.0])
+    assert np.array_equal(angles, tutorial.beam_angles)
+
+
+def test_log_scenes_keep_the_logs_world_angles_bit_for_bit(small_log):
+    """The ray table (and so every number) sees exactly the angles io/carmen computed; the sensor-frame angles are
+    the log's beam offsets (up to the rounding of theta + offset - theta)."""
+    from bayesmap.io.carmen import beam_offsets, read_carmen
+
+    log = read_carmen(small_log)
+    pb = log_problem(log, [2, 5, 7], resolution=0.2)
+    assert np.array_equal(pb.beam_angles, log.angles[[2, 5, 7]])
+    assert np.array_equal(pb.ray_angles, log.angles[[2, 5, 7]].reshape(-1))
+    assert np.array_equal(pb.poses, log.poses[[2, 5, 7]]) and np.array_equal(pb.pos, log.poses[[2, 5, 7], :2])
+    np.testing.assert_allclose(pb.observations.beam_angles, np.broadcast_to(beam_offsets(180), (3, 180)),
+                               rtol=0, atol=1e-12)
+    one = scan_problem(log, 5, resolution=0.2)
+    assert not one.multi_scan and np.array_equal(one.beam_angles, log.angles[5]) and one.pos.shape == (2,)
+
+
+def test_scan_and_log_scenes_share_max_range_and_grid(small_log):
+    """One helper fits both: a single scan gets the same max-range readings and covering grid either way."""
+    from bayesmap.io.carmen import read_carmen
+
+    log = read_carmen(small_log)
+    one, many = scan_problem(log, 4, resolution=0.2), log_problem(log, [4], resolution=0.2)
+    assert one.grid == many.grid and one.params.cap == many.params.cap == log.max_range
+    assert np.array_equal(one.readings, many.readings[0]) and np.array_equal(one.max_range_mask, many.max_range_mask[0])
+    assert one.max_range_mask.any() and np.all(one.readings[one.max_range_mask] == log.max_range)
+    assert one.extra["pose"] == list(log.poses[4]) and one.observations.max_range == log.max_range
+    for bad in (-1, 12, 2.0):
+        with pytest.raises(BayesmapError, match="scan index"):
+            scan_problem(log, bad)
+    with pytest.raises(BayesmapError, match="scan index 12 is out of range"):
+        log_problem(log, [0, 12])
+    with pytest.raises(BayesmapError, match="no scan selected"):
+        log_problem(log, [])
+
+
+def test_log_defaults_come_from_the_scene_defaults(small_log):
+    from bayesmap import scenes
+    from bayesmap.io.carmen import read_carmen
+
+    log = read_carmen(small_log)
+    pb = log_problem(log, resolution=0.2)
+    assert pb.params.prior_wall_prob == pytest.approx(scenes.LOG_PRIOR) and pb.params.beam_model == scenes.LOG_BEAM_MODEL
+    assert pb.params.sensor_noise == pytest.approx(0.1)  # half a 0.2 m cell
+    assert pb.range_offset == scenes.range_offset_meters(0.2) == 0.2
+    assert scenes.real_sensor_noise(0.2) == 0.1 and scenes.SENSOR_NOISE_CELLS == 0.5
+
+
+def test_with_poses_moves_the_rays_and_keeps_the_observations():
     pb = room_scans("normal")
-    result = run_logodds(pb)
-    assert result.samples.shape == (0, 12, 9) and result.summary["method"] == "logodds"
-    occupied = result.posterior > 0.5
-    # log-odds puts walls where the beams end: mostly on true walls or next to them (0.25 m noise on 1 m cells)
-    near_wall = np.zeros_like(occupied)
-    t = pb.truth > 0
-    near_wall[:-1] |= t[1:]
-    near_wall[1:] |= t[:-1]
-    near_wall[:, :-1] |= t[:, 1:]
-    near_wall[:, 1:] |= t[:, :-1]
-    assert occupied.sum() >= 10 and np.mean((t | near_wall)[occupied]) > 0.95
+    moved = pb.poses.copy()
+    moved[1] += [0.5, -0.25, 0.3]
+    other = pb.with_poses(moved)
+    assert other.observations is pb.observations and other.params is pb.params and other.truth is pb.truth
+    assert np.array_equal(other.moved_scans(pb.poses), [1]) and len(pb.moved_scans(pb.poses)) == 0
+    # world angles = theta + sensor-frame angles; only scan 1's rays change
+    np.testing.assert_allclose(other.beam_angles[1], pb.beam_angles[1] + 0.3, rtol=0, atol=1e-12)
+    assert np.array_equal(other.beam_angles[[0, 2]], pb.beam_angles[[0, 2]])
+    np.testing.assert_allclose(other.ray_origins[24:48], np.repeat([pb.pos[1] + [0.5, -0.25]], 24, axis=0))
+    rows = pb.rays_of_scans([1])
+    assert np.array_equal(rows, np.arange(24, 48))
+    assert np.array_equal(pb.rays_of_scans([2, 0]), np.r_[48:72, 0:24])
+    # the table is rebuilt for the new poses: scan 1's first-wall distances change, the others' do not
+    d_old, d_new = pb.table.first_wall_distances(pb.truth), other.table.first_wall_distances(pb.truth)
+    assert not np.allclose(d_old[rows], d_new[rows])
+    np.testing.assert_array_equal(np.delete(d_old, rows), np.delete(d_new, rows))
+    assert np.array_equal(pb.with_poses(pb.poses).table.first_wall_distances(pb.truth), d_old)
+    with pytest.raises(BayesmapError, match=r"poses must be finite numbers of shape \(3, 3\)"):
+        pb.with_poses(moved[:2])
+    with pytest.raises(BayesmapError, match="outside"):
+        pb.with_poses(moved + [100.0, 0.0, 0.0])
+    with pytest.raises(BayesmapError, match=r"scan indices must lie in 0..2, got 0..3"):
+        pb.rays_of_scans([0, 3])
+
+
+def test_observations_and_problem_refuse_shapes_that_do_not_match():
+    pb = room_scans("normal")
+    with pytest.raises(BayesmapError, match=r"one shape \(S, K\), got \(3, 24\) and \(3, 23\)"):
+        Observations(pb.observations.beam_angles, pb.observations.readings[:, :23])
+    with pytest.raises(BayesmapError, match=r"max_range_mask has shape \(3,\)"):
+        Observations(pb.observations.beam_angles, pb.observations.readings, max_range_mask=np.zeros(3, bool))
+    with pytest.raises(BayesmapError, match=r"poses must have shape \(3, 3\)"):
+        Problem(params=pb.params, observations=pb.observations, poses=pb.poses[:, :2])
+    with pytest.raises(BayesmapError, match="single-scan problem has one scan, got 3"):
+        Problem(params=pb.params, observations=pb.observations, poses=pb.poses, multi_scan=False)
+    with pytest.raises(BayesmapError, match="world_angles must equal"):
+        Problem(params=pb.params, observations=pb.observations, poses=pb.poses, world_angles=pb.beam_angles + 0.1)
+    with pytest.raises(BayesmapError, match="ray_table has 72 rays, the scans 48"):
+        Problem(params=pb.params, observations=Observations(pb.observations.beam_angles[:2], pb.readings[:2]),
+                poses=pb.poses[:2], ray_table=pb.table)
+    assert Observations(pb.observations.beam_angles, pb.readings).max_range == math.inf
 
 
 @pytest.mark.parametrize("spec, expected", [
@@ -92,70 +152,6 @@ def test_parse_scans(spec, expected):
 def test_parse_scans_errors(spec, match):
     with pytest.raises(BayesmapError, match=match):
         parse_scans(spec, 10)
-
-
-@pytest.fixture(scope="module")
-def small_log(tmp_path_factory, intel_log):
-    """The first 12 scans of the Intel log, as a plain CARMEN file."""
-    path = tmp_path_factory.mktemp("log") / "intel12.log"
-    with gzip.open(intel_log, "rt") as handle:
-        lines = [line for line in handle if line.startswith("FLASER")][:12]
-    path.write_text("".join(lines))
-    return path
-
-
-def test_infer_whole_log_logodds_and_rosmap(small_log, tmp_path, monkeypatch, capsys):
-    code, out, err = run_cli(monkeypatch, capsys, "infer", "--log", small_log, "--resolution", 0.2, "--sweeps", 6,
-                             "--sampler", "chromatic", "--rosmap", "--report", "--out", tmp_path / "g")
-    assert code in (0, None), err
-    report = (tmp_path / "g" / "report.html").read_text()
-    assert 'id="fig-posterior"' in report and 'id="fig-convergence"' in report and "axes in m" in report
-    assert 'id="fig-importance"' not in report  # importance sampling is the single-scan tutorial's
-    summary = json.loads((tmp_path / "g" / "summary.json").read_text())
-    assert summary["num_scans"] == 12 and summary["num_beams"] == 12 * 180 and summary["beam_model"] == "beam"
-    assert summary["prior_wall_prob"] == 0.1 and "12 scans" in out
-    plan = read_rosmap(tmp_path / "g" / "map.yaml")
-    posterior = np.load(tmp_path / "g" / "posterior.npy")
-    assert plan.grid.shape == posterior.shape and plan.grid.resolution == 0.2
-    np.testing.assert_allclose(plan.occupancy, posterior, atol=0.5 / 255 + 1e-6)
-    code, out, err = run_cli(monkeypatch, capsys, "infer", "--log", small_log, "--scans", "0:12:2", "--resolution", 0.2,
-                             "--method", "logodds", "--out", tmp_path / "lo")
-    assert code in (0, None), err
-    summary = json.loads((tmp_path / "lo" / "summary.json").read_text())
-    assert summary["method"] == "logodds" and summary["num_scans"] == 6 and "sweeps" not in summary
-    lo = np.load(tmp_path / "lo" / "posterior.npy")
-    assert 0.12 - 1e-6 <= lo.min() and lo.max() <= 0.97 + 1e-6  # OctoMap's clamping bounds
-
-
-def test_evaluate_log_writes_the_table(small_log, tmp_path, monkeypatch, capsys):
-    code, out, err = run_cli(monkeypatch, capsys, "evaluate", "--log", small_log, "--every", 4, "--resolution", 0.2,
-                             "--sweeps", 6, "--json", tmp_path / "scores.json")
-    assert code in (0, None), err
-    scores = json.loads((tmp_path / "scores.json").read_text())
-    for method in ("bayesmap", "logodds"):
-        assert 0.5 < scores[method]["auc"] <= 1.0 and np.isfinite(scores[method]["nll"])
-    assert scores["setup"]["test_scans"] == 3 and scores["setup"]["train_scans"] == 9
-    assert "bayesmap" in out and "logodds" in out and "auc" in out
-    code, out, err = run_cli(monkeypatch, capsys, "evaluate", "--log", small_log, "--json", tmp_path / "scores.json")
-    assert code == 2 and "already exists" in err
-
-
-def test_evaluate_truth_on_a_floor_plan(tmp_path, monkeypatch, capsys):
-    # a 6 m x 4 m room with a pillar, as a bare PGM of 0.1 m pixels: 0 wall, 255 free, 205 unknown outside
-    image = np.full((44, 64), 205, np.uint8)
-    image[2:42, 2:62] = 0
-    image[3:41, 3:61] = 255
-    image[18:24, 30:34] = 0
-    write_pgm(tmp_path / "room.pgm", image)
-    code, out, err = run_cli(monkeypatch, capsys, "evaluate", "--truth", tmp_path / "room.pgm", "--num-poses", 4,
-                             "--num-angles", 90, "--max-range", 8, "--sweeps", 10, "--json", tmp_path / "s.json")
-    assert code in (0, None), err
-    scores = json.loads((tmp_path / "s.json").read_text())
-    assert scores["setup"]["cells_scored"] > 500
-    for method in ("bayesmap", "logodds"):
-        assert set(scores[method]) >= {"accuracy", "auc", "brier", "cells"}
-    # four viewpoints in a small room: the posterior gets nearly every seen cell right
-    assert scores["bayesmap"]["accuracy"] > 0.9 and scores["bayesmap"]["brier"] < 0.1
 
 
 def test_range_offset_shifts_only_returned_readings_the_model_scores(small_log):
@@ -179,51 +175,10 @@ def test_range_offset_shifts_only_returned_readings_the_model_scores(small_log):
             log_problem(log, resolution=0.2, range_offset=bad)
 
 
-def test_fast_samplers_refuse_problems_too_large_for_memory(monkeypatch):
-    import bayesmap.inference.registry as registry
-
-    pb = room_scans("normal")
-    monkeypatch.setattr(registry, "MAX_FAST_PAIRS", pb.table.num_pairs - 1)
-    with pytest.raises(BayesmapError, match=f"{pb.table.num_pairs:,} \\(beam, cell\\) pairs.*--sampler cellwise"):
-        run_inference(pb, "chromatic", 4, progress=False)
-    assert run_inference(pb, "cellwise", 4, progress=False).samples.shape == (4, 12, 9)  # no limit
-    monkeypatch.setattr(registry, "MAX_FAST_PAIRS", pb.table.num_pairs)
-    assert run_inference(pb, "chromatic", 4, progress=False).samples.shape == (4, 12, 9)
-
-
-def test_cellwise_chains_run_one_after_another_with_the_keys_of_chains_at_once(monkeypatch):
-    """Several cellwise chains run one by one (vmap would turn their conditional writes into always-run selects);
-    chain c gets the keys it would get at once, so the samples equal those of the vmap path, and progress reaches
-    the total of all chains."""
-    import bayesmap.inference.driver as driver
-
-    pb = room_scans("beam")
-    seen = []
-    one_by_one = run_inference(pb, "cellwise", 12, chains=2, progress=False, on_progress=lambda d, t: seen.append((d, t)))
-    assert one_by_one.samples.shape == (2, 12, 12, 9)
-    assert seen[-1] == (24, 24)
-    monkeypatch.setattr(driver, "SEQUENTIAL_CHAINS", ())
-    at_once = run_inference(pb, "cellwise", 12, chains=2, progress=False)
-    np.testing.assert_array_equal(one_by_one.samples, at_once.samples)
-    assert not np.array_equal(one_by_one.samples[0], one_by_one.samples[1])
-
-
-def test_beam_weights_reach_the_model_and_the_summary(tmp_path, monkeypatch, capsys):
-    code, out, err = run_cli(monkeypatch, capsys, "infer", "--beam-model", "beam", "--beam-weights", "0.7,0.1,0.1,0.1",
-                             "--lambda-short", "0.3", "--sweeps", 4, "--out", tmp_path / "o")
-    assert code in (0, None), err
-    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
-    assert summary["beam_model"] == "beam"
-    assert [summary[k] for k in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")] == pytest.approx([0.7, 0.1, 0.1, 0.1, 0.3])
-
-
-def test_likelihood_power_default_for_logs_and_refusals(small_log):
-    """Logs default to the tempered target (LOG_LIKELIHOOD_POWER), recorded in the summary; bad powers and the
-    reference samplers (which sample the plain posterior through assess) are refused with the value named."""
+def test_likelihood_power_default_for_logs_and_bad_powers(small_log):
+    """Logs default to the tempered target (LOG_LIKELIHOOD_POWER); bad powers are refused with the value named."""
     from bayesmap.io.carmen import read_carmen
     from bayesmap.scenes import LOG_LIKELIHOOD_POWER
-    from bayesmap.inference.registry import make_sampler
-    from bayesmap.inference.driver import run_inference
 
     log = read_carmen(small_log)
     pb = log_problem(log, resolution=0.2)
@@ -232,8 +187,3 @@ def test_likelihood_power_default_for_logs_and_refusals(small_log):
     for bad in (0, -0.5, 2, "x"):
         with pytest.raises(BayesmapError, match="likelihood_power"):
             log_problem(log, resolution=0.2, likelihood_power=bad)
-    with pytest.raises(BayesmapError, match="likelihood power 0.1"):
-        make_sampler(pb, "reference-raster")
-    summary = run_inference(pb, "cellwise", 4, progress=False).summary
-    assert summary["likelihood_power"] == LOG_LIKELIHOOD_POWER
-    assert summary["posterior_estimate"] == "rao-blackwellized"

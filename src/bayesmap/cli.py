@@ -17,6 +17,7 @@ from typing import Optional
 import numpy as np
 import typer
 
+from bayesmap import scenes  # the scene defaults
 from bayesmap.errors import BayesmapError
 
 def parse_scans(spec: str | None, num_scans: int) -> np.ndarray:
@@ -57,7 +58,6 @@ app = typer.Typer(add_completion=False, no_args_is_help=True,
 OUTPUT_FILES = ("posterior.npy", "readings.npy", "posterior.png", "summary.json")
 DIAGNOSTICS_FILE = "diagnostics.npz"  # written with --chains >= 2
 REPORT_FILE = "report.html"  # written by demo, and by infer --report
-LOG_PRIOR = 0.1  # bayesmap.scenes.LOG_PRIOR (not imported here: the CLI imports JAX only when a command runs)
 ROSMAP_STEM = "map"  # infer --rosmap writes map.pgm and map.yaml (ROS map_server)
 ROSMAP_FILES = (ROSMAP_STEM + ".pgm", ROSMAP_STEM + ".yaml")
 
@@ -190,7 +190,7 @@ def _sensor_params(beam_weights: Optional[str], lambda_short: Optional[float]) -
 
 
 POWER_HELP = ("--log: power eta in (0, 1] of the likelihood, sampling p(walls) p(readings | walls)^eta (a power posterior "
-              "for beams that are not independent evidence; 1 is the plain posterior; default 0.1 for logs)")
+              f"for beams that are not independent evidence; 1 is the plain posterior; default {scenes.LOG_LIKELIHOOD_POWER} for logs)")
 BEAM_WEIGHTS_HELP = ("beam model: mixture weights HIT,SHORT,MAX,RAND summing to 1 (default 0.8,0.05,0.05,0.1, "
                      "Probabilistic Robotics 6.3)")
 
@@ -224,7 +224,7 @@ def infer(
     log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log (.log or .log.gz): all its scans, or --scans / --scan"),
     scan: Optional[int] = typer.Option(None, "--scan", help="map only this scan of --log (one pose, the single-scan model)"),
     scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to map: a range a:b, a stride a:b:step, a list, or 'all' (default)"),
-    resolution: float = typer.Option(0.1, help="grid resolution for real data, meters per cell"),
+    resolution: float = typer.Option(scenes.RESOLUTION, help="grid resolution for real data, meters per cell"),
     method: str = typer.Option("gibbs", "--method", help="gibbs (the posterior, with --sampler) or logodds (classic log-odds mapping, no posterior)"),
     beam_model: Optional[str] = typer.Option(None, "--beam-model", help="sensor model: normal (the tutorial's; default for maps) or beam (robust mixture, Probabilistic Robotics 6.3; default for logs)"),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help="meters the model subtracts from each returned reading of a log (default one cell: a wall cell's reading is expected where the beam enters it, a real surface lies inside it)"),
@@ -234,9 +234,9 @@ def infer(
     sampler: Optional[str] = _sampler_option(None, " (default block; cellwise for several scans of a log)"),
     sweeps: int = typer.Option(100, help="number of Gibbs sweeps"),
     burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: half)"),
-    prior_wall_prob: Optional[float] = typer.Option(None, "--prior-wall-prob", help=f"prior probability that a cell is a wall (default 0.5, the tutorial's; {LOG_PRIOR} for several scans of a log)"),
-    sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help="standard deviation of a reading, meters (default 0.2, the tutorial's; for --log half a cell)"),
-    num_angles: int = typer.Option(100, "--num-angles", help="number of beams (simulated readings)"),
+    prior_wall_prob: Optional[float] = typer.Option(None, "--prior-wall-prob", help=f"prior probability that a cell is a wall (default {scenes.TUTORIAL_PRIOR}, the tutorial's; {scenes.LOG_PRIOR} for several scans of a log)"),
+    sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help=f"standard deviation of a reading, meters (default {scenes.TUTORIAL_SENSOR_NOISE}, the tutorial's; for --log half a cell)"),
+    num_angles: int = typer.Option(scenes.TUTORIAL_NUM_ANGLES, "--num-angles", help="number of beams (simulated readings)"),
     pos: Optional[tuple[float, float]] = typer.Option(None, "--pos", help="sensor position X Y (simulated readings); default the map's center"),
     seed: int = typer.Option(0, help="seed of the simulated readings and of the chain"),
     chains: int = typer.Option(1, help="independent chains run at once; 2 or more add split R-hat and effective sample size per cell"),
@@ -264,18 +264,19 @@ def infer(
         from bayesmap.io.carmen import read_carmen
 
         carmen = read_carmen(log)
-        noise = resolution / 2 if sensor_noise is None else sensor_noise
+        noise = scenes.real_sensor_noise(resolution) if sensor_noise is None else sensor_noise
         if scan is not None:
             if range_offset is not None or likelihood_power is not None:
                 raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), not to --scan N")
-            problem = scan_problem(carmen, scan, resolution=resolution, prior_wall_prob=prior_wall_prob or 0.5,
-                                   sensor_noise=noise, beam_model=beam_model or "normal", sensor_params=sensor_params)
+            problem = scan_problem(carmen, scan, resolution=resolution, prior_wall_prob=prior_wall_prob or scenes.TUTORIAL_PRIOR,
+                                   sensor_noise=noise, beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL,
+                                   sensor_params=sensor_params)
             title = f"{log.name} scan {scan}"
         else:
             chosen = parse_scans(scans, len(carmen))
             problem = log_problem(carmen, chosen, resolution=resolution,
-                                  prior_wall_prob=LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
-                                  sensor_noise=noise, beam_model=beam_model or "beam", range_offset=range_offset,
+                                  prior_wall_prob=scenes.LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
+                                  sensor_noise=noise, beam_model=beam_model or scenes.LOG_BEAM_MODEL, range_offset=range_offset,
                                   sensor_params=sensor_params, likelihood_power=likelihood_power)
             title = f"{log.name}, {len(chosen)} scans"
     else:
@@ -284,9 +285,10 @@ def infer(
         walls = load_map(map_file) if map_file is not None else tutorial_map()
         center = (float(walls.shape[0] // 2), float(walls.shape[1] // 2))  # the tutorial's GRID_SIZE // 2
         problem = tutorial_problem(walls, pos=pos if pos is not None else center, seed=seed,
-                                   prior_wall_prob=0.5 if prior_wall_prob is None else prior_wall_prob,
-                                   sensor_noise=0.2 if sensor_noise is None else sensor_noise, num_angles=num_angles,
-                                   source=str(map_file) if map_file else "tutorial map", beam_model=beam_model or "normal",
+                                   prior_wall_prob=scenes.TUTORIAL_PRIOR if prior_wall_prob is None else prior_wall_prob,
+                                   sensor_noise=scenes.TUTORIAL_SENSOR_NOISE if sensor_noise is None else sensor_noise,
+                                   num_angles=num_angles, source=str(map_file) if map_file else "tutorial map",
+                                   beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL,
                                    sensor_params=sensor_params)
         title = problem.source
     title = ("Log-odds occupancy, " if method == "logodds" else "Posterior wall probability, ") + title
@@ -353,15 +355,15 @@ def evaluate(
     truth: Optional[Path] = typer.Option(None, "--truth", help="a floor plan (ROS .pgm or .yaml): simulate scans in it, map them, score against it"),
     scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to use (a:b:step, list, or all)"),
     every: int = typer.Option(10, "--every", help="hold out every k-th scan"),
-    resolution: float = typer.Option(0.1, help="meters per cell (--log; for a bare .pgm --truth, its pixel size)"),
+    resolution: float = typer.Option(scenes.RESOLUTION, help="meters per cell (--log; for a bare .pgm --truth, its pixel size)"),
     sampler: str = _sampler_option("cellwise"),
     sweeps: int = typer.Option(100, help="Gibbs sweeps (half burn-in)"),
-    beam_model: str = typer.Option("beam", "--beam-model", help="sensor model of mapping and scoring: beam or normal"),
-    num_poses: int = typer.Option(30, "--num-poses", help="--truth: number of simulated scans"),
-    num_angles: int = typer.Option(360, "--num-angles", help="--truth: beams per simulated scan (over 360 degrees)"),
-    max_range: float = typer.Option(20.0, "--max-range", help="--truth: max range of the simulated sensor, meters"),
+    beam_model: str = typer.Option(scenes.LOG_BEAM_MODEL, "--beam-model", help="sensor model of mapping and scoring: beam or normal"),
+    num_poses: int = typer.Option(scenes.SIMULATED_NUM_POSES, "--num-poses", help="--truth: number of simulated scans"),
+    num_angles: int = typer.Option(scenes.SIMULATED_NUM_ANGLES, "--num-angles", help="--truth: beams per simulated scan (over 360 degrees)"),
+    max_range: float = typer.Option(scenes.SIMULATED_MAX_RANGE, "--max-range", help="--truth: max range of the simulated sensor, meters"),
     sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help="standard deviation of a reading, meters (default half a cell)"),
-    prior_wall_prob: float = typer.Option(LOG_PRIOR, "--prior-wall-prob", help="prior probability that a cell is a wall"),
+    prior_wall_prob: float = typer.Option(scenes.LOG_PRIOR, "--prior-wall-prob", help="prior probability that a cell is a wall"),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help="--log: meters the model subtracts from each returned reading (default one cell)"),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),

@@ -115,7 +115,7 @@ def test_marginals_match_exact_enumeration(sampler, prior, pos):
     from bayesmap.inference.registry import make_sampler
     from bayesmap.geometry.raycast import angles
 
-    problem = Problem(params=params, pos=pos, beam_angles=np.asarray(angles(7), float), readings=y, truth=truth)
+    problem = Problem.from_world_frame(params, pos, np.asarray(angles(7), float), y, truth=truth)
     result = run_chains(jax.random.key(11), make_sampler(problem, sampler), jnp.zeros((3, 4)), 300, 64)
     est = np.asarray(result.samples[:, 50:], float).mean(axis=(0, 1))
     assert np.abs(est - exact).max() < 0.06, (est, exact)

@@ -26,6 +26,16 @@ from bayesmap.errors import BayesmapError
 from bayesmap.inference.logodds import beam_hits_and_misses
 from bayesmap.evaluation.metrics import accuracy, brier_score, roc_auc
 from bayesmap.geometry.raytable import RayTable, check_readings
+from bayesmap.scenes import (
+    LOG_BEAM_MODEL,
+    LOG_PRIOR,
+    RESOLUTION,
+    SIMULATED_CLEARANCE,
+    SIMULATED_MAX_RANGE,
+    SIMULATED_NUM_ANGLES,
+    SIMULATED_NUM_POSES,
+    real_sensor_noise,
+)
 
 
 def heldout_split(num_scans: int, every: int = 10) -> tuple[np.ndarray, np.ndarray]:
@@ -211,14 +221,15 @@ def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, f
     return out
 
 
-def evaluate_log(log, scans=None, every: int = 10, resolution: float = 0.1, sampler: str = "cellwise",
-                 sweeps: int = 100, seed: int = 0, prior_wall_prob: float = 0.1, sensor_noise: float | None = None,
-                 beam_model: str = "beam", progress: bool = True, range_offset: float | None = None,
+def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTION, sampler: str = "cellwise",
+                 sweeps: int = 100, seed: int = 0, prior_wall_prob: float = LOG_PRIOR, sensor_noise: float | None = None,
+                 beam_model: str = LOG_BEAM_MODEL, progress: bool = True, range_offset: float | None = None,
                  sensor_params: dict | None = None, likelihood_power: float | None = None) -> dict:
     """Held-out evaluation on a log: hold out every ``every``-th of the chosen scans, map the rest with bayesmap
     (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
-    held-out beams (see the module docstring). ``range_offset``, ``sensor_params`` and ``likelihood_power``: see
-    :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses the measured ranges).
+    held-out beams (see the module docstring). ``sensor_noise`` (default half a cell), ``range_offset``,
+    ``sensor_params`` and ``likelihood_power``: see :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses
+    the measured ranges); the other defaults are the scene defaults of :mod:`bayesmap.scenes`.
 
     Returns:
         ``{"bayesmap": {...}, "logodds": {...}, "setup": {...}}`` (JSON-serializable).
@@ -283,10 +294,11 @@ def simulate_readings_from_table(key, table: RayTable, walls, params) -> np.ndar
     return np.clip(np.asarray(y, dtype=np.float64), 0.0, table.max_distance)
 
 
-def evaluate_truth(path, resolution: float = 0.1, num_poses: int = 30, num_angles: int = 360, max_range: float = 20.0,
+def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULATED_NUM_POSES,
+                   num_angles: int = SIMULATED_NUM_ANGLES, max_range: float = SIMULATED_MAX_RANGE,
                    sampler: str = "cellwise", sweeps: int = 100, seed: int = 0, sensor_noise: float | None = None,
-                   beam_model: str = "beam", prior_wall_prob: float = 0.1, clearance: float = 0.5,
-                   sensor_params: dict | None = None) -> dict:
+                   beam_model: str = LOG_BEAM_MODEL, prior_wall_prob: float = LOG_PRIOR,
+                   clearance: float = SIMULATED_CLEARANCE, sensor_params: dict | None = None) -> dict:
     """Map synthetic scans of a known floor plan and score the maps against it.
 
     ``num_poses`` positions are drawn (seed ``seed``) uniformly among the known-free cells at least ``clearance``
@@ -298,6 +310,8 @@ def evaluate_truth(path, resolution: float = 0.1, num_poses: int = 30, num_angle
 
     Args:
         path: the floor plan, a ROS map (``.yaml``, or a bare ``.pgm`` with ``resolution`` meters per pixel).
+        sensor_noise: meters; default :func:`bayesmap.scenes.real_sensor_noise` (half a cell). The other defaults
+            are the scene defaults of :mod:`bayesmap.scenes`.
 
     Returns:
         ``{"bayesmap": {"accuracy", "auc", "brier", "cells"}, "logodds": {...}, "setup": {...}}``.
@@ -312,7 +326,7 @@ def evaluate_truth(path, resolution: float = 0.1, num_poses: int = 30, num_angle
 
     from bayesmap.io.rosmap import read_rosmap
     from bayesmap.model.generative import make_params
-    from bayesmap.scenes import Problem
+    from bayesmap.scenes import Observations, Problem
     from bayesmap.inference.driver import run_inference, run_logodds
     from bayesmap.geometry.raytable import build_ray_table, visible_cells
 
@@ -335,17 +349,21 @@ def evaluate_truth(path, resolution: float = 0.1, num_poses: int = 30, num_angle
     rng = np.random.default_rng(seed)
     cells = candidates[rng.choice(len(candidates), size=num_poses, replace=False)]
     centers = grid.cell_centers()[cells[:, 0], cells[:, 1]]
-    poses = centers + rng.uniform(-0.5, 0.5, size=centers.shape) * grid.resolution
+    positions = centers + rng.uniform(-0.5, 0.5, size=centers.shape) * grid.resolution
     headings = rng.uniform(0, 2 * np.pi, size=num_poses)
-    beam_angles = headings[:, None] + np.linspace(0, 2 * np.pi, num_angles, endpoint=False)[None, :]
-    noise = grid.resolution / 2 if sensor_noise is None else sensor_noise
+    poses = np.column_stack([positions, headings])
+    relative = np.broadcast_to(np.linspace(0, 2 * np.pi, num_angles, endpoint=False), (num_poses, num_angles))
+    noise = real_sensor_noise(grid.resolution) if sensor_noise is None else sensor_noise
     params = make_params(prior_wall_prob, noise, num_angles, grid, max_distance=max_range, beam_model=beam_model,
                          **(sensor_params or {}))
-    table = build_ray_table(grid, np.repeat(poses, num_angles, axis=0), beam_angles.reshape(-1), max_range)
+    world = poses[:, 2:3] + relative  # (the world-frame angles the Problem derives from the poses)
+    table = build_ray_table(grid, np.repeat(positions, num_angles, axis=0), world.reshape(-1), max_range)
     readings = simulate_readings_from_table(jax.random.key(seed), table, walls, params).reshape(num_poses, num_angles)
-    problem = Problem(params=params, pos=poses, beam_angles=beam_angles, readings=readings,
-                      max_range_mask=readings >= max_range, source=f"{path} ({num_poses} simulated scans)")
-    problem.__dict__["table"] = table  # the cached property: the table was built above to simulate the readings
+    observations = Observations(beam_angles=relative, readings=readings, max_range_mask=readings >= max_range,
+                                max_range=max_range)
+    # the table was built above to simulate the readings: the problem takes it instead of building it again
+    problem = Problem(params=params, observations=observations, poses=poses, ray_table=table,
+                      source=f"{path} ({num_poses} simulated scans)")
     start = time.perf_counter()
     gibbs = run_inference(problem, sampler, sweeps, seed=seed, progress=True)
     gibbs_s = time.perf_counter() - start

@@ -1,10 +1,14 @@
-"""Running inference on a scene: chains of a sampler (or log-odds mapping), their posterior and a summary."""
+"""Running inference on a scene: chains of a sampler (or log-odds mapping), their posterior and a summary.
+
+:func:`run_inference` runs in named steps (settings, chunk plan, sampler and compiled chain, chunks with progress,
+summary); :func:`scene_summary` builds the part of the summary both drivers share."""
 
 from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -13,7 +17,9 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.chains import run_chain_from, run_chains_from, cell_diagnostics, compile_chain, posterior_mean
 from bayesmap.inference.registry import SAMPLERS, SEQUENTIAL_CHAINS, make_sampler
+from bayesmap.model.sensor import BEAM_DEFAULTS
 from bayesmap.scenes import Problem
+
 
 @dataclass
 class InferenceResult:
@@ -39,11 +45,175 @@ class InferenceResult:
     diagnostics: dict | None = None
 
 
+def _check_settings(problem: Problem, sweeps: int, burn_in: int | None, chains: int, init: str | None
+                    ) -> tuple[int, str]:
+    """``(burn_in, init)`` with their defaults filled in (half the sweeps; ``"logodds"`` for several scans, else
+    ``"free"``), after checking the run's settings (see :func:`run_inference` for what raises)."""
+    if int(chains) != chains or chains < 1:
+        raise BayesmapError(f"number of chains must be an integer >= 1, got {chains!r}")
+    if int(sweeps) != sweeps or sweeps < 1:
+        raise BayesmapError(f"number of sweeps must be an integer >= 1, got {sweeps!r}")
+    burn_in = sweeps // 2 if burn_in is None else burn_in
+    if int(burn_in) != burn_in or not (0 <= burn_in < sweeps):
+        raise BayesmapError(f"burn-in must be an integer between 0 and {sweeps - 1} (sweeps - 1), got {burn_in!r}")
+    if chains > 1 and sweeps - burn_in < 4:
+        raise BayesmapError(f"diagnostics of {chains} chains need at least 4 sweeps after the burn-in, got {sweeps - burn_in}")
+    init = ("logodds" if problem.multi_scan else "free") if init is None else init
+    if init not in ("free", "logodds"):
+        raise BayesmapError(f"unknown chain start {init!r}; choose free or logodds")
+    return burn_in, init
+
+
+class _Chunks(NamedTuple):
+    """How the sweeps of a run are cut: ``chunk`` sweeps per compiled call, one key per chunk, ``at_once`` chains
+    per compiled call (1 when the chains run one after another)."""
+
+    chunk: int
+    keys: jax.Array
+    at_once: int
+    one_by_one: bool
+
+
+def _plan_chunks(sampler: str, sweeps: int, seed: int, chains: int) -> _Chunks:
+    """Chunks of at most 10 sweeps (for progress), their keys split from ``seed``; chains at once (``vmap``) unless
+    ``sampler`` is in :data:`SEQUENTIAL_CHAINS`."""
+    one_by_one = chains > 1 and sampler in SEQUENTIAL_CHAINS
+    chunk = max(1, min(sweeps, 10))
+    keys = jax.random.split(jax.random.key(seed), -(-sweeps // chunk))
+    return _Chunks(chunk, keys, 1 if one_by_one else chains, one_by_one)
+
+
+def _prepare_chain(pool: ThreadPoolExecutor, problem: Problem, sampler: str, init: str, chains: int, plan: _Chunks):
+    """``(algorithm, walls0, state0)``: the sampler, the first map and the chains' first state, with the chain
+    compiled.
+
+    Two cores (numpy, XLA's compiler and XLA's runtime release the GIL; the results are those of one step after
+    another): the log-odds start map is computed on ``pool`` while the sampler is built, and the chain is compiled
+    while its first state is computed.
+    """
+    if init == "logodds":
+        problem.table.pair_rays  # (built before both threads use them)
+        start_map = pool.submit(run_logodds, problem)
+    algorithm = make_sampler(problem, sampler)
+    if init == "logodds":
+        walls0 = jnp.asarray(start_map.result().posterior > 0.5, jnp.float32)
+    else:
+        walls0 = jnp.zeros(problem.grid.shape, jnp.float32)
+    at_once = plan.at_once
+
+    def first_state():
+        if at_once == 1:
+            return algorithm.init(walls0)
+        return jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape))
+
+    key_shape = jax.ShapeDtypeStruct((at_once,) if at_once > 1 else (), plan.keys.dtype)
+    compiled = pool.submit(compile_chain, key_shape, jax.eval_shape(first_state), algorithm, plan.chunk,
+                           at_once if at_once > 1 else None)
+    state0 = first_state()
+    compiled.result()  # JAX keeps the compiled chain: the first chunk does not compile it again
+    return algorithm, walls0, state0
+
+
+def _run_chunks(algorithm, keys, state, chains: int, sweeps: int, chunk: int, tick) -> tuple:
+    """``(samples, wall_probs or None)`` of the chunks ``keys`` from ``state`` (``chains`` chains at once, or one),
+    sweep axis -3; ``tick(n)`` after every chunk of ``n`` sweeps."""
+    pieces, prob_pieces, done = [], [], 0
+    for key in keys:
+        n = min(chunk, sweeps - done)
+        if chains == 1:
+            samples, state, probs = run_chain_from(key, state, algorithm, n)
+        else:
+            samples, state, probs = run_chains_from(jax.random.split(key, chains), state, algorithm, n)
+        pieces.append(np.asarray(samples))
+        if probs is not None:
+            prob_pieces.append(np.asarray(probs))
+        done += n
+        tick(n)
+    return np.concatenate(pieces, axis=-3), np.concatenate(prob_pieces, axis=-3) if prob_pieces else None
+
+
+def _run_all_chains(algorithm, state0, plan: _Chunks, chains: int, sweeps: int, progress: bool, on_progress) -> tuple:
+    """``(samples, wall_probs or None)`` of all chains (chain axis first with several), showing progress."""
+    from tqdm import tqdm
+
+    total = sweeps * chains if plan.one_by_one else sweeps
+    with tqdm(total=total, unit="sweep", delay=1.0, disable=not progress, leave=False) as bar:
+        finished = [0]  # sweeps run so far, all chains (a disabled tqdm does not count)
+
+        def tick(n):
+            finished[0] += n
+            bar.update(n)
+            if on_progress is not None:
+                on_progress(finished[0], total)
+
+        if not plan.one_by_one:
+            return _run_chunks(algorithm, plan.keys, state0, chains, sweeps, plan.chunk, tick)
+        # chain c uses the keys chain c would get at once (split of each chunk's key)
+        per_chain = jnp.stack([jax.random.split(key, chains) for key in plan.keys])  # (chunks, chains)
+        runs = [_run_chunks(algorithm, per_chain[:, c], state0, 1, sweeps, plan.chunk, tick) for c in range(chains)]
+    samples = np.stack([r[0] for r in runs])
+    return samples, None if runs[0][1] is None else np.stack([r[1] for r in runs])
+
+
+def scene_summary(problem: Problem, method: dict, results: dict, posterior, model: bool) -> dict:
+    """The summary :func:`run_inference` and :func:`run_logodds` share (JSON-serializable), in this order: the source,
+    ``method`` (the method's settings), with ``model`` the model's prior and noise, the beams and scans (or the
+    sensor position), with ``model`` the sensor model, the grid and max distance, ``results`` (timings, ...),
+    ``problem.extra``, with ``model`` the number of max-range readings, and with a truth the visible cells and how many
+    of them ``posterior`` ``(nx, ny)`` gets wrong."""
+    params = problem.params
+    summary = {"source": problem.source, **method}
+    if model:
+        summary.update(prior_wall_prob=float(params.prior_wall_prob), sensor_noise=float(params.sensor_noise))
+    summary["num_angles"] = int(np.shape(problem.beam_angles)[-1])
+    if problem.multi_scan:
+        summary.update(num_scans=problem.num_scans, num_beams=int(problem.table.num_rays))
+    else:
+        summary["pos"] = [float(v) for v in problem.pos]
+    if model:
+        summary["beam_model"] = params.beam_model
+        if params.beam_model == "beam":
+            summary.update({name: float(getattr(params, name)) for name in BEAM_DEFAULTS})
+    summary["grid"] = {"shape": list(problem.grid.shape), "resolution": problem.grid.resolution,
+                       "origin": list(problem.grid.origin)}
+    summary["max_distance"] = params.cap
+    summary.update(results)
+    summary.update(problem.extra)
+    if model and problem.max_range_mask is not None:
+        summary["max_range_readings"] = int(problem.max_range_mask.sum())
+    if problem.truth is not None:
+        summary["visible_cells"] = int(problem.visible.sum())
+        summary["wrong_visible_cells"] = problem.wrong_visible_cells(posterior)
+    return summary
+
+
+def _chain_summary(problem: Problem, samples, wall_probs, diagnostics, posterior, settings: dict,
+                   runtime: float) -> dict:
+    """:func:`scene_summary` of a chain run, with its log joints and (several chains) convergence diagnostics."""
+    results = {"runtime_s": round(runtime, 4),
+               "posterior_estimate": "sample mean" if wall_probs is None else "rao-blackwellized",
+               "likelihood_power": float(problem.likelihood_power)}
+    summary = scene_summary(problem, settings, results, posterior, model=True)
+    if problem.truth is not None:
+        summary["log_joint_truth"] = problem.log_joint(problem.truth)
+    last = samples[-1] if settings["chains"] == 1 else samples[0, -1]
+    summary["log_joint_final_sample"] = problem.log_joint(last)
+    if diagnostics is not None:
+        varying = np.isfinite(diagnostics["r_hat"])
+        summary["cells_varying"] = int(varying.sum())
+        summary["r_hat_max"] = float(diagnostics["r_hat"][varying].max()) if varying.any() else None
+        summary["ess_min"] = float(diagnostics["ess"][varying].min()) if varying.any() else None
+    return summary
+
+
 def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, burn_in: int | None = None,
                   seed: int = 0, progress: bool = True, chains: int = 1,
                   on_progress=None, init: str | None = None) -> InferenceResult:
     """Run ``chains`` chains of ``sampler`` and summarize them: at once (``vmap``), or one after another for the
     samplers in :data:`SEQUENTIAL_CHAINS` (with the keys they would get at once, so the samples are the same).
+
+    Steps: check the settings, plan the chunks of sweeps and their keys, build the sampler and its compiled chain
+    from the start map, run the chunks (with progress), then the posterior marginals, diagnostics and summary.
 
     Args:
         problem: the scene.
@@ -66,124 +236,24 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, b
         BayesmapError: on an unknown sampler, or a bad number of sweeps, burn-in or chains; with several chains,
             on fewer than 4 kept sweeps (too few for R-hat).
     """
-    if int(chains) != chains or chains < 1:
-        raise BayesmapError(f"number of chains must be an integer >= 1, got {chains!r}")
-    if int(sweeps) != sweeps or sweeps < 1:
-        raise BayesmapError(f"number of sweeps must be an integer >= 1, got {sweeps!r}")
-    burn_in = sweeps // 2 if burn_in is None else burn_in
-    if int(burn_in) != burn_in or not (0 <= burn_in < sweeps):
-        raise BayesmapError(f"burn-in must be an integer between 0 and {sweeps - 1} (sweeps - 1), got {burn_in!r}")
-    from tqdm import tqdm
-
-    if chains > 1 and sweeps - burn_in < 4:
-        raise BayesmapError(f"diagnostics of {chains} chains need at least 4 sweeps after the burn-in, got {sweeps - burn_in}")
+    burn_in, init = _check_settings(problem, sweeps, burn_in, chains, init)
     start = time.perf_counter()
-    init = ("logodds" if problem.multi_scan else "free") if init is None else init
-    if init not in ("free", "logodds"):
-        raise BayesmapError(f"unknown chain start {init!r}; choose free or logodds")
-    one_by_one = chains > 1 and sampler in SEQUENTIAL_CHAINS
-    at_once = 1 if one_by_one else chains  # chains per compiled run
-    chunk = max(1, min(sweeps, 10))
-    keys = jax.random.split(jax.random.key(seed), -(-sweeps // chunk))
-    # Two cores (numpy, XLA's compiler and XLA's runtime release the GIL; the results are those of one step after
-    # another): the log-odds start map is computed while the sampler is built, the chain is compiled while its first
-    # state is computed, and while the chain runs (on one core) the summary's log joint, evaluated op by op, compiles
-    # its small XLA programs on the start map (the calls below then find them compiled).
+    plan = _plan_chunks(sampler, sweeps, seed, chains)
     with ThreadPoolExecutor(max_workers=1) as pool:
-        if init == "logodds":
-            problem.table.pair_rays  # (built before both threads use them)
-            start_map = pool.submit(run_logodds, problem)
-        algorithm = make_sampler(problem, sampler)
-        if init == "logodds":
-            walls0 = jnp.asarray(start_map.result().posterior > 0.5, jnp.float32)
-        else:
-            walls0 = jnp.zeros(problem.grid.shape, jnp.float32)
-
-        def first_state():
-            if at_once == 1:
-                return algorithm.init(walls0)
-            return jax.vmap(algorithm.init)(jnp.broadcast_to(walls0, (chains,) + walls0.shape))
-
-        key_shape = jax.ShapeDtypeStruct((at_once,) if at_once > 1 else (), keys.dtype)
-        compiled = pool.submit(compile_chain, key_shape, jax.eval_shape(first_state), algorithm, chunk,
-                               at_once if at_once > 1 else None)
-        state0 = first_state()
-        compiled.result()  # JAX keeps the compiled chain: the first chunk below does not compile it again
+        algorithm, walls0, state0 = _prepare_chain(pool, problem, sampler, init, chains, plan)
+        # while the chain runs (on one core), the summary's log joint, evaluated op by op, compiles its small XLA
+        # programs on the start map (the calls in the summary then find them compiled)
         warm = pool.submit(problem.log_joint, np.asarray(walls0) > 0.5)  # (bool, as the samples)
-        with tqdm(total=sweeps * chains if one_by_one else sweeps, unit="sweep", delay=1.0, disable=not progress,
-                  leave=False) as bar:
-            finished = [0]  # sweeps run so far, all chains (a disabled tqdm does not count)
-
-            def run(keys, state, chains, total):
-                """``(samples, wall_probs or None)`` of the chunks ``keys``, sweep axis -3."""
-                pieces, prob_pieces, done = [], [], 0
-                for key in keys:
-                    n = min(chunk, sweeps - done)
-                    if chains == 1:
-                        samples, state, probs = run_chain_from(key, state, algorithm, n)
-                    else:
-                        samples, state, probs = run_chains_from(jax.random.split(key, chains), state, algorithm, n)
-                    pieces.append(np.asarray(samples))
-                    if probs is not None:
-                        prob_pieces.append(np.asarray(probs))
-                    done += n
-                    finished[0] += n
-                    bar.update(n)
-                    if on_progress is not None:
-                        on_progress(finished[0], total)
-                return (np.concatenate(pieces, axis=-3),
-                        np.concatenate(prob_pieces, axis=-3) if prob_pieces else None)
-
-            if one_by_one:  # chain c uses the keys chain c would get at once (split of each chunk's key)
-                per_chain = jnp.stack([jax.random.split(key, chains) for key in keys])  # (chunks, chains)
-                runs = [run(per_chain[:, c], state0, 1, sweeps * chains) for c in range(chains)]
-                samples = np.stack([r[0] for r in runs])
-                wall_probs = None if runs[0][1] is None else np.stack([r[1] for r in runs])
-            else:
-                samples, wall_probs = run(keys, state0, chains, sweeps)
+        samples, wall_probs = _run_all_chains(algorithm, state0, plan, chains, sweeps, progress, on_progress)
         runtime = time.perf_counter() - start
         warm.result()
     # the posterior marginals: Rao-Blackwellized (mean of the conditional probabilities) where the sampler records
     # them, else the mean of the 0/1 samples
     posterior = posterior_mean(samples if wall_probs is None else wall_probs, burn_in)
     diagnostics = cell_diagnostics(samples, burn_in) if chains > 1 else None
-    summary = {
-        "source": problem.source,
-        "sampler": sampler,
-        "sampler_description": SAMPLERS[sampler][0],
-        "sweeps": int(sweeps),
-        "burn_in": int(burn_in),
-        "seed": int(seed),
-        "chains": int(chains),
-        "init": init,
-        "prior_wall_prob": float(problem.params.prior_wall_prob),
-        "sensor_noise": float(problem.params.sensor_noise),
-        "num_angles": int(np.shape(problem.beam_angles)[-1]),
-        **({"num_scans": problem.num_scans, "num_beams": int(problem.table.num_rays)} if problem.multi_scan
-           else {"pos": [float(v) for v in problem.pos]}),
-        "beam_model": problem.params.beam_model,
-        **({name: float(getattr(problem.params, name)) for name in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")}
-           if problem.params.beam_model == "beam" else {}),
-        "grid": {"shape": list(problem.grid.shape), "resolution": problem.grid.resolution, "origin": list(problem.grid.origin)},
-        "max_distance": problem.params.cap,
-        "runtime_s": round(runtime, 4),
-        "posterior_estimate": "sample mean" if wall_probs is None else "rao-blackwellized",
-        "likelihood_power": float(problem.likelihood_power),
-        **problem.extra,
-    }
-    if problem.max_range_mask is not None:
-        summary["max_range_readings"] = int(problem.max_range_mask.sum())
-    if problem.truth is not None:
-        summary["visible_cells"] = int(problem.visible.sum())
-        summary["wrong_visible_cells"] = problem.wrong_visible_cells(posterior)
-        summary["log_joint_truth"] = problem.log_joint(problem.truth)
-    last = samples[-1] if chains == 1 else samples[0, -1]
-    summary["log_joint_final_sample"] = problem.log_joint(last)
-    if diagnostics is not None:
-        varying = np.isfinite(diagnostics["r_hat"])
-        summary["cells_varying"] = int(varying.sum())
-        summary["r_hat_max"] = float(diagnostics["r_hat"][varying].max()) if varying.any() else None
-        summary["ess_min"] = float(diagnostics["ess"][varying].min()) if varying.any() else None
+    settings = {"sampler": sampler, "sampler_description": SAMPLERS[sampler][0], "sweeps": int(sweeps),
+                "burn_in": int(burn_in), "seed": int(seed), "chains": int(chains), "init": init}
+    summary = _chain_summary(problem, samples, wall_probs, diagnostics, posterior, settings, runtime)
     return InferenceResult(samples=samples, posterior=posterior, runtime_s=runtime, summary=summary, diagnostics=diagnostics)
 
 
@@ -193,7 +263,7 @@ def run_logodds(problem: Problem, params=None) -> InferenceResult:
 
     Returns:
         An :class:`InferenceResult` whose ``posterior`` is the occupancy probability per cell (not a posterior),
-        with no samples (``(0, nx, ny)``) and a summary like :func:`run_inference`'s.
+        with no samples (``(0, nx, ny)``) and a summary like :func:`run_inference`'s (:func:`scene_summary`).
     """
     from bayesmap.inference.logodds import LogOddsParams, logodds_map, occupancy
 
@@ -204,25 +274,11 @@ def run_logodds(problem: Problem, params=None) -> InferenceResult:
     logodds = logodds_map(table, problem.ray_readings, problem.ray_max_range, problem.scan_of_ray, params)
     runtime = time.perf_counter() - start
     prob = occupancy(logodds)
-    summary = {
-        "source": problem.source,
-        "method": "logodds",
-        "sampler": "logodds",
-        "sampler_description": f"log-odds occupancy mapping, inverse sensor model (p_hit {params.p_hit}, p_miss "
-                               f"{params.p_miss}, clamping {params.clamp_min}-{params.clamp_max})",
-        "num_angles": int(np.shape(problem.beam_angles)[-1]),
-        **({"num_scans": problem.num_scans, "num_beams": int(table.num_rays)} if problem.multi_scan
-           else {"pos": [float(v) for v in problem.pos]}),
-        "grid": {"shape": list(problem.grid.shape), "resolution": problem.grid.resolution, "origin": list(problem.grid.origin)},
-        "max_distance": problem.params.cap,
-        "ray_cell_pairs": int(table.num_pairs),
-        "table_s": round(table_s, 4),
-        "update_s": round(runtime - table_s, 4),
-        "runtime_s": round(runtime, 4),
-        **problem.extra,
-    }
-    if problem.truth is not None:
-        summary["visible_cells"] = int(problem.visible.sum())
-        summary["wrong_visible_cells"] = problem.wrong_visible_cells(prob)
+    method = {"method": "logodds", "sampler": "logodds",
+              "sampler_description": f"log-odds occupancy mapping, inverse sensor model (p_hit {params.p_hit}, p_miss "
+                                     f"{params.p_miss}, clamping {params.clamp_min}-{params.clamp_max})"}
+    results = {"ray_cell_pairs": int(table.num_pairs), "table_s": round(table_s, 4),
+               "update_s": round(runtime - table_s, 4), "runtime_s": round(runtime, 4)}
+    summary = scene_summary(problem, method, results, prob, model=False)
     empty = np.zeros((0,) + problem.grid.shape, dtype=bool)
     return InferenceResult(samples=empty, posterior=prob, runtime_s=runtime, summary=summary)

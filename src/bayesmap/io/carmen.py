@@ -196,7 +196,13 @@ class CarmenLog:
             f"max_range_beams={int(self.is_max_range.sum())})"
         )
 
-    def _check_index(self, index: int) -> int:
+    def check_index(self, index: int) -> int:
+        """``index`` as an int, checked: ``0 <= index < len(self)``.
+
+        Raises:
+            BayesmapError: ``index`` is not an integer, is negative, or is ``>= len(self)``; the message names the
+                index and the number of scans.
+        """
         if isinstance(index, (bool, np.bool_)) or not isinstance(index, (int, np.integer)):
             raise BayesmapError(f"scan index must be an integer, got {index!r}")
         n = len(self)
@@ -214,7 +220,7 @@ class CarmenLog:
             BayesmapError: ``index`` is not an integer, is negative, or is ``>= len(self)``;
                 the message names the index and the number of scans.
         """
-        i = self._check_index(index)
+        i = self.check_index(index)
         return Scan(
             ranges=self.ranges[i],
             pose=self.poses[i],
@@ -233,7 +239,7 @@ class CarmenLog:
         Raises:
             BayesmapError: as :meth:`scan`.
         """
-        i = self._check_index(index)
+        i = self.check_index(index)
         r = self.ranges[i]
         a = self.angles[i]
         x, y = self.poses[i, 0], self.poses[i, 1]
