@@ -27,24 +27,12 @@ import jax.numpy as jnp
 import numpy as np
 from IPython.display import Image, display
 
-from bayesmap.viz.animation import chain_gif
-from bayesmap.io.ascii import format_map, tutorial_map
-from bayesmap.inference.chains import cell_diagnostics, posterior_mean, run_chain, run_chains
-from bayesmap.inference.importance import importance_sampling, resample
-from bayesmap.io.carmen import read_carmen
-from bayesmap.model.generative import log_joint, simulate, walls_prior
-from bayesmap.viz.common import figure_bytes
-from bayesmap.viz.diagnostics import plot_convergence, plot_importance
-from bayesmap.viz.maps import plot_map, plot_posterior
-from bayesmap.inference.registry import make_sampler
-from bayesmap.scenes import scan_problem, tutorial_problem
-from bayesmap.geometry.raycast import sensor_distances
-from bayesmap.inference.traces import chain_log_joints, chain_wrong_cells
+import bayesmap as bm
 
 
 def show(fig):
     """Display a matplotlib Figure as a PNG (works in any notebook front end and in the HTML export)."""
-    display(Image(figure_bytes(fig, "png")))
+    display(Image(bm.figure_bytes(fig, "png")))
 
 
 # %% [markdown]
@@ -53,9 +41,9 @@ def show(fig):
 # `walls[i, j]` is 1 for a wall; `i` runs along x and `j` along y. The ASCII file shows line `i`, character `j`.
 
 # %%
-walls = tutorial_map()
-print(format_map(walls))
-problem = tutorial_problem()  # the tutorial's scene: sensor at (10, 10), 100 beams, readings from key 0
+walls = bm.tutorial_map()
+print(bm.format_map(walls))
+problem = bm.tutorial_problem()  # the tutorial's scene: sensor at (10, 10), 100 beams, readings from key 0
 grid, pos, beam_angles = problem.grid, problem.pos, problem.beam_angles
 print(f"grid {grid.shape}, sensor at {pos}, {len(beam_angles)} beams, {int(walls.sum())} wall cells")
 
@@ -63,23 +51,23 @@ print(f"grid {grid.shape}, sensor at {pos}, {len(beam_angles)} beams, {int(walls
 # ## The prior: independent coin flips
 
 # %%
-prior = walls_prior(grid.shape)
+prior = bm.walls_prior(grid.shape)
 keys = jax.random.split(jax.random.key(1), 3)
 samples = [np.asarray(jax.jit(prior.simulate)(k, (0.5,)).get_retval()) for k in keys]
 for k, sample in enumerate(samples):
     print(f"prior sample {k}: {sample.mean():.2f} of the cells are walls")
-show(plot_map(grid, samples[0], title="A sample from the prior (prior_wall_prob = 0.5)"))
+show(bm.plot_map(grid, samples[0], title="A sample from the prior (prior_wall_prob = 0.5)"))
 
 # %% [markdown]
 # ## The sensor model: exact distances, then noisy readings
 
 # %%
-exact = np.asarray(sensor_distances(walls, pos, beam_angles))
+exact = np.asarray(bm.sensor_distances(walls, pos, beam_angles))
 readings = problem.readings
 print(f"exact distances {exact.min():.2f} to {exact.max():.2f} m; readings differ by {np.abs(readings - exact).std():.3f} m "
       f"(sensor_noise = {problem.params.sensor_noise})")
-show(plot_map(grid, walls, pos=pos, beam_angles=beam_angles, readings=readings, title="The map, the rays and the readings"))
-show(plot_map(grid, None, pos=pos, beam_angles=beam_angles, readings=readings, title="What the robot sees"))
+show(bm.plot_map(grid, walls, pos=pos, beam_angles=beam_angles, readings=readings, title="The map, the rays and the readings"))
+show(bm.plot_map(grid, None, pos=pos, beam_angles=beam_angles, readings=readings, title="What the robot sees"))
 
 # %% [markdown]
 # ## The full model
@@ -87,10 +75,10 @@ show(plot_map(grid, None, pos=pos, beam_angles=beam_angles, readings=readings, t
 # Addresses `"walls"` and `"readings"`. Its log joint (GenJAX `assess`) scores a map against the readings.
 
 # %%
-joint_walls, joint_readings = simulate(jax.random.key(2), pos, problem.params)
+joint_walls, joint_readings = bm.simulate(jax.random.key(2), pos, problem.params)
 print(f"a joint sample: {int(np.sum(joint_walls))} wall cells, readings {np.asarray(joint_readings)[:4].round(2)} ...")
-print(f"log joint of the true map: {float(log_joint(walls, readings, pos, problem.params)):.1f}")
-print(f"log joint of an empty map: {float(log_joint(np.zeros(grid.shape), readings, pos, problem.params)):.1f}")
+print(f"log joint of the true map: {float(bm.log_joint(walls, readings, pos, problem.params)):.1f}")
+print(f"log joint of an empty map: {float(bm.log_joint(np.zeros(grid.shape), readings, pos, problem.params)):.1f}")
 
 # %% [markdown]
 # ## Importance sampling collapses
@@ -98,12 +86,12 @@ print(f"log joint of an empty map: {float(log_joint(np.zeros(grid.shape), readin
 # Propose maps from the prior, weight them by the likelihood: with 441 cells, one particle takes all the weight.
 
 # %%
-result = importance_sampling(jax.random.key(3), readings, pos, problem.params, num_particles=2000)
-picked = np.asarray(resample(jax.random.key(4), result.log_weights, 100))
+result = bm.importance_sampling(jax.random.key(3), readings, pos, problem.params, num_particles=2000)
+picked = np.asarray(bm.resample(jax.random.key(4), result.log_weights, 100))
 print(f"effective sample size {float(result.ess):.2f} of 2,000; {len(np.unique(picked))} distinct particle(s) among 100 resampled")
 best = np.asarray(result.walls[picked[0]])
 print(f"the best particle has {int((best != walls).sum())} of 441 cells wrong")
-show(plot_importance(np.asarray(result.log_weights), float(result.ess)))
+show(bm.plot_importance(np.asarray(result.log_weights), float(result.ess)))
 
 # %% [markdown]
 # ## Gibbs sampling, as in the tutorial
@@ -116,17 +104,17 @@ show(plot_importance(np.asarray(result.log_weights), float(result.ess)))
 # %%
 def run(problem, sampler, sweeps, seed=0):
     start = time.perf_counter()
-    chain = run_chain(jax.random.key(seed), make_sampler(problem, sampler), jnp.zeros(grid.shape), sweeps)
+    chain = bm.run_chain(jax.random.key(seed), bm.make_sampler(problem, sampler), jnp.zeros(grid.shape), sweeps)
     samples = np.asarray(chain.samples)
     seconds = time.perf_counter() - start
-    mean = posterior_mean(samples, sweeps // 2)
+    mean = bm.posterior_mean(samples, sweeps // 2)
     print(f"{sampler:24s} {sweeps:4d} sweeps  {seconds:6.2f} s (compile included)  "
           f"wrong visible cells: {problem.wrong_visible_cells(mean)} of {int(problem.visible.sum())}")
     return samples, mean
 
 
 reference = {name: run(problem, name, 20) for name in ["reference-raster", "reference-incremental", "reference-outward"]}
-show(plot_posterior(grid, reference["reference-raster"][1], truth=walls, pos=pos,
+show(bm.plot_posterior(grid, reference["reference-raster"][1], truth=walls, pos=pos,
                     title="Single-site Gibbs (tutorial's algorithm), 20 sweeps"))
 
 # %% [markdown]
@@ -136,24 +124,24 @@ show(plot_posterior(grid, reference["reference-raster"][1], truth=walls, pos=pos
 # segment is in place: single-site Gibbs cannot get there one cell at a time. Updating 2x2 blocks jointly can.
 
 # %%
-low = tutorial_problem(prior_wall_prob=0.05)
+low = bm.tutorial_problem(prior_wall_prob=0.05)
 stuck = run(low, "raster", 100)
 blocks = run(low, "block", 100)
-print(f"true map log joint {float(log_joint(walls, readings, pos, low.params)):.1f}; last raster sample "
-      f"{float(log_joint(stuck[0][-1], readings, pos, low.params)):.1f}; last block sample "
-      f"{float(log_joint(blocks[0][-1], readings, pos, low.params)):.1f}")
-show(plot_posterior(grid, stuck[1], truth=walls, pos=pos, title="prior 0.05: single-site Gibbs, 100 sweeps"))
-show(plot_posterior(grid, blocks[1], truth=walls, pos=pos, title="prior 0.05: 2x2 block Gibbs, 100 sweeps"))
+print(f"true map log joint {float(bm.log_joint(walls, readings, pos, low.params)):.1f}; last raster sample "
+      f"{float(bm.log_joint(stuck[0][-1], readings, pos, low.params)):.1f}; last block sample "
+      f"{float(bm.log_joint(blocks[0][-1], readings, pos, low.params)):.1f}")
+show(bm.plot_posterior(grid, stuck[1], truth=walls, pos=pos, title="prior 0.05: single-site Gibbs, 100 sweeps"))
+show(bm.plot_posterior(grid, blocks[1], truth=walls, pos=pos, title="prior 0.05: 2x2 block Gibbs, 100 sweeps"))
 both = np.stack([stuck[0], blocks[0]])  # (2 chains, 100 sweeps, nx, ny)
-show(plot_convergence(chain_log_joints(low, both), chain_wrong_cells(low, both), burn_in=50,
-                      truth_log_joint=float(log_joint(walls, readings, pos, low.params)),
+show(bm.plot_convergence(bm.chain_log_joints(low, both), bm.chain_wrong_cells(low, both), burn_in=50,
+                      truth_log_joint=float(bm.log_joint(walls, readings, pos, low.params)),
                       title="prior 0.05: chain 0 single-site, chain 1 2x2 blocks"))
 
 # %% [markdown]
 # The block chain as an animation (the sample after each sweep, and the running mean):
 
 # %%
-display(Image(chain_gif(grid, blocks[0], truth=walls, pos=pos, max_frames=40), format="gif"))
+display(Image(bm.chain_gif(grid, blocks[0], truth=walls, pos=pos, max_frames=40), format="gif"))
 
 # %% [markdown]
 # The tutorial's own 2x2 block sweep (`reference-block`) takes 16 `assess` calls per block; a few sweeps suffice:
@@ -176,13 +164,13 @@ for name in ["raster", "outward", "block", "chromatic", "chromatic-block"]:
 # Many chains at once (`vmap`) give per-cell split R-hat and effective sample size:
 
 # %%
-chains = run_chains(jax.random.key(5), make_sampler(problem, "block"), jnp.zeros(grid.shape), 100, 8)
-diag = cell_diagnostics(np.asarray(chains.samples), burn_in=50)
+chains = bm.run_chains(jax.random.key(5), bm.make_sampler(problem, "block"), jnp.zeros(grid.shape), 100, 8)
+diag = bm.cell_diagnostics(np.asarray(chains.samples), burn_in=50)
 varying = np.isfinite(diag["r_hat"])
 print(f"8 chains x 100 sweeps: worst split R-hat {np.nanmax(diag['r_hat']):.3f}, smallest ESS "
       f"{np.nanmin(diag['ess']):.0f} over the {int(varying.sum())} cells that change")
-mean = posterior_mean(np.asarray(chains.samples), 50)
-show(plot_posterior(grid, mean, truth=walls, pos=pos, std=True, title="8 chains of 2x2 block Gibbs: mean and spread"))
+mean = bm.posterior_mean(np.asarray(chains.samples), 50)
+show(bm.plot_posterior(grid, mean, truth=walls, pos=pos, std=True, title="8 chains of 2x2 block Gibbs: mean and spread"))
 
 # %% [markdown]
 # ## A real laser scan
@@ -197,10 +185,10 @@ log_path = next((p for p in candidates if p.exists()), None)
 if log_path is None:
     print("the shared Intel log is not here; skipping the real scan")
 else:
-    scan = scan_problem(read_carmen(log_path), 100, resolution=0.1, sensor_noise=0.05)
+    scan = bm.scan_problem(bm.read_carmen(log_path), 100, resolution=0.1, sensor_noise=0.05)
     start = time.perf_counter()
-    chain = run_chain(jax.random.key(6), make_sampler(scan, "chromatic"), jnp.zeros(scan.grid.shape), 40)
+    chain = bm.run_chain(jax.random.key(6), bm.make_sampler(scan, "chromatic"), jnp.zeros(scan.grid.shape), 40)
     print(f"scan 100: grid {scan.grid.shape} at 0.1 m, {len(scan.readings)} beams, 40 sweeps in "
           f"{time.perf_counter() - start:.1f} s")
-    show(plot_posterior(scan.grid, posterior_mean(np.asarray(chain.samples), 20), pos=scan.pos, beam_angles=scan.beam_angles,
+    show(bm.plot_posterior(scan.grid, bm.posterior_mean(np.asarray(chain.samples), 20), pos=scan.pos, beam_angles=scan.beam_angles,
                         readings=scan.readings, max_range_mask=scan.max_range_mask, title="Intel scan 100: P(wall)"))

@@ -43,6 +43,7 @@ API: dict[str, str] = {
     "log_joint": "bayesmap.model.generative",
     "simulate": "bayesmap.model.generative",
     "simulate_readings": "bayesmap.model.generative",
+    "walls_prior": "bayesmap.model.generative",
     # scenes
     "Problem": "bayesmap.scenes",
     "Observations": "bayesmap.scenes",
@@ -61,6 +62,9 @@ API: dict[str, str] = {
     "posterior_mean": "bayesmap.inference.chains",
     "cell_diagnostics": "bayesmap.inference.chains",
     "importance_sampling": "bayesmap.inference.importance",
+    "resample": "bayesmap.inference.importance",
+    "chain_log_joints": "bayesmap.inference.traces",
+    "chain_wrong_cells": "bayesmap.inference.traces",
     # evaluation
     "evaluate_log": "bayesmap.evaluation.heldout",
     "evaluate_truth": "bayesmap.evaluation.heldout",
