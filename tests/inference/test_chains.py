@@ -68,7 +68,7 @@ def test_new_readings_prior_and_noise_reuse_the_compiled_sweep():
     import jax
     import jax.numpy as jnp
 
-    from bayesmap.inference.chains import run_chain_from, _run_jit
+    from bayesmap.inference.chains import compiled_chain_count, run_chain_from
     from bayesmap.inference.registry import make_sampler
     from bayesmap.scenes import tutorial_problem
 
@@ -78,9 +78,9 @@ def test_new_readings_prior_and_noise_reuse_the_compiled_sweep():
         return np.asarray(samples)
 
     first = run(tutorial_problem(seed=3))
-    size = _run_jit._cache_size()
+    size = compiled_chain_count()
     second = run(tutorial_problem(seed=4, prior_wall_prob=0.2, sensor_noise=0.3))
-    assert _run_jit._cache_size() == size  # no new compilation
+    assert compiled_chain_count() == size  # no new compilation
     assert not np.array_equal(first, second)  # and the new data were used
     run(tutorial_problem(seed=3, pos=(6.0, 12.0)))
-    assert _run_jit._cache_size() == size + 1
+    assert compiled_chain_count() == size + 1
