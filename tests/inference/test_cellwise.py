@@ -122,7 +122,7 @@ def test_sweep_is_the_one_cell_at_a_time_sweep(speculative, monkeypatch):
     kernel = sampler.kernel
     order = np.concatenate([np.asarray(lanes.cells) for lanes in kernel._lanes])
     free = np.asarray(kernel._free)
-    prior = float(jax.nn.sigmoid(kernel._logit))
+    prior = float(jax.nn.sigmoid(kernel._prior_log_odds))
     step, log_odds = jax.jit(sampler.step), jax.jit(sampler.cell_log_odds)
     state = sampler.init(jnp.asarray(np.random.default_rng(1).random(grid.shape) < 0.5, jnp.float32))
     walls = np.asarray(state.walls).reshape(-1).copy()

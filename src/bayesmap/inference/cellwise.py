@@ -174,7 +174,7 @@ class CellwiseKernel(KernelFields):
     and sensor model (other readings, prior, noise, mixture weights) share one compiled sweep."""
 
     _ARRAYS = ("_lanes", "_free", "_rank", "_pair_cells", "_pair_ll", "_ray_start", "_ray_length", "_max_ll",
-               "_logit")
+               "_prior_log_odds")
     _STATIC = ("_shape", "_num_rays", "_num_pairs")
 
     # -- the per-ray rows ---------------------------------------------------------------------------------------
@@ -318,7 +318,7 @@ class CellwiseKernel(KernelFields):
             s = jnp.minimum(i, n - size)  # the block: cells s .. s + size - 1 of the group, those before i done
             rays, positions, log_lik = (jax.lax.dynamic_slice_in_dim(a, s, size) for a in lanes[1:])
             score, can_add, can_remove = self._score(rows_all[rays], positions, log_lik)
-            prob = jax.nn.sigmoid(self._logit + score)
+            prob = jax.nn.sigmoid(self._prior_log_odds + score)
             old = jax.lax.dynamic_slice_in_dim(cur, base + s, size) > 0
             new = jax.lax.dynamic_slice_in_dim(u, base + s, size) < prob
             rewrites = (j >= i - s) & (new != old) & jnp.where(new, can_add, can_remove)
@@ -342,7 +342,7 @@ class CellwiseKernel(KernelFields):
         (the prior for cells no ray crosses)."""
         walls = state.walls.reshape(-1)
         u = jax.random.uniform(key, walls.shape)
-        prior = jax.nn.sigmoid(self._logit)
+        prior = jax.nn.sigmoid(self._prior_log_odds)
         order = jnp.concatenate([lanes.cells for lanes in self._lanes])
         cur, u_order = walls[order], u[order]
         probs = jnp.zeros(order.shape, jnp.float32)
@@ -359,7 +359,7 @@ class CellwiseKernel(KernelFields):
         """Every cell's conditional log-odds given the rest of ``walls`` ``(nx, ny)``: ``(nx, ny)``, computed with
         the sweep's own scoring (each cell alone, from the rows of ``walls``)."""
         rows_all = self.ray_walls(walls)
-        out = jnp.full(self._shape[0] * self._shape[1], self._logit, rows_all.dtype)
+        out = jnp.full(self._shape[0] * self._shape[1], self._prior_log_odds, rows_all.dtype)
         for lanes in self._lanes:
             scores = self._score(rows_all[lanes.rays], lanes.positions, lanes.log_lik)[0]
             out = out.at[lanes.cells].add(scores)
@@ -380,12 +380,13 @@ class CellwiseGibbs(KernelSampler):
         params: model parameters (``prior_wall_prob`` and the sensor model; for ``"beam"`` the table's max distance
             must be the model's max range ``params.cap``).
         likelihood_power: ``eta`` in (0, 1]: sample ``p(walls) p(readings | walls) ** eta``
-            (:func:`bayesmap.model.generative.check_likelihood_power`); 1, the posterior, by default.
+            (every log-likelihood the sweep looks up times ``eta``: :func:`bayesmap.model.likelihood.tempered`); 1, the
+            posterior, by default.
 
     Attributes:
         kernel: the :class:`CellwiseKernel`.
-        algorithm: the :class:`SamplingAlgorithm` (``init``, ``step``), partials of the kernel as in
-            :mod:`bayesmap.inference.fast`.
+        algorithm: the :class:`SamplingAlgorithm` (``init``, ``step``), partials of the kernel
+            (:attr:`bayesmap.inference.base.KernelSampler.algorithm`).
 
     Raises:
         BayesmapError: on readings that do not match the table's rays, a table whose max distance is not the beam
@@ -411,7 +412,7 @@ class CellwiseGibbs(KernelSampler):
             _ray_start=jnp.asarray(np.append(table.offsets[:-1], num_pairs), jnp.int32),
             _ray_length=jnp.asarray(np.append(table.lengths, 0), jnp.int32),
             _max_ll=jnp.asarray(np.append(max_ll, 0.0), dtype),
-            _logit=jnp.asarray(prior_log_odds(params.prior_wall_prob), dtype),
+            _prior_log_odds=jnp.asarray(prior_log_odds(params.prior_wall_prob), dtype),
             _shape=tuple(table.grid.shape), _num_rays=num_rays, _num_pairs=num_pairs)
 
     def ray_walls(self, walls) -> jax.Array:

@@ -51,8 +51,8 @@ from bayesmap.model.generative import ModelParams, prior_log_odds
 from bayesmap.model.likelihood import likelihood_inputs, log_likelihood_table, pair_log_likelihoods, tempered
 from bayesmap.model.sensor import normal_logpdf, reading_logpdf
 
-SCHEDULES = ("sequential", "chromatic")
-WORD_BITS = 32
+SCHEDULES = ("sequential", "chromatic")  # the ``schedule`` choices of :class:`FastGibbs`
+WORD_BITS = 32  # cells per word of a ray's bit string (``uint32``)
 
 
 def sample_categorical(log_weights, u):
@@ -98,8 +98,10 @@ class Levels(NamedTuple):
         pos: ``(NL, B, E)`` int32 position of each block cell along the ray, ``-1`` if the ray misses it.
         stop: ``(NL, C, E)`` float the ray's distance if only the block's walls in configuration ``c`` existed
             (``inf`` if none of them is on the ray), meters.
-        log_prior: ``(NL, A, C)`` float prior log-probability of each configuration (``-inf`` for configurations
-            that set cells a padding block does not have; 0 in the first steps of a chunked block).
+        log_prior: ``(NL, A, C)`` float prior log-probability of each configuration relative to the all-free one
+            (its number of walls times the prior log-odds; so column 0 is 0 and, for single cells, column 1 the
+            prior log-odds), ``-inf`` for configurations that set cells a padding block does not have, 0 in the
+            first steps of a chunked block.
         carry_in: ``(NL,)`` bool, the step continues the previous step's block (add its log-weights).
         commit: ``(NL,)`` bool, the step draws its blocks.
         fix_src: ``(NL, E)`` int32 buffer index of the drawn configuration of a chunked block whose bits the
@@ -190,7 +192,7 @@ class FastGibbs(KernelSampler):
             level to the largest would cost more than 4 times the real work; then 32 (or the mean entries per
             level if larger).
         likelihood_power: ``eta`` in (0, 1]: sample ``p(walls) p(readings | walls) ** eta`` (every log-likelihood
-            of a conditional times ``eta``; :func:`bayesmap.model.generative.check_likelihood_power`); 1, the posterior.
+            of a conditional times ``eta``: :func:`bayesmap.model.likelihood.tempered`); 1, the posterior.
 
     Attributes:
         blocks: ``(NB, B)`` int flat cell indices, sweep order.
@@ -218,7 +220,8 @@ class FastGibbs(KernelSampler):
         inputs = likelihood_inputs(table, readings, params, likelihood_power)
         self.table = table
         self.grid = table.grid
-        self._y, self.beam_model, self._sensor_args, self._dtype = inputs[:4]
+        self._y, self.beam_model, self._sensor_args = inputs.readings, inputs.beam_model, inputs.sensor_args
+        self._dtype = inputs.dtype
         if pos is None:
             pos = table.origins[0] if table.num_rays else np.zeros(2)
         self.blocks = make_blocks(self.grid, block_size, order, pos)
@@ -571,7 +574,7 @@ class FastKernel(KernelFields):
         if ll.shape[0] == 2:  # single cells: one log-likelihood ratio per ray, summed into log-odds (a dot: XLA
             # turns a long masked sum into a slow reduce-window)
             log_odds = jnp.dot(mine.astype(ll.dtype), ll[1] - ll[0], precision=jax.lax.Precision.HIGHEST)
-            return log_odds + (lv.log_prior[:, 1] - lv.log_prior[:, 0]), outside
+            return log_odds + lv.log_prior[:, 1], outside  # the prior log-odds (configuration 0 has prior 0)
         # many configurations: accumulate (A, C) rows over the entries (vectorized over A and C)
         return jnp.sum(jnp.where(mine.T[:, :, None], ll.T[:, None, :], 0.0), axis=0) + lv.log_prior, outside
 
