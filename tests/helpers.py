@@ -62,7 +62,7 @@ def sweeps_keep_ray_bits(fast, state, num_sweeps: int) -> int:
     step = jax.jit(fast.step)
     changed = 0
     for k in range(num_sweeps):
-        new = step(jax.random.key(k), state)
+        new, _ = step(jax.random.key(k), state)
         changed += int(jnp.sum(new.walls != state.walls))
         state = new
         assert np.array_equal(np.asarray(state.ray_bits), np.asarray(fast.ray_bits(state.walls)))

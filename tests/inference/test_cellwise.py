@@ -10,12 +10,10 @@ from jax.experimental import enable_x64
 from bayesmap.errors import BayesmapError
 from bayesmap.inference import cellwise
 from bayesmap.geometry.grid import Grid
-from bayesmap.inference.cellwise import NONE, CellwiseGibbs, width_groups
+from bayesmap.inference.cellwise import NO_WALL, CellwiseGibbs, width_groups
 from bayesmap.inference.chains import run_chain, run_chains
-from bayesmap.inference.fast import pair_log_likelihoods
-from bayesmap.model.generative import choices, make_params, multi_scan_model, scan_args
+from bayesmap.model.generative import choices, make_params, multi_scan_model, prior_log_odds, scan_args
 from bayesmap.geometry.raytable import build_ray_table
-from bayesmap.model.sensor import reading_logpdf
 from helpers import POSES, beam_enumeration_scene, scenes
 
 
@@ -50,44 +48,10 @@ def test_conditionals_match_the_multi_scan_model(beam_model, likelihood_power):
             walls = (rng.random(grid.shape) < density).astype(np.float64)
             got = np.asarray(sampler.cell_log_odds(walls))
             want = np.asarray(brute(jnp.asarray(walls)))
-            logit = np.log(params.prior_wall_prob / (1 - params.prior_wall_prob))
+            logit = prior_log_odds(params.prior_wall_prob)
             want = logit + likelihood_power * (want - logit)
             np.testing.assert_allclose(got, want, atol=1e-4, rtol=0)
             assert np.ptp(want) > 2.0
-
-
-@pytest.mark.parametrize("x64", [False, True])
-@pytest.mark.parametrize("beam_model", ["normal", "beam"])
-def test_pair_log_likelihoods_are_the_sensor_model(beam_model, x64):
-    """fast.pair_log_likelihoods (the per-pair table of the fast and cellwise samplers, which computes the beam
-    model's point mass only for the pairs of max-range readings) equals reading_logpdf at each pair's reading and
-    stopping distance, element by element, then a 0; with max-range readings (at and beyond the max range),
-    readings just below it on rays whose last cells are near the max range, readings of 0, and stopping distances
-    near 0 (sensors just inside a cell edge), in float32 and float64. Tolerance: a few units of rounding (the same
-    operations in one jitted call; in practice the bits are equal)."""
-    with enable_x64(x64):
-        grid = Grid((12, 12))
-        params = make_params(0.3, 0.05, 16, grid, 6.0, beam_model=beam_model)
-        poses = np.array([[3.4999, 5.0], [6.0, 6.5001], [8.2, 3.3]])
-        rng = np.random.default_rng(0)
-        angles = rng.uniform(-np.pi, np.pi, (3, 16))
-        angles[:, :4] = [0.0, np.pi / 2, np.pi, -np.pi / 2]  # straight out of the cell whose edge is 1e-4 away
-        table = build_ray_table(grid, np.repeat(poses, 16, axis=0), angles.reshape(-1), params.cap)
-        m = params.cap
-        y = rng.uniform(0.0, m, table.num_rays)
-        y[::5], y[1::7], y[2::6], y[3::9] = m, 2 * m, m - 0.01, 0.0
-        dtype = jnp.result_type(float)
-        sensor_args = tuple(jnp.asarray(a, dtype) for a in params.sensor_args)
-        got = np.asarray(pair_log_likelihoods(table, y, beam_model, sensor_args))
-        want = np.asarray(reading_logpdf(beam_model, jnp.asarray(y[table.pair_rays], dtype),
-                                         jnp.asarray(table.pair_dists, dtype), sensor_args))
-        assert got.shape == (table.num_pairs + 1,) and got.dtype == dtype and got[-1] == 0.0
-        tol = 8 * np.finfo(dtype).eps
-        np.testing.assert_allclose(got[:-1], want, rtol=tol, atol=tol)
-        # the scene has what the test is about
-        at_max = y[table.pair_rays] >= m
-        assert at_max.any() and (~at_max).any() and np.isfinite(want).all()
-        assert table.pair_dists.min() < 1e-3 and table.pair_dists[~at_max].max() > m - 0.3
 
 
 def test_lanes_hold_each_cells_pairs_in_ray_order():
@@ -117,7 +81,7 @@ def test_lanes_hold_each_cells_pairs_in_ray_order():
 def rows_from_map(table, walls):
     """Per ray (first position, second position) of walls along it, recomputed in plain numpy."""
     on = np.asarray(walls).reshape(-1)[table.pair_cells] > 0
-    out = np.full((table.num_rays, 2), NONE)
+    out = np.full((table.num_rays, 2), NO_WALL)
     for r in range(table.num_rays):
         pos = np.nonzero(on[table.offsets[r]:table.offsets[r + 1]])[0][:2]
         out[r, :len(pos)] = pos
@@ -137,7 +101,7 @@ def test_sweeps_keep_the_ray_rows_consistent(beam_model, batch, monkeypatch):
     state = sampler.init(jnp.asarray(np.random.default_rng(0).random(grid.shape) < 0.5, jnp.float32))
     changed = 0
     for k in range(15):
-        new = step(jax.random.key(k), state)
+        new, _ = step(jax.random.key(k), state)
         changed += int(jnp.sum(new.walls != state.walls))
         state = new
         rows = np.asarray(state.ray_walls)
@@ -146,26 +110,26 @@ def test_sweeps_keep_the_ray_rows_consistent(beam_model, batch, monkeypatch):
     assert changed > 20
 
 
-@pytest.mark.parametrize("block", [8, 3])
-def test_sweep_is_the_one_cell_at_a_time_sweep(block, monkeypatch):
-    """The sweep scores BLOCK consecutive cells at once and keeps those up to the first draw that changes a row: its
+@pytest.mark.parametrize("speculative", [8, 3])
+def test_sweep_is_the_one_cell_at_a_time_sweep(speculative, monkeypatch):
+    """The sweep scores SPECULATIVE_CELLS consecutive cells at once and keeps those up to the first draw that changes a row: its
     draws are exactly those of updating one cell at a time in the visiting order, each drawn with the same uniform
     from its conditional given the current map (cell_log_odds, the same scoring), then the cells no ray crosses
-    from the prior. Block 3 leaves partial blocks at the ends of groups. Dense maps, so that many cells change."""
-    monkeypatch.setattr(cellwise, "BLOCK", block)
+    from the prior. 3 at once leaves partial runs at the ends of groups. Dense maps, so that many cells change."""
+    monkeypatch.setattr(cellwise, "SPECULATIVE_CELLS", speculative)
     grid, params, angles, _, y, table = scenes("beam", 11, num_beams=30)
     sampler = CellwiseGibbs(table, y.reshape(-1), params)
     kernel = sampler.kernel
     order = np.concatenate([np.asarray(lanes.cells) for lanes in kernel._lanes])
     free = np.asarray(kernel._free)
-    prior = float(jax.nn.sigmoid(kernel._logit))
+    prior = float(jax.nn.sigmoid(kernel._prior_log_odds))
     step, log_odds = jax.jit(sampler.step), jax.jit(sampler.cell_log_odds)
     state = sampler.init(jnp.asarray(np.random.default_rng(1).random(grid.shape) < 0.5, jnp.float32))
     walls = np.asarray(state.walls).reshape(-1).copy()
     changed = 0
     for k in range(4):
         key = jax.random.key(k)
-        state = step(key, state)
+        state, info = step(key, state)
         u = np.asarray(jax.random.uniform(key, walls.shape))
         probs = np.full(walls.shape, prior, np.float32)
         for c in order:
@@ -175,7 +139,7 @@ def test_sweep_is_the_one_cell_at_a_time_sweep(block, monkeypatch):
             walls[c] = new
         walls[free] = u[free] < prior
         np.testing.assert_array_equal(np.asarray(state.walls).reshape(-1), walls)
-        np.testing.assert_allclose(np.asarray(state.wall_prob).reshape(-1), probs, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(np.asarray(info.wall_prob).reshape(-1), probs, rtol=1e-6, atol=1e-7)
     assert changed > 20
 
 
@@ -225,7 +189,7 @@ def test_width_groups_and_errors():
 
 
 def test_rao_blackwellized_marginals_match_exact_enumeration():
-    """The sweep's conditional wall probabilities (``state.wall_prob``), averaged over 64 chains x 250 kept sweeps,
+    """The sweep's conditional wall probabilities (``info.wall_prob``), averaged over 64 chains x 250 kept sweeps,
     estimate the exact marginals of the two-scan beam scene. Their error is at most that of the 0/1 mean (standard
     error <= 0.014); tolerance 0.03, half the 0/1 test's. The chain's draws are the same with or without them."""
     table, y, params, exact = beam_enumeration_scene()
@@ -248,7 +212,7 @@ def test_wall_prob_of_the_last_cell_is_its_conditional_given_the_final_map():
     last = int(sampler.kernel._lanes[-1].cells[-1])
     state = sampler.init(jnp.zeros(grid.shape))
     for k in range(5):
-        state = sampler.step(jax.random.key(k), state)
+        state, info = sampler.step(jax.random.key(k), state)
         cond = np.asarray(jax.nn.sigmoid(sampler.cell_log_odds(state.walls))).reshape(-1)
-        prob = np.asarray(state.wall_prob).reshape(-1)
+        prob = np.asarray(info.wall_prob).reshape(-1)
         np.testing.assert_allclose(prob[last], cond[last], rtol=1e-5, atol=1e-6)

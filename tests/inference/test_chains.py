@@ -68,7 +68,7 @@ def test_new_readings_prior_and_noise_reuse_the_compiled_sweep():
     import jax
     import jax.numpy as jnp
 
-    from bayesmap.inference.chains import run_chain_from, _run_jit
+    from bayesmap.inference.chains import compiled_chain_count, run_chain_from
     from bayesmap.inference.registry import make_sampler
     from bayesmap.scenes import tutorial_problem
 
@@ -78,9 +78,56 @@ def test_new_readings_prior_and_noise_reuse_the_compiled_sweep():
         return np.asarray(samples)
 
     first = run(tutorial_problem(seed=3))
-    size = _run_jit._cache_size()
+    size = compiled_chain_count()
     second = run(tutorial_problem(seed=4, prior_wall_prob=0.2, sensor_noise=0.3))
-    assert _run_jit._cache_size() == size  # no new compilation
+    assert compiled_chain_count() == size  # no new compilation
     assert not np.array_equal(first, second)  # and the new data were used
     run(tutorial_problem(seed=3, pos=(6.0, 12.0)))
-    assert _run_jit._cache_size() == size + 1
+    assert compiled_chain_count() == size + 1
+
+
+def test_every_sampler_steps_to_state_and_info():
+    """The BlackJAX contract, for every kind of sampler (fast levels, cellwise, reference, reference-incremental):
+    ``step(key, state) -> (state, GibbsInfo)``; the state's ``walls`` is a 0/1 map of the grid's shape, only the
+    cellwise sampler reports conditional wall probabilities (in [0, 1], the prior 0.3 for cells no ray crosses), and
+    a chain's ``wall_probs`` are those of ``info``: the same step run by hand gives the chain's first sweep."""
+    import jax
+    import jax.numpy as jnp
+
+    from bayesmap.geometry.grid import Grid
+    from bayesmap.geometry.raytable import build_ray_table
+    from bayesmap.inference.base import GibbsInfo
+    from bayesmap.inference.cellwise import cellwise_gibbs
+    from bayesmap.inference.chains import run_chain
+    from bayesmap.inference.fast import fast_gibbs
+    from bayesmap.inference.reference import reference_gibbs, reference_incremental_gibbs
+    from bayesmap.model.generative import make_params
+
+    grid = Grid((4, 5))
+    params = make_params(0.3, 0.4, 6, grid)
+    pos = np.array([1.3, 2.2])
+    angles = np.linspace(0.0, 2 * np.pi, 6, endpoint=False) + 0.1
+    y = np.array([1.0, 2.0, 0.7, 3.5, 1.2, 2.5])
+    table = build_ray_table(grid, np.repeat(pos[None], 6, axis=0), angles, params.cap)
+    samplers = {"fast": fast_gibbs(table, y, params, block_size=2), "cellwise": cellwise_gibbs(table, y, params),
+                "reference": reference_gibbs(y, pos, params, angles),
+                "reference-incremental": reference_incremental_gibbs(y, pos, params, angles)}
+    free = np.asarray(table.rays_per_cell()).reshape(grid.shape) == 0
+    assert free.any()
+    for name, algorithm in samplers.items():
+        key = jax.random.split(jax.random.key(2), 3)[0]  # the chain's first sweep's key
+        state, info = jax.jit(algorithm.step)(key, algorithm.init(jnp.zeros(grid.shape)))
+        assert isinstance(info, GibbsInfo), name
+        walls = np.asarray(state.walls)
+        assert walls.shape == grid.shape and set(np.unique(walls)) <= {0.0, 1.0}, name
+        chain = run_chain(jax.random.key(2), algorithm, jnp.zeros(grid.shape), 3)
+        np.testing.assert_array_equal(np.asarray(chain.samples[0]), walls > 0, err_msg=name)
+        if name != "cellwise":
+            assert info.wall_prob is None and chain.wall_probs is None, name
+            continue
+        prob = np.asarray(info.wall_prob)
+        assert prob.shape == grid.shape and prob.dtype == np.float32 and ((prob >= 0) & (prob <= 1)).all()
+        np.testing.assert_allclose(prob[free], 0.3, rtol=1e-6)
+        assert np.abs(prob[~free] - 0.3).max() > 0.1  # the readings moved the crossed cells
+        assert np.asarray(chain.wall_probs).shape == (3,) + grid.shape
+        np.testing.assert_allclose(np.asarray(chain.wall_probs[0]), prob, rtol=1e-6, atol=1e-7)

@@ -11,7 +11,7 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.inference.chains import run_chains
 from bayesmap.inference.fast import FastGibbs
 from bayesmap.inference.reference import block_log_weights, reference_gibbs
-from bayesmap.inference.schedules import cell_rays, make_blocks
+from bayesmap.inference.schedules import cell_rays
 from bayesmap.model.generative import log_joint, make_params, model_args, simulate_readings
 from bayesmap.geometry.raytable import build_ray_table
 from helpers import sweeps_keep_ray_bits
@@ -215,7 +215,7 @@ def test_blocks_of_a_level_get_their_own_conditionals(schedule, block_size):
         largest = max(int(count[row[row < len(fast.blocks)]].sum()) for row in fast.levels)
         together = fast._pack(fast.levels, largest, chained=False)[0]  # one step per level, reading the map
         ray_bits = fast.ray_bits(walls)
-        scores = np.asarray(jax.vmap(lambda lv: fast._level_scores(ray_bits[lv.src], lv)[0])(together))
+        scores = np.asarray(jax.vmap(lambda lv: fast.kernel._level_scores(ray_bits[lv.src], lv)[0])(together))
         checked = 0
         for lv, row in enumerate(fast.levels):
             for slot, b in enumerate(row):

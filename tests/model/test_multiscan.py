@@ -21,9 +21,9 @@ from bayesmap.model.generative import (
     make_params,
     model_args,
     multi_scan_model,
+    prior_log_odds,
     reading_log_likelihood,
     scan_args,
-    simulate_scan_readings,
 )
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.geometry.raycast import sensor_distances
@@ -140,7 +140,7 @@ def test_fast_tempered_conditionals(block_size):
     tempered = FastGibbs(table, y.reshape(-1), params, block_size=block_size, likelihood_power=0.25)
     configs = block_configurations(block_size ** 2)
     p = params.prior_wall_prob
-    log_prior = configs.sum(axis=1) * np.log(p / (1 - p))  # relative to no wall in the block
+    log_prior = configs.sum(axis=1) * prior_log_odds(p)  # relative to no wall in the block
     walls = (np.random.default_rng(5).random(grid.shape) < 0.3).astype(np.float32)
     base = np.asarray(plain.block_log_weights(walls), np.float64)
     got = np.asarray(tempered.block_log_weights(walls), np.float64)

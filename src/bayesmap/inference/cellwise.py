@@ -20,17 +20,17 @@ classes would bring little parallelism. This sampler is the plain systematic-sca
 * Cells are visited in a fixed order: grouped by how many rays cross them (so that each group is a loop of fixed
   width, padding at most 2x), then in raster order within a group. Any fixed order gives a valid Gibbs sweep.
   Cells that no ray crosses are independent of everything given the rest: they are drawn from the prior at once.
-* The loop scores ``BLOCK`` consecutive cells of the order at once, from the same rows, and draws each from its
+* The loop scores ``SPECULATIVE_CELLS`` consecutive cells of the order at once, from the same rows, and draws each from its
   score. Cell ``j`` of the block sees exactly the rows it would see one cell at a time as long as no earlier cell of
   the block changed a row: the cells up to and including the first draw that changes rows are kept, the rest of
   the block is scored again from the rewritten rows. So the draws are those of the one-cell-at-a-time sweep in the
-  same order (same uniforms, same conditionals), with one pass over memory for ``BLOCK`` cells instead of one per
+  same order (same uniforms, same conditionals), with one pass over memory for ``SPECULATIVE_CELLS`` cells instead of one per
   cell (each step of a loop costs several microseconds on CPU; ~4% of cells change rows per sweep on the Intel log).
   Within the sweep the map is kept in the visiting order, so that a block's cells are one contiguous slice.
 
-Posterior marginals: each update draws its cell from ``p(cell | rest)``; the state keeps that probability
-(:attr:`CellwiseState.wall_prob`), and the mean of these conditional probabilities over kept sweeps estimates the
-marginal ``P(cell is a wall | readings)`` with less variance than the mean of the 0/1 draws (Rao-Blackwellization;
+Posterior marginals: each update draws its cell from ``p(cell | rest)``; each sweep reports these probabilities in
+its ``info`` (:attr:`bayesmap.inference.base.GibbsInfo.wall_prob`: the prior for cells no ray crosses), and the
+mean of these conditional probabilities over kept sweeps estimates the marginal ``P(cell is a wall | readings)`` with less variance than the mean of the 0/1 draws (Rao-Blackwellization;
 Gelfand & Smith 1990, sec. 2.3; Liu, Wong & Kong 1994). Unlike the 0/1 mean it also ranks cells that were walls in
 none or all of the kept sweeps, which matters for scores such as the held-out AUC.
 
@@ -47,7 +47,6 @@ writes into selects that always run, which is correct but slow; run chains of la
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import jax
@@ -55,15 +54,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayesmap.errors import BayesmapError
-from bayesmap.inference.chains import KernelFields, SamplingAlgorithm
-from bayesmap.inference.fast import _log_likelihood_table, pair_log_likelihoods
-from bayesmap.model.generative import ModelParams, check_likelihood_power
-from bayesmap.geometry.raytable import RayTable, check_readings
+from bayesmap.geometry.raytable import RayTable
+from bayesmap.inference.base import GibbsInfo, KernelFields, KernelSampler, SamplingAlgorithm
+from bayesmap.model.generative import ModelParams, prior_log_odds
+from bayesmap.model.likelihood import likelihood_inputs, log_likelihood_table, pair_log_likelihoods, tempered
 
-NONE = float(1 << 22)  # "no such wall": a position beyond every ray (exact in float32)
+NO_WALL = float(1 << 22)  # "no such wall": a position beyond every ray (exact in float32)
 SEARCH_CHUNK = 32  # cells read per step of the walk along a ray to its next wall
 SEARCH_BATCH = 16  # rays whose rows a changed cell rewrites (and walks) at once
-BLOCK = 8  # consecutive cells scored at once (see the module docstring)
+SPECULATIVE_CELLS = 8  # consecutive cells scored at once from the same rows, kept up to the first that changes a row
+# (see the module docstring); not a block of a joint update (``block_size`` of the fast samplers)
 MAX_WIDTH = 1 << 16
 
 
@@ -73,16 +73,12 @@ class CellwiseState(NamedTuple):
     Attributes:
         walls: ``(nx, ny)`` float32 map of 0.0 / 1.0.
         ray_walls: ``(R + 1, 4)`` float (kernel dtype): per ray, the position along the ray (0 = the cell closest to
-            the sensor) of its first and of its second wall (:data:`NONE` if there is none), then ``log p(y_r | d)``
-            at each (at the max distance for :data:`NONE`). The last row belongs to no ray (read by padding lanes).
-        wall_prob: ``(nx, ny)`` float32: the conditional wall probability each cell was drawn with in the last sweep
-            (the prior for cells no ray crosses; the map itself before the first sweep). Their mean over sweeps is
-            the Rao-Blackwellized estimate of the posterior marginals (see the module docstring).
+            the sensor) of its first and of its second wall (:data:`NO_WALL` if there is none), then ``log p(y_r | d)``
+            at each (at the max distance for :data:`NO_WALL`). The last row belongs to no ray (read by padding lanes).
     """
 
     walls: jax.Array
     ray_walls: jax.Array
-    wall_prob: jax.Array
 
 
 def width_groups(counts: np.ndarray) -> list[tuple[int, np.ndarray]]:
@@ -178,14 +174,14 @@ class CellwiseKernel(KernelFields):
     and sensor model (other readings, prior, noise, mixture weights) share one compiled sweep."""
 
     _ARRAYS = ("_lanes", "_free", "_rank", "_pair_cells", "_pair_ll", "_ray_start", "_ray_length", "_max_ll",
-               "_logit")
+               "_prior_log_odds")
     _STATIC = ("_shape", "_num_rays", "_num_pairs")
 
     # -- the per-ray rows ---------------------------------------------------------------------------------------
 
     def _pair_log_lik(self, rays, positions):
-        """``log p(y_ray | d)`` at a position along each ray (the max distance's for :data:`NONE`)."""
-        none = positions >= NONE
+        """``log p(y_ray | d)`` at a position along each ray (the max distance's for :data:`NO_WALL`)."""
+        none = positions >= NO_WALL
         pair = jnp.where(none, self._num_pairs, self._ray_start[rays] + positions.astype(jnp.int32))
         return jnp.where(none, self._max_ll[rays], self._pair_ll[pair])
 
@@ -206,8 +202,8 @@ class CellwiseKernel(KernelFields):
         start = self._ray_start
         end = start + self._ray_length
 
-        def position(wall):  # a ray's wall (pair index) as its position along the ray, NONE if not on the ray
-            return jnp.where(wall < end, (wall - start).astype(dtype), NONE)
+        def position(wall):  # a ray's wall (pair index) as its position along the ray, NO_WALL if not on the ray
+            return jnp.where(wall < end, (wall - start).astype(dtype), NO_WALL)
 
         first = next_wall[start]
         second = next_wall[jnp.minimum(first + 1, num_pairs)]
@@ -219,7 +215,7 @@ class CellwiseKernel(KernelFields):
     def init(self, walls) -> CellwiseState:
         """State for the map ``walls`` ``(nx, ny)``."""
         walls = jnp.asarray(walls, dtype=jnp.float32).reshape(self._shape)
-        return CellwiseState(walls=walls, ray_walls=_ray_walls(self, walls), wall_prob=walls)
+        return CellwiseState(walls=walls, ray_walls=_ray_walls(self, walls))
 
     # -- the sweep ---------------------------------------------------------------------------------------------
 
@@ -237,15 +233,15 @@ class CellwiseKernel(KernelFields):
                               lambda x, y: (x[0] + y[0], x[1] | y[1], x[2] | y[2]), (term.ndim - 1,))
 
     def _walk(self, rays, after, need, cur):
-        """Position of the first wall of each ray beyond position ``after`` (:data:`NONE` if none), for the lanes
-        ``need`` (others: :data:`NONE`), in the map ``cur`` (in visiting order); walks the rays' cells
+        """Position of the first wall of each ray beyond position ``after`` (:data:`NO_WALL` if none), for the lanes
+        ``need`` (others: :data:`NO_WALL`), in the map ``cur`` (in visiting order); walks the rays' cells
         ``SEARCH_CHUNK`` at a time until every needed lane is done."""
         length, start = self._ray_length[rays], self._ray_start[rays]
         offsets = jnp.arange(SEARCH_CHUNK, dtype=jnp.int32)
 
         def more(carry):
             at, found = carry
-            return jnp.any(need & (found >= NONE) & (at < length))
+            return jnp.any(need & (found >= NO_WALL) & (at < length))
 
         def walk(carry):
             at, found = carry
@@ -253,11 +249,11 @@ class CellwiseKernel(KernelFields):
             inside = ts < length[:, None]
             cell = self._pair_cells[jnp.where(inside, start[:, None] + ts, self._num_pairs)]
             hit = inside & (cur[self._rank[cell]] > 0)
-            first = jnp.min(jnp.where(hit, ts, int(NONE)), axis=1).astype(found.dtype)
-            return at + SEARCH_CHUNK, jnp.where(need & (found >= NONE), first, found)
+            first = jnp.min(jnp.where(hit, ts, int(NO_WALL)), axis=1).astype(found.dtype)
+            return at + SEARCH_CHUNK, jnp.where(need & (found >= NO_WALL), first, found)
 
-        begin = jnp.where(after >= NONE, length, after.astype(jnp.int32) + 1)
-        _, found = jax.lax.while_loop(more, walk, (begin, jnp.full(rays.shape, NONE, after.dtype)))
+        begin = jnp.where(after >= NO_WALL, length, after.astype(jnp.int32) + 1)
+        _, found = jax.lax.while_loop(more, walk, (begin, jnp.full(rays.shape, NO_WALL, after.dtype)))
         return found
 
     def _rewrite(self, lanes, k, new, cur, rows_all):
@@ -310,11 +306,11 @@ class CellwiseKernel(KernelFields):
         return jax.lax.fori_loop(0, num_batches, one_batch, (jnp.int32(-1), rows_all))[1]
 
     def _sweep_group(self, lanes, base, cur, rows_all, probs, u):
-        """Every cell of ``lanes`` once, ``BLOCK`` at a time (see the module docstring). ``cur``, ``probs`` and
+        """Every cell of ``lanes`` once, ``SPECULATIVE_CELLS`` at a time (see the module docstring). ``cur``, ``probs`` and
         ``u``: the map, the conditional probabilities and the uniforms in visiting order, the group's cells at
         ``base, base + 1, ...``."""
         n, width = lanes.rays.shape
-        size = min(BLOCK, n)
+        size = min(SPECULATIVE_CELLS, n)
         j = jnp.arange(size, dtype=jnp.int32)
 
         def body(carry):
@@ -322,7 +318,7 @@ class CellwiseKernel(KernelFields):
             s = jnp.minimum(i, n - size)  # the block: cells s .. s + size - 1 of the group, those before i done
             rays, positions, log_lik = (jax.lax.dynamic_slice_in_dim(a, s, size) for a in lanes[1:])
             score, can_add, can_remove = self._score(rows_all[rays], positions, log_lik)
-            prob = jax.nn.sigmoid(self._logit + score)
+            prob = jax.nn.sigmoid(self._prior_log_odds + score)
             old = jax.lax.dynamic_slice_in_dim(cur, base + s, size) > 0
             new = jax.lax.dynamic_slice_in_dim(u, base + s, size) < prob
             rewrites = (j >= i - s) & (new != old) & jnp.where(new, can_add, can_remove)
@@ -340,11 +336,13 @@ class CellwiseKernel(KernelFields):
         _, cur, rows_all, probs = jax.lax.while_loop(lambda c: c[0] < n, body, (jnp.int32(0), cur, rows_all, probs))
         return cur, rows_all, probs
 
-    def step(self, key, state: CellwiseState) -> CellwiseState:
-        """One sweep: every cell once, in the order of the module docstring."""
+    def step(self, key, state: CellwiseState) -> tuple[CellwiseState, GibbsInfo]:
+        """One sweep: every cell once, in the order of the module docstring. Returns the new state and
+        ``GibbsInfo(wall_prob)``, ``(nx, ny)`` float32, the conditional wall probability each cell was drawn with
+        (the prior for cells no ray crosses)."""
         walls = state.walls.reshape(-1)
         u = jax.random.uniform(key, walls.shape)
-        prior = jax.nn.sigmoid(self._logit)
+        prior = jax.nn.sigmoid(self._prior_log_odds)
         order = jnp.concatenate([lanes.cells for lanes in self._lanes])
         cur, u_order = walls[order], u[order]
         probs = jnp.zeros(order.shape, jnp.float32)
@@ -354,13 +352,14 @@ class CellwiseKernel(KernelFields):
             base += lanes.cells.shape[0]
         walls = jnp.where(self._free, (u < prior).astype(walls.dtype), cur[self._rank])
         wall_prob = jnp.where(self._free, prior.astype(jnp.float32), probs[self._rank])
-        return CellwiseState(walls=walls.reshape(self._shape), ray_walls=rows, wall_prob=wall_prob.reshape(self._shape))
+        state = CellwiseState(walls=walls.reshape(self._shape), ray_walls=rows)
+        return state, GibbsInfo(wall_prob=wall_prob.reshape(self._shape))
 
     def cell_log_odds(self, walls) -> jax.Array:
         """Every cell's conditional log-odds given the rest of ``walls`` ``(nx, ny)``: ``(nx, ny)``, computed with
         the sweep's own scoring (each cell alone, from the rows of ``walls``)."""
         rows_all = self.ray_walls(walls)
-        out = jnp.full(self._shape[0] * self._shape[1], self._logit, rows_all.dtype)
+        out = jnp.full(self._shape[0] * self._shape[1], self._prior_log_odds, rows_all.dtype)
         for lanes in self._lanes:
             scores = self._score(rows_all[lanes.rays], lanes.positions, lanes.log_lik)[0]
             out = out.at[lanes.cells].add(scores)
@@ -372,7 +371,7 @@ def _ray_walls(kernel: CellwiseKernel, walls):
     return kernel.ray_walls(walls)
 
 
-class CellwiseGibbs:
+class CellwiseGibbs(KernelSampler):
     """Single-site Gibbs for large problems (whole logs): see the module docstring.
 
     Args:
@@ -381,12 +380,13 @@ class CellwiseGibbs:
         params: model parameters (``prior_wall_prob`` and the sensor model; for ``"beam"`` the table's max distance
             must be the model's max range ``params.cap``).
         likelihood_power: ``eta`` in (0, 1]: sample ``p(walls) p(readings | walls) ** eta``
-            (:func:`bayesmap.model.generative.check_likelihood_power`); 1, the posterior, by default.
+            (every log-likelihood the sweep looks up times ``eta``: :func:`bayesmap.model.likelihood.tempered`); 1, the
+            posterior, by default.
 
     Attributes:
         kernel: the :class:`CellwiseKernel`.
-        algorithm: the :class:`SamplingAlgorithm` (``init``, ``step``), partials of the kernel as in
-            :mod:`bayesmap.inference.fast`.
+        algorithm: the :class:`SamplingAlgorithm` (``init``, ``step``), partials of the kernel
+            (:attr:`bayesmap.inference.base.KernelSampler.algorithm`).
 
     Raises:
         BayesmapError: on readings that do not match the table's rays, a table whose max distance is not the beam
@@ -394,25 +394,17 @@ class CellwiseGibbs:
     """
 
     def __init__(self, table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0):
-        y = check_readings(readings, table.num_rays)
-        eta = check_likelihood_power(likelihood_power)
-        if params.beam_model != "normal" and not math.isclose(float(table.max_distance), params.cap, rel_tol=1e-12):
-            raise BayesmapError(f"the table's max distance {table.max_distance!r} m is not the model's max range "
-                                f"params.cap = {params.cap!r} m")
-        dtype = jnp.result_type(float)
+        y, beam_model, sensor, dtype, eta = likelihood_inputs(table, readings, params, likelihood_power)
         num_rays, num_pairs = table.num_rays, table.num_pairs
-        sensor = tuple(jnp.asarray(a, dtype=dtype) for a in params.sensor_args)
         # dispatched first: XLA computes the log-likelihoods while numpy sorts the pairs into the lanes
-        max_ll = _log_likelihood_table(params.beam_model, sensor, jnp.asarray(y, dtype),
-                                       jnp.asarray(table.max_distance, dtype))
-        pair_ll = pair_log_likelihoods(table, y, params.beam_model, sensor)
-        if eta != 1.0:  # a tempered likelihood: every log-likelihood the sweep looks up, times eta
-            pair_ll, max_ll = eta * pair_ll, eta * max_ll
+        max_ll = log_likelihood_table(beam_model, sensor, jnp.asarray(y, dtype), jnp.asarray(table.max_distance, dtype))
+        pair_ll = pair_log_likelihoods(table, y, beam_model, sensor)
+        if eta != 1.0:  # every log-likelihood the sweep looks up, tempered (eta = 1 would leave them as they are)
+            pair_ll, max_ll = tempered(pair_ll, eta), tempered(max_ll, eta)
         counts = table.rays_per_cell()
         groups = width_groups(counts)
         rank = _visiting_rank(groups, table.num_cells)
         lanes = _lanes(table, counts, groups, rank, pair_ll, dtype)
-        p = float(params.prior_wall_prob)
         self.kernel = CellwiseKernel(
             _lanes=lanes, _free=jnp.asarray(counts == 0), _rank=jnp.asarray(rank),
             _pair_cells=jnp.asarray(np.append(table.pair_cells, 0), jnp.int32),
@@ -420,18 +412,8 @@ class CellwiseGibbs:
             _ray_start=jnp.asarray(np.append(table.offsets[:-1], num_pairs), jnp.int32),
             _ray_length=jnp.asarray(np.append(table.lengths, 0), jnp.int32),
             _max_ll=jnp.asarray(np.append(max_ll, 0.0), dtype),
-            _logit=jnp.asarray(math.log(p) - math.log1p(-p), dtype),
+            _prior_log_odds=jnp.asarray(prior_log_odds(params.prior_wall_prob), dtype),
             _shape=tuple(table.grid.shape), _num_rays=num_rays, _num_pairs=num_pairs)
-        self.algorithm = SamplingAlgorithm(init=jax.tree_util.Partial(CellwiseKernel.init, self.kernel),
-                                           step=jax.tree_util.Partial(CellwiseKernel.step, self.kernel))
-
-    def init(self, walls) -> CellwiseState:
-        """See :meth:`CellwiseKernel.init`."""
-        return self.kernel.init(walls)
-
-    def step(self, key, state: CellwiseState) -> CellwiseState:
-        """See :meth:`CellwiseKernel.step`."""
-        return self.kernel.step(key, state)
 
     def ray_walls(self, walls) -> jax.Array:
         """See :meth:`CellwiseKernel.ray_walls`."""

@@ -1,56 +1,25 @@
-"""Running Markov chains: the kernel interface, ``lax.scan`` chains, many chains, and per-cell diagnostics.
+"""Running Markov chains: ``lax.scan`` chains, many chains, and per-cell diagnostics.
 
-Every sampler is a :class:`SamplingAlgorithm` in the style of BlackJAX: a pure ``init(walls) -> state`` and a
-``step(key, state) -> state`` kernel that performs one sweep; a state exposes the current map as ``state.walls``
-and, if the sampler records them, the conditional wall probabilities of the sweep as ``state.wall_prob`` (for
-Rao-Blackwellized posterior marginals). Keys are passed explicitly; there is no global state.
+Every sampler is a :class:`~bayesmap.inference.base.SamplingAlgorithm` in the style of BlackJAX
+(:mod:`bayesmap.inference.base`): a pure ``init(walls) -> state`` and a ``step(key, state) -> (state, info)`` kernel
+that performs one sweep; a state exposes the current map as ``state.walls``, and ``info`` (a
+:class:`~bayesmap.inference.base.GibbsInfo`) the conditional wall probabilities of the sweep as ``info.wall_prob`` if
+the sampler records them (for Rao-Blackwellized posterior marginals). Keys are passed explicitly; there is no global
+state.
 """
 
 from __future__ import annotations
 
 import warnings
 from functools import partial
-from typing import Callable, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from bayesmap.errors import BayesmapError
-
-
-class SamplingAlgorithm(NamedTuple):
-    """A Gibbs sampler: ``init(walls (nx, ny)) -> state`` and ``step(key, state) -> state`` (one sweep)."""
-
-    init: Callable
-    step: Callable
-
-
-class KernelFields:
-    """Base of a sampler's kernel as a pytree: the attributes named in ``_ARRAYS`` are its leaves (arguments of a
-    compiled chain, so that problems differing only in array values share one compilation), those in ``_STATIC``
-    its static metadata (sizes, flags, names). Subclasses set both tuples, are built with keyword arguments, and are
-    registered with ``jax.tree_util.register_pytree_node_class``."""
-
-    _ARRAYS: tuple[str, ...] = ()
-    _STATIC: tuple[str, ...] = ()
-
-    def __init__(self, **fields):
-        for name in self._ARRAYS + self._STATIC:
-            setattr(self, name, fields[name])
-
-    def tree_flatten(self):
-        return tuple(getattr(self, n) for n in self._ARRAYS), tuple(getattr(self, n) for n in self._STATIC)
-
-    @classmethod
-    def tree_unflatten(cls, static, arrays):
-        return cls(**dict(zip(cls._ARRAYS, arrays)), **dict(zip(cls._STATIC, static)))
-
-
-class GibbsState(NamedTuple):
-    """The state of a Gibbs chain: ``walls`` ``(nx, ny)`` float32 of 0.0 / 1.0."""
-
-    walls: jax.Array
+from bayesmap.inference.base import SamplingAlgorithm
 
 
 class ChainResult(NamedTuple):
@@ -59,8 +28,8 @@ class ChainResult(NamedTuple):
     Attributes:
         samples: ``(num_sweeps, nx, ny)`` bool, the map after each sweep.
         final_state: the sampler's state after the last sweep.
-        wall_probs: ``(num_sweeps, nx, ny)`` float32, each sweep's conditional wall probabilities, for samplers whose
-            state records them (``state.wall_prob``); else None.
+        wall_probs: ``(num_sweeps, nx, ny)`` float32, each sweep's conditional wall probabilities, for samplers that
+            report them (``info.wall_prob`` of :class:`~bayesmap.inference.base.GibbsInfo`); else None.
     """
 
     samples: jax.Array
@@ -87,8 +56,8 @@ def _join(arrays, static):
 
 def _chain(key, initial_state, algorithm, num_sweeps: int):
     def body(state, k):
-        state = algorithm.step(k, state)
-        return state, (state.walls > 0, getattr(state, "wall_prob", None))
+        state, info = algorithm.step(k, state)
+        return state, (state.walls > 0, info.wall_prob)
 
     final, (samples, wall_probs) = jax.lax.scan(body, initial_state, jax.random.split(key, num_sweeps))
     return samples, final, wall_probs
@@ -103,6 +72,14 @@ def _run_jit(key, initial_state, arrays, static, num_sweeps: int):
 def _run_many_jit(keys, initial_states, arrays, static, num_sweeps: int):
     algorithm = _join(arrays, static)
     return jax.vmap(lambda k, s: _chain(k, s, algorithm, num_sweeps))(keys, initial_states)
+
+
+def compiled_chain_count() -> int:
+    """How many chains are compiled and kept so far (by :func:`run_chain_from`, :func:`run_chains_from` and
+    :func:`compile_chain`): one per distinct static part of a sampler (geometry, schedule, sensor model name), shape
+    of the state, number of sweeps and of chains. Samplers that differ only in array values (readings, prior,
+    noise) share a compiled chain, so running them does not change this count."""
+    return int(_run_jit._cache_size()) + int(_run_many_jit._cache_size())
 
 
 def run_chain_from(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int) -> ChainResult:

@@ -31,7 +31,6 @@ Each block is drawn by inverse CDF from one uniform (for single cells: wall with
 from __future__ import annotations
 
 import math
-from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -39,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayesmap.errors import BayesmapError
-from bayesmap.inference.chains import KernelFields, SamplingAlgorithm
+from bayesmap.inference.base import GibbsInfo, KernelFields, KernelSampler, SamplingAlgorithm
 from bayesmap.inference.schedules import (
     block_configurations,
     chromatic_levels,
@@ -47,12 +46,13 @@ from bayesmap.inference.schedules import (
     make_blocks,
     split_levels,
 )
-from bayesmap.model.generative import ModelParams, check_likelihood_power
-from bayesmap.geometry.raytable import RayTable, check_readings
-from bayesmap.model.sensor import beam_log_density, beam_log_max_mass, normal_logpdf, reading_logpdf
+from bayesmap.geometry.raytable import RayTable
+from bayesmap.model.generative import ModelParams, prior_log_odds
+from bayesmap.model.likelihood import likelihood_inputs, log_likelihood_table, pair_log_likelihoods, tempered
+from bayesmap.model.sensor import normal_logpdf, reading_logpdf
 
-SCHEDULES = ("sequential", "chromatic")
-WORD_BITS = 32
+SCHEDULES = ("sequential", "chromatic")  # the ``schedule`` choices of :class:`FastGibbs`
+WORD_BITS = 32  # cells per word of a ray's bit string (``uint32``)
 
 
 def sample_categorical(log_weights, u):
@@ -98,8 +98,10 @@ class Levels(NamedTuple):
         pos: ``(NL, B, E)`` int32 position of each block cell along the ray, ``-1`` if the ray misses it.
         stop: ``(NL, C, E)`` float the ray's distance if only the block's walls in configuration ``c`` existed
             (``inf`` if none of them is on the ray), meters.
-        log_prior: ``(NL, A, C)`` float prior log-probability of each configuration (``-inf`` for configurations
-            that set cells a padding block does not have; 0 in the first steps of a chunked block).
+        log_prior: ``(NL, A, C)`` float prior log-probability of each configuration relative to the all-free one
+            (its number of walls times the prior log-odds; so column 0 is 0 and, for single cells, column 1 the
+            prior log-odds), ``-inf`` for configurations that set cells a padding block does not have, 0 in the
+            first steps of a chunked block.
         carry_in: ``(NL,)`` bool, the step continues the previous step's block (add its log-weights).
         commit: ``(NL,)`` bool, the step draws its blocks.
         fix_src: ``(NL, E)`` int32 buffer index of the drawn configuration of a chunked block whose bits the
@@ -129,47 +131,48 @@ class Levels(NamedTuple):
     max_ll: jax.Array | None = None
 
 
-@partial(jax.jit, static_argnames=("beam_model",))
-def _log_likelihood_table(beam_model, sensor_args, y, d):
-    """``log p(y | d)`` of ``beam_model`` (broadcast shapes), 0 where ``d`` is ``inf`` (a configuration that does
-    not stop the ray: never selected)."""
-    ll = reading_logpdf(beam_model, y, d, sensor_args)
-    return jnp.where(jnp.isfinite(d), ll, 0.0)
+class _StepLayout(NamedTuple):
+    """Where the ``M`` (block, ray) entries of a sweep's levels go (built by ``FastGibbs._step_layout``), entries in
+    sweep order (level, block slot, ray).
+
+    Attributes:
+        ray, pos, stop, slot: ``(M,)`` the entry's ray, ``(M, B)`` its block's cells' positions on the ray (-1: off
+            the ray) and stopping distances (meters, ``inf`` off the ray), ``(M,)`` its block's slot in the level.
+        step, index: ``(M,)`` the step that reads the entry and its index among the step's entries.
+        num_steps, entries_per_step: the sweep's ``NS`` steps of ``E`` entries.
+        step_level: ``(NS,)`` the level of each step.
+        commit_step: ``(NL,)`` the last step of each level (where its blocks are drawn).
+        commit, carry_in: ``(NS,)`` bool, the step draws its blocks / continues the previous step's block.
+        base, stride: the sweep buffer's first step word (after the state's words and the zero word) and the words
+            per step (``W x E`` entry words, then ``A`` draws).
+        written: ``(M, W)`` buffer index of each word the entry writes.
+        config_at: ``(M,)`` buffer index of the draw of the entry's block.
+        unfinished: ``(M,)`` bool, the entry is written before its block is drawn (a chunked block).
+        rows, cols: the (level, slot) of every real block of the levels, in sweep order.
+    """
+
+    ray: np.ndarray
+    pos: np.ndarray
+    stop: np.ndarray
+    slot: np.ndarray
+    step: np.ndarray
+    index: np.ndarray
+    num_steps: int
+    entries_per_step: int
+    step_level: np.ndarray
+    commit_step: np.ndarray
+    commit: np.ndarray
+    carry_in: np.ndarray
+    base: int
+    stride: int
+    written: np.ndarray
+    config_at: np.ndarray
+    unfinished: np.ndarray
+    rows: np.ndarray
+    cols: np.ndarray
 
 
-@partial(jax.jit, static_argnames=("beam_model",))
-def _pair_log_likelihood_table(beam_model, sensor_args, y, d, max_pairs):
-    """:func:`pair_log_likelihoods` from the readings ``y`` ``(P,)`` and distances ``d`` ``(P,)`` of the pairs and the
-    pairs ``max_pairs`` ``(K,)`` int whose reading is at or beyond the beam model's max range."""
-    if beam_model == "beam":  # what beam_logpdf selects, each part only where it is selected
-        ll = beam_log_density(y, d, *sensor_args)
-        ll = ll.at[max_pairs].set(beam_log_max_mass(d[max_pairs], *sensor_args), indices_are_sorted=True,
-                                  unique_indices=True)
-    else:
-        ll = reading_logpdf(beam_model, y, d, sensor_args)
-    return jnp.append(jnp.where(jnp.isfinite(d), ll, 0.0), jnp.zeros(1, ll.dtype))
-
-
-def pair_log_likelihoods(table: RayTable, readings: np.ndarray, beam_model: str, sensor_args) -> jax.Array:
-    """``(P + 1,)`` ``log p(y_r | t)`` of the sensor model ``beam_model`` (with ``sensor_args``, scalar arrays of the
-    kernel dtype, as ``params.sensor_args``) for every (ray r, cell) pair of ``table``, then a 0 (the index ``P``
-    pads lookups): ``y_r`` from ``readings`` ``(R,)`` (meters), ``t`` the pair's stopping distance (meters).
-
-    Equal to ``reading_logpdf(beam_model, y, t, sensor_args)`` element by element (the same operations), computed in
-    one jitted call; for the beam model the point mass at the max range (:func:`~bayesmap.model.sensor.beam_log_max_mass`)
-    is computed only for the pairs of max-range readings. The result is dispatched asynchronously (the caller can
-    work on while it is computed)."""
-    dtype = sensor_args[0].dtype
-    y = np.asarray(readings, dtype=dtype)
-    if beam_model == "beam":
-        max_pairs = table.ray_pairs(np.flatnonzero(y >= np.asarray(sensor_args[-1])))
-    else:
-        max_pairs = np.zeros(0, dtype=np.int64)
-    return _pair_log_likelihood_table(beam_model, sensor_args, table.per_pair(y),
-                                      np.asarray(table.pair_dists, dtype=dtype), max_pairs)
-
-
-class FastGibbs:
+class FastGibbs(KernelSampler):
     """The fast Gibbs sampler for one problem (table, readings, parameters) and one schedule.
 
     Args:
@@ -189,7 +192,7 @@ class FastGibbs:
             level to the largest would cost more than 4 times the real work; then 32 (or the mean entries per
             level if larger).
         likelihood_power: ``eta`` in (0, 1]: sample ``p(walls) p(readings | walls) ** eta`` (every log-likelihood
-            of a conditional times ``eta``; :func:`bayesmap.model.generative.check_likelihood_power`); 1, the posterior.
+            of a conditional times ``eta``: :func:`bayesmap.model.likelihood.tempered`); 1, the posterior.
 
     Attributes:
         blocks: ``(NB, B)`` int flat cell indices, sweep order.
@@ -201,7 +204,8 @@ class FastGibbs:
 
     Raises:
         BayesmapError: on readings that do not match the table's rays, an unknown schedule or order, a bad block
-            size, or (beam model) a table whose max distance is not ``params.cap`` (the sensor's max range).
+            size, a likelihood power outside (0, 1], or (beam model) a table whose max distance is not ``params.cap``
+            (the sensor's max range; :func:`~bayesmap.model.likelihood.check_max_range`).
 
     Memory: the table's pairs, one bit per pair for the state, and per (block, ray) entry ``B`` positions and
     ``2**B`` distances (``B`` cells per block); a sweep's buffer holds one copy of each entry's ray words. The beam
@@ -213,15 +217,11 @@ class FastGibbs:
                  likelihood_power: float = 1.0):
         if schedule not in SCHEDULES:
             raise BayesmapError(f"unknown schedule {schedule!r}; choose one of {', '.join(SCHEDULES)}")
+        inputs = likelihood_inputs(table, readings, params, likelihood_power)
         self.table = table
         self.grid = table.grid
-        self._y = check_readings(readings, table.num_rays)
-        self.beam_model = params.beam_model
-        self._dtype = jnp.result_type(float)
-        self._sensor_args = tuple(jnp.asarray(a, dtype=self._dtype) for a in params.sensor_args)
-        if params.beam_model != "normal" and not math.isclose(float(table.max_distance), params.cap, rel_tol=1e-12):
-            raise BayesmapError(f"the table's max distance {table.max_distance!r} m is not the model's max range "
-                                f"params.cap = {params.cap!r} m")
+        self._y, self.beam_model, self._sensor_args = inputs.readings, inputs.beam_model, inputs.sensor_args
+        self._dtype = inputs.dtype
         if pos is None:
             pos = table.origins[0] if table.num_rays else np.zeros(2)
         self.blocks = make_blocks(self.grid, block_size, order, pos)
@@ -235,8 +235,7 @@ class FastGibbs:
         self._word_offsets = np.concatenate([[0], np.cumsum(num_words)[:-1]]).astype(np.int64)
         self._zero_word = int(num_words.sum())
         self._config_bits = block_configurations(self.blocks.shape[1]) > 0  # (C, B) numpy
-        p = float(params.prior_wall_prob)
-        self._log_prior = np.log(np.array([1.0 - p, p]))
+        self._prior_log_odds = prior_log_odds(params.prior_wall_prob)
 
         self._entries = self._block_entries()
         entry_count = np.bincount(self._entries[0], minlength=len(self.blocks))
@@ -263,11 +262,9 @@ class FastGibbs:
             _pair_shift=jnp.asarray(table.pair_positions % WORD_BITS, dtype=jnp.uint32),
             _bits=jnp.asarray(self._config_bits),
             _sensor=self._sensor_args, _pair_ll=self._pair_log_likelihoods(),
-            _power=jnp.asarray(check_likelihood_power(likelihood_power), dtype=self._dtype),
+            _power=jnp.asarray(inputs.likelihood_power, dtype=self._dtype),
             _beam_model=params.beam_model, _max_words=self._max_words, _zero_word=self._zero_word,
             _chunked=not bool(np.all(np.asarray(self._steps.commit))), _dtype=jnp.dtype(self._dtype).name)
-        self.algorithm = SamplingAlgorithm(init=jax.tree_util.Partial(FastKernel.init, self.kernel),
-                                           step=jax.tree_util.Partial(FastKernel.step, self.kernel))
 
     # -- static preparation (numpy) ------------------------------------------------------------------------------
 
@@ -299,22 +296,32 @@ class FastGibbs:
         stop[entry, j] = table.pair_dists[pair]
         return (unique // num_rays).astype(np.int64), (unique % num_rays).astype(np.int64), pos, stop
 
-    def _pack(self, levels: np.ndarray, capacity: int, chained: bool):
-        """Device arrays for the levels ``levels`` ``(NL, A)`` (block indices, padding ``NB``), ``capacity`` entries
-        per step; a level with more entries (one block, see :func:`split_levels`) takes several steps.
+    def _pack(self, levels: np.ndarray, entries_per_step: int, chained: bool):
+        """Device arrays for the levels ``levels`` ``(NL, A)`` (block indices, padding ``NB``), ``entries_per_step``
+        (block, ray) entries per step; a level with more entries (one block, see :func:`split_levels`) takes several
+        steps.
 
         With ``chained``, an entry reads its ray's words from the buffer slot where the ray's previous entry in the
         sweep wrote them (or from the state if it is the ray's first entry), and the final state is gathered from
         the last writers; otherwise every entry reads the state (independent levels, for
-        :meth:`block_log_weights`; no level may then exceed the capacity).
+        :meth:`block_log_weights`; no level may then exceed ``entries_per_step``).
 
         Returns:
             ``(Levels, final_words, final_walls, final_fix)``; the last three are None unless ``chained``.
         """
-        nb, size = self.blocks.shape
+        layout = self._step_layout(levels, entries_per_step)
+        src_words, fix_src, fix_pos = self._entry_sources(layout, chained)
+        packed = self._levels_arrays(layout, levels, src_words, fix_src, fix_pos)
+        if not chained:
+            return packed, None, None, None
+        return (packed,) + self._final_gathers(layout, levels)
+
+    def _step_layout(self, levels: np.ndarray, entries_per_step: int) -> _StepLayout:
+        """The entries of ``levels`` in sweep order and where each lands: its step, its index in the step, and its
+        words' and its block's draw's places in the sweep's buffer (see :class:`_StepLayout`)."""
+        nb = len(self.blocks)
         num_levels, width = levels.shape
-        num_w, cap = self._max_words, capacity
-        w = np.arange(num_w)
+        num_w = self._max_words
         level_of = np.full(nb, -1, dtype=np.int64)
         slot_of = np.zeros(nb, dtype=np.int64)
         rows, cols = np.nonzero(levels < nb)
@@ -325,56 +332,81 @@ class FastGibbs:
         block, ray, pos, stop = block[keep], ray[keep], pos[keep], stop[keep]
         lv, sl = level_of[block], slot_of[block]
         order = np.lexsort((ray, sl, lv))
-        block, ray, pos, stop, lv, sl = (a[order] for a in (block, ray, pos, stop, lv, sl))
-        # steps: a level takes ceil(entries / capacity) consecutive steps (more than one only for a single block)
+        ray, pos, stop, lv, sl = (a[order] for a in (ray, pos, stop, lv, sl))
+        # steps: a level takes ceil(entries / entries_per_step) consecutive steps (more than one only for one block)
         per_level = np.bincount(lv, minlength=num_levels)
-        level_steps = np.maximum(1, -(-per_level // cap))
+        level_steps = np.maximum(1, -(-per_level // entries_per_step))
         first_step = np.concatenate([[0], np.cumsum(level_steps)[:-1]])
         num_steps = int(level_steps.sum())
         rank = np.arange(len(lv)) - np.repeat(np.cumsum(per_level) - per_level, per_level)
-        step, index = first_step[lv] + rank // cap, rank % cap
-        step_level = np.repeat(np.arange(num_levels), level_steps)
+        step, index = first_step[lv] + rank // entries_per_step, rank % entries_per_step
         commit_step = first_step + level_steps - 1  # per level
         commit = np.zeros(num_steps, dtype=bool)
         commit[commit_step] = True
         carry_in = np.ones(num_steps, dtype=bool)
         carry_in[first_step] = False
         # the buffer: state words, one zero word, then per step its entries' words (W x E) and its draws (A)
-        base, stride = self._zero_word + 1, num_w * cap + width
-        written = (base + step * stride)[:, None] + w[None, :] * cap + index[:, None]  # (M, W)
-        config_at = base + commit_step[lv] * stride + num_w * cap + sl  # where the entry's block's draw is stored
-        valid_w = w[None, :] < self._num_words[ray][:, None]
+        base, stride = self._zero_word + 1, num_w * entries_per_step + width
+        written = (base + step * stride)[:, None] + np.arange(num_w)[None, :] * entries_per_step + index[:, None]
+        return _StepLayout(
+            ray=ray, pos=pos, stop=stop, slot=sl, step=step, index=index, num_steps=num_steps,
+            entries_per_step=entries_per_step, step_level=np.repeat(np.arange(num_levels), level_steps),
+            commit_step=commit_step, commit=commit, carry_in=carry_in, base=base, stride=stride, written=written,
+            config_at=base + commit_step[lv] * stride + num_w * entries_per_step + sl,
+            unfinished=~commit[step], rows=rows, cols=cols)
+
+    def _entry_sources(self, layout: _StepLayout, chained: bool):
+        """Where each entry reads its ray's words: ``src_words`` ``(M, W)`` buffer indices (the state's words, or
+        with ``chained`` those the ray's previous entry wrote; the zero word past the ray's words), and for an entry
+        whose previous entry was written before its block was drawn, the buffer index of that draw ``fix_src``
+        ``(M,)`` and the block's positions on the ray ``fix_pos`` ``(M, B)`` (else the zero word and -1)."""
+        ray, num_w = layout.ray, self._max_words
+        w = np.arange(num_w)
         src_words = self._word_offsets[ray][:, None] + w[None, :]
         fix_src = np.full(len(ray), self._zero_word, dtype=np.int64)
-        fix_pos = np.full((len(ray), size), -1, dtype=np.int64)
-        unfinished = ~commit[step]  # entries written before their block is drawn
+        fix_pos = np.full((len(ray), self.blocks.shape[1]), -1, dtype=np.int64)
         if chained:  # the previous entry of the same ray in sweep order
-            by_ray = np.lexsort((step, ray))
+            by_ray = np.lexsort((layout.step, ray))
             prev = np.full(len(ray), -1, dtype=np.int64)
             same = ray[by_ray][1:] == ray[by_ray][:-1]
             prev[by_ray[1:][same]] = by_ray[:-1][same]
             has = prev >= 0
-            src_words = np.where(has[:, None], written[np.maximum(prev, 0)], src_words)
-            fix = has & unfinished[np.maximum(prev, 0)]
-            fix_src[fix] = config_at[prev[fix]]
-            fix_pos[fix] = pos[prev[fix]]
-        src_words = np.where(valid_w, src_words, self._zero_word)
+            src_words = np.where(has[:, None], layout.written[np.maximum(prev, 0)], src_words)
+            fix = has & layout.unfinished[np.maximum(prev, 0)]
+            fix_src[fix] = layout.config_at[prev[fix]]
+            fix_pos[fix] = layout.pos[prev[fix]]
+        valid_w = w[None, :] < self._num_words[ray][:, None]
+        return np.where(valid_w, src_words, self._zero_word), fix_src, fix_pos
+
+    def _configuration_log_prior(self, levels: np.ndarray, layout: _StepLayout) -> np.ndarray:
+        """``(NS, A, C)`` float64 prior log-weight of each configuration of each step's blocks, relative to the
+        all-free configuration: the number of walls times :func:`~bayesmap.model.generative.prior_log_odds`;
+        ``-inf`` for configurations that set cells a padding block does not have, and 0 in the steps of a chunked
+        block before its last (its prior counts once)."""
+        size = self.blocks.shape[1]
+        exists = np.vstack([self.blocks, np.full((1, size), -1)])[levels] >= 0  # (NL, A, B)
+        bits_c = self._config_bits[None, None]  # (1, 1, C, B)
+        prior = np.where(exists[:, :, None, :] & bits_c, self._prior_log_odds, 0.0).sum(-1)
+        prior = np.where(np.any(bits_c & ~exists[:, :, None, :], axis=-1), -np.inf, prior)[layout.step_level]
+        return np.where(layout.commit[:, None, None] | np.isinf(prior), prior, 0.0)
+
+    def _levels_arrays(self, layout: _StepLayout, levels: np.ndarray, src_words, fix_src, fix_pos) -> Levels:
+        """The :class:`Levels` of ``layout``: each entry's data at its (step, index), padding elsewhere; with the
+        beam model, its looked-up log-likelihoods (:func:`~bayesmap.model.likelihood.log_likelihood_table`)."""
+        ray, pos, size = layout.ray, layout.pos, self.blocks.shape[1]
+        num_w, width = self._max_words, levels.shape[1]
         bits = np.zeros((len(ray), num_w), dtype=np.uint32)
         for j in range(size):
             on = pos[:, j] >= 0
             np.bitwise_or.at(bits, (np.nonzero(on)[0], pos[on, j] // WORD_BITS),
                              np.left_shift(np.uint32(1), (pos[on, j] % WORD_BITS).astype(np.uint32)))
-        stop_c = np.min(np.where(self._config_bits[None], stop[:, None, :], np.inf), axis=-1)  # (M, C)
-        exists = np.vstack([self.blocks, np.full((1, size), -1)])[levels] >= 0  # (NL, A, B)
-        bits_c = self._config_bits[None, None]  # (1, 1, C, B)
-        prior = np.where(exists[:, :, None, :], np.where(bits_c, self._log_prior[1], self._log_prior[0]), 0.0).sum(-1)
-        prior = np.where(np.any(bits_c & ~exists[:, :, None, :], axis=-1), -np.inf, prior)[step_level]
-        prior = np.where(commit[:, None, None] | np.isinf(prior), prior, 0.0)  # a chunked block's prior counts once
-        at = (step, index)
+        stop_c = np.min(np.where(self._config_bits[None], layout.stop[:, None, :], np.inf), axis=-1)  # (M, C)
+        at = (layout.step, layout.index)
         dt, i32 = self._dtype, jnp.int32
 
         def fill(shape, value, data, dtype):
-            out = np.full((num_steps, cap) + shape, value, dtype=np.float64 if dtype == dt else np.int64)
+            out = np.full((layout.num_steps, layout.entries_per_step) + shape, value,
+                          dtype=np.float64 if dtype == dt else np.int64)
             out[at] = data
             out = np.moveaxis(out, 1, -1) if out.ndim == 3 else out  # entries last: the CPU vectorizes along it
             return jnp.asarray(out, dtype=dtype)
@@ -384,69 +416,63 @@ class FastGibbs:
             block_bits=fill((num_w,), 0, bits, jnp.uint32),
             pair0=fill((), self.table.num_pairs, self.table.offsets[ray], i32),
             y=fill((), 0.0, self._y[ray], dt),
-            slot=fill((), width, sl, i32),
+            slot=fill((), width, layout.slot, i32),
             pos=fill((size,), -1, pos, i32),
             stop=fill((len(self._config_bits),), np.inf, stop_c, dt),
-            log_prior=jnp.asarray(prior, dtype=dt),
-            carry_in=jnp.asarray(carry_in),
-            commit=jnp.asarray(commit),
+            log_prior=jnp.asarray(self._configuration_log_prior(levels, layout), dtype=dt),
+            carry_in=jnp.asarray(layout.carry_in),
+            commit=jnp.asarray(layout.commit),
             fix_src=fill((), self._zero_word, fix_src, i32),
             fix_pos=fill((size,), -1, fix_pos, i32),
         )
-        if self.beam_model != "normal":
-            no_wall = jnp.asarray(self.table.max_distance, dtype=dt)
-            packed = packed._replace(
-                stop_ll=_log_likelihood_table(self.beam_model, self._sensor_args, packed.y[:, None, :], packed.stop),
-                max_ll=_log_likelihood_table(self.beam_model, self._sensor_args, packed.y, no_wall))
-        if not chained:
-            return packed, None, None, None
-        # final state: each ray word from the ray's last entry (or unchanged), each cell from its last draw
-        num_rays = self.table.num_rays
+        if self.beam_model == "normal":
+            return packed
+        no_wall = jnp.asarray(self.table.max_distance, dtype=dt)
+        return packed._replace(
+            stop_ll=log_likelihood_table(self.beam_model, self._sensor_args, packed.y[:, None, :], packed.stop),
+            max_ll=log_likelihood_table(self.beam_model, self._sensor_args, packed.y, no_wall))
+
+    def _final_gathers(self, layout: _StepLayout, levels: np.ndarray):
+        """Where a sweep's final state is in its buffer: ``(final_words, final_walls, final_fix)``. Each ray word
+        comes from the ray's last entry (or is unchanged), each cell from its block's last draw; rays last written
+        by an unfinished chunk get their block's bits back at the end (``final_fix``, None if there are none)."""
+        ray, i32 = layout.ray, jnp.int32
+        size, num_rays = self.blocks.shape[1], self.table.num_rays
         last = np.full(num_rays, -1, dtype=np.int64)
         np.maximum.at(last, ray, np.arange(len(ray)))  # entries are sorted by step: the largest index is the last
         words_ray = np.repeat(np.arange(num_rays), self._num_words)
         words_w = np.arange(self._zero_word) - np.repeat(self._word_offsets, self._num_words)
         final_words = np.arange(self._zero_word + 1)
         last_w = last[words_ray]
-        final_words[:-1] = np.where(last_w >= 0, written[np.maximum(last_w, 0), words_w], final_words[:-1])
+        final_words[:-1] = np.where(last_w >= 0, layout.written[np.maximum(last_w, 0), words_w], final_words[:-1])
         final_fix = None
-        late = (last >= 0) & unfinished[np.maximum(last, 0)]
-        if late.any():  # rays last written by an unfinished chunk get their block's bits back at the end
+        late = (last >= 0) & layout.unfinished[np.maximum(last, 0)]
+        if late.any():
             fsrc = np.full(num_rays, self._zero_word, dtype=np.int64)
             fpos = np.full((size, num_rays), -1, dtype=np.int64)
-            fsrc[late] = config_at[last[late]]
-            fpos[:, late] = pos[last[late]].T
+            fsrc[late] = layout.config_at[last[late]]
+            fpos[:, late] = layout.pos[last[late]].T
             final_fix = (jnp.asarray(fsrc, dtype=i32), jnp.asarray(fpos, dtype=i32),
                          jnp.asarray(words_ray, dtype=i32), jnp.asarray(words_w, dtype=i32))
+        rows, cols = layout.rows, layout.cols
         cells = self.blocks[levels[rows, cols]].reshape(-1)  # rows in sweep order
-        draw_at = np.repeat(base + commit_step[rows] * stride + num_w * cap + cols, size)
+        draw_at = np.repeat(layout.base + layout.commit_step[rows] * layout.stride
+                            + self._max_words * layout.entries_per_step + cols, size)
         latest = np.full(self._num_cells, -1, dtype=np.int64)
         np.maximum.at(latest, cells, np.arange(len(cells)))  # a cell is in one block per level: the last level wins
         final_walls = (jnp.asarray(draw_at[latest], dtype=i32), jnp.asarray(latest % size, dtype=i32))
-        return packed, jnp.asarray(final_words, dtype=i32), final_walls, final_fix
-
-    # -- the kernel (pure JAX) -----------------------------------------------------------------------------------
+        return jnp.asarray(final_words, dtype=i32), final_walls, final_fix
 
     # -- the kernel lives in FastKernel (a pytree: a new problem of the same shapes reuses the compiled sweep) ----
 
     @property
     def num_configurations(self) -> int:
+        """``2**B``, the configurations of a block of ``B`` cells."""
         return self.kernel.num_configurations
 
     def ray_bits(self, walls) -> jax.Array:
         """See :meth:`FastKernel.ray_bits`."""
         return self.kernel.ray_bits(walls)
-
-    def init(self, walls) -> FastGibbsState:
-        """See :meth:`FastKernel.init`."""
-        return self.kernel.init(walls)
-
-    def step(self, key, state: FastGibbsState) -> FastGibbsState:
-        """See :meth:`FastKernel.step`."""
-        return self.kernel.step(key, state)
-
-    def _level_scores(self, words, lv: Levels):
-        return self.kernel._level_scores(words, lv)
 
     def block_log_weights(self, walls) -> jax.Array:
         """Conditional log-weights of every block given the rest of ``walls`` ``(nx, ny)``: ``(NB, 2**B)``, each
@@ -541,14 +567,14 @@ class FastKernel(KernelFields):
             else:
                 stop_ll, m_ll = lv.stop_ll, jnp.where(found, self._pair_ll[pair], lv.max_ll)
             ll = jnp.where(lv.stop < m_out[None, :], stop_ll, m_ll[None, :])
-        ll = self._power * ll  # a tempered likelihood (1: the posterior; exact)
+        ll = tempered(ll, self._power)  # each log p(y | d) times eta (1: the posterior; exact)
         num_blocks = lv.log_prior.shape[0]
         # sum over each block's rays with a dense (A, E) mask: scatters are slow loops on the CPU
         mine = lv.slot[None, :] == jnp.arange(num_blocks, dtype=lv.slot.dtype)[:, None]
         if ll.shape[0] == 2:  # single cells: one log-likelihood ratio per ray, summed into log-odds (a dot: XLA
             # turns a long masked sum into a slow reduce-window)
             log_odds = jnp.dot(mine.astype(ll.dtype), ll[1] - ll[0], precision=jax.lax.Precision.HIGHEST)
-            return log_odds + (lv.log_prior[:, 1] - lv.log_prior[:, 0]), outside
+            return log_odds + lv.log_prior[:, 1], outside  # the prior log-odds (configuration 0 has prior 0)
         # many configurations: accumulate (A, C) rows over the entries (vectorized over A and C)
         return jnp.sum(jnp.where(mine.T[:, :, None], ll.T[:, None, :], 0.0), axis=0) + lv.log_prior, outside
 
@@ -564,19 +590,20 @@ class FastKernel(KernelFields):
         config = buffer[fix_src]  # (E,) uint32 configuration index, 0 when there is nothing to add
         return self._bits_at(fix_pos, self._bits[config].T)
 
-    def step(self, key, state: FastGibbsState) -> FastGibbsState:
-        """One sweep: every level in order, all its blocks sampled at once.
+    def step(self, key, state: FastGibbsState) -> tuple[FastGibbsState, GibbsInfo]:
+        """One sweep: every level in order, all its blocks sampled at once; returns ``(state, GibbsInfo())`` (the
+        fast samplers record no conditional probabilities).
 
         No scatter runs inside the loop (on the CPU a scatter is a loop of its own): each step reads its rays'
         words from the buffer slot where they were last written, at indices fixed in advance, and appends its new
         words with one ``dynamic_update_slice``; the final map and ray bits are gathered from the last writers.
         Blocks are drawn by inverse CDF from one uniform each."""
         steps = self._steps
-        num_steps, num_w, cap = steps.src.shape
+        num_steps, num_w, entries_per_step = steps.src.shape
         width = steps.log_prior.shape[1]
         chunked = self._chunked
         uniforms = jax.random.uniform(key, (num_steps, width), dtype=self._dtype)
-        base, stride = self._zero_word + 1, num_w * cap + width
+        base, stride = self._zero_word + 1, num_w * entries_per_step + width
         buffer = jnp.concatenate([state.ray_bits, jnp.zeros(num_steps * stride, jnp.uint32)])
         no_block = jnp.zeros((1, self._bits.shape[1]), dtype=bool)
 
@@ -606,7 +633,7 @@ class FastKernel(KernelFields):
             fsrc, fpos, words_ray, words_w = self._final_fix
             fixed = self._bits_of_draws(buffer, fsrc, fpos)  # (W, R)
             ray_bits = jnp.concatenate([ray_bits[:-1] | fixed[words_w, words_ray], ray_bits[-1:]])
-        return FastGibbsState(walls=walls, ray_bits=ray_bits)
+        return FastGibbsState(walls=walls, ray_bits=ray_bits), GibbsInfo()
 
 
 def fast_gibbs(table: RayTable, readings, params: ModelParams, order: str = "raster", block_size: int = 1,

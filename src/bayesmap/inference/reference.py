@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from genjax import ChoiceMapBuilder as C
 
-from bayesmap.inference.chains import GibbsState, SamplingAlgorithm
+from bayesmap.inference.base import GibbsInfo, GibbsState, SamplingAlgorithm
 from bayesmap.inference.schedules import block_configurations, make_blocks
 from bayesmap.model.generative import ModelParams, choices, full_model, model_args
 from bayesmap.geometry.raytable import check_readings
@@ -72,7 +72,8 @@ def reference_gibbs(readings, pos, params: ModelParams, beam_angles=None, order:
         block_size: 1 for single-site Gibbs, k for k x k blocks anchored at every cell.
 
     Returns:
-        A :class:`SamplingAlgorithm` over :class:`GibbsState`; one ``step`` is one sweep.
+        A :class:`SamplingAlgorithm` over :class:`GibbsState`; one ``step`` is one sweep and returns ``(state,
+        GibbsInfo())`` (no conditional probabilities recorded).
 
     Raises:
         BayesmapError: on readings of the wrong length or non-finite/negative values, a sensor position outside
@@ -85,7 +86,7 @@ def reference_gibbs(readings, pos, params: ModelParams, beam_angles=None, order:
     def init(walls):
         return GibbsState(walls=jnp.asarray(walls, dtype=jnp.float32))
 
-    def step(key, state: GibbsState) -> GibbsState:
+    def step(key, state: GibbsState) -> tuple[GibbsState, GibbsInfo]:
         keys = jax.random.split(key, blocks.shape[0])
 
         def update(b, walls):
@@ -94,7 +95,7 @@ def reference_gibbs(readings, pos, params: ModelParams, beam_angles=None, order:
             choice = jax.random.categorical(keys[b], log_w)
             return walls.reshape(-1).at[cells].set(configs[choice]).reshape(walls.shape)
 
-        return GibbsState(walls=jax.lax.fori_loop(0, blocks.shape[0], update, state.walls))
+        return GibbsState(walls=jax.lax.fori_loop(0, blocks.shape[0], update, state.walls)), GibbsInfo()
 
     return SamplingAlgorithm(init=init, step=step)
 
@@ -116,7 +117,8 @@ def reference_incremental_gibbs(readings, pos, params: ModelParams, beam_angles=
     For each cell, the edit request flips it; the returned incremental weight ``w = log p(flipped) - log p(current)``
     gives the flip probability ``sigmoid(w) = p(flipped) / (p(flipped) + p(current))``, the Gibbs conditional.
 
-    Arguments and errors as :func:`reference_gibbs` (no blocks). The state is a :class:`TraceState`.
+    Arguments and errors as :func:`reference_gibbs` (no blocks). The state is a :class:`TraceState`; ``step``
+    returns ``(state, GibbsInfo())``.
     """
     readings, args = _prepare(readings, pos, params, beam_angles)
     cells = jnp.asarray(make_blocks(params.grid, 1, order, args[0])[:, 0])
@@ -127,7 +129,7 @@ def reference_incremental_gibbs(readings, pos, params: ModelParams, beam_angles=
         trace, _ = full_model.importance(jax.random.key(0), constraints, args)
         return TraceState(trace=trace)
 
-    def step(key, state: TraceState) -> TraceState:
+    def step(key, state: TraceState) -> tuple[TraceState, GibbsInfo]:
         keys = jax.random.split(key, cells.shape[0])
 
         def update(n, trace):
@@ -140,6 +142,6 @@ def reference_incremental_gibbs(readings, pos, params: ModelParams, beam_angles=
             accept = jax.random.bernoulli(accept_key, jax.nn.sigmoid(weight))
             return jax.lax.cond(accept, lambda: new_trace, lambda: trace)
 
-        return TraceState(trace=jax.lax.fori_loop(0, cells.shape[0], update, state.trace))
+        return TraceState(trace=jax.lax.fori_loop(0, cells.shape[0], update, state.trace)), GibbsInfo()
 
     return SamplingAlgorithm(init=init, step=step)

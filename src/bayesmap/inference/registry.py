@@ -24,8 +24,8 @@ conditional writes into selects that always run)."""
 def _fast(order: str, block_size: int, schedule: str):
     """Factory of a :func:`~bayesmap.inference.fast.fast_gibbs` sampler for a problem (its table, readings,
     parameters, first sensor position and likelihood power)."""
-    return lambda pb: fast_gibbs(pb.table, pb.model_ray_readings, pb.params, order, block_size, schedule,
-                                 pb.ray_origins[0], pb.likelihood_power)
+    return lambda problem: fast_gibbs(problem.table, problem.model_ray_readings, problem.params, order, block_size,
+                                      schedule, problem.ray_origins[0], problem.likelihood_power)
 
 
 # name -> (description, factory(problem) -> SamplingAlgorithm)
@@ -37,15 +37,16 @@ SAMPLERS: dict[str, tuple[str, object]] = {
                   _fast("raster", 1, "chromatic")),
     "chromatic-block": ("2x2 block Gibbs, fast, chromatic", _fast("raster", 2, "chromatic")),
     "cellwise": ("single-site Gibbs, one cell at a time, each ray's first two walls in the state (whole logs)",
-                 lambda pb: cellwise_gibbs(pb.table, pb.model_ray_readings, pb.params, pb.likelihood_power)),
+                 lambda problem: cellwise_gibbs(problem.table, problem.model_ray_readings, problem.params,
+                                                problem.likelihood_power)),
     "reference-raster": ("the tutorial's single-site Gibbs with assess, raster order",
-                         lambda pb: reference_gibbs(*pb.single_scan(), "raster", 1)),
+                         lambda problem: reference_gibbs(*problem.single_scan(), "raster", 1)),
     "reference-incremental": ("the tutorial's single-site Gibbs with incremental trace edit",
-                              lambda pb: reference_incremental_gibbs(*pb.single_scan())),
+                              lambda problem: reference_incremental_gibbs(*problem.single_scan())),
     "reference-outward": ("the tutorial's single-site Gibbs with assess, sensor-outward order",
-                          lambda pb: reference_gibbs(*pb.single_scan(), "outward", 1)),
+                          lambda problem: reference_gibbs(*problem.single_scan(), "outward", 1)),
     "reference-block": ("the tutorial's 2x2 block Gibbs with assess",
-                        lambda pb: reference_gibbs(*pb.single_scan(), "raster", 2)),
+                        lambda problem: reference_gibbs(*problem.single_scan(), "raster", 2)),
 }
 
 

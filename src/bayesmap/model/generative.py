@@ -329,10 +329,13 @@ def simulate(key, pos, params: ModelParams, beam_angles=None):
     return trace.get_retval()
 
 
-def prior_log_odds(params: ModelParams):
-    """``log(p / (1 - p))`` of the prior wall probability."""
-    p = jnp.asarray(params.prior_wall_prob)
-    return jnp.log(p) - jnp.log1p(-p)
+def prior_log_odds(prior_wall_prob: float) -> float:
+    """The prior log-odds of a wall, ``log(p / (1 - p))`` of the prior wall probability ``p`` (a float in (0, 1),
+    ``params.prior_wall_prob``), computed in float64 as ``log(p) - log1p(-p)``: the prior's part of every cell's
+    Gibbs conditional log-odds (and, times the number of walls, of a block configuration's log-weight relative to
+    the all-free configuration). The one place the samplers compute it."""
+    p = float(prior_wall_prob)
+    return math.log(p) - math.log1p(-p)
 
 
 def as_numpy_walls(walls) -> np.ndarray:

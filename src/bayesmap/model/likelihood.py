@@ -1,0 +1,132 @@
+"""The likelihood side of the fast samplers' conditionals, in one place: their inputs (checked readings, the sensor
+model's arguments in the kernel dtype, the max-range rule), the tables of ``log p(y | d)`` they look up, and
+tempering.
+
+A cell's (or block's) Gibbs conditional under the model of :mod:`bayesmap.model.generative` is
+
+    log w(c) = log prior(c) + eta * sum over the rays r through the cell of log p(y_r | d_r(c))
+
+up to a constant (``shared/DESIGN.md``, "The fast conditional"): ``log p(y | d)`` is the sensor model
+(:func:`bayesmap.model.sensor.reading_logpdf`) at the ray's expected distance ``d`` (meters), and ``eta`` the
+likelihood power (:func:`tempered`). The prior part is :func:`bayesmap.model.generative.prior_log_odds` per wall.
+Used by :mod:`bayesmap.inference.fast` and :mod:`bayesmap.inference.cellwise`.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bayesmap.errors import BayesmapError
+from bayesmap.geometry.raytable import RayTable, check_readings
+from bayesmap.model.generative import ModelParams, check_likelihood_power
+from bayesmap.model.sensor import beam_log_density, beam_log_max_mass, reading_logpdf
+
+
+class LikelihoodInputs(NamedTuple):
+    """The checked inputs of a sampler's likelihood terms (:func:`likelihood_inputs`).
+
+    Attributes:
+        readings: ``(R,)`` float64 range readings, meters, one per ray of the table.
+        beam_model: the sensor model's name (``"normal"`` or ``"beam"``).
+        sensor_args: ``params.sensor_args`` as scalar arrays of ``dtype``.
+        dtype: the kernel's float dtype (``jnp.result_type(float)``: float32 unless x64 is enabled).
+        likelihood_power: ``eta`` in (0, 1] (:func:`tempered`).
+    """
+
+    readings: np.ndarray
+    beam_model: str
+    sensor_args: tuple
+    dtype: jnp.dtype
+    likelihood_power: float
+
+
+def check_max_range(table: RayTable, params: ModelParams) -> None:
+    """The max-range rule: with a sensor model that has a max range (``"beam"``: a point mass at the max range,
+    Thrun, Burgard & Fox, *Probabilistic Robotics*, sec. 6.3), the table's max distance (meters) must be that max
+    range, ``params.cap``, so that a ray with no wall in the table has exactly the model's "no wall" distance.
+    The Normal sensor has no max range: any table fits.
+
+    Raises:
+        BayesmapError: if the beam model's max range differs from the table's max distance (both named).
+    """
+    if params.beam_model != "normal" and not math.isclose(float(table.max_distance), params.cap, rel_tol=1e-12):
+        raise BayesmapError(f"the table's max distance {table.max_distance!r} m is not the model's max range "
+                            f"params.cap = {params.cap!r} m")
+
+
+def likelihood_inputs(table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0) -> LikelihoodInputs:
+    """Check a sampler's arguments and cast them for its kernel (see :class:`LikelihoodInputs`).
+
+    Args:
+        table: the ray-cell table (its rays in the order of ``readings``).
+        readings: ``(R,)`` ranges, meters (max-range readings equal to the max distance).
+        params: model parameters (the sensor model).
+        likelihood_power: ``eta`` (:func:`bayesmap.model.generative.check_likelihood_power`).
+
+    Raises:
+        BayesmapError: on readings that do not match the table's rays (:func:`check_readings`), a bad likelihood
+            power, or a table that breaks the max-range rule (:func:`check_max_range`).
+    """
+    y = check_readings(readings, table.num_rays)
+    eta = check_likelihood_power(likelihood_power)
+    check_max_range(table, params)
+    dtype = jnp.result_type(float)
+    sensor_args = tuple(jnp.asarray(a, dtype=dtype) for a in params.sensor_args)
+    return LikelihoodInputs(readings=y, beam_model=params.beam_model, sensor_args=sensor_args, dtype=dtype,
+                            likelihood_power=eta)
+
+
+def tempered(log_likelihood, likelihood_power):
+    """Tempering, the one rule of every sampler: each ``log p(y | d)`` term of a conditional (any shape) times the
+    likelihood power ``eta`` (a float or scalar array), before terms are summed or differenced; the prior part is
+    never tempered. A chain then targets ``p(walls) p(readings | walls) ** eta``
+    (:func:`bayesmap.model.generative.check_likelihood_power` for the sources); ``eta = 1`` leaves every term as
+    it is (bit for bit)."""
+    return likelihood_power * log_likelihood
+
+
+@partial(jax.jit, static_argnames=("beam_model",))
+def log_likelihood_table(beam_model: str, sensor_args, y, d):
+    """``log p(y | d)`` of the sensor model ``beam_model`` (``sensor_args`` as :attr:`LikelihoodInputs.sensor_args`)
+    for readings ``y`` and distances ``d`` (meters, broadcast shapes; result of their shape and dtype), 0 where ``d``
+    is ``inf`` (a block configuration that does not stop the ray: never selected)."""
+    ll = reading_logpdf(beam_model, y, d, sensor_args)
+    return jnp.where(jnp.isfinite(d), ll, 0.0)
+
+
+@partial(jax.jit, static_argnames=("beam_model",))
+def _pair_log_likelihood_table(beam_model, sensor_args, y, d, max_pairs):
+    """:func:`pair_log_likelihoods` from the readings ``y`` ``(P,)`` and distances ``d`` ``(P,)`` of the pairs and the
+    pairs ``max_pairs`` ``(K,)`` int whose reading is at or beyond the beam model's max range."""
+    if beam_model == "beam":  # what beam_logpdf selects, each part only where it is selected
+        ll = beam_log_density(y, d, *sensor_args)
+        ll = ll.at[max_pairs].set(beam_log_max_mass(d[max_pairs], *sensor_args), indices_are_sorted=True,
+                                  unique_indices=True)
+    else:
+        ll = reading_logpdf(beam_model, y, d, sensor_args)
+    return jnp.append(jnp.where(jnp.isfinite(d), ll, 0.0), jnp.zeros(1, ll.dtype))
+
+
+def pair_log_likelihoods(table: RayTable, readings: np.ndarray, beam_model: str, sensor_args) -> jax.Array:
+    """``(P + 1,)`` ``log p(y_r | t)`` of the sensor model ``beam_model`` (with ``sensor_args``, scalar arrays of the
+    kernel dtype, as ``params.sensor_args``) for every (ray r, cell) pair of ``table``, then a 0 (the index ``P``
+    pads lookups): ``y_r`` from ``readings`` ``(R,)`` (meters), ``t`` the pair's stopping distance (meters).
+
+    Equal to ``reading_logpdf(beam_model, y, t, sensor_args)`` element by element (the same operations), computed in
+    one jitted call; for the beam model the point mass at the max range (:func:`~bayesmap.model.sensor.beam_log_max_mass`)
+    is computed only for the pairs of max-range readings. The result is dispatched asynchronously (the caller can
+    work on while it is computed)."""
+    dtype = sensor_args[0].dtype
+    y = np.asarray(readings, dtype=dtype)
+    if beam_model == "beam":
+        max_pairs = table.ray_pairs(np.flatnonzero(y >= np.asarray(sensor_args[-1])))
+    else:
+        max_pairs = np.zeros(0, dtype=np.int64)
+    return _pair_log_likelihood_table(beam_model, sensor_args, table.per_pair(y),
+                                      np.asarray(table.pair_dists, dtype=dtype), max_pairs)
