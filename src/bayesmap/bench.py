@@ -128,7 +128,8 @@ def run_bench(samplers=None, fast_sweeps: int = 200, reference_sweeps: int = 5, 
 
     Args:
         samplers: names from :data:`PAIRS` (default: all).
-        fast_sweeps / reference_sweeps: sweeps per timed chain.
+        fast_sweeps: sweeps per timed chain of a fast sampler.
+        reference_sweeps: sweeps per timed chain of a reference sampler.
         repeats: timed chains per sampler (the fastest counts).
         num_chains: chains for the throughput figure.
         progress: optional callable taking a message string.

@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 
 import bayesmap.viz.animation as animation
-from bayesmap.viz.animation import _ChainFigure, chain_frames, chain_gif, chain_html, frame_sweeps
+from bayesmap.viz.animation import ChainFigure, chain_frames, chain_gif, chain_html, frame_sweeps
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 
@@ -96,7 +96,7 @@ def test_frames_count_size_and_mode():
 
 def test_left_panel_is_the_sample_and_right_panel_the_running_mean():
     frames = chain_frames(GRID, two_sweeps())
-    layout = _ChainFigure(GRID, None, None, SIZE)  # same grid, size, no truth / pos: the frames' layout
+    layout = ChainFigure(GRID, None, None, SIZE)  # same grid, size, no truth / pos: the frames' layout
 
     def colour(frame, panel, cell):
         col, row = layout.cell_pixel(panel, *cell)
@@ -120,7 +120,7 @@ def test_left_panel_is_the_sample_and_right_panel_the_running_mean():
 
 def test_frames_of_different_samples_differ_in_the_maps():
     frames = chain_frames(GRID, two_sweeps())
-    layout = _ChainFigure(GRID, None, None, SIZE)
+    layout = ChainFigure(GRID, None, None, SIZE)
     x0, _ = layout.cell_pixel(0, 0, 0)
     x1, _ = layout.cell_pixel(0, GRID.shape[0] - 1, 0)
     _, y_top = layout.cell_pixel(0, 0, GRID.shape[1] - 1)
@@ -147,7 +147,7 @@ def test_blitted_frame_matches_a_full_redraw():
     """The fast path (saved background, images redrawn, overlays composited) gives the pixels of a full draw."""
     rng = np.random.default_rng(3)
     truth = rng.random(GRID.shape) < 0.3
-    figure = _ChainFigure(GRID, truth, np.array([2.0, 2.5]), SIZE)
+    figure = ChainFigure(GRID, truth, np.array([2.0, 2.5]), SIZE)
     fast = np.asarray(figure.render(rng.random(GRID.shape) < 0.5, rng.random(GRID.shape), 4, 9)).astype(int)
     for artist in figure.fig.findobj():
         artist.set_animated(False)

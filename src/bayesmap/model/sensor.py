@@ -115,9 +115,7 @@ def _logsumexp(*terms):
 def beam_log_density(y, d, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range):
     """The continuous part of the beam mixture: what :func:`beam_logpdf` returns for readings below the max range.
 
-    Args:
-        y, d, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range: as for :func:`beam_logpdf` (``z_max`` is
-            not used).
+    The arguments are those of :func:`beam_logpdf` (``z_max`` is not used).
 
     Returns:
         ``broadcast(y, d)`` float: ``log f(y | d)`` (1/m) of the hit, short and rand components, whatever ``y`` is
@@ -138,9 +136,8 @@ def beam_log_density(y, d, sigma, z_hit, z_short, z_max, z_rand, lambda_short, m
 def beam_log_max_mass(d, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range):
     """The point mass of the beam mixture at the max range: what :func:`beam_logpdf` returns for ``y >= M``.
 
-    Args:
-        d, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range: as for :func:`beam_logpdf` (``z_short``,
-            ``z_rand`` and ``lambda_short`` are not used).
+    The arguments are those of :func:`beam_logpdf` without ``y`` (``z_short``, ``z_rand`` and ``lambda_short`` are
+    not used).
 
     Returns:
         ``d.shape`` float: ``log P(y = M | d) = log(z_max + z_hit P(hit censored to M))`` (a probability). Never
@@ -161,7 +158,10 @@ def beam_logpdf(y, d, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_ra
         d: exact distance(s) to the first wall, meters, in ``[0, max_range]`` (``max_range`` when no wall is within
             range); broadcast with ``y``.
         sigma: hit standard deviation (``sensor_noise``), meters, > 0.
-        z_hit, z_short, z_max, z_rand: mixture weights, >= 0, summing to 1, ``z_hit > 0``.
+        z_hit: weight of the hit component (> 0); the four weights are >= 0 and sum to 1.
+        z_short: weight of the short component (unexpected objects).
+        z_max: weight of the max-range point mass (failures).
+        z_rand: weight of the uniform component (random readings).
         lambda_short: rate of the short component, 1/m, > 0.
         max_range: the sensor's max range ``M``, meters, > 0.
 
@@ -222,7 +222,8 @@ def reading_logpdf(beam_model: str, y, d, sensor_args: tuple):
 
     Args:
         beam_model: ``"normal"`` or ``"beam"`` (static).
-        y, d: readings and exact distances, meters.
+        y: readings, meters.
+        d: exact distances to the first wall, meters (broadcast with ``y``).
         sensor_args: ``(sigma,)`` for ``"normal"``; ``(sigma, z_hit, z_short, z_max, z_rand, lambda_short,
             max_range)`` for ``"beam"`` (``ModelParams.sensor_args``).
 

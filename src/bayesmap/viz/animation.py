@@ -9,7 +9,7 @@ on the right the running mean of sweeps ``1..t`` (the Monte Carlo estimate of P(
 1 = black, the colour map of :func:`bayesmap.viz.maps.plot_posterior`), with the true walls outlined in red and the
 sensor marked as a red dot when given. The figure is built and laid out once (Agg canvas, never ``pyplot``);
 each frame only updates the two images' data (``AxesImage.set_data``) and the titles, redraws those on a saved
-background and composites the fixed overlays (see :class:`_ChainFigure`), so 100 frames of a 21 x 21 chain
+background and composites the fixed overlays (see :class:`ChainFigure`), so 100 frames of a 21 x 21 chain
 render in about a second, whatever the number of wall edges outlined.
 
 :func:`chain_gif` and :func:`chain_html` (or both at once, rendered once: :func:`chain_animation`) store the frames with one shared palette (192 greys plus 64 colours):
@@ -159,7 +159,7 @@ def frame_sweeps(num_sweeps: int, *, every: int = 1, max_frames: int = 100) -> n
 # ---------------------------------------------------------------------------------------------------------------
 
 
-class _ChainFigure:
+class ChainFigure:
     """The two-panel figure of a chain, built and laid out once.
 
     Rendering a frame costs two image draws, three texts and a numpy composite, whatever the size of the map:
@@ -423,7 +423,7 @@ def _render(
     size = _check_size(size_px)
     total = walls.shape[0]
     sweeps = frame_sweeps(total, every=every, max_frames=max_frames)
-    figure = _ChainFigure(grid, truth, pos, size)
+    figure = ChainFigure(grid, truth, pos, size)
     frames = []
     running = np.zeros(grid.shape, dtype=np.float64)
     done = 0
@@ -445,7 +445,8 @@ def chain_gif(
     """An animated GIF of a Gibbs chain (looping forever), one GIF frame per frame of :func:`chain_frames`.
 
     Args:
-        grid, samples: as in :func:`chain_frames`.
+        grid: the grid, as in :func:`chain_frames`.
+        samples: the chain's maps, as in :func:`chain_frames`.
         duration_ms: how long each frame is shown, in milliseconds (>= 1).
         last_duration_ms: how long the last frame is shown before the loop restarts, in milliseconds (>= 1).
         **kw: ``truth``, ``pos``, ``every``, ``max_frames``, ``size_px``, passed to :func:`chain_frames`.
@@ -578,7 +579,8 @@ def chain_html(
     arrow keys step and the space bar plays and pauses.
 
     Args:
-        grid, samples: as in :func:`chain_frames`.
+        grid: the grid, as in :func:`chain_frames`.
+        samples: the chain's maps, as in :func:`chain_frames`.
         title: the page title and heading (plain text; HTML-escaped).
         duration_ms: milliseconds per frame while playing (>= 1).
         **kw: ``truth``, ``pos``, ``every``, ``max_frames``, ``size_px``, passed to :func:`chain_frames`.

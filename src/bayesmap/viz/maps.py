@@ -307,8 +307,12 @@ def plot_posterior(
         grid: the :class:`~bayesmap.geometry.grid.Grid`.
         posterior: ``(nx, ny)`` posterior probability that each cell is a wall, in [0, 1].
         truth: ``(nx, ny)`` true map; its walls (cells > 0.5) are outlined in red.
-        pos, beam_angles, readings, origins, max_range_mask: the scan drawn on top, as in :func:`plot_map`
-            (thinner and semi-transparent).
+        pos: sensor position(s) of the scan drawn on top, as in :func:`plot_map` (the scan is drawn thinner and
+            semi-transparent).
+        beam_angles: the scan's beam angles, as in :func:`plot_map`.
+        readings: the scan's range readings, as in :func:`plot_map`.
+        origins: the beams' origins, as in :func:`plot_map`.
+        max_range_mask: which readings were max-range, as in :func:`plot_map`.
         title: the title of the probability panel; default "Posterior P(wall)".
         std: also draw a second panel with the posterior standard deviation ``sqrt(p (1 - p))`` (0 to 0.5).
 
