@@ -28,11 +28,10 @@ test: $(STAMP) docs lint
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
 
-# ruff ([tool.ruff] in pyproject.toml), then the private-name imports ruff's PLC2701 does not see: those from
-# bayesmap inside bayesmap (it skips imports from the importing file's own top-level package)
+# ruff ([tool.ruff] in pyproject.toml); imports of another module's private names inside bayesmap, which ruff's
+# PLC2701 does not see, are checked by tests/test_package_layout.py
 lint: $(STAMP)
 	$(BIN)/ruff check src tests notebooks
-	$(BIN)/python -c "$$PRIVATE_IMPORTS"
 
 # the tutorial notebook, executed, as one HTML file with its outputs
 notebook: $(STAMP)
@@ -43,17 +42,3 @@ notebook: $(STAMP)
 
 clean:
 	rm -rf $(VENV) site bayesmap-out .pytest_cache notebooks/mapping_tutorial.html notebooks/mapping_tutorial.ipynb
-
-# `from bayesmap.x import _name` anywhere in src/, tests/ or notebooks/ (one module importing another's private name)
-define PRIVATE_IMPORTS
-import ast, pathlib, sys
-found = []
-for path in sorted(p for d in ("src", "tests", "notebooks") for p in pathlib.Path(d).rglob("*.py")):
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").split(".")[0] == "bayesmap":
-            found += [f"{path}:{node.lineno}: {node.module} {a.name}" for a in node.names
-                      if a.name.startswith("_") and not a.name.startswith("__")]
-print("\n".join(["private names imported from another module:"] + found) if found else "no private-name imports")
-sys.exit(1 if found else 0)
-endef
-export PRIVATE_IMPORTS
