@@ -8,9 +8,7 @@ from __future__ import annotations
 import io
 import json
 import os
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 from typing import Optional
 
@@ -70,6 +68,9 @@ def _check_output_dir(out: Path, force: bool) -> None:
         clash = [name for name in OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) + ROSMAP_FILES if (out / name).exists()]
         if clash:
             raise BayesmapError(f"{str(out / clash[0])!r} already exists; pass --force to replace bayesmap's outputs in {str(out)!r}")
+    from bayesmap.io.files import check_replaceable_folder
+
+    check_replaceable_folder(out, OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) + ROSMAP_FILES)
     parent = out if out.is_dir() else out.parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
@@ -78,25 +79,11 @@ def _check_output_dir(out: Path, force: bool) -> None:
 
 
 def _write_outputs(out: Path, files: dict[str, bytes]) -> None:
-    """Write all files into ``out`` whole or not at all: everything is staged in a temporary folder beside
-    ``out`` first; only when all are written do they move into place (one rename each)."""
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    except OSError as err:
-        raise BayesmapError(f"cannot write output folder {str(out)!r}: {err.strerror}") from None
-    try:
-        for name, data in files.items():
-            (staging / name).write_bytes(data)
-        if not out.exists():
-            os.rename(staging, out)
-            return
-        for name in files:
-            os.replace(staging / name, out / name)
-    except OSError as err:
-        raise BayesmapError(f"cannot write output folder {str(out)!r}: {err.strerror}") from None
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+    """Replace the output folder ``out`` as a whole by one holding ``files`` (plus the user's own files already
+    there): see :func:`bayesmap.io.files.replace_folder`."""
+    from bayesmap.io.files import replace_folder
+
+    replace_folder(out, files)
 
 
 def _npy(array) -> bytes:
@@ -223,7 +210,7 @@ def infer(
     map_file: Optional[Path] = typer.Option(None, "--map", help="ASCII map ('X' wall, '.' free); default the tutorial map"),
     log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log (.log or .log.gz): all its scans, or --scans / --scan"),
     scan: Optional[int] = typer.Option(None, "--scan", help="map only this scan of --log (one pose, the single-scan model)"),
-    scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to map: a range a:b, a stride a:b:step, a list, or 'all' (default)"),
+    scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to map: a range such as 10:20, a stride such as 0:1000:5, a list such as 3,7,10:20, or 'all' (default); negative indexes count from the end"),
     resolution: float = typer.Option(0.1, help="grid resolution for real data, meters per cell"),
     method: str = typer.Option("gibbs", "--method", help="gibbs (the posterior, with --sampler) or logodds (classic log-odds mapping, no posterior)"),
     beam_model: Optional[str] = typer.Option(None, "--beam-model", help="sensor model: normal (the tutorial's; default for maps) or beam (robust mixture, Probabilistic Robotics 6.3; default for logs)"),
@@ -351,7 +338,7 @@ def _format_scores(scores: dict) -> str:
 def evaluate(
     log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log: hold out every --every-th scan, map the rest, score the held-out beams"),
     truth: Optional[Path] = typer.Option(None, "--truth", help="a floor plan (ROS .pgm or .yaml): simulate scans in it, map them, score against it"),
-    scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to use (a:b:step, list, or all)"),
+    scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to use: a range such as 10:20, a stride such as 0:1000:5, a list, or 'all' (default)"),
     every: int = typer.Option(10, "--every", help="hold out every k-th scan"),
     resolution: float = typer.Option(0.1, help="meters per cell (--log; for a bare .pgm --truth, its pixel size)"),
     sampler: str = _sampler_option("cellwise"),
@@ -425,25 +412,42 @@ def explorer(
     run_app(host=host, port=port, show=not no_browser)
 
 
-def main() -> None:
-    """Entry point: run the app, turning :class:`BayesmapError` into one line on stderr and exit code 2."""
+def _one_line(text: str) -> str:
+    """``text`` with every run of whitespace (newlines included) made one space."""
+    return " ".join(str(text).split())
+
+
+def main(argv: Optional[list[str]] = None) -> None:
+    """Entry point of ``bayesmap``: run the typer app on ``argv`` (default ``sys.argv[1:]``).
+
+    Every user error ends the process with ONE line ``error: ...`` on stderr and exit code 2: a
+    :class:`BayesmapError` (bad file or value) and every command-line usage error of click (unknown command or
+    option, a value of the wrong type, a missing value; typer ships its own copy of click, whose exceptions all
+    derive from ``typer.TyperException``). ``--help`` exits 0; Ctrl+C prints ``aborted`` and exits 130.
+
+    Raises:
+        SystemExit: always, with the exit code (0 on success).
+    """
     try:
-        app(standalone_mode=False)
+        app(args=argv, prog_name="bayesmap", standalone_mode=False)
     except BayesmapError as err:
-        typer.echo(f"error: {err}", err=True)
+        typer.echo(f"error: {_one_line(err)}", err=True)
         sys.exit(2)
     except typer.Exit as ex:
         sys.exit(ex.exit_code)
-    except typer.Abort:
+    except (typer.Abort, KeyboardInterrupt):
         typer.echo("aborted", err=True)
-        sys.exit(1)
-    except Exception as err:  # click usage errors
-        import click
-
-        if isinstance(err, click.ClickException):
+        sys.exit(130)
+    except typer.TyperException as err:  # click's UsageError, BadParameter, NoSuchOption, ...
+        if type(err).__name__ == "NoArgsIsHelpError":  # bare `bayesmap`: the help (rich prints it while formatting)
             err.show()
             sys.exit(2)
-        raise
+        message = err.format_message() if hasattr(err, "format_message") else str(err)
+        context = getattr(err, "ctx", None)
+        hint = f" (see '{context.command_path} --help')" if context is not None else ""
+        typer.echo(f"error: {_one_line(message)}{hint}", err=True)
+        sys.exit(2)
+    sys.exit(0)
 
 
 if __name__ == "__main__":
