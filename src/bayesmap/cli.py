@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -94,6 +95,50 @@ def _npy(array) -> bytes:
     return buf.getvalue()
 
 
+def _check_free_cell(walls, pos, source: str) -> None:
+    """Refuse a sensor position ``pos`` (x, y in cells of ``walls`` ``(nx, ny)``) that lies in a wall cell, naming
+    the cell (positions outside the map are refused later, by :meth:`Grid.check_inside`)."""
+    i, j = (int(math.floor(v + 0.5)) for v in pos)  # cell (i, j) spans [i - 0.5, i + 0.5) (the tutorial's frame)
+    if 0 <= i < walls.shape[0] and 0 <= j < walls.shape[1] and walls[i, j] > 0.5:
+        raise BayesmapError(f"sensor position ({pos[0]:g}, {pos[1]:g}) is in wall cell ({i}, {j}) of {source}; "
+                            "put the sensor in a free cell ('.')")
+
+
+def _estimate_pairs(problem) -> float:
+    """An upper bound on the (beam, cell) pairs of ``problem``'s ray-cell table, without building it: a beam crosses
+    at most ``L (|cos a| + |sin a|) / resolution + 2`` cells over its length ``L`` = min(max distance, the grid's
+    diagonal) (Amanatides & Woo 1987 traversal: one new cell per grid line crossed)."""
+    import numpy as np
+
+    grid = problem.grid
+    length = min(float(problem.params.cap), math.hypot(*grid.shape) * grid.resolution)
+    a = problem.ray_angles
+    return float(np.sum(length * (np.abs(np.cos(a)) + np.abs(np.sin(a))) / grid.resolution + 2.0))
+
+
+def check_problem_size(problem, chains: int = 1) -> None:
+    """Refuse, before anything is allocated, a problem whose grid or ray-cell table cannot fit in memory.
+
+    Limits: :data:`MAX_GRID_CELLS` cells (times ``chains``), and :data:`MAX_MEMORY_BYTES` for the table at
+    :data:`BYTES_PER_PAIR` bytes per estimated pair (:func:`_estimate_pairs`).
+
+    Raises:
+        BayesmapError: naming the grid's shape and cells, or the estimated pairs and gigabytes, and the way out
+            (a coarser --resolution, fewer --scans, fewer --chains).
+    """
+    grid = problem.grid
+    nx, ny = grid.shape
+    if grid.num_cells * max(chains, 1) > MAX_GRID_CELLS:
+        raise BayesmapError(f"the grid would have {nx:,} x {ny:,} = {grid.num_cells:,.0f} cells of {grid.resolution:g} m "
+                            f"(x {chains} chains; at most {MAX_GRID_CELLS:,}): use a coarser --resolution, fewer "
+                            "--chains or fewer --scans (a far-away pose widens the grid)")
+    pairs = _estimate_pairs(problem)
+    if pairs * BYTES_PER_PAIR > MAX_MEMORY_BYTES:
+        raise BayesmapError(f"the ray-cell table would take about {pairs * BYTES_PER_PAIR / 1e9:,.0f} GB ({pairs:,.0f} "
+                            f"(beam, cell) pairs; at most {MAX_MEMORY_BYTES / 1e9:g} GB): use a coarser --resolution "
+                            "or fewer --scans")
+
+
 def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], seed: int, out: Path, force: bool,
                    title: str, chains: int = 1, report: bool = False, method: str = "gibbs",
                    rosmap: bool = False) -> tuple[dict, list[str]]:
@@ -103,6 +148,7 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
     from bayesmap.inference.driver import run_inference, run_logodds
 
     _check_output_dir(out, force)
+    check_problem_size(problem, chains=chains)
     if method == "logodds":
         result = run_logodds(problem)
     else:
@@ -176,6 +222,50 @@ def _sensor_params(beam_weights: Optional[str], lambda_short: Optional[float]) -
     return params
 
 
+MAX_SWEEPS = 1_000_000
+"""Largest --sweeps / --burn-in (a million sweeps of the whole Intel log would take weeks; larger integers overflow
+JAX's int32 loop counters)."""
+MAX_CHAINS = 1024
+MAX_BEAMS_PER_SCAN = 100_000
+MAX_POSES = 100_000
+MAX_RESOLUTION = 100.0
+"""Meters per cell: a coarser grid has no room for a room."""
+MAX_COORDINATE = 1e7
+"""Meters: the largest sensor coordinate (10,000 km; bayesmap.io.carmen.MAX_PLAUSIBLE_COORDINATE for logs)."""
+MAX_RANGE_LIMIT = 1000.0
+"""Meters: the largest --max-range (bayesmap.io.carmen.MAX_PLAUSIBLE_RANGE)."""
+MAX_GRID_CELLS = 50_000_000
+"""Cells of one grid: each float32 map of the posterior is 200 MB at this size, and a chain keeps several."""
+MAX_MEMORY_BYTES = 16e9
+"""Bytes the ray-cell table may take (estimated): the machine has 24 GB, JAX and the figures need the rest."""
+BYTES_PER_PAIR = 40
+"""Bytes per (beam, cell) pair of the estimate :func:`_estimate_pairs` (an upper bound, about twice the real count
+on the Intel log): the whole Intel log at 0.1 m has 42.4 million pairs and peaks at 2.9 GB, 68 bytes per real pair."""
+
+
+def _in_range(name: str, lo: float | None = None, hi: float | None = None, lo_open: bool = False, unit: str = ""):
+    """An option callback that refuses a value (or each value of a tuple) that is not a finite number in
+    ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``), naming the option and the value; click turns the
+    ``typer.BadParameter`` into one line and exit code 2 (:func:`main`)."""
+    def show(x: float) -> str:
+        return f"{int(x)}" if float(x).is_integer() and abs(x) < 1e16 else f"{x:g}"
+
+    left = "(" if lo_open else "["
+    span = (f"in {left}{show(lo)}, {show(hi)}]" if lo is not None and hi is not None
+            else f"{'>' if lo_open else '>='} {show(lo)}" if lo is not None else f"<= {show(hi)}")
+
+    def check(value):
+        for v in value if isinstance(value, tuple) else (value,):
+            if v is None:
+                continue
+            if not (math.isfinite(v) and (lo is None or v > lo or (v == lo and not lo_open))
+                    and (hi is None or v <= hi)):
+                raise typer.BadParameter(f"must be a finite number {span}{unit}, got {v!r}", param_hint=name)
+        return value
+
+    return check
+
+
 POWER_HELP = ("--log: power eta in (0, 1] of the likelihood, sampling p(walls) p(readings | walls)^eta (a power posterior "
               "for beams that are not independent evidence; 1 is the plain posterior; default 0.1 for logs)")
 BEAM_WEIGHTS_HELP = ("beam model: mixture weights HIT,SHORT,MAX,RAND summing to 1 (default 0.8,0.05,0.05,0.1, "
@@ -191,8 +281,9 @@ def _sampler_option(default: Optional[str], note: str = ""):
 @app.command()
 def demo(
     out: Path = typer.Option(Path("bayesmap-out"), "--out", help="output folder"),
-    sweeps: int = typer.Option(100, help="number of Gibbs sweeps"),
-    seed: int = typer.Option(0, help="seed of the chain (readings always use the tutorial's key 0)"),
+    sweeps: int = typer.Option(100, help="number of Gibbs sweeps", callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
+    seed: int = typer.Option(0, help="seed of the chain (readings always use the tutorial's key 0)",
+                             callback=_in_range("--seed", -2**31, 2**32 - 1)),
     force: bool = typer.Option(False, "--force", help="replace bayesmap's outputs already in the folder"),
 ) -> None:
     """The tutorial map, readings simulated with the tutorial's key, 2x2 block Gibbs; prints a summary, writes figures
@@ -211,7 +302,10 @@ def infer(
     log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log (.log or .log.gz): all its scans, or --scans / --scan"),
     scan: Optional[int] = typer.Option(None, "--scan", help="map only this scan of --log (one pose, the single-scan model)"),
     scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to map: a range such as 10:20, a stride such as 0:1000:5, a list such as 3,7,10:20, or 'all' (default); negative indexes count from the end"),
-    resolution: float = typer.Option(0.1, help="grid resolution for real data, meters per cell"),
+    resolution: float = typer.Option(0.1, help="grid resolution for real data, meters per cell",
+                                     callback=_in_range("--resolution", 0, MAX_RESOLUTION, lo_open=True, unit=" m")),
+    max_range: Optional[float] = typer.Option(None, "--max-range", help="--log: the laser's max range, meters; readings at or above it are 'no return' (default: inferred from the log, see bayesmap.io.carmen)",
+                                              callback=_in_range("--max-range", 0, MAX_RANGE_LIMIT, lo_open=True, unit=" m")),
     method: str = typer.Option("gibbs", "--method", help="gibbs (the posterior, with --sampler) or logodds (classic log-odds mapping, no posterior)"),
     beam_model: Optional[str] = typer.Option(None, "--beam-model", help="sensor model: normal (the tutorial's; default for maps) or beam (robust mixture, Probabilistic Robotics 6.3; default for logs)"),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help="meters the model subtracts from each returned reading of a log (default one cell: a wall cell's reading is expected where the beam enters it, a real surface lies inside it)"),
@@ -219,14 +313,19 @@ def infer(
     lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help="beam model: rate of short readings, 1/m (default 0.1)"),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
     sampler: Optional[str] = _sampler_option(None, " (default block; cellwise for several scans of a log)"),
-    sweeps: int = typer.Option(100, help="number of Gibbs sweeps"),
-    burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: half)"),
+    sweeps: int = typer.Option(100, help="number of Gibbs sweeps", callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
+    burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: half)",
+                                          callback=_in_range("--burn-in", 0, MAX_SWEEPS)),
     prior_wall_prob: Optional[float] = typer.Option(None, "--prior-wall-prob", help=f"prior probability that a cell is a wall (default 0.5, the tutorial's; {LOG_PRIOR} for several scans of a log)"),
     sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help="standard deviation of a reading, meters (default 0.2, the tutorial's; for --log half a cell)"),
-    num_angles: int = typer.Option(100, "--num-angles", help="number of beams (simulated readings)"),
-    pos: Optional[tuple[float, float]] = typer.Option(None, "--pos", help="sensor position X Y (simulated readings); default the map's center"),
-    seed: int = typer.Option(0, help="seed of the simulated readings and of the chain"),
-    chains: int = typer.Option(1, help="independent chains run at once; 2 or more add split R-hat and effective sample size per cell"),
+    num_angles: int = typer.Option(100, "--num-angles", help="number of beams (simulated readings)",
+                                   callback=_in_range("--num-angles", 1, MAX_BEAMS_PER_SCAN)),
+    pos: Optional[tuple[float, float]] = typer.Option(None, "--pos", help="sensor position X Y (simulated readings), in cells of the map: a free cell; default the map's center",
+                                                      callback=_in_range("--pos", -MAX_COORDINATE, MAX_COORDINATE)),
+    seed: int = typer.Option(0, help="seed of the simulated readings and of the chain",
+                             callback=_in_range("--seed", -2**31, 2**32 - 1)),
+    chains: int = typer.Option(1, help="independent chains run at once; 2 or more add split R-hat and effective sample size per cell",
+                               callback=_in_range("--chains", 1, MAX_CHAINS)),
     report: bool = typer.Option(False, "--report", help="also write report.html: settings, metrics, all figures and the chain's animation, offline"),
     rosmap: bool = typer.Option(False, "--rosmap", help="also write the posterior mean as a ROS map_server map (map.pgm + map.yaml)"),
     out: Path = typer.Option(Path("bayesmap-out"), "--out", help="output folder"),
@@ -250,11 +349,12 @@ def infer(
             raise BayesmapError("give either --scan N or --scans SPEC, not both")
         from bayesmap.io.carmen import read_carmen
 
-        carmen = read_carmen(log)
+        carmen = read_carmen(log, max_range=max_range)
         noise = resolution / 2 if sensor_noise is None else sensor_noise
         if scan is not None:
             if range_offset is not None or likelihood_power is not None:
                 raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), not to --scan N")
+            scan = int(parse_scans(str(scan), len(carmen))[0])  # a negative index counts from the end, as in --scans
             problem = scan_problem(carmen, scan, resolution=resolution, prior_wall_prob=prior_wall_prob or 0.5,
                                    sensor_noise=noise, beam_model=beam_model or "normal", sensor_params=sensor_params)
             title = f"{log.name} scan {scan}"
@@ -266,10 +366,12 @@ def infer(
                                   sensor_params=sensor_params, likelihood_power=likelihood_power)
             title = f"{log.name}, {len(chosen)} scans"
     else:
-        if scan is not None or scans is not None or likelihood_power is not None:
-            raise BayesmapError("--scan, --scans and --likelihood-power need --log FILE")
+        if scan is not None or scans is not None or likelihood_power is not None or max_range is not None:
+            raise BayesmapError("--scan, --scans, --likelihood-power and --max-range need --log FILE")
         walls = load_map(map_file) if map_file is not None else tutorial_map()
         center = (float(walls.shape[0] // 2), float(walls.shape[1] // 2))  # the tutorial's GRID_SIZE // 2
+        if pos is not None:
+            _check_free_cell(walls, pos, str(map_file) if map_file else "the tutorial map")
         problem = tutorial_problem(walls, pos=pos if pos is not None else center, seed=seed,
                                    prior_wall_prob=0.5 if prior_wall_prob is None else prior_wall_prob,
                                    sensor_noise=0.2 if sensor_noise is None else sensor_noise, num_angles=num_angles,
@@ -288,10 +390,14 @@ def infer(
 def bench(
     json_file: Optional[Path] = typer.Option(None, "--json", help="also write the figures as JSON to this file"),
     samplers: Optional[str] = typer.Option(None, "--samplers", help="comma-separated subset of: raster, incremental, outward, block, chromatic, chromatic-block"),
-    sweeps: int = typer.Option(200, help="sweeps per timed chain of a fast sampler"),
-    reference_sweeps: int = typer.Option(5, "--reference-sweeps", help="sweeps per timed chain of a reference sampler"),
-    repeats: int = typer.Option(5, help="timed chains per sampler; the fastest counts"),
-    chains: int = typer.Option(64, help="chains run at once for the throughput figure"),
+    sweeps: int = typer.Option(200, help="sweeps per timed chain of a fast sampler",
+                               callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
+    reference_sweeps: int = typer.Option(5, "--reference-sweeps", help="sweeps per timed chain of a reference sampler",
+                                         callback=_in_range("--reference-sweeps", 1, MAX_SWEEPS)),
+    repeats: int = typer.Option(5, help="timed chains per sampler; the fastest counts",
+                                callback=_in_range("--repeats", 1, 1000)),
+    chains: int = typer.Option(64, help="chains run at once for the throughput figure",
+                               callback=_in_range("--chains", 1, MAX_CHAINS)),
     force: bool = typer.Option(False, "--force", help="replace the --json file if it exists"),
 ) -> None:
     """Fast samplers against the tutorial's reference samplers on the tutorial scene, in one process."""
@@ -340,20 +446,25 @@ def evaluate(
     truth: Optional[Path] = typer.Option(None, "--truth", help="a floor plan (ROS .pgm or .yaml): simulate scans in it, map them, score against it"),
     scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to use: a range such as 10:20, a stride such as 0:1000:5, a list, or 'all' (default)"),
     every: int = typer.Option(10, "--every", help="hold out every k-th scan"),
-    resolution: float = typer.Option(0.1, help="meters per cell (--log; for a bare .pgm --truth, its pixel size)"),
+    resolution: float = typer.Option(0.1, help="meters per cell (--log; for a bare .pgm --truth, its pixel size)",
+                                     callback=_in_range("--resolution", 0, MAX_RESOLUTION, lo_open=True, unit=" m")),
     sampler: str = _sampler_option("cellwise"),
-    sweeps: int = typer.Option(100, help="Gibbs sweeps (half burn-in)"),
+    sweeps: int = typer.Option(100, help="Gibbs sweeps (half burn-in)", callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
     beam_model: str = typer.Option("beam", "--beam-model", help="sensor model of mapping and scoring: beam or normal"),
-    num_poses: int = typer.Option(30, "--num-poses", help="--truth: number of simulated scans"),
-    num_angles: int = typer.Option(360, "--num-angles", help="--truth: beams per simulated scan (over 360 degrees)"),
-    max_range: float = typer.Option(20.0, "--max-range", help="--truth: max range of the simulated sensor, meters"),
+    num_poses: int = typer.Option(30, "--num-poses", help="--truth: number of simulated scans",
+                                  callback=_in_range("--num-poses", 1, MAX_POSES)),
+    num_angles: int = typer.Option(360, "--num-angles", help="--truth: beams per simulated scan (over 360 degrees)",
+                                   callback=_in_range("--num-angles", 1, MAX_BEAMS_PER_SCAN)),
+    max_range: Optional[float] = typer.Option(None, "--max-range", help="max range, meters: --truth, of the simulated sensor (default 20); --log, of the laser (default inferred from the log)",
+                                              callback=_in_range("--max-range", 0, MAX_RANGE_LIMIT, lo_open=True, unit=" m")),
     sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help="standard deviation of a reading, meters (default half a cell)"),
     prior_wall_prob: float = typer.Option(LOG_PRIOR, "--prior-wall-prob", help="prior probability that a cell is a wall"),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help="--log: meters the model subtracts from each returned reading (default one cell)"),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
     lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help="beam model: rate of short readings, 1/m (default 0.1)"),
-    seed: int = typer.Option(0, help="seed of the chain (and of the simulated scans)"),
+    seed: int = typer.Option(0, help="seed of the chain (and of the simulated scans)",
+                             callback=_in_range("--seed", -2**31, 2**32 - 1)),
     json_file: Optional[Path] = typer.Option(None, "--json", help="also write the table as JSON"),
     force: bool = typer.Option(False, "--force", help="replace the --json file if it exists"),
 ) -> None:
@@ -372,7 +483,7 @@ def evaluate(
         from bayesmap.io.carmen import read_carmen
         from bayesmap.cli import parse_scans
 
-        carmen = read_carmen(log)
+        carmen = read_carmen(log, max_range=max_range)
         scores = evaluate_log(carmen, parse_scans(scans, len(carmen)), every=every, resolution=resolution,
                               range_offset=range_offset, likelihood_power=likelihood_power, **mapping)
         setup = scores["setup"]
@@ -386,7 +497,7 @@ def evaluate(
             raise BayesmapError("--likelihood-power and --range-offset apply to --log, not to --truth")
 
         scores = evaluate_truth(truth, resolution=resolution, num_poses=num_poses, num_angles=num_angles,
-                                max_range=max_range, **mapping)
+                                max_range=20.0 if max_range is None else max_range, **mapping)
         setup = scores["setup"]
         typer.echo(f"{truth.name}: {setup['num_poses']} simulated scans of {num_angles} beams; grid {setup['grid'][0]} x "
                    f"{setup['grid'][1]} cells of {setup['resolution']:g} m; scored on {setup['cells_scored']:,} known cells "
@@ -400,7 +511,7 @@ def evaluate(
 @app.command("app")
 def explorer(
     host: str = typer.Option("127.0.0.1", help="interface to listen on (default: this machine only)"),
-    port: int = typer.Option(8080, help="TCP port"),
+    port: int = typer.Option(8080, help="TCP port", callback=_in_range("--port", 1, 65535)),
     no_browser: bool = typer.Option(False, "--no-browser", help="do not open the page in a browser"),
 ) -> None:
     """The interactive map explorer, a local web app: draw walls, drag the sensor, run inference, browse samples.
