@@ -104,39 +104,68 @@ def _check_free_cell(walls, pos, source: str) -> None:
                             "put the sensor in a free cell ('.')")
 
 
-def _estimate_pairs(problem) -> float:
-    """An upper bound on the (beam, cell) pairs of ``problem``'s ray-cell table, without building it: a beam crosses
-    at most ``L (|cos a| + |sin a|) / resolution + 2`` cells over its length ``L`` = min(max distance, the grid's
-    diagonal) (Amanatides & Woo 1987 traversal: one new cell per grid line crossed)."""
+def _beam_cells(length: float, resolution: float, beam_angles) -> float:
+    """An upper bound on the (beam, cell) pairs of beams at ``beam_angles`` (radians) of ``length`` meters on a
+    grid of ``resolution`` meters per cell: at most ``length (|cos a| + |sin a|) / resolution + 2`` cells each (one
+    new cell per grid line crossed; Amanatides & Woo 1987)."""
     import numpy as np
 
-    grid = problem.grid
-    length = min(float(problem.params.cap), math.hypot(*grid.shape) * grid.resolution)
-    a = problem.ray_angles
-    return float(np.sum(length * (np.abs(np.cos(a)) + np.abs(np.sin(a))) / grid.resolution + 2.0))
+    a = np.asarray(beam_angles, dtype=np.float64).reshape(-1)
+    return float(np.sum(length * (np.abs(np.cos(a)) + np.abs(np.sin(a))) / resolution + 2.0))
+
+
+def _check_sizes(shape: tuple[int, int], resolution: float, pairs: float, chains: int = 1) -> None:
+    """Refuse a grid of ``shape`` cells over :data:`MAX_GRID_CELLS` (times ``chains``), or a ray-cell table of
+    ``pairs`` (estimated) pairs over :data:`MAX_MEMORY_BYTES` at :data:`BYTES_PER_PAIR`, naming the figure and the
+    way out."""
+    nx, ny = shape
+    if nx * ny * max(chains, 1) > MAX_GRID_CELLS:
+        raise BayesmapError(f"the grid would have {nx:,} x {ny:,} = {nx * ny:,} cells of {resolution:g} m (x {chains} "
+                            f"chains; at most {MAX_GRID_CELLS:,}): use a coarser --resolution, fewer --chains or fewer "
+                            "--scans (a far-away pose widens the grid)")
+    if pairs * BYTES_PER_PAIR > MAX_MEMORY_BYTES:
+        raise BayesmapError(f"the ray-cell table would take about {pairs * BYTES_PER_PAIR / 1e9:,.0f} GB ({pairs:,.0f} "
+                            f"(beam, cell) pairs; at most {MAX_MEMORY_BYTES / 1e9:g} GB): use a coarser --resolution, "
+                            "fewer --scans, fewer poses or beams, or a shorter --max-range")
 
 
 def check_problem_size(problem, chains: int = 1) -> None:
-    """Refuse, before anything is allocated, a problem whose grid or ray-cell table cannot fit in memory.
-
-    Limits: :data:`MAX_GRID_CELLS` cells (times ``chains``), and :data:`MAX_MEMORY_BYTES` for the table at
-    :data:`BYTES_PER_PAIR` bytes per estimated pair (:func:`_estimate_pairs`).
+    """Refuse, before anything is allocated, a problem whose grid or ray-cell table cannot fit in memory
+    (:func:`_check_sizes`); a beam's length is bounded by the max distance and the grid's diagonal.
 
     Raises:
-        BayesmapError: naming the grid's shape and cells, or the estimated pairs and gigabytes, and the way out
-            (a coarser --resolution, fewer --scans, fewer --chains).
+        BayesmapError: naming the grid's cells or the estimated pairs and gigabytes, and the way out.
     """
     grid = problem.grid
-    nx, ny = grid.shape
     if grid.num_cells * max(chains, 1) > MAX_GRID_CELLS:
-        raise BayesmapError(f"the grid would have {nx:,} x {ny:,} = {grid.num_cells:,.0f} cells of {grid.resolution:g} m "
-                            f"(x {chains} chains; at most {MAX_GRID_CELLS:,}): use a coarser --resolution, fewer "
-                            "--chains or fewer --scans (a far-away pose widens the grid)")
-    pairs = _estimate_pairs(problem)
-    if pairs * BYTES_PER_PAIR > MAX_MEMORY_BYTES:
-        raise BayesmapError(f"the ray-cell table would take about {pairs * BYTES_PER_PAIR / 1e9:,.0f} GB ({pairs:,.0f} "
-                            f"(beam, cell) pairs; at most {MAX_MEMORY_BYTES / 1e9:g} GB): use a coarser --resolution "
-                            "or fewer --scans")
+        _check_sizes(grid.shape, grid.resolution, 0.0, chains)
+    length = min(float(problem.params.cap), math.hypot(*grid.shape) * grid.resolution)
+    _check_sizes(grid.shape, grid.resolution, _beam_cells(length, grid.resolution, problem.ray_angles), chains)
+
+
+MIN_TRUTH_RESOLUTION = 0.01
+"""Meters per pixel: the finest floor plan ``evaluate --truth`` takes (its poses keep 0.5 m of clearance, checked
+over a square of ``(2 * 0.5 / resolution + 1) ** 2`` shifted copies of the map)."""
+
+
+def _check_truth_scene(truth: Path, resolution: float, num_poses: int, num_angles: int, max_range: float) -> None:
+    """Refuse an ``evaluate --truth`` scene that cannot be simulated or cannot fit, before any work: a floor plan
+    finer than :data:`MIN_TRUTH_RESOLUTION`, a max range shorter than one cell, or sizes over
+    :func:`_check_sizes`' limits."""
+    from bayesmap.io.rosmap import read_rosmap
+
+    grid = read_rosmap(truth, resolution=resolution if truth.suffix.lower() == ".pgm" else None).grid
+    if grid.resolution < MIN_TRUTH_RESOLUTION:
+        raise BayesmapError(f"{truth}: {grid.resolution:g} m per pixel is finer than {MIN_TRUTH_RESOLUTION:g} m; "
+                            "resample the floor plan (or give a bare .pgm a coarser --resolution)")
+    if max_range < grid.resolution:
+        raise BayesmapError(f"--max-range {max_range:g} m is shorter than one cell of {truth} ({grid.resolution:g} m): "
+                            "no beam would cross a cell")
+    length = min(max_range, math.hypot(*grid.shape) * grid.resolution)
+    import numpy as np
+
+    angles = np.linspace(0, 2 * np.pi, num_angles, endpoint=False)
+    _check_sizes(grid.shape, grid.resolution, num_poses * _beam_cells(length, grid.resolution, angles))
 
 
 def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], seed: int, out: Path, force: bool,
@@ -496,8 +525,10 @@ def evaluate(
         if likelihood_power is not None or range_offset is not None:
             raise BayesmapError("--likelihood-power and --range-offset apply to --log, not to --truth")
 
+        max_range = 20.0 if max_range is None else max_range
+        _check_truth_scene(truth, resolution, num_poses, num_angles, max_range)
         scores = evaluate_truth(truth, resolution=resolution, num_poses=num_poses, num_angles=num_angles,
-                                max_range=20.0 if max_range is None else max_range, **mapping)
+                                max_range=max_range, **mapping)
         setup = scores["setup"]
         typer.echo(f"{truth.name}: {setup['num_poses']} simulated scans of {num_angles} beams; grid {setup['grid'][0]} x "
                    f"{setup['grid'][1]} cells of {setup['resolution']:g} m; scored on {setup['cells_scored']:,} known cells "
