@@ -59,6 +59,8 @@ REPORT_FILE = "report.html"  # written by demo, and by infer --report
 LOG_PRIOR = 0.1  # bayesmap.scenes.LOG_PRIOR (not imported here: the CLI imports JAX only when a command runs)
 ROSMAP_STEM = "map"  # infer --rosmap writes map.pgm and map.yaml (ROS map_server)
 ROSMAP_FILES = (ROSMAP_STEM + ".pgm", ROSMAP_STEM + ".yaml")
+ALL_OUTPUT_FILES = OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) + ROSMAP_FILES
+"""Every file a run may write into its output folder (an old run's that the new one does not write are removed)."""
 
 
 def _check_output_dir(out: Path, force: bool) -> None:
@@ -66,12 +68,12 @@ def _check_output_dir(out: Path, force: bool) -> None:
     if out.exists() and not out.is_dir():
         raise BayesmapError(f"output folder {str(out)!r} exists and is not a folder")
     if out.is_dir() and not force:
-        clash = [name for name in OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) + ROSMAP_FILES if (out / name).exists()]
+        clash = [name for name in ALL_OUTPUT_FILES if (out / name).exists()]
         if clash:
             raise BayesmapError(f"{str(out / clash[0])!r} already exists; pass --force to replace bayesmap's outputs in {str(out)!r}")
     from bayesmap.io.files import check_replaceable_folder
 
-    check_replaceable_folder(out, OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) + ROSMAP_FILES)
+    check_replaceable_folder(out, ALL_OUTPUT_FILES)
     parent = out if out.is_dir() else out.parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
@@ -84,7 +86,7 @@ def _write_outputs(out: Path, files: dict[str, bytes]) -> None:
     there): see :func:`bayesmap.io.files.replace_folder`."""
     from bayesmap.io.files import replace_folder
 
-    replace_folder(out, files)
+    replace_folder(out, files, owned=ALL_OUTPUT_FILES)
 
 
 def _npy(array) -> bytes:

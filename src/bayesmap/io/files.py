@@ -117,22 +117,23 @@ def check_replaceable_folder(out, names=()) -> list[Path]:
     return others
 
 
-def replace_folder(out, files: dict[str, bytes], keep_others: bool = True) -> Path:
+def replace_folder(out, files: dict[str, bytes], owned=()) -> Path:
     """Make the folder ``out`` hold ``files`` (``{name: contents}``) as a whole, never a mix of old and new outputs.
 
     The new folder is written beside ``out`` (a hidden ``.NAME.XXXX`` folder in the same parent, so on the same file
     system), then swapped in: one atomic ``renameat2(RENAME_EXCHANGE)`` where Linux offers it, else two renames (old
     folder aside, new one in). A run killed at any moment leaves ``out`` as it was or complete (with the two-rename
-    fallback, in the instant between them, the old folder under ``.NAME.XXXX``). Files of ``out`` that are not in
-    ``files`` are hard-linked into the new folder (``keep_others``), so a user's own files stay; a new folder gets
-    the permissions of the user's umask (an existing one keeps its mode).
+    fallback, in the instant between them, the old folder under ``.NAME.XXXX``). Files of ``out`` named neither in
+    ``files`` nor in ``owned`` (the names of every output the caller may write, such as an old run's diagnostics)
+    are the user's: they are hard-linked into the new folder and stay. A new folder gets the permissions of the
+    user's umask (an existing one keeps its mode).
 
     Raises:
         BayesmapError: naming ``out``, if it exists and is not a folder, holds sub-folders of its own (it cannot be
             swapped as a whole: choose a folder of bayesmap's own), or cannot be written.
     """
     out = Path(out)
-    others = check_replaceable_folder(out, tuple(files))
+    others = check_replaceable_folder(out, tuple(files) + tuple(owned))
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
@@ -142,7 +143,7 @@ def replace_folder(out, files: dict[str, bytes], keep_others: bool = True) -> Pa
         os.chmod(staging, out.stat().st_mode & 0o7777 if out.is_dir() else 0o777 & ~_umask())
         for name, data in files.items():
             (staging / name).write_bytes(data)
-        for path in others if keep_others else ():
+        for path in others:
             try:
                 os.link(path, staging / path.name, follow_symlinks=False)
             except OSError:
