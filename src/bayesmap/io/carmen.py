@@ -51,8 +51,9 @@ its maximum on many beams: let ``need = max(2, 0.1 % of all beams)``.
    beam is flagged.
 (Intel: 81.83 m; ACES: 50.0 m, on 0.78 % of its beams, which is why the threshold is 0.1 %
 rather than 1 %; CSAIL: 81.91 m.) ``PARAM`` lines are not used: CSAIL's log says
-``PARAM robot_front_laser_max 50`` while its FLASER readings saturate at 81.91 m (and
-thousands of them lie between 50 and 81.91 m), so a PARAM line can contradict the data.
+``PARAM robot_front_laser_max 50`` while its FLASER "no return" readings are 81.91 m (none
+lies between 50 and 81.91 m): a PARAM line describes a configuration, the readings what the
+laser wrote, and the two can disagree. Pass ``max_range`` (``--max-range``) to override.
 
 Plausibility
 ------------
