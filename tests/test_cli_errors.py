@@ -126,6 +126,7 @@ def _rosmap_yaml(tmp_path: Path, resolution: str) -> Path:
     (lambda t, log: ["infer", "--log", log, "--resolution", "1e-6"], "cells of 1e-06 m .*coarser --resolution"),
     (lambda t, log: ["infer", "--log", _far_pose_log(log), "--method", "logodds"], "far-away pose"),
     (lambda t, log: ["evaluate", "--truth", _rosmap_yaml(t, "1e-9")], "finer than 0.01 m"),
+    (lambda t, log: ["evaluate", "--log", log, "--resolution", "1e-5"], "cells of 1e-05 m .*coarser --resolution"),
     # item 4
     (lambda t, log: ["evaluate", "--truth", _rosmap_yaml(t, "0.05"), "--num-poses", "0"], "--num-poses"),
     (lambda t, log: ["evaluate", "--truth", _rosmap_yaml(t, "1e9")], "shorter than one cell"),

@@ -514,8 +514,12 @@ def evaluate(
         from bayesmap.io.carmen import read_carmen
         from bayesmap.cli import parse_scans
 
+        from bayesmap.scenes import log_problem
+
         carmen = read_carmen(log, max_range=max_range)
-        scores = evaluate_log(carmen, parse_scans(scans, len(carmen)), every=every, resolution=resolution,
+        chosen = parse_scans(scans, len(carmen))
+        check_problem_size(log_problem(carmen, chosen, resolution=resolution))  # the grid of all chosen scans
+        scores = evaluate_log(carmen, chosen, every=every, resolution=resolution,
                               range_offset=range_offset, likelihood_power=likelihood_power, **mapping)
         setup = scores["setup"]
         typer.echo(f"{log.name}: mapped {setup['train_scans']} scans, scored the {setup['test_scans']} held out "
