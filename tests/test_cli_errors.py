@@ -12,7 +12,10 @@ import typer
 
 from bayesmap.cli import app
 from bayesmap.errors import BayesmapError
+from conftest import SHARED_DATA
 from helpers import run_cli
+
+INTEL = SHARED_DATA / "carmen" / "intel-corrected.log.gz"
 
 
 def _commands():
@@ -125,6 +128,7 @@ def _rosmap_yaml(tmp_path: Path, resolution: str) -> Path:
     (lambda t, log: ["infer", "--sweeps", "9223372036854775808"], "--sweeps"),
     (lambda t, log: ["infer", "--log", log, "--resolution", "1e-6"], "cells of 1e-06 m .*coarser --resolution"),
     (lambda t, log: ["infer", "--log", _far_pose_log(log), "--method", "logodds"], "far-away pose"),
+    (lambda t, log: ["infer", "--log", INTEL, "--resolution", "0.01"], r"ray-cell table would take about \d+ GB"),
     (lambda t, log: ["evaluate", "--truth", _rosmap_yaml(t, "1e-9")], "finer than 0.01 m"),
     (lambda t, log: ["evaluate", "--log", log, "--resolution", "1e-5"], "cells of 1e-05 m .*coarser --resolution"),
     # item 4
@@ -234,3 +238,17 @@ def test_output_folder_mode_follows_the_umask(tmp_path, umask):
         os.umask(old)
     assert stat.S_IMODE((tmp_path / "out").stat().st_mode) == 0o777 & ~umask
     assert stat.S_IMODE((tmp_path / "out" / "a.npy").stat().st_mode) == 0o666 & ~umask
+
+
+def test_the_whole_intel_log_at_10_cm_fits(intel_log):
+    """The size limits leave room for the README's whole-log run (42.4 million pairs, 2.9 GB peak) and refuse the
+    same log at 1 cm (about 4 billion pairs)."""
+    from bayesmap.cli import check_problem_size
+    from bayesmap.io.carmen import read_carmen
+    from bayesmap.scenes import log_problem
+
+    log = read_carmen(intel_log)
+    check_problem_size(log_problem(log, resolution=0.1))
+    check_problem_size(log_problem(log, resolution=0.05))
+    with pytest.raises(BayesmapError, match="ray-cell table"):
+        check_problem_size(log_problem(log, resolution=0.01))
