@@ -571,7 +571,7 @@ def main(argv: Optional[list[str]] = None) -> None:
     Every user error ends the process with ONE line ``error: ...`` on stderr and exit code 2: a
     :class:`BayesmapError` (bad file or value) and every command-line usage error of click (unknown command or
     option, a value of the wrong type, a missing value; typer ships its own copy of click, whose exceptions all
-    derive from ``typer.TyperException``). ``--help`` exits 0; Ctrl+C prints ``aborted`` and exits 130.
+    derive from ``typer.TyperException``). ``--help`` exits 0; Ctrl+C prints ``aborted`` and exits 1.
 
     Raises:
         SystemExit: always, with the exit code (0 on success).
@@ -585,7 +585,7 @@ def main(argv: Optional[list[str]] = None) -> None:
         sys.exit(ex.exit_code)
     except (typer.Abort, KeyboardInterrupt):
         typer.echo("aborted", err=True)
-        sys.exit(130)
+        sys.exit(1)
     except typer.TyperException as err:  # click's UsageError, BadParameter, NoSuchOption, ...
         if type(err).__name__ == "NoArgsIsHelpError":  # bare `bayesmap`: the help (rich prints it while formatting)
             err.show()
