@@ -26,7 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bayesmap.inference.chains import run_chain_from, compile_chain
+from bayesmap.errors import BayesmapError
+from bayesmap.inference.chains import compile_chain, run_chain_from
 from bayesmap.inference.registry import SAMPLERS, make_sampler
 from bayesmap.scenes import Problem, tutorial_problem
 
@@ -138,7 +139,6 @@ def run_bench(samplers=None, fast_sweeps: int = 200, reference_sweeps: int = 5, 
         ``{name: {"reference": ..., "reference_s_per_sweep": ..., "fast_s_per_sweep": ..., "ratio": ...,
         "compile_s": ..., "time_to_accuracy_s": ..., ...}}`` (see :func:`format_table` for all fields).
     """
-    from bayesmap.errors import BayesmapError
 
     samplers = list(PAIRS) if samplers is None else list(samplers)
     for name in samplers:

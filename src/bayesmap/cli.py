@@ -7,18 +7,32 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 from typing import Optional
 
+import jax
 import numpy as np
 import typer
 
 from bayesmap import scenes  # the scene defaults
+from bayesmap.bench import format_table, run_bench
 from bayesmap.errors import BayesmapError
+from bayesmap.evaluation.heldout import evaluate_log, evaluate_truth
+from bayesmap.inference.driver import run_inference, run_logodds
+from bayesmap.inference.registry import SAMPLERS
+from bayesmap.inference.traces import chain_traces
+from bayesmap.io.ascii import load_map, tutorial_map
+from bayesmap.io.carmen import read_carmen
+from bayesmap.io.files import check_replaceable_folder, replace_folder, write_atomic
+from bayesmap.io.rosmap import encode_rosmap, read_rosmap
+from bayesmap.scenes import log_problem, scan_problem, tutorial_problem
+from bayesmap.viz.common import figure_bytes
+from bayesmap.viz.maps import plot_posterior, plot_posterior_path
+from bayesmap.viz.report import build_report
+
 
 def parse_scans(spec: str | None, num_scans: int) -> np.ndarray:
     """Scan indices from a spec: None or ``"all"`` (every scan), ``"i"`` (one), ``"a:b"`` or ``"a:b:step"``
@@ -60,6 +74,8 @@ DIAGNOSTICS_FILE = "diagnostics.npz"  # written with --chains >= 2
 REPORT_FILE = "report.html"  # written by demo, and by infer --report
 ROSMAP_STEM = "map"  # infer --rosmap writes map.pgm and map.yaml (ROS map_server)
 ROSMAP_FILES = (ROSMAP_STEM + ".pgm", ROSMAP_STEM + ".yaml")
+ALL_OUTPUT_FILES = OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) + ROSMAP_FILES
+"""Every file a run may write into its output folder (an old run's that the new one does not write are removed)."""
 
 
 def _check_output_dir(out: Path, force: bool) -> None:
@@ -67,9 +83,11 @@ def _check_output_dir(out: Path, force: bool) -> None:
     if out.exists() and not out.is_dir():
         raise BayesmapError(f"output folder {str(out)!r} exists and is not a folder")
     if out.is_dir() and not force:
-        clash = [name for name in OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) + ROSMAP_FILES if (out / name).exists()]
+        clash = [name for name in ALL_OUTPUT_FILES if (out / name).exists()]
         if clash:
             raise BayesmapError(f"{str(out / clash[0])!r} already exists; pass --force to replace bayesmap's outputs in {str(out)!r}")
+
+    check_replaceable_folder(out, ALL_OUTPUT_FILES)
     parent = out if out.is_dir() else out.parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
@@ -78,33 +96,87 @@ def _check_output_dir(out: Path, force: bool) -> None:
 
 
 def _write_outputs(out: Path, files: dict[str, bytes]) -> None:
-    """Write all files into ``out`` whole or not at all: everything is staged in a temporary folder beside
-    ``out`` first; only when all are written do they move into place (one rename each)."""
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    except OSError as err:
-        raise BayesmapError(f"cannot write output folder {str(out)!r}: {err.strerror}") from None
-    try:
-        for name, data in files.items():
-            (staging / name).write_bytes(data)
-        if not out.exists():
-            os.rename(staging, out)
-            return
-        for name in files:
-            os.replace(staging / name, out / name)
-    except OSError as err:
-        raise BayesmapError(f"cannot write output folder {str(out)!r}: {err.strerror}") from None
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+    """Replace the output folder ``out`` as a whole by one holding ``files`` (plus the user's own files already
+    there): see :func:`bayesmap.io.files.replace_folder`."""
+
+    replace_folder(out, files, owned=ALL_OUTPUT_FILES)
 
 
 def _npy(array) -> bytes:
-    import numpy as np
 
     buf = io.BytesIO()
     np.save(buf, np.asarray(array))
     return buf.getvalue()
+
+
+def _check_free_cell(walls, pos, source: str) -> None:
+    """Refuse a sensor position ``pos`` (x, y in cells of ``walls`` ``(nx, ny)``) that lies in a wall cell, naming
+    the cell (positions outside the map are refused later, by :meth:`Grid.check_inside`)."""
+    i, j = (int(math.floor(v + 0.5)) for v in pos)  # cell (i, j) spans [i - 0.5, i + 0.5) (the tutorial's frame)
+    if 0 <= i < walls.shape[0] and 0 <= j < walls.shape[1] and walls[i, j] > 0.5:
+        raise BayesmapError(f"sensor position ({pos[0]:g}, {pos[1]:g}) is in wall cell ({i}, {j}) of {source}; "
+                            "put the sensor in a free cell ('.')")
+
+
+def _beam_cells(length: float, resolution: float, beam_angles) -> float:
+    """An upper bound on the (beam, cell) pairs of beams at ``beam_angles`` (radians) of ``length`` meters on a
+    grid of ``resolution`` meters per cell: at most ``length (|cos a| + |sin a|) / resolution + 2`` cells each (one
+    new cell per grid line crossed; Amanatides & Woo 1987)."""
+
+    a = np.asarray(beam_angles, dtype=np.float64).reshape(-1)
+    return float(np.sum(length * (np.abs(np.cos(a)) + np.abs(np.sin(a))) / resolution + 2.0))
+
+
+def _check_sizes(shape: tuple[int, int], resolution: float, pairs: float, chains: int = 1) -> None:
+    """Refuse a grid of ``shape`` cells over :data:`MAX_GRID_CELLS` (times ``chains``), or a ray-cell table of
+    ``pairs`` (estimated) pairs over :data:`MAX_MEMORY_BYTES` at :data:`BYTES_PER_PAIR`, naming the figure and the
+    way out."""
+    nx, ny = shape
+    if nx * ny * max(chains, 1) > MAX_GRID_CELLS:
+        raise BayesmapError(f"the grid would have {nx:,} x {ny:,} = {nx * ny:,} cells of {resolution:g} m (x {chains} "
+                            f"chains; at most {MAX_GRID_CELLS:,}): use a coarser --resolution, fewer --chains or fewer "
+                            "--scans (a far-away pose widens the grid)")
+    if pairs * BYTES_PER_PAIR > MAX_MEMORY_BYTES:
+        raise BayesmapError(f"the ray-cell table would take about {pairs * BYTES_PER_PAIR / 1e9:,.0f} GB ({pairs:,.0f} "
+                            f"(beam, cell) pairs; at most {MAX_MEMORY_BYTES / 1e9:g} GB): use a coarser --resolution, "
+                            "fewer --scans, fewer poses or beams, or a shorter --max-range")
+
+
+def check_problem_size(problem, chains: int = 1) -> None:
+    """Refuse, before anything is allocated, a problem whose grid or ray-cell table cannot fit in memory
+    (:func:`_check_sizes`); a beam's length is bounded by the max distance and the grid's diagonal.
+
+    Raises:
+        BayesmapError: naming the grid's cells or the estimated pairs and gigabytes, and the way out.
+    """
+    grid = problem.grid
+    if grid.num_cells * max(chains, 1) > MAX_GRID_CELLS:
+        _check_sizes(grid.shape, grid.resolution, 0.0, chains)
+    length = min(float(problem.params.cap), math.hypot(*grid.shape) * grid.resolution)
+    _check_sizes(grid.shape, grid.resolution, _beam_cells(length, grid.resolution, problem.ray_angles), chains)
+
+
+MIN_TRUTH_RESOLUTION = 0.01
+"""Meters per pixel: the finest floor plan ``evaluate --truth`` takes (its poses keep 0.5 m of clearance, checked
+over a square of ``(2 * 0.5 / resolution + 1) ** 2`` shifted copies of the map)."""
+
+
+def _check_truth_scene(truth: Path, resolution: float, num_poses: int, num_angles: int, max_range: float) -> None:
+    """Refuse an ``evaluate --truth`` scene that cannot be simulated or cannot fit, before any work: a floor plan
+    finer than :data:`MIN_TRUTH_RESOLUTION`, a max range shorter than one cell, or sizes over
+    :func:`_check_sizes`' limits."""
+
+    grid = read_rosmap(truth, resolution=resolution if truth.suffix.lower() == ".pgm" else None).grid
+    if grid.resolution < MIN_TRUTH_RESOLUTION:
+        raise BayesmapError(f"{truth}: {grid.resolution:g} m per pixel is finer than {MIN_TRUTH_RESOLUTION:g} m; "
+                            "resample the floor plan (or give a bare .pgm a coarser --resolution)")
+    if max_range < grid.resolution:
+        raise BayesmapError(f"--max-range {max_range:g} m is shorter than one cell of {truth} ({grid.resolution:g} m): "
+                            "no beam would cross a cell")
+    length = min(max_range, math.hypot(*grid.shape) * grid.resolution)
+
+    angles = np.linspace(0, 2 * np.pi, num_angles, endpoint=False)
+    _check_sizes(grid.shape, grid.resolution, num_poses * _beam_cells(length, grid.resolution, angles))
 
 
 def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], seed: int, out: Path, force: bool,
@@ -112,11 +184,9 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
                    rosmap: bool = False) -> tuple[dict, list[str]]:
     """Map ``problem`` (Gibbs sampling, or log-odds mapping with ``method="logodds"``) and write the outputs into
     ``out``; returns the summary and the names of the files written."""
-    from bayesmap.viz.common import figure_bytes
-    from bayesmap.viz.maps import plot_posterior, plot_posterior_path
-    from bayesmap.inference.driver import run_inference, run_logodds
 
     _check_output_dir(out, force)
+    check_problem_size(problem, chains=chains)
     if method == "logodds":
         result = run_logodds(problem)
     else:
@@ -135,18 +205,14 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
         "summary.json": (json.dumps(result.summary, indent=2) + "\n").encode(),
     }
     if result.diagnostics is not None:
-        import numpy as np
 
         buf = io.BytesIO()
         np.savez(buf, r_hat=result.diagnostics["r_hat"], ess=result.diagnostics["ess"])
         files[DIAGNOSTICS_FILE] = buf.getvalue()
     if rosmap:
-        from bayesmap.io.rosmap import encode_rosmap
 
         files.update(encode_rosmap(ROSMAP_STEM, result.posterior, problem.grid))
     if report:
-        from bayesmap.inference.traces import chain_traces
-        from bayesmap.viz.report import build_report
 
         traces = chain_traces(problem, result, seed=seed)
         files[REPORT_FILE] = build_report(problem, result, traces, title=title).encode("utf-8")
@@ -189,6 +255,50 @@ def _sensor_params(beam_weights: Optional[str], lambda_short: Optional[float]) -
     return params
 
 
+MAX_SWEEPS = 1_000_000
+"""Largest --sweeps / --burn-in (a million sweeps of the whole Intel log would take weeks; larger integers overflow
+JAX's int32 loop counters)."""
+MAX_CHAINS = 1024
+MAX_BEAMS_PER_SCAN = 100_000
+MAX_POSES = 100_000
+MAX_RESOLUTION = 100.0
+"""Meters per cell: a coarser grid has no room for a room."""
+MAX_COORDINATE = 1e7
+"""Meters: the largest sensor coordinate (10,000 km; bayesmap.io.carmen.MAX_PLAUSIBLE_COORDINATE for logs)."""
+MAX_RANGE_LIMIT = 1000.0
+"""Meters: the largest --max-range (bayesmap.io.carmen.MAX_PLAUSIBLE_RANGE)."""
+MAX_GRID_CELLS = 50_000_000
+"""Cells of one grid: each float32 map of the posterior is 200 MB at this size, and a chain keeps several."""
+MAX_MEMORY_BYTES = 16e9
+"""Bytes the ray-cell table may take (estimated): the machine has 24 GB, JAX and the figures need the rest."""
+BYTES_PER_PAIR = 40
+"""Bytes per (beam, cell) pair of the estimate :func:`_estimate_pairs` (an upper bound, about twice the real count
+on the Intel log): the whole Intel log at 0.1 m has 42.4 million pairs and peaks at 2.9 GB, 68 bytes per real pair."""
+
+
+def _in_range(name: str, lo: float | None = None, hi: float | None = None, lo_open: bool = False, unit: str = ""):
+    """An option callback that refuses a value (or each value of a tuple) that is not a finite number in
+    ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``), naming the option and the value; click turns the
+    ``typer.BadParameter`` into one line and exit code 2 (:func:`main`)."""
+    def show(x: float) -> str:
+        return f"{int(x)}" if float(x).is_integer() and abs(x) < 1e16 else f"{x:g}"
+
+    left = "(" if lo_open else "["
+    span = (f"in {left}{show(lo)}, {show(hi)}]" if lo is not None and hi is not None
+            else f"{'>' if lo_open else '>='} {show(lo)}" if lo is not None else f"<= {show(hi)}")
+
+    def check(value):
+        for v in value if isinstance(value, tuple) else (value,):
+            if v is None:
+                continue
+            if not (math.isfinite(v) and (lo is None or v > lo or (v == lo and not lo_open))
+                    and (hi is None or v <= hi)):
+                raise typer.BadParameter(f"must be a finite number {span}{unit}, got {v!r}", param_hint=name)
+        return value
+
+    return check
+
+
 POWER_HELP = ("--log: power eta in (0, 1] of the likelihood, sampling p(walls) p(readings | walls)^eta (a power posterior "
               f"for beams that are not independent evidence; 1 is the plain posterior; default {scenes.LOG_LIKELIHOOD_POWER} for logs)")
 BEAM_WEIGHTS_HELP = ("beam model: mixture weights HIT,SHORT,MAX,RAND summing to 1 (default 0.8,0.05,0.05,0.1, "
@@ -196,7 +306,6 @@ BEAM_WEIGHTS_HELP = ("beam model: mixture weights HIT,SHORT,MAX,RAND summing to 
 
 
 def _sampler_option(default: Optional[str], note: str = ""):
-    from bayesmap.inference.registry import SAMPLERS
 
     return typer.Option(default, "--sampler", help=f"one of: {', '.join(SAMPLERS)}{note}")
 
@@ -204,13 +313,13 @@ def _sampler_option(default: Optional[str], note: str = ""):
 @app.command()
 def demo(
     out: Path = typer.Option(Path("bayesmap-out"), "--out", help="output folder"),
-    sweeps: int = typer.Option(100, help="number of Gibbs sweeps"),
-    seed: int = typer.Option(0, help="seed of the chain (readings always use the tutorial's key 0)"),
+    sweeps: int = typer.Option(100, help="number of Gibbs sweeps", callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
+    seed: int = typer.Option(0, help="seed of the chain (readings always use the tutorial's key 0)",
+                             callback=_in_range("--seed", -2**31, 2**32 - 1)),
     force: bool = typer.Option(False, "--force", help="replace bayesmap's outputs already in the folder"),
 ) -> None:
     """The tutorial map, readings simulated with the tutorial's key, 2x2 block Gibbs; prints a summary, writes figures
     and report.html."""
-    from bayesmap.scenes import tutorial_problem
 
     problem = tutorial_problem()
     summary, written = _run_and_write(problem, "block", sweeps, None, seed, out, force,
@@ -223,8 +332,11 @@ def infer(
     map_file: Optional[Path] = typer.Option(None, "--map", help="ASCII map ('X' wall, '.' free); default the tutorial map"),
     log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log (.log or .log.gz): all its scans, or --scans / --scan"),
     scan: Optional[int] = typer.Option(None, "--scan", help="map only this scan of --log (one pose, the single-scan model)"),
-    scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to map: a range a:b, a stride a:b:step, a list, or 'all' (default)"),
-    resolution: float = typer.Option(scenes.RESOLUTION, help="grid resolution for real data, meters per cell"),
+    scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to map: a range such as 10:20, a stride such as 0:1000:5, a list such as 3,7,10:20, or 'all' (default); negative indexes count from the end"),
+    resolution: float = typer.Option(scenes.RESOLUTION, help="grid resolution for real data, meters per cell",
+                                     callback=_in_range("--resolution", 0, MAX_RESOLUTION, lo_open=True, unit=" m")),
+    max_range: Optional[float] = typer.Option(None, "--max-range", help="--log: the laser's max range, meters; readings at or above it are 'no return' (default: inferred from the log, see bayesmap.io.carmen)",
+                                              callback=_in_range("--max-range", 0, MAX_RANGE_LIMIT, lo_open=True, unit=" m")),
     method: str = typer.Option("gibbs", "--method", help="gibbs (the posterior, with --sampler) or logodds (classic log-odds mapping, no posterior)"),
     beam_model: Optional[str] = typer.Option(None, "--beam-model", help="sensor model: normal (the tutorial's; default for maps) or beam (robust mixture, Probabilistic Robotics 6.3; default for logs)"),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help="meters the model subtracts from each returned reading of a log (default one cell: a wall cell's reading is expected where the beam enters it, a real surface lies inside it)"),
@@ -232,14 +344,19 @@ def infer(
     lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help="beam model: rate of short readings, 1/m (default 0.1)"),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
     sampler: Optional[str] = _sampler_option(None, " (default block; cellwise for several scans of a log)"),
-    sweeps: int = typer.Option(100, help="number of Gibbs sweeps"),
-    burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: half)"),
+    sweeps: int = typer.Option(100, help="number of Gibbs sweeps", callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
+    burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: half)",
+                                          callback=_in_range("--burn-in", 0, MAX_SWEEPS)),
     prior_wall_prob: Optional[float] = typer.Option(None, "--prior-wall-prob", help=f"prior probability that a cell is a wall (default {scenes.TUTORIAL_PRIOR}, the tutorial's; {scenes.LOG_PRIOR} for several scans of a log)"),
     sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help=f"standard deviation of a reading, meters (default {scenes.TUTORIAL_SENSOR_NOISE}, the tutorial's; for --log half a cell)"),
-    num_angles: int = typer.Option(scenes.TUTORIAL_NUM_ANGLES, "--num-angles", help="number of beams (simulated readings)"),
-    pos: Optional[tuple[float, float]] = typer.Option(None, "--pos", help="sensor position X Y (simulated readings); default the map's center"),
-    seed: int = typer.Option(0, help="seed of the simulated readings and of the chain"),
-    chains: int = typer.Option(1, help="independent chains run at once; 2 or more add split R-hat and effective sample size per cell"),
+    num_angles: int = typer.Option(scenes.TUTORIAL_NUM_ANGLES, "--num-angles", help="number of beams (simulated readings)",
+                                   callback=_in_range("--num-angles", 1, MAX_BEAMS_PER_SCAN)),
+    pos: Optional[tuple[float, float]] = typer.Option(None, "--pos", help="sensor position X Y (simulated readings), in cells of the map: a free cell; default the map's center",
+                                                      callback=_in_range("--pos", -MAX_COORDINATE, MAX_COORDINATE)),
+    seed: int = typer.Option(0, help="seed of the simulated readings and of the chain",
+                             callback=_in_range("--seed", -2**31, 2**32 - 1)),
+    chains: int = typer.Option(1, help="independent chains run at once; 2 or more add split R-hat and effective sample size per cell",
+                               callback=_in_range("--chains", 1, MAX_CHAINS)),
     report: bool = typer.Option(False, "--report", help="also write report.html: settings, metrics, all figures and the chain's animation, offline"),
     rosmap: bool = typer.Option(False, "--rosmap", help="also write the posterior mean as a ROS map_server map (map.pgm + map.yaml)"),
     out: Path = typer.Option(Path("bayesmap-out"), "--out", help="output folder"),
@@ -247,9 +364,6 @@ def infer(
 ) -> None:
     """Infer the walls from simulated readings on a map file, or from a real CARMEN log (all scans, a selection, or
     one scan)."""
-    from bayesmap.io.ascii import load_map, tutorial_map
-    from bayesmap.scenes import log_problem, scan_problem, tutorial_problem
-    from bayesmap.cli import parse_scans
 
     if method not in ("gibbs", "logodds"):
         raise BayesmapError(f"unknown method {method!r}; choose gibbs or logodds")
@@ -261,13 +375,13 @@ def infer(
             raise BayesmapError("give either --map or --log, not both")
         if scan is not None and scans is not None:
             raise BayesmapError("give either --scan N or --scans SPEC, not both")
-        from bayesmap.io.carmen import read_carmen
 
-        carmen = read_carmen(log)
+        carmen = read_carmen(log, max_range=max_range)
         noise = scenes.real_sensor_noise(resolution) if sensor_noise is None else sensor_noise
         if scan is not None:
             if range_offset is not None or likelihood_power is not None:
                 raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), not to --scan N")
+            scan = int(parse_scans(str(scan), len(carmen))[0])  # a negative index counts from the end, as in --scans
             problem = scan_problem(carmen, scan, resolution=resolution, prior_wall_prob=prior_wall_prob or scenes.TUTORIAL_PRIOR,
                                    sensor_noise=noise, beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL,
                                    sensor_params=sensor_params)
@@ -280,10 +394,12 @@ def infer(
                                   sensor_params=sensor_params, likelihood_power=likelihood_power)
             title = f"{log.name}, {len(chosen)} scans"
     else:
-        if scan is not None or scans is not None or likelihood_power is not None:
-            raise BayesmapError("--scan, --scans and --likelihood-power need --log FILE")
+        if scan is not None or scans is not None or likelihood_power is not None or max_range is not None:
+            raise BayesmapError("--scan, --scans, --likelihood-power and --max-range need --log FILE")
         walls = load_map(map_file) if map_file is not None else tutorial_map()
         center = (float(walls.shape[0] // 2), float(walls.shape[1] // 2))  # the tutorial's GRID_SIZE // 2
+        if pos is not None:
+            _check_free_cell(walls, pos, str(map_file) if map_file else "the tutorial map")
         problem = tutorial_problem(walls, pos=pos if pos is not None else center, seed=seed,
                                    prior_wall_prob=scenes.TUTORIAL_PRIOR if prior_wall_prob is None else prior_wall_prob,
                                    sensor_noise=scenes.TUTORIAL_SENSOR_NOISE if sensor_noise is None else sensor_noise,
@@ -312,8 +428,6 @@ def bench(
     """Fast samplers against the tutorial's reference samplers on the tutorial scene, in one process."""
     import platform
 
-    from bayesmap.bench import format_table, run_bench
-    from bayesmap.io.files import write_atomic
 
     for name, value, least in (("--sweeps", sweeps, 1), ("--reference-sweeps", reference_sweeps, 1),
                                ("--repeats", repeats, 1), ("--chains", chains, 1)):
@@ -322,7 +436,6 @@ def bench(
     if json_file is not None and json_file.exists() and not force:
         raise BayesmapError(f"{str(json_file)!r} already exists; pass --force to replace it")
     names = None if samplers is None else [n.strip() for n in samplers.split(",") if n.strip()]
-    import jax
 
     typer.echo(f"bayesmap bench: tutorial scene (21 x 21, 100 beams, prior 0.5); jax {jax.__version__} on "
                f"{jax.default_backend()}, {os.cpu_count()} cores, {platform.processor() or platform.machine()}")
@@ -353,28 +466,32 @@ def _format_scores(scores: dict) -> str:
 def evaluate(
     log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log: hold out every --every-th scan, map the rest, score the held-out beams"),
     truth: Optional[Path] = typer.Option(None, "--truth", help="a floor plan (ROS .pgm or .yaml): simulate scans in it, map them, score against it"),
-    scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to use (a:b:step, list, or all)"),
+    scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to use: a range such as 10:20, a stride such as 0:1000:5, a list, or 'all' (default)"),
     every: int = typer.Option(10, "--every", help="hold out every k-th scan"),
-    resolution: float = typer.Option(scenes.RESOLUTION, help="meters per cell (--log; for a bare .pgm --truth, its pixel size)"),
+    resolution: float = typer.Option(scenes.RESOLUTION, help="meters per cell (--log; for a bare .pgm --truth, its pixel size)",
+                                     callback=_in_range("--resolution", 0, MAX_RESOLUTION, lo_open=True, unit=" m")),
     sampler: str = _sampler_option("cellwise"),
-    sweeps: int = typer.Option(100, help="Gibbs sweeps (half burn-in)"),
+    sweeps: int = typer.Option(100, help="Gibbs sweeps (half burn-in)", callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
     beam_model: str = typer.Option(scenes.LOG_BEAM_MODEL, "--beam-model", help="sensor model of mapping and scoring: beam or normal"),
-    num_poses: int = typer.Option(scenes.SIMULATED_NUM_POSES, "--num-poses", help="--truth: number of simulated scans"),
-    num_angles: int = typer.Option(scenes.SIMULATED_NUM_ANGLES, "--num-angles", help="--truth: beams per simulated scan (over 360 degrees)"),
-    max_range: float = typer.Option(scenes.SIMULATED_MAX_RANGE, "--max-range", help="--truth: max range of the simulated sensor, meters"),
+    num_poses: int = typer.Option(scenes.SIMULATED_NUM_POSES, "--num-poses", help="--truth: number of simulated scans",
+                                  callback=_in_range("--num-poses", 1, MAX_POSES)),
+    num_angles: int = typer.Option(scenes.SIMULATED_NUM_ANGLES, "--num-angles", help="--truth: beams per simulated scan (over 360 degrees)",
+                                   callback=_in_range("--num-angles", 1, MAX_BEAMS_PER_SCAN)),
+    max_range: Optional[float] = typer.Option(None, "--max-range", help=f"max range, meters: --truth, of the simulated sensor (default {scenes.SIMULATED_MAX_RANGE:g}); --log, of the laser (default inferred from the log)",
+                                              callback=_in_range("--max-range", 0, MAX_RANGE_LIMIT, lo_open=True, unit=" m")),
     sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help="standard deviation of a reading, meters (default half a cell)"),
     prior_wall_prob: float = typer.Option(scenes.LOG_PRIOR, "--prior-wall-prob", help="prior probability that a cell is a wall"),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help="--log: meters the model subtracts from each returned reading (default one cell)"),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
     lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help="beam model: rate of short readings, 1/m (default 0.1)"),
-    seed: int = typer.Option(0, help="seed of the chain (and of the simulated scans)"),
+    seed: int = typer.Option(0, help="seed of the chain (and of the simulated scans)",
+                             callback=_in_range("--seed", -2**31, 2**32 - 1)),
     json_file: Optional[Path] = typer.Option(None, "--json", help="also write the table as JSON"),
     force: bool = typer.Option(False, "--force", help="replace the --json file if it exists"),
 ) -> None:
     """Score bayesmap against log-odds mapping: on held-out beams of a log (occupancy AUC, predictive NLL), or
     against a known floor plan (accuracy, AUC, Brier score)."""
-    from bayesmap.io.files import write_atomic
 
     if (log is None) == (truth is None):
         raise BayesmapError("give either --log FILE or --truth FILE")
@@ -383,23 +500,24 @@ def evaluate(
     mapping = dict(sampler=sampler, sweeps=sweeps, seed=seed, sensor_noise=sensor_noise, beam_model=beam_model,
                    prior_wall_prob=prior_wall_prob, sensor_params=_sensor_params(beam_weights, lambda_short))
     if log is not None:
-        from bayesmap.evaluation.heldout import evaluate_log
-        from bayesmap.io.carmen import read_carmen
-        from bayesmap.cli import parse_scans
 
-        carmen = read_carmen(log)
-        scores = evaluate_log(carmen, parse_scans(scans, len(carmen)), every=every, resolution=resolution,
+
+        carmen = read_carmen(log, max_range=max_range)
+        chosen = parse_scans(scans, len(carmen))
+        check_problem_size(log_problem(carmen, chosen, resolution=resolution))  # the grid of all chosen scans
+        scores = evaluate_log(carmen, chosen, every=every, resolution=resolution,
                               range_offset=range_offset, likelihood_power=likelihood_power, **mapping)
         setup = scores["setup"]
         typer.echo(f"{log.name}: mapped {setup['train_scans']} scans, scored the {setup['test_scans']} held out "
                    f"(every {every}-th); grid {setup['grid'][0]} x {setup['grid'][1]} cells of {resolution:g} m; "
                    f"{sampler}, {sweeps} sweeps, {beam_model} model")
     else:
-        from bayesmap.evaluation.heldout import evaluate_truth
 
         if likelihood_power is not None or range_offset is not None:
             raise BayesmapError("--likelihood-power and --range-offset apply to --log, not to --truth")
 
+        max_range = scenes.SIMULATED_MAX_RANGE if max_range is None else max_range
+        _check_truth_scene(truth, resolution, num_poses, num_angles, max_range)
         scores = evaluate_truth(truth, resolution=resolution, num_poses=num_poses, num_angles=num_angles,
                                 max_range=max_range, **mapping)
         setup = scores["setup"]
@@ -421,31 +539,48 @@ def explorer(
     """The interactive map explorer, a local web app: draw walls, drag the sensor, run inference, browse samples.
 
     It serves its own scripts and contacts nothing on the network. Stop it with Ctrl+C."""
-    from bayesmap.app import run_app
+    from bayesmap.app import run_app  # (here, not at the top: NiceGUI takes a second to import, only `app` needs it)
 
     typer.echo(f"bayesmap explorer at http://{host}:{port}/ (Ctrl+C stops it)")
     run_app(host=host, port=port, show=not no_browser)
 
 
-def main() -> None:
-    """Entry point: run the app, turning :class:`BayesmapError` into one line on stderr and exit code 2."""
+def _one_line(text: str) -> str:
+    """``text`` with every run of whitespace (newlines included) made one space."""
+    return " ".join(str(text).split())
+
+
+def main(argv: Optional[list[str]] = None) -> None:
+    """Entry point of ``bayesmap``: run the typer app on ``argv`` (default ``sys.argv[1:]``).
+
+    Every user error ends the process with ONE line ``error: ...`` on stderr and exit code 2: a
+    :class:`BayesmapError` (bad file or value) and every command-line usage error of click (unknown command or
+    option, a value of the wrong type, a missing value; typer ships its own copy of click, whose exceptions all
+    derive from ``typer.TyperException``). ``--help`` exits 0; Ctrl+C prints ``aborted`` and exits 1.
+
+    Raises:
+        SystemExit: always, with the exit code (0 on success).
+    """
     try:
-        app(standalone_mode=False)
+        app(args=argv, prog_name="bayesmap", standalone_mode=False)
     except BayesmapError as err:
-        typer.echo(f"error: {err}", err=True)
+        typer.echo(f"error: {_one_line(err)}", err=True)
         sys.exit(2)
     except typer.Exit as ex:
         sys.exit(ex.exit_code)
-    except typer.Abort:
+    except (typer.Abort, KeyboardInterrupt):
         typer.echo("aborted", err=True)
         sys.exit(1)
-    except Exception as err:  # click usage errors
-        import click
-
-        if isinstance(err, click.ClickException):
+    except typer.TyperException as err:  # click's UsageError, BadParameter, NoSuchOption, ...
+        if type(err).__name__ == "NoArgsIsHelpError":  # bare `bayesmap`: the help (rich prints it while formatting)
             err.show()
             sys.exit(2)
-        raise
+        message = err.format_message() if hasattr(err, "format_message") else str(err)
+        context = getattr(err, "ctx", None)
+        hint = f" (see '{context.command_path} --help')" if context is not None else ""
+        typer.echo(f"error: {_one_line(message)}{hint}", err=True)
+        sys.exit(2)
+    sys.exit(0)
 
 
 if __name__ == "__main__":

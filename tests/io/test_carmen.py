@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from bayesmap.errors import BayesmapError
-from bayesmap.io import carmen
 from bayesmap.io.carmen import CarmenLog, Scan, beam_offsets, read_carmen
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "carmen"
@@ -484,3 +483,61 @@ def test_real_truncated_gzip(tmp_path):
     cut.write_bytes(p.read_bytes()[:50_000])
     with pytest.raises(BayesmapError, match=r"intel-cut\.log\.gz.*truncated"):
         read_carmen(cut)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# issue 14, item 2: one outlier never sets the max range or the geometry
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def test_inferred_max_range_survives_a_few_larger_values():
+    from bayesmap.io.carmen import infer_max_range
+
+    rng = np.random.default_rng(0)
+    ranges = rng.uniform(0.5, 20.0, 5000)
+    ranges[:400] = 81.83  # saturation, 8 %
+    assert infer_max_range(ranges) == 81.83
+    for outliers in ([1000.0], [500.0, 82.0], [81.84, 90.0, 1e3]):
+        assert infer_max_range(np.concatenate([ranges, outliers])) == 81.83
+    # a frequent value is no saturation value when half the beams read more than it, or when as many beams read
+    # more than it as read it (without a repeated maximum the log has no max-range readings)
+    assert infer_max_range(np.concatenate([np.full(10, 3.0), rng.uniform(4, 9, 100)])) == math.inf
+    assert infer_max_range(np.concatenate([np.full(10, 30.0), rng.uniform(1, 9, 100), np.full(5, 40.0) + np.arange(5)])) == math.inf
+    assert infer_max_range(np.zeros(10)) == math.inf
+
+
+@pytest.mark.parametrize("value, what", [
+    ("1e26", "beyond any laser's reach"),
+    ("1001", "beyond any laser's reach"),
+    ("inf", "not a finite number"),
+    ("-0.5", "negative"),
+])
+def test_an_implausible_range_is_refused_naming_file_line_and_value(tmp_path, value, what):
+    p = write(tmp_path, [flaser([1.0, 2.0, 3.0], 0, 0, 0), flaser([1.0, value, 3.0], 0, 0, 0)])
+    with pytest.raises(BayesmapError) as info:
+        read_carmen(p)
+    message = str(info.value)
+    assert f"{p}:2:" in message and "range 2 of 3" in message and what in message and "\n" not in message
+
+
+@pytest.mark.parametrize("index, value, what", [(3, "1e8", "x"), (4, "-2e7", "y"), (5, "1e7", "theta")])
+def test_an_implausible_pose_is_refused(tmp_path, index, value, what):
+    line = flaser([1.0, 2.0, 3.0], 0, 0, 0).split(" ")
+    line[2 + index] = value
+    p = write(tmp_path, [flaser([1.0, 2.0, 3.0], 0, 0, 0), " ".join(line)])
+    with pytest.raises(BayesmapError, match=rf":2: {what} is .*corrupt"):
+        read_carmen(p)
+
+
+def test_a_log_of_zeros_is_refused(tmp_path):
+    p = write(tmp_path, [flaser([0.0, 0.0], 0, 0, 0), flaser([0.0, 0.0], 1, 0, 0)])
+    with pytest.raises(BayesmapError, match="all 4 ranges are 0 m"):
+        read_carmen(p)
+
+
+def test_csail_param_line_does_not_set_the_max_range(intel_log):
+    """CSAIL's ``PARAM robot_front_laser_max 50`` contradicts its readings, whose "no return" value is 81.91 m."""
+    path = intel_log.parent / "csail-corrected.log.gz"
+    assert "PARAM robot_front_laser_max 50 " in gzip.open(path, "rt").read()
+    log = read_carmen(path)
+    assert log.max_range == 81.91 and log.is_max_range.sum() == 3907

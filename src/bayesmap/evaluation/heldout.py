@@ -20,12 +20,18 @@ Against a floor plan: cell-wise accuracy, AUC and Brier score of the wall probab
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from bayesmap.errors import BayesmapError
-from bayesmap.inference.logodds import beam_hits_and_misses
 from bayesmap.evaluation.metrics import accuracy, brier_score, roc_auc
-from bayesmap.geometry.raytable import RayTable, check_readings
+from bayesmap.geometry.raytable import RayTable, build_ray_table, check_readings, visible_cells
+from bayesmap.inference.driver import run_inference, run_logodds
+from bayesmap.inference.logodds import beam_hits_and_misses
+from bayesmap.io.rosmap import read_rosmap
+from bayesmap.model.generative import make_params, reading_log_likelihood
+from bayesmap.model.sensor import beam_sample
 from bayesmap.scenes import (
     LOG_BEAM_MODEL,
     LOG_PRIOR,
@@ -34,6 +40,9 @@ from bayesmap.scenes import (
     SIMULATED_MAX_RANGE,
     SIMULATED_NUM_ANGLES,
     SIMULATED_NUM_POSES,
+    Observations,
+    Problem,
+    log_problem,
     real_sensor_noise,
 )
 
@@ -187,7 +196,6 @@ def truth_scores(prob, truth, known=None) -> dict[str, float]:
 
 def _sensor_logpdf(params):
     """``logpdf(y, d)`` of the problem's sensor model, numpy in and out (:func:`bayesmap.model.generative.reading_log_likelihood`)."""
-    from bayesmap.model.generative import reading_log_likelihood
 
     return lambda y, d: np.asarray(reading_log_likelihood(np.asarray(y), np.asarray(d), params), dtype=np.float64)
 
@@ -239,8 +247,6 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
     """
     import time
 
-    from bayesmap.scenes import log_problem
-    from bayesmap.inference.driver import run_inference, run_logodds
 
     scans = np.arange(len(log)) if scans is None else np.asarray(scans)
     train_pos, test_pos = heldout_split(len(scans), every)
@@ -280,10 +286,7 @@ def simulate_readings_from_table(key, table: RayTable, walls, params) -> np.ndar
     model of ``params`` (``params.beam_model``) at each beam's first-wall distance. Memory grows with the table's
     pairs, not beams x cells. Normal readings are clipped at 0 (as :func:`bayesmap.scenes.tutorial_problem`) and at
     the max distance."""
-    import jax
-    import jax.numpy as jnp
 
-    from bayesmap.model.sensor import beam_sample
 
     d = jnp.asarray(table.first_wall_distances(walls), dtype=jnp.result_type(float))
     if params.beam_model == "normal":
@@ -322,13 +325,7 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
     import time
     from pathlib import Path
 
-    import jax
 
-    from bayesmap.io.rosmap import read_rosmap
-    from bayesmap.model.generative import make_params
-    from bayesmap.scenes import Observations, Problem
-    from bayesmap.inference.driver import run_inference, run_logodds
-    from bayesmap.geometry.raytable import build_ray_table, visible_cells
 
     bare_pgm = Path(path).suffix.lower() == ".pgm"
     plan = read_rosmap(path, resolution=resolution if bare_pgm else None)

@@ -13,9 +13,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm import tqdm
 
 from bayesmap.errors import BayesmapError
-from bayesmap.inference.chains import run_chain_from, run_chains_from, cell_diagnostics, compile_chain, posterior_mean
+from bayesmap.inference.chains import cell_diagnostics, compile_chain, posterior_mean, run_chain_from, run_chains_from
+from bayesmap.inference.logodds import LogOddsParams, logodds_map, occupancy
 from bayesmap.inference.registry import SAMPLERS, SEQUENTIAL_CHAINS, make_sampler
 from bayesmap.model.sensor import BEAM_DEFAULTS
 from bayesmap.scenes import Problem
@@ -134,7 +136,6 @@ def _run_chunks(algorithm, keys, state, chains: int, sweeps: int, chunk: int, ti
 
 def _run_all_chains(algorithm, state0, plan: _Chunks, chains: int, sweeps: int, progress: bool, on_progress) -> tuple:
     """``(samples, wall_probs or None)`` of all chains (chain axis first with several), showing progress."""
-    from tqdm import tqdm
 
     total = sweeps * chains if plan.one_by_one else sweeps
     with tqdm(total=total, unit="sweep", delay=1.0, disable=not progress, leave=False) as bar:
@@ -265,7 +266,6 @@ def run_logodds(problem: Problem, params=None) -> InferenceResult:
         An :class:`InferenceResult` whose ``posterior`` is the occupancy probability per cell (not a posterior),
         with no samples (``(0, nx, ny)``) and a summary like :func:`run_inference`'s (:func:`scene_summary`).
     """
-    from bayesmap.inference.logodds import LogOddsParams, logodds_map, occupancy
 
     params = LogOddsParams() if params is None else params
     start = time.perf_counter()

@@ -34,14 +34,34 @@ beam spacing (fov/n, fov/(n-1) and +-1 %). Alternatives such as spacing ``fov/(n
 Maximum range
 -------------
 A range at or above the sensor's maximum range means "no return" (the beam hit nothing).
-With ``read_carmen(..., max_range=m)`` every range ``>= m`` is flagged in
-``CarmenLog.is_max_range``. With ``max_range=None`` (the default) the maximum range is
-inferred: let ``v`` be the largest range in the whole log and ``c`` the number of beams
-reading exactly ``v``; a saturating sensor repeats its maximum many times, so if
-``c >= max(2, 0.001 * total number of beams)`` then ``max_range = v``; otherwise the log is
-taken to hold no max-range readings, ``max_range = math.inf`` and no beam is flagged.
+With ``read_carmen(..., max_range=m)`` (the CLI's ``--max-range``) every range ``>= m`` is
+flagged in ``CarmenLog.is_max_range``. With ``max_range=None`` (the default) it is inferred
+from the readings by a rule that one corrupt value cannot move. A saturating sensor repeats
+its maximum on many beams: let ``need = max(2, 0.1 % of all beams)``.
+
+1. If the largest range ``v`` of the log is read by ``>= need`` beams, ``max_range = v``.
+2. Else (a few readings above the real maximum, as a corrupt value makes), take ``v``, the
+   largest range read by ``>= need`` beams, and ``a``, the number of beams reading more than
+   ``v``. ``v`` is the max range if it stands for saturation rather than a common reading:
+   ``v > 0``, more than half of all beams read less than ``v``, and ``v`` is read by more than
+   ``2 a`` beams (it outnumbers the values above it twice over). The ``a`` readings above it
+   are then flagged as no return like any reading at or above the max range, and never set
+   the map's extent.
+3. Otherwise the log is taken to hold no max-range readings: ``max_range = math.inf`` and no
+   beam is flagged.
 (Intel: 81.83 m; ACES: 50.0 m, on 0.78 % of its beams, which is why the threshold is 0.1 %
-rather than 1 %; CSAIL: 81.91 m.)
+rather than 1 %; CSAIL: 81.91 m.) ``PARAM`` lines are not used: CSAIL's log says
+``PARAM robot_front_laser_max 50`` while its FLASER "no return" readings are 81.91 m (none
+lies between 50 and 81.91 m): a PARAM line describes a configuration, the readings what the
+laser wrote, and the two can disagree. Pass ``max_range`` (``--max-range``) to override.
+
+Plausibility
+------------
+A range that is not a finite number, is negative, or exceeds :data:`MAX_PLAUSIBLE_RANGE`
+(1000 m, beyond any 2-D laser scanner's reach) is refused, as is a pose coordinate beyond
+:data:`MAX_PLAUSIBLE_COORDINATE` (10,000 km) or a heading beyond :data:`MAX_PLAUSIBLE_HEADING`
+radians; the message names the file, the line and the value. A log whose every range is 0 has
+nothing to map and is refused too.
 
 Errors
 ------
@@ -63,7 +83,7 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.io.files import read_bytes
 
-__all__ = ["Scan", "CarmenLog", "read_carmen", "beam_offsets"]
+__all__ = ["Scan", "CarmenLog", "read_carmen", "beam_offsets", "infer_max_range", "MAX_PLAUSIBLE_RANGE"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -74,6 +94,13 @@ _N_NUMERIC_TAIL = 7
 _N_OPTIONAL_TAIL = 2
 # Inferred max range: the largest value must occur on at least this fraction of all beams.
 _MAX_RANGE_MIN_FRACTION = 0.001
+
+MAX_PLAUSIBLE_RANGE = 1000.0
+"""Meters: a range above this is refused as corrupt (2-D laser scanners reach 4-300 m; Intel's saturates at 81.83)."""
+MAX_PLAUSIBLE_COORDINATE = 1e7
+"""Meters: a pose ``x`` or ``y`` beyond this (10,000 km, a quarter of the Earth's circumference) is refused."""
+MAX_PLAUSIBLE_HEADING = 1e6
+"""Radians: a heading beyond this is refused (its beam angles would have lost their precision)."""
 
 
 def beam_offsets(n: int, fov: float = math.pi) -> np.ndarray:
@@ -315,15 +342,66 @@ def _field_name(j: int, n: int) -> str:
     return ("x", "y", "theta", "odom_x", "odom_y", "odom_theta", "timestamp")[j - n]
 
 
+def _check_plausible(name: str, linenos: list[int], table: np.ndarray, k: int) -> None:
+    """Refuse the first implausible value of ``table`` (rows: k ranges then the 7 numeric fields), naming
+    ``name:line`` and the value; see the module docstring's "Plausibility"."""
+    ranges = table[:, :k]
+    tail = table[:, k : k + 7]
+    checks = (
+        (~np.isfinite(ranges), 0, "not a finite number"),
+        (ranges < 0, 0, "which is negative"),
+        (ranges > MAX_PLAUSIBLE_RANGE, 0,
+         f"beyond any laser's reach ({MAX_PLAUSIBLE_RANGE:g} m): a corrupt reading (fix or drop the line)"),
+        (~np.isfinite(tail), k, "not a finite number"),
+        (np.abs(tail[:, :2]) > MAX_PLAUSIBLE_COORDINATE, k,
+         f"beyond {MAX_PLAUSIBLE_COORDINATE:g} m from the origin: a corrupt pose"),
+        (np.abs(tail[:, 2:3]) > MAX_PLAUSIBLE_HEADING, k + 2,
+         f"beyond {MAX_PLAUSIBLE_HEADING:g} radians: a corrupt heading"),
+    )
+    for bad, first, what in checks:
+        if bad.any():
+            s, j = np.argwhere(bad)[0]
+            raise _line_error(name, linenos[s], f"{_field_name(first + j, k)} is {table[s, first + j]!r}, {what}")
+    if not ranges.any():
+        raise BayesmapError(f"CARMEN log {name!r}: all {ranges.size} ranges are 0 m (no reading): nothing to map")
+
+
+def infer_max_range(ranges) -> float:
+    """The laser's max range inferred from its readings (meters, or ``math.inf`` for none).
+
+    The rule of the module docstring ("Maximum range"): the largest range if ``need = max(2, 0.1 %)`` beams read
+    it; else the largest range ``v`` read by ``need`` beams if more than half of the beams read less and more than
+    twice as many beams read ``v`` as read more; else ``math.inf``.
+
+    Args:
+        ranges: any shape, float, meters (finite, ``>= 0``).
+    """
+    ranges = np.asarray(ranges, dtype=np.float64).reshape(-1)
+    if ranges.size == 0:
+        return math.inf
+    values, counts = np.unique(ranges, return_counts=True)  # ascending
+    need = max(2, math.ceil(_MAX_RANGE_MIN_FRACTION * ranges.size))
+    frequent = np.nonzero((counts >= need) & (values > 0))[0]
+    if len(frequent) == 0:
+        return math.inf
+    top = frequent[-1]
+    above = int(counts[top + 1 :].sum())
+    below = int(counts[:top].sum())
+    if above == 0 or (2 * below > ranges.size and counts[top] > 2 * above):
+        return float(values[top])
+    return math.inf
+
+
 def read_carmen(path: PathLike, max_range: float | None = None, fov: float = math.pi) -> CarmenLog:
     """Read all FLASER scans of a CARMEN log (plain text or gzip, detected by magic bytes).
 
     Args:
         path: file to read (``str`` or path-like).
         max_range: sensor maximum range in meters (finite, ``> 0``); ranges ``>=`` it are flagged
-            as no-return in ``is_max_range``. ``None`` infers it (see the module docstring):
-            the largest range in the log if it occurs on ``>= max(2, 0.1 %)`` of all beams,
-            else ``math.inf`` (no max-range readings).
+            as no-return in ``is_max_range``. ``None`` infers it with :func:`infer_max_range`
+            (module docstring, "Maximum range"): the largest range if ``>= max(2, 0.1 %)`` of all
+            beams read it, else the saturation value below a few corrupt readings, else
+            ``math.inf`` (no max-range readings).
         fov: the laser's field of view in radians, ``0 < fov <= 2*pi`` (default ``pi``).
             See the module docstring for how beam angles follow from it.
 
@@ -334,8 +412,9 @@ def read_carmen(path: PathLike, max_range: float | None = None, fov: float = mat
         BayesmapError: with a one-line message naming the file (and ``file:line`` for a bad line)
             when the file does not exist, is a directory or cannot be read; is binary junk or
             invalid / truncated gzip; has a FLASER line with a bad beam count, too few or too many
-            fields, or a non-numeric field; mixes scans of different beam counts; has non-finite
-            or negative ranges, or a non-finite pose or timestamp; has no FLASER line at all;
+            fields, or a non-numeric field; mixes scans of different beam counts; has a range that is
+            non-finite, negative or above :data:`MAX_PLAUSIBLE_RANGE`, a non-finite or implausible
+            pose, a non-finite timestamp, or only ranges of 0; has no FLASER line at all;
             or when ``max_range`` or ``fov`` is not a valid positive number.
     """
     _check_fov(fov)
@@ -380,28 +459,9 @@ def read_carmen(path: PathLike, max_range: float | None = None, fov: float = mat
     poses = table[:, k : k + 3]
     timestamps = table[:, k + 6]
 
-    bad = ~np.isfinite(ranges)
-    if bad.any():
-        s, j = np.argwhere(bad)[0]
-        raise _line_error(name, linenos[s], f"range {j + 1} of {k} is {ranges[s, j]!r}, not a finite number")
-    bad = ranges < 0
-    if bad.any():
-        s, j = np.argwhere(bad)[0]
-        raise _line_error(name, linenos[s], f"range {j + 1} of {k} is {ranges[s, j]!r}, which is negative")
-    bad = ~np.isfinite(table[:, k : k + 7])
-    if bad.any():
-        s, j = np.argwhere(bad)[0]
-        raise _line_error(
-            name, linenos[s], f"{_field_name(k + j, k)} is {table[s, k + j]!r}, not a finite number"
-        )
-
+    _check_plausible(name, linenos, table, k)
     if max_range is None:
-        vmax = float(ranges.max())
-        count = int(np.count_nonzero(ranges == vmax))
-        if count >= max(2, math.ceil(_MAX_RANGE_MIN_FRACTION * ranges.size)):
-            max_range = vmax
-        else:
-            max_range = math.inf
+        max_range = infer_max_range(ranges)
     max_range = float(max_range)
 
     angles = poses[:, 2:3] + beam_offsets(k, fov)[None, :]

@@ -472,7 +472,8 @@ def write_rosmap(yaml_path, occupancy, grid: Grid, overwrite: bool = False, free
         occupancy: ``(nx, ny)`` probabilities of occupied, in ``[0, 1]`` (NaN allowed where ``unknown``).
         grid: its geometry (shape ``(nx, ny)``, resolution in meters per cell, origin in meters).
         overwrite: replace existing files; otherwise refuse.
-        free_thresh, occupied_thresh: the thresholds written to the YAML (map_server's defaults).
+        free_thresh: the free threshold written to the YAML (map_server's default 0.196).
+        occupied_thresh: the occupied threshold written to the YAML (map_server's default 0.65).
         unknown: optional ``(nx, ny)`` bool mask of unknown cells (written as pixel 205).
 
     Returns:
