@@ -11,7 +11,6 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.model.generative import choices, make_params, multi_scan_model, scan_args, simulate_scan_readings
 
-
 POSES = np.array([[1.2, 1.1], [4.3, 5.2], [2.6, 3.9]])  # three scans inside a 6 x 7 grid, meters
 
 
@@ -25,8 +24,8 @@ def scenes(beam_model, seed, max_distance=6.0, num_beams=10):
     truth = (rng.random(grid.shape) < 0.25).astype(np.float32)
     y = np.asarray(simulate_scan_readings(jax.random.key(seed), truth, POSES, params, angles), np.float64)
     y = np.maximum(y, 0.0)  # the Normal can go below 0 next to a wall; a real sensor cannot (as in problem.py)
-    y[rng.random(y.shape) < 0.25] = params.cap  # max-range readings, exactly at the max range
-    table = build_ray_table(grid, np.repeat(POSES, num_beams, axis=0), angles.reshape(-1), params.cap)
+    y[rng.random(y.shape) < 0.25] = params.max_range  # max-range readings, exactly at the max range
+    table = build_ray_table(grid, np.repeat(POSES, num_beams, axis=0), angles.reshape(-1), params.max_range)
     return grid, params, angles, truth, y, table
 
 
@@ -44,7 +43,7 @@ def beam_enumeration_scene():
     truth = np.zeros((3, 4), np.float32)
     truth[2, 3] = truth[0, 3] = truth[2, 0] = 1
     y = np.asarray(simulate_scan_readings(jax.random.key(5), truth, poses, params, angles), np.float64)
-    y[0, 1] = y[1, 4] = params.cap  # max-range readings
+    y[0, 1] = y[1, 4] = params.max_range  # max-range readings
     y[1, 2] = 0.3  # a short reading
     maps = np.array(list(itertools.product([0.0, 1.0], repeat=12)), np.float32).reshape(-1, 3, 4)
     args = scan_args(poses, params, angles)
@@ -52,7 +51,7 @@ def beam_enumeration_scene():
         jnp.asarray(maps)), np.float64)
     w = np.exp(lj - lj.max())
     exact = np.tensordot(w / w.sum(), maps, axes=1)
-    table = build_ray_table(grid, np.repeat(poses, 6, axis=0), angles.reshape(-1), params.cap)
+    table = build_ray_table(grid, np.repeat(poses, 6, axis=0), angles.reshape(-1), params.max_range)
     return table, y, params, exact
 
 

@@ -8,7 +8,6 @@ import sys
 import numpy as np
 import pytest
 
-from bayesmap.cli import main
 from helpers import run_cli
 
 

@@ -107,8 +107,9 @@ def _far_pose_log(small_log: Path) -> Path:
 
 
 def _rosmap_yaml(tmp_path: Path, resolution: str) -> Path:
-    from bayesmap.io.rosmap import write_pgm
     import numpy as np
+
+    from bayesmap.io.rosmap import write_pgm
 
     image = np.full((40, 50), 254, np.uint8)
     image[0, :] = image[-1, :] = image[:, 0] = image[:, -1] = 0

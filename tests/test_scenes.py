@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
+from bayesmap.cli import parse_scans
 from bayesmap.errors import BayesmapError
+from bayesmap.inference.driver import run_logodds
 from bayesmap.model.generative import log_joint_scans
 from bayesmap.scenes import Observations, Problem, log_problem, scan_problem
-from bayesmap.cli import parse_scans
-from bayesmap.inference.driver import run_logodds
 from helpers import room_scans
 
 
@@ -68,7 +68,7 @@ def test_scan_and_log_scenes_share_max_range_and_grid(small_log):
 
     log = read_carmen(small_log)
     one, many = scan_problem(log, 4, resolution=0.2), log_problem(log, [4], resolution=0.2)
-    assert one.grid == many.grid and one.params.cap == many.params.cap == log.max_range
+    assert one.grid == many.grid and one.params.max_range == many.params.max_range == log.max_range
     assert np.array_equal(one.readings, many.readings[0]) and np.array_equal(one.max_range_mask, many.max_range_mask[0])
     assert one.max_range_mask.any() and np.all(one.readings[one.max_range_mask] == log.max_range)
     assert one.extra["pose"] == list(log.poses[4]) and one.observations.max_range == log.max_range

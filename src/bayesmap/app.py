@@ -31,10 +31,10 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
+from bayesmap.geometry.raycast import sensor_distances
+from bayesmap.inference.driver import InferenceResult, run_inference
 from bayesmap.io.ascii import format_map, parse_map, tutorial_map
 from bayesmap.scenes import TUTORIAL_POS, Problem, tutorial_problem
-from bayesmap.inference.driver import InferenceResult, run_inference
-from bayesmap.geometry.raycast import sensor_distances
 
 SAMPLER = "block"
 
@@ -246,7 +246,7 @@ class Explorer:
         of its noisy range reading, meters (recomputed only when the scene changed)."""
         pb = self.problem
         if self._beams is None or self._beams[0] is not pb:  # computed once per scene, not at every redraw
-            exact = np.asarray(sensor_distances(self.walls, pb.pos, pb.beam_angles, pb.grid, pb.params.cap))
+            exact = np.asarray(sensor_distances(self.walls, pb.pos, pb.beam_angles, pb.grid, pb.params.max_range))
             direction = np.stack([np.cos(pb.beam_angles), np.sin(pb.beam_angles)], axis=-1)
             self._beams = (pb, pb.pos + exact[:, None] * direction, pb.pos + pb.readings[:, None] * direction)
         return self._beams[1], self._beams[2]

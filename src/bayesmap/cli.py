@@ -152,7 +152,7 @@ def check_problem_size(problem, chains: int = 1) -> None:
     grid = problem.grid
     if grid.num_cells * max(chains, 1) > MAX_GRID_CELLS:
         _check_sizes(grid.shape, grid.resolution, 0.0, chains)
-    length = min(float(problem.params.cap), math.hypot(*grid.shape) * grid.resolution)
+    length = min(float(problem.params.max_range), math.hypot(*grid.shape) * grid.resolution)
     _check_sizes(grid.shape, grid.resolution, _beam_cells(length, grid.resolution, problem.ray_angles), chains)
 
 

@@ -203,7 +203,7 @@ class Problem:
     world-frame arrays with :meth:`from_world_frame`.
 
     Attributes:
-        params: model parameters; ``params.grid`` is the grid, ``params.cap`` the max distance (meters) and
+        params: model parameters; ``params.grid`` is the grid, ``params.max_range`` the max distance (meters) and
             ``params.beam_model`` the sensor model.
         observations: what was observed (sensor-frame beam angles, readings, max-range flags).
         poses: ``(S, 3)`` float64 robot poses ``(x m, y m, theta rad)``, world frame: what the map is conditioned on.
@@ -411,7 +411,7 @@ class Problem:
         if self.ray_table is not None:
             return self.ray_table
 
-        return build_ray_table(self.grid, self.ray_origins, self.ray_angles, self.params.cap)
+        return build_ray_table(self.grid, self.ray_origins, self.ray_angles, self.params.max_range)
 
     def single_scan(self) -> tuple:
         """``(readings (K,), pos (2,), params, beam_angles (K,))`` for the single-scan (reference) samplers.

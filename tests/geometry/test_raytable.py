@@ -19,13 +19,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import random_scene
-
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.io.ascii import tutorial_map
-from bayesmap.geometry.raytable import RayTable, build_ray_table_reference, build_ray_table
 from bayesmap.geometry.raycast import angles, cell_hit_distance, sensor_distances, unit_dir
+from bayesmap.geometry.raytable import RayTable, build_ray_table, build_ray_table_reference
+from bayesmap.io.ascii import tutorial_map
+from conftest import random_scene
 
 RTOL = 1e-5
 ATOL_CELLS = 1e-5

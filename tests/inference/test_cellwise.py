@@ -8,12 +8,12 @@ import pytest
 from jax.experimental import enable_x64
 
 from bayesmap.errors import BayesmapError
-from bayesmap.inference import cellwise
 from bayesmap.geometry.grid import Grid
+from bayesmap.geometry.raytable import build_ray_table
+from bayesmap.inference import cellwise
 from bayesmap.inference.cellwise import NO_WALL, CellwiseGibbs, width_groups
 from bayesmap.inference.chains import run_chain, run_chains
 from bayesmap.model.generative import choices, make_params, multi_scan_model, prior_log_odds, scan_args
-from bayesmap.geometry.raytable import build_ray_table
 from helpers import POSES, beam_enumeration_scene, scenes
 
 
@@ -164,7 +164,7 @@ def test_one_chain_runs_and_cells_without_rays_follow_the_prior():
     pose = np.array([[20.0, 20.0]])
     angles = np.linspace(0, 2 * np.pi, 8, endpoint=False)[None]
     y = np.full((1, 8), 3.0)
-    table = build_ray_table(grid, np.repeat(pose, 8, axis=0), angles.reshape(-1), params.cap)
+    table = build_ray_table(grid, np.repeat(pose, 8, axis=0), angles.reshape(-1), params.max_range)
     sampler = CellwiseGibbs(table, y.reshape(-1), params)
     free = table.rays_per_cell().reshape(grid.shape) == 0
     result = run_chain(jax.random.key(0), sampler.algorithm, jnp.zeros(grid.shape), 40)

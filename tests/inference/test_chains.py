@@ -108,7 +108,7 @@ def test_every_sampler_steps_to_state_and_info():
     pos = np.array([1.3, 2.2])
     angles = np.linspace(0.0, 2 * np.pi, 6, endpoint=False) + 0.1
     y = np.array([1.0, 2.0, 0.7, 3.5, 1.2, 2.5])
-    table = build_ray_table(grid, np.repeat(pos[None], 6, axis=0), angles, params.cap)
+    table = build_ray_table(grid, np.repeat(pos[None], 6, axis=0), angles, params.max_range)
     samplers = {"fast": fast_gibbs(table, y, params, block_size=2), "cellwise": cellwise_gibbs(table, y, params),
                 "reference": reference_gibbs(y, pos, params, angles),
                 "reference-incremental": reference_incremental_gibbs(y, pos, params, angles)}

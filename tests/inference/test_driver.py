@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from bayesmap.errors import BayesmapError
-from bayesmap.io.rosmap import read_rosmap
 from bayesmap.inference.driver import run_inference, run_logodds, scene_summary
+from bayesmap.io.rosmap import read_rosmap
 from helpers import room_scans, run_cli
 
 
@@ -134,9 +134,9 @@ def test_beam_weights_reach_the_model_and_the_summary(tmp_path, monkeypatch, cap
 def test_likelihood_power_in_the_summary_and_refused_by_reference_samplers(small_log):
     """The log's tempered target is recorded in the summary; the reference samplers (which sample the plain
     posterior through assess) refuse it with the value named."""
+    from bayesmap.inference.registry import make_sampler
     from bayesmap.io.carmen import read_carmen
     from bayesmap.scenes import LOG_LIKELIHOOD_POWER, log_problem
-    from bayesmap.inference.registry import make_sampler
 
     pb = log_problem(read_carmen(small_log), resolution=0.2)
     with pytest.raises(BayesmapError, match="likelihood power 0.1"):

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from bayesmap.geometry.grid import Grid
+from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.inference.chains import run_chains
 from bayesmap.inference.fast import FastGibbs
 from bayesmap.inference.reference import block_log_weights, reference_gibbs
 from bayesmap.inference.schedules import cell_rays
 from bayesmap.model.generative import log_joint, make_params, model_args, simulate_readings
-from bayesmap.geometry.raytable import build_ray_table
 from helpers import sweeps_keep_ray_bits
 
 
@@ -30,7 +30,7 @@ def scene(rng, prior, shape=None, num_angles=None):
         if (y >= 0).all():
             break
     args = model_args(pos, params)
-    table = build_ray_table(grid, pos, np.asarray(args[2]), params.cap)
+    table = build_ray_table(grid, pos, np.asarray(args[2]), params.max_range)
     return params, pos, y, args, table
 
 
@@ -112,8 +112,8 @@ def test_marginals_match_exact_enumeration(sampler, prior, pos):
     pos = np.array(pos)
     y = np.abs(np.asarray(simulate_readings(jax.random.key(5), truth, pos, params), float))
     exact = exact_marginals(params, pos, y)
-    from bayesmap.inference.registry import make_sampler
     from bayesmap.geometry.raycast import angles
+    from bayesmap.inference.registry import make_sampler
 
     problem = Problem.from_world_frame(params, pos, np.asarray(angles(7), float), y, truth=truth)
     result = run_chains(jax.random.key(11), make_sampler(problem, sampler), jnp.zeros((3, 4)), 300, 64)
@@ -163,7 +163,7 @@ def test_split_levels_sample_the_exact_posterior(block_size, prior):
     pos = np.array([1.3, 0.6])
     y = np.abs(np.asarray(simulate_readings(jax.random.key(5), truth, pos, params), float))
     exact = exact_marginals(params, pos, y)
-    table = build_ray_table(grid, pos, np.asarray(model_args(pos, params)[2]), params.cap)
+    table = build_ray_table(grid, pos, np.asarray(model_args(pos, params)[2]), params.max_range)
     fast = FastGibbs(table, y, params, block_size=block_size, pos=pos, level_capacity=1)
     assert not np.all(np.asarray(fast._steps.commit))
     result = run_chains(jax.random.key(3), fast.algorithm, jnp.zeros((3, 4)), 300, 64)
@@ -181,7 +181,7 @@ def test_fast_conditionals_with_several_poses():
         poses = np.array([[1.2, 1.1], [4.3, 5.2], [2.6, 3.9]])
         beam = np.asarray(model_args(poses[0], params)[2], float)
         origins = np.repeat(poses, len(beam), axis=0)
-        table = build_ray_table(grid, origins, np.tile(beam, len(poses)), params.cap)
+        table = build_ray_table(grid, origins, np.tile(beam, len(poses)), params.max_range)
         y = rng.uniform(0.3, 6.0, table.num_rays)
         fast = FastGibbs(table, y, params, block_size=1)
         s, p = params.sensor_noise, params.prior_wall_prob

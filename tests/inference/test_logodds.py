@@ -10,8 +10,8 @@ import pytest
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.inference.logodds import LogOddsParams, beam_hits_and_misses, logodds_map, logit, occupancy
 from bayesmap.geometry.raytable import build_ray_table
+from bayesmap.inference.logodds import LogOddsParams, beam_hits_and_misses, logit, logodds_map, occupancy
 
 HIT = math.log(0.7 / 0.3)  # default p_hit 0.7
 MISS = math.log(0.4 / 0.6)  # default p_miss 0.4

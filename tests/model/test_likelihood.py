@@ -40,8 +40,8 @@ def test_pair_log_likelihoods_are_the_sensor_model(beam_model, x64):
         rng = np.random.default_rng(0)
         angles = rng.uniform(-np.pi, np.pi, (3, 16))
         angles[:, :4] = [0.0, np.pi / 2, np.pi, -np.pi / 2]  # straight out of the cell whose edge is 1e-4 away
-        table = build_ray_table(grid, np.repeat(poses, 16, axis=0), angles.reshape(-1), params.cap)
-        m = params.cap
+        table = build_ray_table(grid, np.repeat(poses, 16, axis=0), angles.reshape(-1), params.max_range)
+        m = params.max_range
         y = rng.uniform(0.0, m, table.num_rays)
         y[::5], y[1::7], y[2::6], y[3::9] = m, 2 * m, m - 0.01, 0.0
         dtype = jnp.result_type(float)

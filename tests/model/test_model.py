@@ -6,15 +6,15 @@ from genjax import ChoiceMapBuilder as C
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
+from bayesmap.geometry.raycast import angles, sensor_distances
 from bayesmap.io.ascii import tutorial_map
 from bayesmap.model.generative import full_model, log_joint, make_params, model_args, simulate, simulate_readings
-from bayesmap.geometry.raycast import angles, sensor_distances
 
 
 def manual_log_joint(walls, readings, pos, params, beam_angles):
     p = params.prior_wall_prob
     prior = np.sum(np.where(walls > 0, np.log(p), np.log1p(-p)))
-    d = np.asarray(sensor_distances(walls, pos, beam_angles, grid=params.grid, max_distance=params.cap), float)
+    d = np.asarray(sensor_distances(walls, pos, beam_angles, grid=params.grid, max_distance=params.max_range), float)
     s = params.sensor_noise
     lik = np.sum(-0.5 * ((np.asarray(readings) - d) / s) ** 2 - np.log(s) - 0.5 * np.log(2 * np.pi))
     return prior + lik

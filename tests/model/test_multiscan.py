@@ -12,6 +12,8 @@ from jax.experimental import enable_x64
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
+from bayesmap.geometry.raycast import sensor_distances
+from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.inference.fast import FastGibbs
 from bayesmap.inference.schedules import block_configurations
 from bayesmap.model.generative import (
@@ -25,8 +27,6 @@ from bayesmap.model.generative import (
     reading_log_likelihood,
     scan_args,
 )
-from bayesmap.geometry.raytable import build_ray_table
-from bayesmap.geometry.raycast import sensor_distances
 from helpers import POSES, beam_enumeration_scene, scenes, sweeps_keep_ray_bits
 
 
@@ -58,11 +58,11 @@ def test_multi_scan_is_prior_plus_each_scan(beam_model, seed):
         assess = jax.jit(lambda w, ys, a: full_model.assess(choices(w, ys), a)[0])
         per_scan = [float(assess(walls, y[s], model_args(POSES[s], params, angles[s]))) for s in range(len(POSES))]
         assert got == pytest.approx(sum(per_scan) - (len(POSES) - 1) * prior, abs=1e-9)
-        d = np.stack([np.asarray(sensor_distances(walls, POSES[s], angles[s], params.grid, params.cap))
+        d = np.stack([np.asarray(sensor_distances(walls, POSES[s], angles[s], params.grid, params.max_range))
                       for s in range(len(POSES))])
         lik = float(np.sum(np.asarray(reading_log_likelihood(y, d, params))))
         assert got == pytest.approx(prior + lik, abs=1e-9)
-        assert np.any(y == params.cap) and np.any(d == params.cap) and np.any(d < params.cap)
+        assert np.any(y == params.max_range) and np.any(d == params.max_range) and np.any(d < params.max_range)
 
 
 def test_scan_args_check_shapes():
@@ -107,7 +107,7 @@ def test_fast_conditionals_match_the_multi_scan_model(beam_model, block_size):
             return per_block(jnp.asarray(fast.blocks))
 
         rng = np.random.default_rng(3)
-        is_max = y.reshape(-1) == params.cap
+        is_max = y.reshape(-1) == params.max_range
         max_hit_wall = max_no_wall = False
         for trial in range(3):
             walls = (rng.random(grid.shape) < [0.15, 0.35, 0.6][trial]).astype(np.float64)
@@ -123,8 +123,8 @@ def test_fast_conditionals_match_the_multi_scan_model(beam_model, block_size):
                 evaluated = np.stack([np.zeros_like(evaluated), evaluated], -1) if evaluated.ndim == 1 else evaluated
                 np.testing.assert_allclose(evaluated - evaluated[:, :1], got - got[:, :1], atol=1e-9, rtol=0)
             d = table.first_wall_distances(walls)
-            max_hit_wall |= bool(np.any(is_max & (d < params.cap)))
-            max_no_wall |= bool(np.any(is_max & (d == params.cap)))
+            max_hit_wall |= bool(np.any(is_max & (d < params.max_range)))
+            max_no_wall |= bool(np.any(is_max & (d == params.max_range)))
             assert np.ptp(want - want[:, :1]) > 1.0  # the data are informative: the comparison can fail
         # the max-range readings are exercised: some of their rays meet a wall within range, some do not
         assert max_hit_wall and max_no_wall
@@ -153,19 +153,19 @@ def test_beam_kernel_parameters_are_array_leaves_and_the_sweep_runs():
     """Other mixture weights give a kernel of the same tree structure (no recompilation); a few beam-model sweeps
     keep the state's ray bits equal to those recomputed from the map and move the chain."""
     grid, params, angles, _, y, table = scenes("beam", 1)
-    other = make_params(0.2, 0.3, params.num_angles, grid, params.cap, beam_model="beam", z_hit=0.7, z_short=0.1,
+    other = make_params(0.2, 0.3, params.num_angles, grid, params.max_range, beam_model="beam", z_hit=0.7, z_short=0.1,
                         z_max=0.1, z_rand=0.1, lambda_short=0.3)
     a = FastGibbs(table, y.reshape(-1), params, block_size=2)
     b = FastGibbs(table, y.reshape(-1), other, block_size=2)
     assert jax.tree_util.tree_structure(a.kernel) == jax.tree_util.tree_structure(b.kernel)
-    normal = FastGibbs(table, y.reshape(-1), make_params(0.3, 0.4, params.num_angles, grid, params.cap), block_size=2)
+    normal = FastGibbs(table, y.reshape(-1), make_params(0.3, 0.4, params.num_angles, grid, params.max_range), block_size=2)
     assert jax.tree_util.tree_structure(normal.kernel) != jax.tree_util.tree_structure(a.kernel)  # static choice
     assert sweeps_keep_ray_bits(a, a.init(jnp.zeros(grid.shape, jnp.float32)), 3) > 0
 
 
 def test_beam_kernel_needs_the_models_max_range():
     grid, params, angles, _, y, _ = scenes("beam", 2)
-    table = build_ray_table(grid, np.repeat(POSES, angles.shape[1], axis=0), angles.reshape(-1), params.cap + 1.0)
+    table = build_ray_table(grid, np.repeat(POSES, angles.shape[1], axis=0), angles.reshape(-1), params.max_range + 1.0)
     with pytest.raises(BayesmapError, match="max range"):
         FastGibbs(table, y.reshape(-1), params)
 

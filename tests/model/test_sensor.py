@@ -13,9 +13,9 @@ import pytest
 from genjax import ChoiceMapBuilder as C
 from jax.experimental import enable_x64
 
-from bayesmap.model import sensor
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
+from bayesmap.model import sensor
 from bayesmap.model.generative import make_params
 
 DEFAULT = dict(sigma=0.2, **{k: v for k, v in sensor.BEAM_DEFAULTS.items()}, max_range=42.0)
@@ -196,7 +196,7 @@ def test_bad_sensor_parameters_are_named(kwargs, match):
 def test_make_params_keeps_its_positional_signature_and_carries_the_sensor():
     grid = Grid((5, 6))
     params = make_params(0.3, 0.25, 12, grid, 4.0)
-    assert (params.prior_wall_prob, params.sensor_noise, params.num_angles, params.grid, params.cap) == (0.3, 0.25, 12, grid, 4.0)
+    assert (params.prior_wall_prob, params.sensor_noise, params.num_angles, params.grid, params.max_range) == (0.3, 0.25, 12, grid, 4.0)
     assert params.beam_model == "normal" and params.sensor_args == (0.25,)
     beam = make_params(0.3, 0.25, 12, grid, 4.0, beam_model="beam", z_hit=0.7, z_short=0.1, z_max=0.1, z_rand=0.1,
                        lambda_short=0.5)

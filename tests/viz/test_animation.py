@@ -13,9 +13,9 @@ import pytest
 from PIL import Image
 
 import bayesmap.viz.animation as animation
-from bayesmap.viz.animation import ChainFigure, chain_frames, chain_gif, chain_html, frame_sweeps
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
+from bayesmap.viz.animation import ChainFigure, chain_frames, chain_gif, chain_html, frame_sweeps
 
 GRID = Grid((5, 6))
 SIZE = (600, 300)

@@ -11,7 +11,6 @@ from bayesmap.viz.common import save_figure
 from bayesmap.viz.maps import plot_map, plot_posterior
 from helpers import POS, blurred
 
-
 # ---------------------------------------------------------------------------------------------------------------
 # save_figure
 # ---------------------------------------------------------------------------------------------------------------

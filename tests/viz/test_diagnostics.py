@@ -13,7 +13,6 @@ from bayesmap.viz.common import figure_bytes
 from bayesmap.viz.diagnostics import plot_convergence, plot_importance
 from helpers import by_gid
 
-
 # ---------------------------------------------------------------------------------------------------------------
 # plot_importance
 # ---------------------------------------------------------------------------------------------------------------

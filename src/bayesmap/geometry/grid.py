@@ -20,6 +20,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 
+
 @dataclass(frozen=True)
 class Grid:
     """The geometry of an occupancy grid (hashable, so it can be a static argument of ``jax.jit``).

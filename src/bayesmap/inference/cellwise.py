@@ -378,7 +378,7 @@ class CellwiseGibbs(KernelSampler):
         table: the ray-cell table (its rays in the order of ``readings``; any number of scans).
         readings: ``(R,)`` ranges, meters, max-range readings equal to the max distance.
         params: model parameters (``prior_wall_prob`` and the sensor model; for ``"beam"`` the table's max distance
-            must be the model's max range ``params.cap``).
+            must be the model's max range ``params.max_range``).
         likelihood_power: ``eta`` in (0, 1]: sample ``p(walls) p(readings | walls) ** eta``
             (every log-likelihood the sweep looks up times ``eta``: :func:`bayesmap.model.likelihood.tempered`); 1, the
             posterior, by default.

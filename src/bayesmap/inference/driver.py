@@ -177,7 +177,7 @@ def scene_summary(problem: Problem, method: dict, results: dict, posterior, mode
             summary.update({name: float(getattr(params, name)) for name in BEAM_DEFAULTS})
     summary["grid"] = {"shape": list(problem.grid.shape), "resolution": problem.grid.resolution,
                        "origin": list(problem.grid.origin)}
-    summary["max_distance"] = params.cap
+    summary["max_distance"] = params.max_range
     summary.update(results)
     summary.update(problem.extra)
     if model and problem.max_range_mask is not None:

@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayesmap.errors import BayesmapError
+from bayesmap.geometry.raytable import RayTable
 from bayesmap.inference.base import GibbsInfo, KernelFields, KernelSampler, SamplingAlgorithm
 from bayesmap.inference.schedules import (
     block_configurations,
@@ -46,7 +47,6 @@ from bayesmap.inference.schedules import (
     make_blocks,
     split_levels,
 )
-from bayesmap.geometry.raytable import RayTable
 from bayesmap.model.generative import ModelParams, prior_log_odds
 from bayesmap.model.likelihood import likelihood_inputs, log_likelihood_table, pair_log_likelihoods, tempered
 from bayesmap.model.sensor import normal_logpdf, reading_logpdf
@@ -204,7 +204,7 @@ class FastGibbs(KernelSampler):
 
     Raises:
         BayesmapError: on readings that do not match the table's rays, an unknown schedule or order, a bad block
-            size, a likelihood power outside (0, 1], or (beam model) a table whose max distance is not ``params.cap``
+            size, a likelihood power outside (0, 1], or (beam model) a table whose max distance is not ``params.max_range``
             (the sensor's max range; :func:`~bayesmap.model.likelihood.check_max_range`).
 
     Memory: the table's pairs, one bit per pair for the state, and per (block, ray) entry ``B`` positions and

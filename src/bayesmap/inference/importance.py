@@ -20,8 +20,8 @@ import numpy as np
 from genjax import ChoiceMapBuilder as C
 
 from bayesmap.errors import BayesmapError
-from bayesmap.model.generative import ModelParams, full_model, model_args
 from bayesmap.geometry.raytable import check_readings
+from bayesmap.model.generative import ModelParams, full_model, model_args
 
 
 class ImportanceResult(NamedTuple):

@@ -25,10 +25,10 @@ import jax.numpy as jnp
 import numpy as np
 from genjax import ChoiceMapBuilder as C
 
+from bayesmap.geometry.raytable import check_readings
 from bayesmap.inference.base import GibbsInfo, GibbsState, SamplingAlgorithm
 from bayesmap.inference.schedules import block_configurations, make_blocks
 from bayesmap.model.generative import ModelParams, choices, full_model, model_args
-from bayesmap.geometry.raytable import check_readings
 
 
 def _prepare(readings, pos, params: ModelParams, beam_angles):

@@ -34,9 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from bayesmap.errors import BayesmapError
-from bayesmap.io.files import read_bytes
 from bayesmap.geometry.grid import Grid
-from bayesmap.io.files import write_atomic
+from bayesmap.io.files import read_bytes, write_atomic
 
 #: map_server's defaults (also what ``write_rosmap`` writes): 205 (unknown grey) reads as p = 0.196..., which is
 #: above ``FREE_THRESH`` and below ``OCCUPIED_THRESH``.

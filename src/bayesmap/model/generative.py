@@ -16,7 +16,7 @@ arguments ``(poses (S, 2), params, beam_angles (S, K))``, readings ``(S, K)`` at
 a position and the scan's *world-frame* beam angles: the heading ``theta`` is already added to the angles (CARMEN
 logs give world-frame angles; otherwise pass ``theta + angles_in_sensor_frame``). Every scan has the same number
 of beams ``K``; scans with different numbers of beams are not supported (resample them to a common ``K``).
-:func:`scan_args` builds and checks the arguments. The max distance ``params.cap`` is also the sensor's max range.
+:func:`scan_args` builds and checks the arguments. The max distance ``params.max_range`` is also the sensor's max range.
 """
 
 from __future__ import annotations
@@ -30,10 +30,10 @@ import numpy as np
 from genjax import ChoiceMapBuilder as C
 from genjax import Pytree
 
-from bayesmap.model import sensor
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.geometry.raycast import first_hit_distances as _sensor_distances, angles
+from bayesmap.geometry.raycast import angles, first_hit_distances
+from bayesmap.model import sensor
 
 
 @Pytree.dataclass
@@ -47,7 +47,7 @@ class ModelParams(Pytree):
             component's ``sigma_hit``.
         num_angles: number of beams for the tutorial's equally spaced angles (static).
         grid: the grid geometry (static); default: the tutorial's 21 x 21 unit cells.
-        max_distance: cap on distances in meters (static); default: twice the grid's larger side (42 m for the
+        max_distance: the max range in meters (static; :attr:`max_range` resolves the default); default: twice the grid's larger side (42 m for the
             tutorial). It is also the sensor's max range (the beam model's point mass sits there).
         beam_model: the sensor model, ``"normal"`` (the tutorial's) or ``"beam"`` (the robust mixture), static:
             see :mod:`bayesmap.model.sensor`.
@@ -69,18 +69,19 @@ class ModelParams(Pytree):
     lambda_short: float = sensor.BEAM_DEFAULTS["lambda_short"]
 
     @property
-    def cap(self) -> float:
-        """The max distance in meters (``max_distance`` or the grid's default)."""
+    def max_range(self) -> float:
+        """The model's max range in meters: ``max_distance`` if given, else the grid's default. Distances to the
+        first wall are capped at it, and it is the sensor's max range (the beam model's point mass sits there)."""
         return self.grid.default_max_distance if self.max_distance is None else float(self.max_distance)
 
     @property
     def sensor_args(self) -> tuple:
         """The sensor model's parameters after the exact distance (see :func:`bayesmap.model.sensor.reading_logpdf`):
-        ``(sensor_noise,)`` for ``"normal"``; ``(sensor_noise, z_hit, z_short, z_max, z_rand, lambda_short, cap)``
-        for ``"beam"`` (meters, 1/m). Pytree leaves stay traced under jit; ``cap`` is a Python float."""
+        ``(sensor_noise,)`` for ``"normal"``; ``(sensor_noise, z_hit, z_short, z_max, z_rand, lambda_short, max_range)``
+        for ``"beam"`` (meters, 1/m). Pytree leaves stay traced under jit; ``max_range`` is a Python float."""
         if self.beam_model == "normal":
             return (self.sensor_noise,)
-        return (self.sensor_noise, self.z_hit, self.z_short, self.z_max, self.z_rand, self.lambda_short, self.cap)
+        return (self.sensor_noise, self.z_hit, self.z_short, self.z_max, self.z_rand, self.lambda_short, self.max_range)
 
 
 def check_likelihood_power(value) -> float:
@@ -160,9 +161,9 @@ def walls_prior(shape: tuple[int, int]):
 @genjax.gen
 def sensor_model_single(pos, walls, params: ModelParams, angle):
     """One beam, a scalar reading (meters) at address ``()`` given the exact distance ``d`` to the first wall
-    (capped at ``params.cap``): ``Normal(d, sensor_noise)`` for ``beam_model="normal"`` (the tutorial's, through
+    (capped at ``params.max_range``): ``Normal(d, sensor_noise)`` for ``beam_model="normal"`` (the tutorial's, through
     ``genjax.normal`` exactly as before), the beam mixture :data:`bayesmap.model.sensor.beam_reading` for ``"beam"``."""
-    exact = _sensor_distances(walls, pos, angle[None], params.grid, params.cap)[0]
+    exact = first_hit_distances(walls, pos, angle[None], params.grid, params.max_range)[0]
     if params.beam_model == "normal":
         return genjax.normal(exact, params.sensor_noise) @ ()
     return sensor.reading_distribution(params.beam_model)(exact, *params.sensor_args) @ ()
@@ -244,7 +245,7 @@ def log_joint_scans(walls, readings, poses, params: ModelParams, beam_angles):
 
     Args:
         walls: ``(nx, ny)`` array of 0/1 (float or bool).
-        readings: ``(S, K)`` range readings in meters (max-range readings equal to ``params.cap``).
+        readings: ``(S, K)`` range readings in meters (max-range readings equal to ``params.max_range``).
         poses: ``(S, 2)`` sensor positions, world meters.
         params: the model parameters.
         beam_angles: ``(S, K)`` world-frame beam angles, radians.

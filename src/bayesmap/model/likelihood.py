@@ -49,15 +49,15 @@ class LikelihoodInputs(NamedTuple):
 def check_max_range(table: RayTable, params: ModelParams) -> None:
     """The max-range rule: with a sensor model that has a max range (``"beam"``: a point mass at the max range,
     Thrun, Burgard & Fox, *Probabilistic Robotics*, sec. 6.3), the table's max distance (meters) must be that max
-    range, ``params.cap``, so that a ray with no wall in the table has exactly the model's "no wall" distance.
+    range, ``params.max_range``, so that a ray with no wall in the table has exactly the model's "no wall" distance.
     The Normal sensor has no max range: any table fits.
 
     Raises:
         BayesmapError: if the beam model's max range differs from the table's max distance (both named).
     """
-    if params.beam_model != "normal" and not math.isclose(float(table.max_distance), params.cap, rel_tol=1e-12):
+    if params.beam_model != "normal" and not math.isclose(float(table.max_distance), params.max_range, rel_tol=1e-12):
         raise BayesmapError(f"the table's max distance {table.max_distance!r} m is not the model's max range "
-                            f"params.cap = {params.cap!r} m")
+                            f"params.max_range = {params.max_range!r} m")
 
 
 def likelihood_inputs(table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0) -> LikelihoodInputs:

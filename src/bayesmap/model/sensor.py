@@ -11,7 +11,7 @@ Two models, chosen by name (``ModelParams.beam_model``, static):
 The beam mixture as implemented
 -------------------------------
 
-A reading lives on ``[0, M]`` with ``M = max_range`` (meters; the model's max distance ``ModelParams.cap``). Its law
+A reading lives on ``[0, M]`` with ``M = max_range`` (meters; the model's max distance ``ModelParams.max_range``). Its law
 is a *mixed* measure: a density on ``[0, M)`` plus a point mass at ``y = M`` (a "max-range reading", no return).
 :func:`beam_logpdf` returns the log of the density for ``0 <= y < M`` and the log of the point mass for ``y >= M``
 (every ``y >= M`` is read as a max-range reading; a real sensor reports nothing beyond ``M``), i.e. the density
