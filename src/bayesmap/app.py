@@ -29,10 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bayesmap import scenes
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import sensor_distances
-from bayesmap.inference.driver import InferenceResult, run_inference
+from bayesmap.inference.driver import DEFAULT_SWEEPS, InferenceResult, run_inference
 from bayesmap.io.ascii import format_map, parse_map, tutorial_map
 from bayesmap.scenes import TUTORIAL_POS, Problem, tutorial_problem
 
@@ -103,10 +104,10 @@ class Explorer:
         self.walls = (tutorial_map() if walls is None else (np.asarray(walls) > 0.5)).astype(np.float32)
         self.grid = Grid(shape=self.walls.shape)
         self.seed = int(seed)
-        self.prior_wall_prob = 0.5
-        self.sensor_noise = 0.2
-        self.num_angles = 100
-        self.sweeps = 100
+        self.prior_wall_prob = scenes.TUTORIAL_PRIOR
+        self.sensor_noise = scenes.TUTORIAL_SENSOR_NOISE
+        self.num_angles = scenes.TUTORIAL_NUM_ANGLES
+        self.sweeps = DEFAULT_SWEEPS
         self.pos = self._free_position(TUTORIAL_POS if pos is None and self.walls.shape == (21, 21) else pos)
         self.result: InferenceResult | None = None
         self.stale = False

@@ -7,7 +7,7 @@ classes would bring little parallelism. This sampler is the plain systematic-sca
 (Geman & Geman 1984) done cheaply:
 
 * A cell's conditional log-odds is the prior log-odds plus, over the rays through it, ``log p(y | d1) - log p(y |
-  d0)`` (``shared/DESIGN.md``, "The fast conditional"). Only three cases exist: the ray's first wall lies before
+  d0)`` (derived in ``docs/fast-conditional.md``). Only three cases exist: the ray's first wall lies before
   the cell (the term cancels), after it (``d1`` is the cell's stopping distance, ``d0`` the first wall's), or the
   cell *is* the first wall (``d0`` is the second wall's). So the state keeps, per ray, the position along the ray of
   its first and second wall and ``log p(y | .)`` at each (:class:`CellwiseState`), and a cell's update reads one

@@ -22,6 +22,9 @@ from bayesmap.inference.registry import SAMPLERS, SEQUENTIAL_CHAINS, make_sample
 from bayesmap.model.sensor import BEAM_DEFAULTS
 from bayesmap.scenes import Problem
 
+DEFAULT_SWEEPS = 100
+"""Default number of sweeps of a chain (the tutorial's 100; the CLI and the app start from it)."""
+
 
 @dataclass
 class InferenceResult:
@@ -207,7 +210,7 @@ def _chain_summary(problem: Problem, samples, wall_probs, diagnostics, posterior
     return summary
 
 
-def run_inference(problem: Problem, sampler: str = "block", sweeps: int = 100, burn_in: int | None = None,
+def run_inference(problem: Problem, sampler: str = "block", sweeps: int = DEFAULT_SWEEPS, burn_in: int | None = None,
                   seed: int = 0, progress: bool = True, chains: int = 1,
                   on_progress=None, init: str | None = None) -> InferenceResult:
     """Run ``chains`` chains of ``sampler`` and summarize them: at once (``vmap``), or one after another for the

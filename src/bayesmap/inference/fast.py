@@ -7,7 +7,7 @@ is the table's stopping distance of each block cell on that ray. The block's con
 
     log w(c) = sum over block cells of log prior(c_cell) + sum over rays through the block of log p(y_r | d_r(c))
 
-up to a constant that does not depend on ``c`` (``shared/DESIGN.md``, "The fast conditional"; for one cell it is
+up to a constant that does not depend on ``c`` (derived in ``docs/fast-conditional.md``; for one cell it is
 the prior log-odds plus, per ray, ``log p(y | d1) - log p(y | d0)``). ``log p(y | d)`` is the model's sensor model
 (:mod:`bayesmap.model.sensor`, ``params.beam_model``): the tutorial's ``log N(y; d, sensor_noise)`` or the robust beam
 mixture; a ray with no wall within the max distance has ``d = table.max_distance``, exactly as in the model.

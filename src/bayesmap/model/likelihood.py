@@ -6,7 +6,7 @@ A cell's (or block's) Gibbs conditional under the model of :mod:`bayesmap.model.
 
     log w(c) = log prior(c) + eta * sum over the rays r through the cell of log p(y_r | d_r(c))
 
-up to a constant (``shared/DESIGN.md``, "The fast conditional"): ``log p(y | d)`` is the sensor model
+up to a constant (derived in ``docs/fast-conditional.md``): ``log p(y | d)`` is the sensor model
 (:func:`bayesmap.model.sensor.reading_logpdf`) at the ray's expected distance ``d`` (meters), and ``eta`` the
 likelihood power (:func:`tempered`). The prior part is :func:`bayesmap.model.generative.prior_log_odds` per wall.
 Used by :mod:`bayesmap.inference.fast` and :mod:`bayesmap.inference.cellwise`.
