@@ -64,9 +64,10 @@ show(bm.plot_map(grid, samples[0], title="A sample from the prior (prior_wall_pr
 # %%
 exact = np.asarray(bm.sensor_distances(walls, pos, beam_angles))
 readings = problem.readings
-print(f"exact distances {exact.min():.2f} to {exact.max():.2f} m; readings differ by {np.abs(readings - exact).std():.3f} m "
-      f"(sensor_noise = {problem.params.sensor_noise})")
-show(bm.plot_map(grid, walls, pos=pos, beam_angles=beam_angles, readings=readings, title="The map, the rays and the readings"))
+print(f"exact distances {exact.min():.2f} to {exact.max():.2f} m; "
+      f"readings differ by {np.abs(readings - exact).std():.3f} m (sensor_noise = {problem.params.sensor_noise})")
+show(bm.plot_map(grid, walls, pos=pos, beam_angles=beam_angles, readings=readings,
+                 title="The map, the rays and the readings"))
 show(bm.plot_map(grid, None, pos=pos, beam_angles=beam_angles, readings=readings, title="What the robot sees"))
 
 # %% [markdown]
@@ -88,7 +89,8 @@ print(f"log joint of an empty map: {float(bm.log_joint(np.zeros(grid.shape), rea
 # %%
 result = bm.importance_sampling(jax.random.key(3), readings, pos, problem.params, num_particles=2000)
 picked = np.asarray(bm.resample(jax.random.key(4), result.log_weights, 100))
-print(f"effective sample size {float(result.ess):.2f} of 2,000; {len(np.unique(picked))} distinct particle(s) among 100 resampled")
+print(f"effective sample size {float(result.ess):.2f} of 2,000; "
+      f"{len(np.unique(picked))} distinct particle(s) among 100 resampled")
 best = np.asarray(result.walls[picked[0]])
 print(f"the best particle has {int((best != walls).sum())} of 441 cells wrong")
 show(bm.plot_importance(np.asarray(result.log_weights), float(result.ess)))
@@ -113,7 +115,8 @@ def run(problem, sampler, sweeps, seed=0):
     return samples, mean
 
 
-reference = {name: run(problem, name, 20) for name in ["reference-raster", "reference-incremental", "reference-outward"]}
+reference = {name: run(problem, name, 20)
+             for name in ["reference-raster", "reference-incremental", "reference-outward"]}
 show(bm.plot_posterior(grid, reference["reference-raster"][1], truth=walls, pos=pos,
                     title="Single-site Gibbs (tutorial's algorithm), 20 sweeps"))
 
@@ -170,7 +173,8 @@ varying = np.isfinite(diag["r_hat"])
 print(f"8 chains x 100 sweeps: worst split R-hat {np.nanmax(diag['r_hat']):.3f}, smallest ESS "
       f"{np.nanmin(diag['ess']):.0f} over the {int(varying.sum())} cells that change")
 mean = bm.posterior_mean(np.asarray(chains.samples), 50)
-show(bm.plot_posterior(grid, mean, truth=walls, pos=pos, std=True, title="8 chains of 2x2 block Gibbs: mean and spread"))
+show(bm.plot_posterior(grid, mean, truth=walls, pos=pos, std=True,
+                       title="8 chains of 2x2 block Gibbs: mean and spread"))
 
 # %% [markdown]
 # ## A real laser scan
@@ -190,5 +194,6 @@ else:
     chain = bm.run_chain(jax.random.key(6), bm.make_sampler(scan, "chromatic"), jnp.zeros(scan.grid.shape), 40)
     print(f"scan 100: grid {scan.grid.shape} at 0.1 m, {len(scan.readings)} beams, 40 sweeps in "
           f"{time.perf_counter() - start:.1f} s")
-    show(bm.plot_posterior(scan.grid, bm.posterior_mean(np.asarray(chain.samples), 20), pos=scan.pos, beam_angles=scan.beam_angles,
-                        readings=scan.readings, max_range_mask=scan.max_range_mask, title="Intel scan 100: P(wall)"))
+    show(bm.plot_posterior(scan.grid, bm.posterior_mean(np.asarray(chain.samples), 20), pos=scan.pos,
+                           beam_angles=scan.beam_angles, readings=scan.readings, max_range_mask=scan.max_range_mask,
+                           title="Intel scan 100: P(wall)"))

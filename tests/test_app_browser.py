@@ -128,7 +128,8 @@ def _cell_px(page, i: int, j: int, n: int = 21) -> tuple[float, float]:
 
 
 def _wait_walls(page, count: int) -> None:
-    page.wait_for_function(f"() => document.querySelectorAll('.bm-map svg rect.wall').length === {count}", timeout=10000)
+    page.wait_for_function(f"() => document.querySelectorAll('.bm-map svg rect.wall').length === {count}",
+                           timeout=10000)
 
 
 def _status(page) -> str:

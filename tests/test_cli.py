@@ -56,7 +56,8 @@ def test_infer_on_a_real_scan(intel_log, tmp_path, monkeypatch, capsys):
 
 
 def test_demo_subprocess(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "bayesmap.cli", "demo", "--out", str(tmp_path / "d"), "--sweeps", "30"],
+    result = subprocess.run([sys.executable, "-m", "bayesmap.cli", "demo", "--out", str(tmp_path / "d"),
+                             "--sweeps", "30"],
                             capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     assert "2x2 block Gibbs" in result.stdout and "of 217 visible cells wrong" in result.stdout
@@ -78,8 +79,10 @@ def test_demo_subprocess(tmp_path):
     (lambda t: ["infer", "--log", t / "one.log", "--scans", "3:x"], "bad scan selection '3:x'"),
     (lambda t: ["infer", "--log", t / "one.log", "--scans", "7"], "scan 7 is out of range"),
     (lambda t: ["infer", "--scans", "0:2"], "need --log"),
-    (lambda t: ["infer", "--log", t / "one.log", "--scan", "0", "--range-offset", "0.1"], "--range-offset and --likelihood-power apply"),
-    (lambda t: ["infer", "--log", t / "one.log", "--scan", "0", "--likelihood-power", "0.5"], "--likelihood-power apply"),
+    (lambda t: ["infer", "--log", t / "one.log", "--scan", "0", "--range-offset", "0.1"],
+     "--range-offset and --likelihood-power apply"),
+    (lambda t: ["infer", "--log", t / "one.log", "--scan", "0", "--likelihood-power", "0.5"],
+     "--likelihood-power apply"),
     (lambda t: ["infer", "--likelihood-power", "0.5"], "need --log"),
     (lambda t: ["infer", "--log", t / "one.log", "--likelihood-power", "1.5"], "likelihood_power must be in"),
     (lambda t: ["infer", "--method", "magic"], "unknown method 'magic'"),
@@ -101,12 +104,12 @@ def test_user_errors_are_one_line_exit_2(tmp_path, monkeypatch, capsys, make_arg
     (tmp_path / "file.txt").write_text("x")
     (tmp_path / "trunc.log.gz").write_bytes(intel_log.read_bytes()[:50000])
     with gzip.open(intel_log, "rt") as handle:
-        line = next(l for l in handle if l.startswith("FLASER"))
+        line = next(log_line for log_line in handle if log_line.startswith("FLASER"))
     (tmp_path / "one.log").write_text(line)
     code, out, err = run_cli(monkeypatch, capsys, *make_args(tmp_path), "--sweeps", "2", "--out", tmp_path / "o") \
         if "--out" not in make_args(tmp_path) else run_cli(monkeypatch, capsys, *make_args(tmp_path))
     assert code == 2
-    lines = [l for l in err.strip().splitlines() if l.strip()]
+    lines = [err_line for err_line in err.strip().splitlines() if err_line.strip()]
     assert len(lines) == 1 and lines[0].startswith("error:"), err
     import re
 
@@ -124,9 +127,9 @@ def test_user_errors_are_one_line_exit_2(tmp_path, monkeypatch, capsys, make_arg
 def test_evaluate_user_errors_are_one_line_exit_2(tmp_path, monkeypatch, capsys, args, match, intel_log):
     (tmp_path / "junk.txt").write_text("X..\nX#.\n")
     with gzip.open(intel_log, "rt") as handle:
-        line = next(l for l in handle if l.startswith("FLASER"))
+        line = next(log_line for log_line in handle if log_line.startswith("FLASER"))
     (tmp_path / "one.log").write_text(line)
     code, out, err = run_cli(monkeypatch, capsys, "evaluate", *[a.format(t=tmp_path) for a in args])
-    lines = [l for l in err.strip().splitlines() if l.strip()]
+    lines = [err_line for err_line in err.strip().splitlines() if err_line.strip()]
     assert code == 2 and len(lines) == 1 and lines[0].startswith("error:"), err
     assert match in lines[0]

@@ -60,7 +60,8 @@ def test_the_enumeration_covers_every_command_and_numeric_option():
     assert {"demo", "infer", "bench", "evaluate", "app"} <= names
     whats = " | ".join(what for _, what in USAGE_CASES)
     for expected in ("infer --sweeps: wrong type", "infer --pos: wrong type", "evaluate --num-poses: wrong type",
-                     "app --port: wrong type", "bench --repeats: wrong type", "infer --out: missing value", "infer --force: a value given"):
+                     "app --port: wrong type", "bench --repeats: wrong type", "infer --out: missing value",
+                     "infer --force: a value given"):
         assert expected in whats
 
 

@@ -87,7 +87,8 @@ def test_log_defaults_come_from_the_scene_defaults(small_log):
 
     log = read_carmen(small_log)
     pb = log_problem(log, resolution=0.2)
-    assert pb.params.prior_wall_prob == pytest.approx(scenes.LOG_PRIOR) and pb.params.beam_model == scenes.LOG_BEAM_MODEL
+    assert (pb.params.prior_wall_prob == pytest.approx(scenes.LOG_PRIOR)
+            and pb.params.beam_model == scenes.LOG_BEAM_MODEL)
     assert pb.params.sensor_noise == pytest.approx(0.1)  # half a 0.2 m cell
     assert pb.range_offset == scenes.range_offset_meters(0.2) == 0.2
     assert scenes.real_sensor_noise(0.2) == 0.1 and scenes.SENSOR_NOISE_CELLS == 0.5

@@ -216,7 +216,8 @@ class Explorer:
         """
         walls = parse_map(text, source=source)
         if max(walls.shape) > 200:
-            raise BayesmapError(f"{source}: the explorer draws maps of at most 200 x 200 cells, got {walls.shape[0]} x {walls.shape[1]}")
+            raise BayesmapError(f"{source}: the explorer draws maps of at most 200 x 200 cells, "
+                                f"got {walls.shape[0]} x {walls.shape[1]}")
         old = (self.walls, self.grid, self.pos)
         self.walls, self.grid = walls, Grid(shape=walls.shape)
         try:
@@ -367,7 +368,8 @@ class Explorer:
         out.append('<g class="readings" fill="#1f77b4">'
                    + "".join(f'<circle cx="{a:.1f}" cy="{b:.1f}" r="{radius:.1f}"/>' for a, b in zip(rx, ry)) + "</g>")
         out.append(f'<circle class="sensor" cx="{sx:.1f}" cy="{sy:.1f}" r="{max(4.0, s * 0.4):.1f}" fill="#ff7f0e" '
-                   f'stroke="black" stroke-width="1.5" style="cursor: grab"><title>sensor: drag to move</title></circle>')
+                   'stroke="black" stroke-width="1.5" style="cursor: grab">'
+                   '<title>sensor: drag to move</title></circle>')
         return "".join(out)
 
 
@@ -428,8 +430,8 @@ class ExplorerPage:
         ui = self.ui
         ui.page_title("bayesmap explorer")
         ui.label("bayesmap: Bayesian occupancy-grid mapping").classes("text-h5")
-        ui.label("Click a cell to toggle a wall, drag to paint, drag the orange sensor to move it. "
-                 "Run inference to infer the walls from the beams' noisy range readings.").classes("text-body2 text-grey-8")
+        ui.label("Click a cell to toggle a wall, drag to paint, drag the orange sensor to move it. Run inference "
+                 "to infer the walls from the beams' noisy range readings.").classes("text-body2 text-grey-8")
         self.message = ui.label("").classes("bm-message text-negative text-body1")
 
     def _build_map_panel(self) -> None:
@@ -442,7 +444,8 @@ class ExplorerPage:
             self.image.classes("bm-map").style(f"width: {width}px; height: {height}px; cursor: crosshair")
             with ui.row().classes("items-center no-wrap gap-2"):
                 ui.label("inferred wall probability: 0").classes("text-caption")
-                self.legend = ui.element("div").classes("bm-legend").style("width: 160px; height: 12px; border: 1px solid #999")
+                self.legend = (ui.element("div").classes("bm-legend")
+                               .style("width: 160px; height: 12px; border: 1px solid #999"))
                 ui.label("1").classes("text-caption")
             self.status = ui.label("").classes("bm-status text-body2")
 
@@ -463,8 +466,10 @@ class ExplorerPage:
         ui, ex = self.ui, self.ex
         with ui.row():
             self.run_button = ui.button("Run inference").classes("bm-run")
-            ui.button("Clear walls", on_click=lambda: (ex.clear_walls(), self.redraw())).classes("bm-clear-walls").props("outline")
-            ui.button("Clear inferred walls", on_click=lambda: (ex.clear_inferred(), self.redraw())).classes("bm-clear-inferred").props("outline")
+            (ui.button("Clear walls", on_click=lambda: (ex.clear_walls(), self.redraw()))
+             .classes("bm-clear-walls").props("outline"))
+            (ui.button("Clear inferred walls", on_click=lambda: (ex.clear_inferred(), self.redraw()))
+             .classes("bm-clear-inferred").props("outline"))
         self.progress = ui.linear_progress(value=0.0, show_value=False).classes("bm-progress")
         self.progress.set_visibility(False)
 
@@ -485,8 +490,10 @@ class ExplorerPage:
         ui.separator()
         ui.label("Map file (ASCII: 'X' wall, '.' free; line i, column j is cell (i, j))").classes("text-caption")
         with ui.row().classes("items-center"):
-            self.upload = ui.upload(label="Load map", auto_upload=True, max_files=1).classes("bm-upload").props("accept=.txt,text/plain flat bordered")
-            ui.button("Save map", on_click=lambda: ui.download.content(ex.map_text().encode(), "map.txt")).classes("bm-save").props("outline")
+            self.upload = (ui.upload(label="Load map", auto_upload=True, max_files=1)
+                           .classes("bm-upload").props("accept=.txt,text/plain flat bordered"))
+            (ui.button("Save map", on_click=lambda: ui.download.content(ex.map_text().encode(), "map.txt"))
+             .classes("bm-save").props("outline"))
 
     def _connect(self) -> None:
         """Wire the elements' events to the handlers below."""

@@ -95,7 +95,8 @@ def time_sampler(problem: Problem, name: str, sweeps: int, repeats: int, max_swe
         start = time.perf_counter()
         jax.block_until_ready(chain(jax.random.key(r + 1), state))
         best = min(best, (time.perf_counter() - start) / sweeps)
-    return Timing(s_per_sweep=best, compile_s=compile_s, time_to_accuracy_s=time_to_accuracy, sweeps_to_accuracy=reached)
+    return Timing(s_per_sweep=best, compile_s=compile_s, time_to_accuracy_s=time_to_accuracy,
+                  sweeps_to_accuracy=reached)
 
 
 def chain_throughput(problem: Problem, name: str, num_chains: int = 64, sweeps: int = 50, repeats: int = 3) -> float:
@@ -162,7 +163,8 @@ def run_bench(samplers=None, fast_sweeps: int = 200, reference_sweeps: int = 5, 
             fast_cache[fast] = (timing, chain_throughput(problem, fast, num_chains), fresh_chain_seconds(problem, fast))
         if reference not in ref_cache:
             say(f"timing {reference}")
-            ref_cache[reference] = time_sampler(problem, reference, reference_sweeps, max(2, repeats // 2), max_sweeps=60)
+            ref_cache[reference] = time_sampler(problem, reference, reference_sweeps, max(2, repeats // 2),
+                                                max_sweeps=60)
         f, throughput, chain100 = fast_cache[fast]
         r = ref_cache[reference]
         results[name] = {

@@ -55,7 +55,8 @@ def parse_scans(spec: str | None, num_scans: int) -> np.ndarray:
             else:
                 index = int(part)
         except ValueError:  # (BayesmapError is a ValueError too: none is raised inside)
-            raise BayesmapError(f"bad scan selection {part!r}: use an index, a range a:b or a:b:step, or 'all'") from None
+            raise BayesmapError(f"bad scan selection {part!r}: use an index, a range a:b or a:b:step, "
+                                "or 'all'") from None
         if ":" not in part:
             if not (-num_scans <= index < num_scans):
                 raise BayesmapError(f"scan {index} is out of range: the log has {num_scans} scans (0..{num_scans - 1})")
@@ -85,7 +86,8 @@ def _check_output_dir(out: Path, force: bool) -> None:
     if out.is_dir() and not force:
         clash = [name for name in ALL_OUTPUT_FILES if (out / name).exists()]
         if clash:
-            raise BayesmapError(f"{str(out / clash[0])!r} already exists; pass --force to replace bayesmap's outputs in {str(out)!r}")
+            raise BayesmapError(f"{str(out / clash[0])!r} already exists; pass --force to replace bayesmap's outputs "
+                                f"in {str(out)!r}")
 
     check_replaceable_folder(out, ALL_OUTPUT_FILES)
     parent = out if out.is_dir() else out.parent
@@ -227,7 +229,8 @@ def _print_summary(summary: dict, out: Path, written: list[str]) -> None:
     typer.echo(f"data:     {summary['source']}, {beams}, grid {summary['grid']['shape'][0]} x "
                f"{summary['grid']['shape'][1]} cells of {summary['grid']['resolution']:g} m")
     if "sweeps" in summary:
-        typer.echo(f"sweeps:   {summary['sweeps']} (posterior mean over the last {summary['sweeps'] - summary['burn_in']})")
+        typer.echo(f"sweeps:   {summary['sweeps']} (posterior mean over the last "
+                   f"{summary['sweeps'] - summary['burn_in']})")
     typer.echo(f"runtime:  {summary['runtime_s']:.2f} s (compilation included)")
     if "wrong_visible_cells" in summary:
         typer.echo(f"accuracy: {summary['wrong_visible_cells']} of {summary['visible_cells']} visible cells wrong")
@@ -246,9 +249,11 @@ def _sensor_params(beam_weights: Optional[str], lambda_short: Optional[float]) -
         try:
             values = [float(p) for p in parts]
         except ValueError:
-            raise BayesmapError(f"--beam-weights must be four numbers HIT,SHORT,MAX,RAND, got {beam_weights!r}") from None
+            raise BayesmapError(f"--beam-weights must be four numbers HIT,SHORT,MAX,RAND, "
+                                f"got {beam_weights!r}") from None
         if len(values) != 4:
-            raise BayesmapError(f"--beam-weights must be four numbers HIT,SHORT,MAX,RAND, got {len(values)} in {beam_weights!r}")
+            raise BayesmapError(f"--beam-weights must be four numbers HIT,SHORT,MAX,RAND, "
+                                f"got {len(values)} in {beam_weights!r}")
         params.update(zip(("z_hit", "z_short", "z_max", "z_rand"), values))
     if lambda_short is not None:
         params["lambda_short"] = lambda_short
@@ -299,10 +304,38 @@ def _in_range(name: str, lo: float | None = None, hi: float | None = None, lo_op
     return check
 
 
-POWER_HELP = ("--log: power eta in (0, 1] of the likelihood, sampling p(walls) p(readings | walls)^eta (a power posterior "
-              f"for beams that are not independent evidence; 1 is the plain posterior; default {scenes.LOG_LIKELIHOOD_POWER} for logs)")
+POWER_HELP = ("--log: power eta in (0, 1] of the likelihood, sampling p(walls) p(readings | walls)^eta "
+              "(a power posterior for beams that are not independent evidence; 1 is the plain posterior; "
+              f"default {scenes.LOG_LIKELIHOOD_POWER} for logs)")
 BEAM_WEIGHTS_HELP = ("beam model: mixture weights HIT,SHORT,MAX,RAND summing to 1 (default 0.8,0.05,0.05,0.1, "
                      "Probabilistic Robotics 6.3)")
+LAMBDA_SHORT_HELP = "beam model: rate of short readings, 1/m (default 0.1)"
+SCANS_HELP = ("scans of --log to map: a range such as 10:20, a stride such as 0:1000:5, a list such as 3,7,10:20, "
+              "or 'all' (default); negative indexes count from the end")
+MAX_RANGE_HELP = ("--log: the laser's max range, meters; readings at or above it are 'no return' "
+                  "(default: inferred from the log, see bayesmap.io.carmen)")
+METHOD_HELP = "gibbs (the posterior, with --sampler) or logodds (classic log-odds mapping, no posterior)"
+BEAM_MODEL_HELP = ("sensor model: normal (the tutorial's; default for maps) or beam (robust mixture, "
+                   "Probabilistic Robotics 6.3; default for logs)")
+RANGE_OFFSET_HELP = ("meters the model subtracts from each returned reading of a log (default one cell: a wall cell's "
+                     "reading is expected where the beam enters it, a real surface lies inside it)")
+PRIOR_HELP = (f"prior probability that a cell is a wall (default {scenes.TUTORIAL_PRIOR}, the tutorial's; "
+              f"{scenes.LOG_PRIOR} for several scans of a log)")
+SENSOR_NOISE_HELP = (f"standard deviation of a reading, meters (default {scenes.TUTORIAL_SENSOR_NOISE}, "
+                     "the tutorial's; for --log half a cell)")
+POS_HELP = "sensor position X Y (simulated readings), in cells of the map: a free cell; default the map's center"
+CHAINS_HELP = "independent chains run at once; 2 or more add split R-hat and effective sample size per cell"
+REPORT_HELP = "also write report.html: settings, metrics, all figures and the chain's animation, offline"
+BENCH_SAMPLERS_HELP = "comma-separated subset of: raster, incremental, outward, block, chromatic, chromatic-block"
+EVALUATE_LOG_HELP = "a CARMEN log: hold out every --every-th scan, map the rest, score the held-out beams"
+EVALUATE_TRUTH_HELP = "a floor plan (ROS .pgm or .yaml): simulate scans in it, map them, score against it"
+EVALUATE_SCANS_HELP = ("scans of --log to use: a range such as 10:20, a stride such as 0:1000:5, a list, "
+                       "or 'all' (default)")
+EVALUATE_MAX_RANGE_HELP = ("max range, meters: --truth, of the simulated sensor "
+                           f"(default {scenes.SIMULATED_MAX_RANGE:g}); "
+                           "--log, of the laser (default inferred from the log)")
+EVALUATE_SENSOR_NOISE_HELP = "standard deviation of a reading, meters (default half a cell)"
+EVALUATE_RANGE_OFFSET_HELP = "--log: meters the model subtracts from each returned reading (default one cell)"
 
 
 def _sampler_option(default: Optional[str], note: str = ""):
@@ -329,36 +362,41 @@ def demo(
 
 @app.command()
 def infer(
-    map_file: Optional[Path] = typer.Option(None, "--map", help="ASCII map ('X' wall, '.' free); default the tutorial map"),
-    log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log (.log or .log.gz): all its scans, or --scans / --scan"),
-    scan: Optional[int] = typer.Option(None, "--scan", help="map only this scan of --log (one pose, the single-scan model)"),
-    scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to map: a range such as 10:20, a stride such as 0:1000:5, a list such as 3,7,10:20, or 'all' (default); negative indexes count from the end"),
+    map_file: Optional[Path] = typer.Option(None, "--map",
+                                            help="ASCII map ('X' wall, '.' free); default the tutorial map"),
+    log: Optional[Path] = typer.Option(None, "--log",
+                                       help="a CARMEN log (.log or .log.gz): all its scans, or --scans / --scan"),
+    scan: Optional[int] = typer.Option(None, "--scan",
+                                       help="map only this scan of --log (one pose, the single-scan model)"),
+    scans: Optional[str] = typer.Option(None, "--scans", help=SCANS_HELP),
     resolution: float = typer.Option(scenes.RESOLUTION, help="grid resolution for real data, meters per cell",
                                      callback=_in_range("--resolution", 0, MAX_RESOLUTION, lo_open=True, unit=" m")),
-    max_range: Optional[float] = typer.Option(None, "--max-range", help="--log: the laser's max range, meters; readings at or above it are 'no return' (default: inferred from the log, see bayesmap.io.carmen)",
-                                              callback=_in_range("--max-range", 0, MAX_RANGE_LIMIT, lo_open=True, unit=" m")),
-    method: str = typer.Option("gibbs", "--method", help="gibbs (the posterior, with --sampler) or logodds (classic log-odds mapping, no posterior)"),
-    beam_model: Optional[str] = typer.Option(None, "--beam-model", help="sensor model: normal (the tutorial's; default for maps) or beam (robust mixture, Probabilistic Robotics 6.3; default for logs)"),
-    range_offset: Optional[float] = typer.Option(None, "--range-offset", help="meters the model subtracts from each returned reading of a log (default one cell: a wall cell's reading is expected where the beam enters it, a real surface lies inside it)"),
+    max_range: Optional[float] = typer.Option(None, "--max-range", help=MAX_RANGE_HELP,
+                                              callback=_in_range("--max-range", 0, MAX_RANGE_LIMIT, lo_open=True,
+                                                                 unit=" m")),
+    method: str = typer.Option("gibbs", "--method", help=METHOD_HELP),
+    beam_model: Optional[str] = typer.Option(None, "--beam-model", help=BEAM_MODEL_HELP),
+    range_offset: Optional[float] = typer.Option(None, "--range-offset", help=RANGE_OFFSET_HELP),
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
-    lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help="beam model: rate of short readings, 1/m (default 0.1)"),
+    lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help=LAMBDA_SHORT_HELP),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
     sampler: Optional[str] = _sampler_option(None, " (default block; cellwise for several scans of a log)"),
     sweeps: int = typer.Option(100, help="number of Gibbs sweeps", callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
     burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: half)",
                                           callback=_in_range("--burn-in", 0, MAX_SWEEPS)),
-    prior_wall_prob: Optional[float] = typer.Option(None, "--prior-wall-prob", help=f"prior probability that a cell is a wall (default {scenes.TUTORIAL_PRIOR}, the tutorial's; {scenes.LOG_PRIOR} for several scans of a log)"),
-    sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help=f"standard deviation of a reading, meters (default {scenes.TUTORIAL_SENSOR_NOISE}, the tutorial's; for --log half a cell)"),
-    num_angles: int = typer.Option(scenes.TUTORIAL_NUM_ANGLES, "--num-angles", help="number of beams (simulated readings)",
+    prior_wall_prob: Optional[float] = typer.Option(None, "--prior-wall-prob", help=PRIOR_HELP),
+    sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help=SENSOR_NOISE_HELP),
+    num_angles: int = typer.Option(scenes.TUTORIAL_NUM_ANGLES, "--num-angles",
+                                   help="number of beams (simulated readings)",
                                    callback=_in_range("--num-angles", 1, MAX_BEAMS_PER_SCAN)),
-    pos: Optional[tuple[float, float]] = typer.Option(None, "--pos", help="sensor position X Y (simulated readings), in cells of the map: a free cell; default the map's center",
+    pos: Optional[tuple[float, float]] = typer.Option(None, "--pos", help=POS_HELP,
                                                       callback=_in_range("--pos", -MAX_COORDINATE, MAX_COORDINATE)),
     seed: int = typer.Option(0, help="seed of the simulated readings and of the chain",
                              callback=_in_range("--seed", -2**31, 2**32 - 1)),
-    chains: int = typer.Option(1, help="independent chains run at once; 2 or more add split R-hat and effective sample size per cell",
-                               callback=_in_range("--chains", 1, MAX_CHAINS)),
-    report: bool = typer.Option(False, "--report", help="also write report.html: settings, metrics, all figures and the chain's animation, offline"),
-    rosmap: bool = typer.Option(False, "--rosmap", help="also write the posterior mean as a ROS map_server map (map.pgm + map.yaml)"),
+    chains: int = typer.Option(1, help=CHAINS_HELP, callback=_in_range("--chains", 1, MAX_CHAINS)),
+    report: bool = typer.Option(False, "--report", help=REPORT_HELP),
+    rosmap: bool = typer.Option(False, "--rosmap",
+                                help="also write the posterior mean as a ROS map_server map (map.pgm + map.yaml)"),
     out: Path = typer.Option(Path("bayesmap-out"), "--out", help="output folder"),
     force: bool = typer.Option(False, "--force", help="replace bayesmap's outputs already in the folder"),
 ) -> None:
@@ -380,9 +418,11 @@ def infer(
         noise = scenes.real_sensor_noise(resolution) if sensor_noise is None else sensor_noise
         if scan is not None:
             if range_offset is not None or likelihood_power is not None:
-                raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), not to --scan N")
+                raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), "
+                                    "not to --scan N")
             scan = int(parse_scans(str(scan), len(carmen))[0])  # a negative index counts from the end, as in --scans
-            problem = scan_problem(carmen, scan, resolution=resolution, prior_wall_prob=prior_wall_prob or scenes.TUTORIAL_PRIOR,
+            problem = scan_problem(carmen, scan, resolution=resolution,
+                                   prior_wall_prob=prior_wall_prob or scenes.TUTORIAL_PRIOR,
                                    sensor_noise=noise, beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL,
                                    sensor_params=sensor_params)
             title = f"{log.name} scan {scan}"
@@ -390,8 +430,9 @@ def infer(
             chosen = parse_scans(scans, len(carmen))
             problem = log_problem(carmen, chosen, resolution=resolution,
                                   prior_wall_prob=scenes.LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
-                                  sensor_noise=noise, beam_model=beam_model or scenes.LOG_BEAM_MODEL, range_offset=range_offset,
-                                  sensor_params=sensor_params, likelihood_power=likelihood_power)
+                                  sensor_noise=noise, beam_model=beam_model or scenes.LOG_BEAM_MODEL,
+                                  range_offset=range_offset, sensor_params=sensor_params,
+                                  likelihood_power=likelihood_power)
             title = f"{log.name}, {len(chosen)} scans"
     else:
         if scan is not None or scans is not None or likelihood_power is not None or max_range is not None:
@@ -401,7 +442,8 @@ def infer(
         if pos is not None:
             _check_free_cell(walls, pos, str(map_file) if map_file else "the tutorial map")
         problem = tutorial_problem(walls, pos=pos if pos is not None else center, seed=seed,
-                                   prior_wall_prob=scenes.TUTORIAL_PRIOR if prior_wall_prob is None else prior_wall_prob,
+                                   prior_wall_prob=(scenes.TUTORIAL_PRIOR if prior_wall_prob is None
+                                                    else prior_wall_prob),
                                    sensor_noise=scenes.TUTORIAL_SENSOR_NOISE if sensor_noise is None else sensor_noise,
                                    num_angles=num_angles, source=str(map_file) if map_file else "tutorial map",
                                    beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL,
@@ -418,7 +460,7 @@ def infer(
 @app.command()
 def bench(
     json_file: Optional[Path] = typer.Option(None, "--json", help="also write the figures as JSON to this file"),
-    samplers: Optional[str] = typer.Option(None, "--samplers", help="comma-separated subset of: raster, incremental, outward, block, chromatic, chromatic-block"),
+    samplers: Optional[str] = typer.Option(None, "--samplers", help=BENCH_SAMPLERS_HELP),
     sweeps: int = typer.Option(200, help="sweeps per timed chain of a fast sampler"),
     reference_sweeps: int = typer.Option(5, "--reference-sweeps", help="sweeps per timed chain of a reference sampler"),
     repeats: int = typer.Option(5, help="timed chains per sampler; the fastest counts"),
@@ -450,7 +492,8 @@ def bench(
 def _format_scores(scores: dict) -> str:
     """The evaluation table: one row per method, its metrics as columns."""
     rows = [(name, vals) for name, vals in scores.items() if name != "setup"]
-    keys = [k for k in ("auc", "nll", "accuracy", "brier", "beams", "cells", "runtime_s") if any(k in v for _, v in rows)]
+    keys = [k for k in ("auc", "nll", "accuracy", "brier", "beams", "cells", "runtime_s")
+            if any(k in v for _, v in rows)]
     head = f"{'method':<10}" + "".join(f"{k:>12}" for k in keys)
     lines = [head]
     for name, vals in rows:
@@ -464,27 +507,32 @@ def _format_scores(scores: dict) -> str:
 
 @app.command()
 def evaluate(
-    log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log: hold out every --every-th scan, map the rest, score the held-out beams"),
-    truth: Optional[Path] = typer.Option(None, "--truth", help="a floor plan (ROS .pgm or .yaml): simulate scans in it, map them, score against it"),
-    scans: Optional[str] = typer.Option(None, "--scans", help="scans of --log to use: a range such as 10:20, a stride such as 0:1000:5, a list, or 'all' (default)"),
+    log: Optional[Path] = typer.Option(None, "--log", help=EVALUATE_LOG_HELP),
+    truth: Optional[Path] = typer.Option(None, "--truth", help=EVALUATE_TRUTH_HELP),
+    scans: Optional[str] = typer.Option(None, "--scans", help=EVALUATE_SCANS_HELP),
     every: int = typer.Option(10, "--every", help="hold out every k-th scan"),
-    resolution: float = typer.Option(scenes.RESOLUTION, help="meters per cell (--log; for a bare .pgm --truth, its pixel size)",
+    resolution: float = typer.Option(scenes.RESOLUTION,
+                                     help="meters per cell (--log; for a bare .pgm --truth, its pixel size)",
                                      callback=_in_range("--resolution", 0, MAX_RESOLUTION, lo_open=True, unit=" m")),
     sampler: str = _sampler_option("cellwise"),
     sweeps: int = typer.Option(100, help="Gibbs sweeps (half burn-in)", callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
-    beam_model: str = typer.Option(scenes.LOG_BEAM_MODEL, "--beam-model", help="sensor model of mapping and scoring: beam or normal"),
+    beam_model: str = typer.Option(scenes.LOG_BEAM_MODEL, "--beam-model",
+                                   help="sensor model of mapping and scoring: beam or normal"),
     num_poses: int = typer.Option(scenes.SIMULATED_NUM_POSES, "--num-poses", help="--truth: number of simulated scans",
                                   callback=_in_range("--num-poses", 1, MAX_POSES)),
-    num_angles: int = typer.Option(scenes.SIMULATED_NUM_ANGLES, "--num-angles", help="--truth: beams per simulated scan (over 360 degrees)",
+    num_angles: int = typer.Option(scenes.SIMULATED_NUM_ANGLES, "--num-angles",
+                                   help="--truth: beams per simulated scan (over 360 degrees)",
                                    callback=_in_range("--num-angles", 1, MAX_BEAMS_PER_SCAN)),
-    max_range: Optional[float] = typer.Option(None, "--max-range", help=f"max range, meters: --truth, of the simulated sensor (default {scenes.SIMULATED_MAX_RANGE:g}); --log, of the laser (default inferred from the log)",
-                                              callback=_in_range("--max-range", 0, MAX_RANGE_LIMIT, lo_open=True, unit=" m")),
-    sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help="standard deviation of a reading, meters (default half a cell)"),
-    prior_wall_prob: float = typer.Option(scenes.LOG_PRIOR, "--prior-wall-prob", help="prior probability that a cell is a wall"),
-    range_offset: Optional[float] = typer.Option(None, "--range-offset", help="--log: meters the model subtracts from each returned reading (default one cell)"),
+    max_range: Optional[float] = typer.Option(None, "--max-range", help=EVALUATE_MAX_RANGE_HELP,
+                                              callback=_in_range("--max-range", 0, MAX_RANGE_LIMIT, lo_open=True,
+                                                                 unit=" m")),
+    sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help=EVALUATE_SENSOR_NOISE_HELP),
+    prior_wall_prob: float = typer.Option(scenes.LOG_PRIOR, "--prior-wall-prob",
+                                          help="prior probability that a cell is a wall"),
+    range_offset: Optional[float] = typer.Option(None, "--range-offset", help=EVALUATE_RANGE_OFFSET_HELP),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
-    lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help="beam model: rate of short readings, 1/m (default 0.1)"),
+    lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help=LAMBDA_SHORT_HELP),
     seed: int = typer.Option(0, help="seed of the chain (and of the simulated scans)",
                              callback=_in_range("--seed", -2**31, 2**32 - 1)),
     json_file: Optional[Path] = typer.Option(None, "--json", help="also write the table as JSON"),
@@ -521,9 +569,9 @@ def evaluate(
         scores = evaluate_truth(truth, resolution=resolution, num_poses=num_poses, num_angles=num_angles,
                                 max_range=max_range, **mapping)
         setup = scores["setup"]
-        typer.echo(f"{truth.name}: {setup['num_poses']} simulated scans of {num_angles} beams; grid {setup['grid'][0]} x "
-                   f"{setup['grid'][1]} cells of {setup['resolution']:g} m; scored on {setup['cells_scored']:,} known cells "
-                   f"seen by a beam; {sampler}, {sweeps} sweeps")
+        typer.echo(f"{truth.name}: {setup['num_poses']} simulated scans of {num_angles} beams; "
+                   f"grid {setup['grid'][0]} x {setup['grid'][1]} cells of {setup['resolution']:g} m; "
+                   f"scored on {setup['cells_scored']:,} known cells seen by a beam; {sampler}, {sweeps} sweeps")
     typer.echo(_format_scores(scores))
     if json_file is not None:
         write_atomic(json_file, json.dumps(scores, indent=2) + "\n", overwrite=True)

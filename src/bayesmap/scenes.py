@@ -477,7 +477,8 @@ def tutorial_problem(walls=None, pos=TUTORIAL_POS, seed: int = TUTORIAL_SEED, pr
     """
     walls = tutorial_map() if walls is None else (np.asarray(walls) > 0.5).astype(np.float32)
     grid = Grid(shape=walls.shape)
-    params = make_params(prior_wall_prob, sensor_noise, num_angles, grid, beam_model=beam_model, **(sensor_params or {}))
+    params = make_params(prior_wall_prob, sensor_noise, num_angles, grid, beam_model=beam_model,
+                         **(sensor_params or {}))
     grid.check_inside(pos)
     pos = np.asarray(pos, dtype=np.float64)
     beam_angles = np.asarray(angles(num_angles), dtype=np.float64)
@@ -592,10 +593,12 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
     noise = real_sensor_noise(resolution) if sensor_noise is None else sensor_noise
     params = make_params(prior_wall_prob, noise, obs.num_beams, grid, max_distance=obs.max_range,
                          beam_model=beam_model, **(sensor_params or {}))
-    label = f"{log.path} scans {scans[0]}..{scans[-1]} ({len(scans)})" if len(scans) > 1 else f"{log.path} scan {scans[0]}"
+    label = (f"{log.path} scans {scans[0]}..{scans[-1]} ({len(scans)})" if len(scans) > 1
+             else f"{log.path} scan {scans[0]}")
     offset = range_offset_meters(resolution) if range_offset is None else float(range_offset)
     if not (math.isfinite(offset) and 0 <= offset < obs.max_range):
-        raise BayesmapError(f"range_offset must be between 0 and the max range {obs.max_range:g} m, got {range_offset!r}")
+        raise BayesmapError(f"range_offset must be between 0 and the max range {obs.max_range:g} m, "
+                            f"got {range_offset!r}")
     eta = check_likelihood_power(LOG_LIKELIHOOD_POWER if likelihood_power is None else likelihood_power)
     return Problem(params=params, observations=obs, poses=chosen.poses, world_angles=chosen.world_angles,
                    source=label, extra={"max_range": obs.max_range, "scans": len(scans), "range_offset": offset},

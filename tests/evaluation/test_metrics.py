@@ -1,4 +1,5 @@
-"""Tests for bayesmap.evaluation.metrics: hand-computed answers and a property test of the AUC against a pairwise count."""
+"""Tests for bayesmap.evaluation.metrics: hand-computed answers and a property test of the AUC against a pairwise
+count."""
 
 from __future__ import annotations
 

@@ -72,7 +72,8 @@ def test_sensor_distances_jit_and_vmap():
     positions = jnp.array([[10.0, 10.0], [3.3, 17.2], [15.5, 9.25]])
     batched = jax.jit(jax.vmap(lambda p: sensor_distances(walls, p, angles(16))))(positions)
     for k in range(3):
-        assert np.asarray(batched[k]) == pytest.approx(np.asarray(sensor_distances(walls, positions[k], angles(16))), abs=1e-6)
+        assert np.asarray(batched[k]) == pytest.approx(np.asarray(sensor_distances(walls, positions[k], angles(16))),
+                                                       abs=1e-6)
 
 
 @pytest.mark.parametrize("seed", range(8))

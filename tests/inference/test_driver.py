@@ -113,7 +113,8 @@ def test_cellwise_chains_run_one_after_another_with_the_keys_of_chains_at_once(m
 
     pb = room_scans("beam")
     seen = []
-    one_by_one = run_inference(pb, "cellwise", 12, chains=2, progress=False, on_progress=lambda d, t: seen.append((d, t)))
+    one_by_one = run_inference(pb, "cellwise", 12, chains=2, progress=False,
+                               on_progress=lambda d, t: seen.append((d, t)))
     assert one_by_one.samples.shape == (2, 12, 12, 9)
     assert seen[-1] == (24, 24)
     monkeypatch.setattr(driver, "SEQUENTIAL_CHAINS", ())
@@ -128,7 +129,8 @@ def test_beam_weights_reach_the_model_and_the_summary(tmp_path, monkeypatch, cap
     assert code in (0, None), err
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["beam_model"] == "beam"
-    assert [summary[k] for k in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")] == pytest.approx([0.7, 0.1, 0.1, 0.1, 0.3])
+    assert ([summary[k] for k in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")]
+            == pytest.approx([0.7, 0.1, 0.1, 0.1, 0.3]))
 
 
 def test_likelihood_power_in_the_summary_and_refused_by_reference_samplers(small_log):

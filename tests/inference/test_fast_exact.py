@@ -20,7 +20,8 @@ from helpers import sweeps_keep_ray_bits
 def scene(rng, prior, shape=None, num_angles=None):
     shape = shape or (int(rng.integers(4, 8)), int(rng.integers(4, 8)))
     grid = Grid(shape)
-    params = make_params(prior_wall_prob=prior, sensor_noise=0.3, num_angles=num_angles or int(rng.integers(5, 30)), grid=grid)
+    params = make_params(prior_wall_prob=prior, sensor_noise=0.3, num_angles=num_angles or int(rng.integers(5, 30)),
+                         grid=grid)
     pos = np.array([rng.uniform(0, shape[0] - 1), rng.uniform(0, shape[1] - 1)])
     truth = (rng.random(shape) < 0.3).astype(np.float32)
     i, j = np.floor(pos + 0.5).astype(int)

@@ -19,7 +19,8 @@ def wrong_after(problem, sampler, sweeps, seed=0):
 
 
 def test_importance_sampling_collapses(tutorial):
-    result = importance_sampling(jax.random.key(0), tutorial.readings, tutorial.pos, tutorial.params, 2000, batch_size=500)
+    result = importance_sampling(jax.random.key(0), tutorial.readings, tutorial.pos, tutorial.params, 2000,
+                                 batch_size=500)
     assert result.walls.shape == (2000, 21, 21)
     assert float(jax.scipy.special.logsumexp(result.log_weights)) == pytest.approx(0.0, abs=1e-4)
     assert float(result.ess) < 1.5

@@ -502,7 +502,8 @@ def test_inferred_max_range_survives_a_few_larger_values():
     # a frequent value is no saturation value when half the beams read more than it, or when as many beams read
     # more than it as read it (without a repeated maximum the log has no max-range readings)
     assert infer_max_range(np.concatenate([np.full(10, 3.0), rng.uniform(4, 9, 100)])) == math.inf
-    assert infer_max_range(np.concatenate([np.full(10, 30.0), rng.uniform(1, 9, 100), np.full(5, 40.0) + np.arange(5)])) == math.inf
+    assert infer_max_range(np.concatenate([np.full(10, 30.0), rng.uniform(1, 9, 100),
+                                           np.full(5, 40.0) + np.arange(5)])) == math.inf
     assert infer_max_range(np.zeros(10)) == math.inf
 
 

@@ -113,7 +113,8 @@ def test_max_range_rule_and_inputs():
     inputs = likelihood_inputs(table, y, normal, 0.5)
     assert inputs.beam_model == "normal" and inputs.likelihood_power == 0.5
     assert inputs.readings.dtype == np.float64 and inputs.readings.tolist() == y.tolist()
-    assert [a.dtype for a in inputs.sensor_args] == [inputs.dtype] and float(inputs.sensor_args[0]) == pytest.approx(0.2)
+    assert ([a.dtype for a in inputs.sensor_args] == [inputs.dtype]
+            and float(inputs.sensor_args[0]) == pytest.approx(0.2))
     with pytest.raises(BayesmapError, match="likelihood_power"):
         likelihood_inputs(table, y, normal, 1.5)
     with pytest.raises(BayesmapError, match="readings"):

@@ -42,10 +42,12 @@ def test_log_joint_is_assess_and_the_formula(seed):
     walls = (rng.random(grid.shape) < 0.4).astype(np.float32)
     readings = rng.uniform(0, 5, params.num_angles)
     args = model_args(pos, params)
-    assess = full_model.assess(C["walls"].set(jnp.asarray(walls)) | C["readings"].set(jnp.asarray(readings, jnp.float32)), args)[0]
+    assess = full_model.assess(C["walls"].set(jnp.asarray(walls))
+                               | C["readings"].set(jnp.asarray(readings, jnp.float32)), args)[0]
     lj = log_joint(walls, readings, pos, params)
     assert float(lj) == pytest.approx(float(assess), rel=1e-6)
-    assert float(lj) == pytest.approx(manual_log_joint(walls, readings, pos, params, np.asarray(args[2])), rel=1e-4, abs=1e-3)
+    assert float(lj) == pytest.approx(manual_log_joint(walls, readings, pos, params, np.asarray(args[2])),
+                                      rel=1e-4, abs=1e-3)
 
 
 def test_simulate_readings_are_normal_around_the_exact_distances():

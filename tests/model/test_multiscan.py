@@ -119,7 +119,8 @@ def test_fast_conditionals_match_the_multi_scan_model(beam_model, block_size):
                 # the scores are the same up to float64 rounding (same function, same inputs)
                 single = fast._single._replace(stop_ll=None, max_ll=None)
                 bits = fast.ray_bits(walls)
-                evaluated = np.asarray(jax.vmap(lambda lv: fast.kernel._level_scores(bits[lv.src], lv)[0])(single))[:, 0]
+                evaluated = np.asarray(
+                    jax.vmap(lambda lv: fast.kernel._level_scores(bits[lv.src], lv)[0])(single))[:, 0]
                 evaluated = np.stack([np.zeros_like(evaluated), evaluated], -1) if evaluated.ndim == 1 else evaluated
                 np.testing.assert_allclose(evaluated - evaluated[:, :1], got - got[:, :1], atol=1e-9, rtol=0)
             d = table.first_wall_distances(walls)
@@ -158,7 +159,8 @@ def test_beam_kernel_parameters_are_array_leaves_and_the_sweep_runs():
     a = FastGibbs(table, y.reshape(-1), params, block_size=2)
     b = FastGibbs(table, y.reshape(-1), other, block_size=2)
     assert jax.tree_util.tree_structure(a.kernel) == jax.tree_util.tree_structure(b.kernel)
-    normal = FastGibbs(table, y.reshape(-1), make_params(0.3, 0.4, params.num_angles, grid, params.max_range), block_size=2)
+    normal = FastGibbs(table, y.reshape(-1), make_params(0.3, 0.4, params.num_angles, grid, params.max_range),
+                       block_size=2)
     assert jax.tree_util.tree_structure(normal.kernel) != jax.tree_util.tree_structure(a.kernel)  # static choice
     assert sweeps_keep_ray_bits(a, a.init(jnp.zeros(grid.shape, jnp.float32)), 3) > 0
 

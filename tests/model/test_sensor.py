@@ -87,7 +87,10 @@ def test_beam_mixture_is_a_probability_measure(p, frac):
 def reference_density(y, d, p):
     """PR eqs. 6.4-6.12 (hit censored at max), written out with math.erf: an independent implementation."""
     s, m, lam = p["sigma"], p["max_range"], p["lambda_short"]
-    Phi = lambda x: 0.5 * (1 + math.erf(x / math.sqrt(2)))
+
+    def Phi(x):
+        return 0.5 * (1 + math.erf(x / math.sqrt(2)))
+
     eta = 1 / Phi(d / s)
     if y < 0:
         return 0.0
@@ -161,7 +164,10 @@ def test_beam_distribution_simulate_samples_the_mixture(p, d):
         keys = jax.random.split(jax.random.key(123), n)
         y = np.asarray(jax.jit(jax.vmap(lambda k: sensor.beam_reading.simulate(k, args).get_retval()))(keys))
         assert y.shape == (n,) and np.all((y >= 0) & (y <= m))
-        density = lambda t: np.exp(logpdf(t, d, p))
+
+        def density(t):
+            return np.exp(logpdf(t, d, p))
+
         point = float(np.exp(logpdf(m, d, p)))
 
         def check_fraction(got, want):
@@ -196,7 +202,8 @@ def test_bad_sensor_parameters_are_named(kwargs, match):
 def test_make_params_keeps_its_positional_signature_and_carries_the_sensor():
     grid = Grid((5, 6))
     params = make_params(0.3, 0.25, 12, grid, 4.0)
-    assert (params.prior_wall_prob, params.sensor_noise, params.num_angles, params.grid, params.max_range) == (0.3, 0.25, 12, grid, 4.0)
+    assert ((params.prior_wall_prob, params.sensor_noise, params.num_angles, params.grid, params.max_range)
+            == (0.3, 0.25, 12, grid, 4.0))
     assert params.beam_model == "normal" and params.sensor_args == (0.25,)
     beam = make_params(0.3, 0.25, 12, grid, 4.0, beam_model="beam", z_hit=0.7, z_short=0.1, z_max=0.1, z_rand=0.1,
                        lambda_short=0.5)

@@ -16,8 +16,9 @@ def report(tmp_path_factory):
     """``bayesmap infer --report`` on a small room (2 chains, 20 sweeps)."""
     out = tmp_path_factory.mktemp("report")
     (out / "room.txt").write_text("XXXXXXXX\nX......X\nX..XX..X\nX......X\nXXXXXXXX\n")
-    run = subprocess.run([sys.executable, "-m", "bayesmap.cli", "infer", "--map", str(out / "room.txt"), "--pos", "1", "2",
-                          "--sweeps", "20", "--chains", "2", "--report", "--out", str(out / "run")],
+    run = subprocess.run([sys.executable, "-m", "bayesmap.cli", "infer", "--map", str(out / "room.txt"),
+                          "--pos", "1", "2", "--sweeps", "20", "--chains", "2", "--report",
+                          "--out", str(out / "run")],
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     assert "report.html" in run.stdout
@@ -53,7 +54,8 @@ def test_report_opens_offline_in_chromium(report):
 
             page.route("**/*", route)
             page.goto(report.as_uri(), wait_until="load")
-            images = page.evaluate("""() => Array.from(document.images).map(i => [i.complete, i.naturalWidth, i.alt])""")
+            images = page.evaluate("() => Array.from(document.images)"
+                                   ".map(i => [i.complete, i.naturalWidth, i.alt])")
             assert len(images) >= 6
             assert all(done and width > 100 for done, width, _ in images), images
             frame = page.frame_locator("#chain-slider-page")

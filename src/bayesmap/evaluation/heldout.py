@@ -113,7 +113,8 @@ def predictive_log_density_samples(table: RayTable, readings, samples, logpdf) -
     y = check_readings(readings, table.num_rays)
     samples = np.asarray(samples)
     if samples.ndim != 3 or samples.shape[1:] != table.grid.shape:
-        raise BayesmapError(f"samples must have shape (N, {table.grid.shape[0]}, {table.grid.shape[1]}), got {samples.shape}")
+        raise BayesmapError(f"samples must have shape (N, {table.grid.shape[0]}, {table.grid.shape[1]}), "
+                            f"got {samples.shape}")
     dists = np.append(table.pair_dists.astype(np.float64), table.max_distance)
     logs = np.stack([np.asarray(logpdf(y, dists[_first_wall_positions(table, s.reshape(-1))]), dtype=np.float64)
                      for s in samples])
@@ -195,7 +196,8 @@ def truth_scores(prob, truth, known=None) -> dict[str, float]:
 
 
 def _sensor_logpdf(params):
-    """``logpdf(y, d)`` of the problem's sensor model, numpy in and out (:func:`bayesmap.model.generative.reading_log_likelihood`)."""
+    """``logpdf(y, d)`` of the problem's sensor model, numpy in and out
+    (:func:`bayesmap.model.generative.reading_log_likelihood`)."""
 
     return lambda y, d: np.asarray(reading_log_likelihood(np.asarray(y), np.asarray(d), params), dtype=np.float64)
 
@@ -230,9 +232,10 @@ def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, f
 
 
 def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTION, sampler: str = "cellwise",
-                 sweeps: int = 100, seed: int = 0, prior_wall_prob: float = LOG_PRIOR, sensor_noise: float | None = None,
-                 beam_model: str = LOG_BEAM_MODEL, progress: bool = True, range_offset: float | None = None,
-                 sensor_params: dict | None = None, likelihood_power: float | None = None) -> dict:
+                 sweeps: int = 100, seed: int = 0, prior_wall_prob: float = LOG_PRIOR,
+                 sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL, progress: bool = True,
+                 range_offset: float | None = None, sensor_params: dict | None = None,
+                 likelihood_power: float | None = None) -> dict:
     """Held-out evaluation on a log: hold out every ``every``-th of the chosen scans, map the rest with bayesmap
     (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
     held-out beams (see the module docstring). ``sensor_noise`` (default half a cell), ``range_offset``,
@@ -342,7 +345,8 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
             ok &= padded[r + di: r + di + free.shape[0], r + dj: r + dj + free.shape[1]]
     candidates = np.argwhere(ok)
     if len(candidates) < num_poses:
-        raise BayesmapError(f"{path}: only {len(candidates)} free cells with {clearance} m of clearance for {num_poses} poses")
+        raise BayesmapError(f"{path}: only {len(candidates)} free cells with {clearance} m of clearance "
+                            f"for {num_poses} poses")
     rng = np.random.default_rng(seed)
     cells = candidates[rng.choice(len(candidates), size=num_poses, replace=False)]
     centers = grid.cell_centers()[cells[:, 0], cells[:, 1]]
@@ -366,11 +370,13 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
     gibbs_s = time.perf_counter() - start
     logodds = run_logodds(problem)
     seen = visible_cells(table, walls) & known
-    scores = {"bayesmap": truth_scores(gibbs.posterior, walls, seen), "logodds": truth_scores(logodds.posterior, walls, seen)}
+    scores = {"bayesmap": truth_scores(gibbs.posterior, walls, seen),
+              "logodds": truth_scores(logodds.posterior, walls, seen)}
     scores["bayesmap"]["runtime_s"] = round(gibbs_s, 3)
     scores["logodds"]["runtime_s"] = round(logodds.runtime_s, 3)
     scores["setup"] = {"truth": str(path), "grid": list(grid.shape), "resolution": grid.resolution,
                        "num_poses": int(num_poses), "num_angles": int(num_angles), "max_range": float(max_range),
-                       "sampler": sampler, "sweeps": int(sweeps), "beam_model": beam_model, "sensor_noise": float(noise),
-                       "cells_scored": int(seen.sum()), "known_cells": int(known.sum()), "pairs": int(table.num_pairs)}
+                       "sampler": sampler, "sweeps": int(sweeps), "beam_model": beam_model,
+                       "sensor_noise": float(noise), "cells_scored": int(seen.sum()), "known_cells": int(known.sum()),
+                       "pairs": int(table.num_pairs)}
     return scores

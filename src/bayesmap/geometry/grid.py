@@ -46,7 +46,8 @@ class Grid:
             raise BayesmapError(f"grid shape must be two positive integers, got {self.shape!r}")
         resolution = float(self.resolution)
         if not math.isfinite(resolution) or resolution <= 0:
-            raise BayesmapError(f"grid resolution must be a finite number > 0 (meters per cell), got {self.resolution!r}")
+            raise BayesmapError(f"grid resolution must be a finite number > 0 (meters per cell), "
+                                f"got {self.resolution!r}")
         origin = tuple(float(v) for v in self.origin)
         if len(origin) != 2 or not all(math.isfinite(v) for v in origin):
             raise BayesmapError(f"grid origin must be two finite numbers (meters), got {self.origin!r}")
@@ -66,7 +67,8 @@ class Grid:
 
     @property
     def extent(self) -> tuple[float, float, float, float]:
-        """``(xmin, xmax, ymin, ymax)`` of the grid in world meters (for ``imshow(..., extent=...)`` after a transpose)."""
+        """``(xmin, xmax, ymin, ymax)`` of the grid in world meters (for ``imshow(..., extent=...)`` after a
+        transpose)."""
         ox, oy = self.origin
         return (ox, ox + self.shape[0] * self.resolution, oy, oy + self.shape[1] * self.resolution)
 

@@ -734,7 +734,8 @@ def _trace_rays(p_table, u_table, shape, max_cells: float, chunk: int):
     return counts, cells, dists
 
 
-def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None = None, chunk: int = 1 << 18) -> RayTable:
+def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None = None,
+                    chunk: int = 1 << 18) -> RayTable:
     """Build the :class:`RayTable` for rays from ``origins`` at ``beam_angles``.
 
     Args:

@@ -20,19 +20,21 @@ classes would bring little parallelism. This sampler is the plain systematic-sca
 * Cells are visited in a fixed order: grouped by how many rays cross them (so that each group is a loop of fixed
   width, padding at most 2x), then in raster order within a group. Any fixed order gives a valid Gibbs sweep.
   Cells that no ray crosses are independent of everything given the rest: they are drawn from the prior at once.
-* The loop scores ``SPECULATIVE_CELLS`` consecutive cells of the order at once, from the same rows, and draws each from its
-  score. Cell ``j`` of the block sees exactly the rows it would see one cell at a time as long as no earlier cell of
-  the block changed a row: the cells up to and including the first draw that changes rows are kept, the rest of
-  the block is scored again from the rewritten rows. So the draws are those of the one-cell-at-a-time sweep in the
-  same order (same uniforms, same conditionals), with one pass over memory for ``SPECULATIVE_CELLS`` cells instead of one per
-  cell (each step of a loop costs several microseconds on CPU; ~4% of cells change rows per sweep on the Intel log).
-  Within the sweep the map is kept in the visiting order, so that a block's cells are one contiguous slice.
+* The loop scores ``SPECULATIVE_CELLS`` consecutive cells of the order at once, from the same rows, and draws each
+  from its score. Cell ``j`` of the block sees exactly the rows it would see one cell at a time as long as no
+  earlier cell of the block changed a row: the cells up to and including the first draw that changes rows are
+  kept, the rest of the block is scored again from the rewritten rows. So the draws are those of the
+  one-cell-at-a-time sweep in the same order (same uniforms, same conditionals), with one pass over memory for
+  ``SPECULATIVE_CELLS`` cells instead of one per cell (each step of a loop costs several microseconds on CPU; ~4% of
+  cells change rows per sweep on the Intel log). Within the sweep the map is kept in the visiting order, so that a
+  block's cells are one contiguous slice.
 
 Posterior marginals: each update draws its cell from ``p(cell | rest)``; each sweep reports these probabilities in
 its ``info`` (:attr:`bayesmap.inference.base.GibbsInfo.wall_prob`: the prior for cells no ray crosses), and the
-mean of these conditional probabilities over kept sweeps estimates the marginal ``P(cell is a wall | readings)`` with less variance than the mean of the 0/1 draws (Rao-Blackwellization;
-Gelfand & Smith 1990, sec. 2.3; Liu, Wong & Kong 1994). Unlike the 0/1 mean it also ranks cells that were walls in
-none or all of the kept sweeps, which matters for scores such as the held-out AUC.
+mean of these conditional probabilities over kept sweeps estimates the marginal ``P(cell is a wall | readings)``
+with less variance than the mean of the 0/1 draws (Rao-Blackwellization; Gelfand & Smith 1990, sec. 2.3;
+Liu, Wong & Kong 1994). Unlike the 0/1 mean it also ranks cells that were walls in none or all of the kept sweeps,
+which matters for scores such as the held-out AUC.
 
 Memory: per pair, 12 bytes in the sweep's lanes (ray, position, looked-up log-likelihood; at most twice that with
 the padding, 1.16x on the Intel log) plus 8 bytes of tables (cell and log-likelihood, for the lookups and
@@ -306,9 +308,9 @@ class CellwiseKernel(KernelFields):
         return jax.lax.fori_loop(0, num_batches, one_batch, (jnp.int32(-1), rows_all))[1]
 
     def _sweep_group(self, lanes, base, cur, rows_all, probs, u):
-        """Every cell of ``lanes`` once, ``SPECULATIVE_CELLS`` at a time (see the module docstring). ``cur``, ``probs`` and
-        ``u``: the map, the conditional probabilities and the uniforms in visiting order, the group's cells at
-        ``base, base + 1, ...``."""
+        """Every cell of ``lanes`` once, ``SPECULATIVE_CELLS`` at a time (see the module docstring). ``cur``,
+        ``probs`` and ``u``: the map, the conditional probabilities and the uniforms in visiting order, the group's
+        cells at ``base, base + 1, ...``."""
         n, width = lanes.rays.shape
         size = min(SPECULATIVE_CELLS, n)
         j = jnp.arange(size, dtype=jnp.int32)

@@ -62,7 +62,8 @@ def _check_settings(problem: Problem, sweeps: int, burn_in: int | None, chains: 
     if int(burn_in) != burn_in or not (0 <= burn_in < sweeps):
         raise BayesmapError(f"burn-in must be an integer between 0 and {sweeps - 1} (sweeps - 1), got {burn_in!r}")
     if chains > 1 and sweeps - burn_in < 4:
-        raise BayesmapError(f"diagnostics of {chains} chains need at least 4 sweeps after the burn-in, got {sweeps - burn_in}")
+        raise BayesmapError(f"diagnostics of {chains} chains need at least 4 sweeps after the burn-in, "
+                            f"got {sweeps - burn_in}")
     init = ("logodds" if problem.multi_scan else "free") if init is None else init
     if init not in ("free", "logodds"):
         raise BayesmapError(f"unknown chain start {init!r}; choose free or logodds")
@@ -258,7 +259,8 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = DEFAUL
     settings = {"sampler": sampler, "sampler_description": SAMPLERS[sampler][0], "sweeps": int(sweeps),
                 "burn_in": int(burn_in), "seed": int(seed), "chains": int(chains), "init": init}
     summary = _chain_summary(problem, samples, wall_probs, diagnostics, posterior, settings, runtime)
-    return InferenceResult(samples=samples, posterior=posterior, runtime_s=runtime, summary=summary, diagnostics=diagnostics)
+    return InferenceResult(samples=samples, posterior=posterior, runtime_s=runtime, summary=summary,
+                           diagnostics=diagnostics)
 
 
 def run_logodds(problem: Problem, params=None) -> InferenceResult:

@@ -204,8 +204,8 @@ class FastGibbs(KernelSampler):
 
     Raises:
         BayesmapError: on readings that do not match the table's rays, an unknown schedule or order, a bad block
-            size, a likelihood power outside (0, 1], or (beam model) a table whose max distance is not ``params.max_range``
-            (the sensor's max range; :func:`~bayesmap.model.likelihood.check_max_range`).
+            size, a likelihood power outside (0, 1], or (beam model) a table whose max distance is not
+            ``params.max_range`` (the sensor's max range; :func:`~bayesmap.model.likelihood.check_max_range`).
 
     Memory: the table's pairs, one bit per pair for the state, and per (block, ray) entry ``B`` positions and
     ``2**B`` distances (``B`` cells per block); a sweep's buffer holds one copy of each entry's ray words. The beam

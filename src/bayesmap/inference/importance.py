@@ -41,7 +41,8 @@ class ImportanceResult(NamedTuple):
 
 
 def effective_sample_size(log_weights) -> jax.Array:
-    """``1 / sum_i w_i^2`` of the normalized weights ``exp(log_weights - logsumexp(log_weights))``; ``(N,)`` -> scalar."""
+    """``1 / sum_i w_i^2`` of the normalized weights ``exp(log_weights - logsumexp(log_weights))``; ``(N,)`` ->
+    scalar."""
     lw = log_weights - jax.scipy.special.logsumexp(log_weights)
     return 1.0 / jnp.sum(jnp.exp(2.0 * lw))
 
@@ -59,7 +60,8 @@ def _weighted_particles(key, readings, args, num_batches: int, batch_size: int):
     return walls.reshape((-1,) + walls.shape[2:]), log_w.reshape(-1)
 
 
-def importance_sampling(key, readings, pos, params: ModelParams, num_particles: int, beam_angles=None, batch_size: int = 1000) -> ImportanceResult:
+def importance_sampling(key, readings, pos, params: ModelParams, num_particles: int, beam_angles=None,
+                        batch_size: int = 1000) -> ImportanceResult:
     """Self-normalized importance sampling with ``num_particles`` prior samples.
 
     Args:

@@ -11,9 +11,9 @@ efficient probabilistic 3D mapping framework based on octrees", Autonomous Robot
 misses, and after each update the log-odds is clamped to ``[logit(clamp_min), logit(clamp_max)]`` so the map can
 change again later (the defaults are OctoMap's: ``p_hit`` 0.7, ``p_miss`` 0.4, clamping 0.12 / 0.97).
 
-The ray geometry comes from a :class:`~bayesmap.geometry.raytable.RayTable`: its pairs list, along each ray, every cell the
-ray crosses with the distance at which the ray enters it (for the cell containing the sensor, the table holds the
-distance at which the ray leaves it; here that cell counts as entered at distance 0).
+The ray geometry comes from a :class:`~bayesmap.geometry.raytable.RayTable`: its pairs list, along each ray, every
+cell the ray crosses with the distance at which the ray enters it (for the cell containing the sensor, the table
+holds the distance at which the ray leaves it; here that cell counts as entered at distance 0).
 """
 
 from __future__ import annotations
@@ -193,7 +193,8 @@ def logodds_map(table: RayTable, readings, max_range_mask=None, scan_of_ray=None
 
     Args:
         table: the ray-cell table of all beams (R rays, P pairs), e.g. from
-            :func:`bayesmap.geometry.raytable.build_ray_table` with each ray's own sensor position and world-frame angle.
+            :func:`bayesmap.geometry.raytable.build_ray_table` with each ray's own sensor position and world-frame
+            angle.
         readings: ``(R,)`` range readings, meters, finite and ``>= 0``.
         max_range_mask: ``(R,)`` bool, True for max-range readings (no return); None: none are.
         scan_of_ray: ``(R,)`` non-negative ints, the scan each ray belongs to; None: all rays form one scan (the

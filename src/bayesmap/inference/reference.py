@@ -60,7 +60,8 @@ def block_log_weights(walls, block_cells, readings, args):
     return jax.vmap(score)(configs)
 
 
-def reference_gibbs(readings, pos, params: ModelParams, beam_angles=None, order: str = "raster", block_size: int = 1) -> SamplingAlgorithm:
+def reference_gibbs(readings, pos, params: ModelParams, beam_angles=None, order: str = "raster",
+                    block_size: int = 1) -> SamplingAlgorithm:
     """The tutorial's Gibbs sweep by enumeration with ``assess``.
 
     Args:
@@ -111,7 +112,8 @@ class TraceState(NamedTuple):
         return self.trace.get_choices()["walls"]
 
 
-def reference_incremental_gibbs(readings, pos, params: ModelParams, beam_angles=None, order: str = "raster") -> SamplingAlgorithm:
+def reference_incremental_gibbs(readings, pos, params: ModelParams, beam_angles=None,
+                                order: str = "raster") -> SamplingAlgorithm:
     """The tutorial's single-site Gibbs with incremental trace updates (``trace.edit``).
 
     For each cell, the edit request flips it; the returned incremental weight ``w = log p(flipped) - log p(current)``

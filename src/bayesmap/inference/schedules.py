@@ -88,8 +88,8 @@ def block_configurations(block_cells: int) -> np.ndarray:
 
 
 def cell_rays(table) -> list[np.ndarray]:
-    """For each cell, the sorted distinct rays of ``table`` (a :class:`~bayesmap.geometry.raytable.RayTable`) that cross it:
-    a list of ``num_cells`` int64 arrays."""
+    """For each cell, the sorted distinct rays of ``table`` (a :class:`~bayesmap.geometry.raytable.RayTable`) that
+    cross it: a list of ``num_cells`` int64 arrays."""
     stride = max(table.num_rays, 1)
     key = np.unique(table.pair_cells.astype(np.int64) * stride + table.pair_rays)
     cells, rays = key // stride, key % stride

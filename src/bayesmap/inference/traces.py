@@ -51,7 +51,8 @@ def chain_log_joints(problem, samples) -> np.ndarray:
     flat = arr.reshape((-1,) + arr.shape[-2:])
     if problem.multi_scan:
         return np.array([problem.log_joint(w) for w in flat], dtype=np.float64).reshape(arr.shape[:-2])
-    score = jax.jit(jax.vmap(lambda w: log_joint(w, problem.model_readings, problem.pos, problem.params, problem.beam_angles)))
+    score = jax.jit(jax.vmap(lambda w: log_joint(w, problem.model_readings, problem.pos, problem.params,
+                                                 problem.beam_angles)))
     out = np.concatenate([np.asarray(score(flat[i:i + LOG_JOINT_BATCH]), dtype=np.float64)
                           for i in range(0, len(flat), LOG_JOINT_BATCH)])
     return out.reshape(arr.shape[:-2])

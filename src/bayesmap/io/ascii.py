@@ -43,14 +43,16 @@ def parse_map(text: str, source: str = "map") -> np.ndarray:
     for i, line in enumerate(lines):
         if len(line) != width:
             raise BayesmapError(
-                f"{source}: line {i + 1} has {len(line)} characters, but line 1 has {width} (rows must have equal length)"
+                f"{source}: line {i + 1} has {len(line)} characters, but line 1 has {width} "
+                "(rows must have equal length)"
             )
         for j, char in enumerate(line):
             if char == WALL_CHAR:
                 walls[i, j] = 1.0
             elif char != FREE_CHAR:
                 raise BayesmapError(
-                    f"{source}: unknown character {char!r} at line {i + 1}, column {j + 1} (use 'X' for wall, '.' for free)"
+                    f"{source}: unknown character {char!r} at line {i + 1}, column {j + 1} "
+                    "(use 'X' for wall, '.' for free)"
                 )
     return walls
 

@@ -47,8 +47,9 @@ class ModelParams(Pytree):
             component's ``sigma_hit``.
         num_angles: number of beams for the tutorial's equally spaced angles (static).
         grid: the grid geometry (static); default: the tutorial's 21 x 21 unit cells.
-        max_distance: the max range in meters (static; :attr:`max_range` resolves the default); default: twice the grid's larger side (42 m for the
-            tutorial). It is also the sensor's max range (the beam model's point mass sits there).
+        max_distance: the max range in meters (static; :attr:`max_range` resolves the default); default: twice the
+            grid's larger side (42 m for the tutorial). It is also the sensor's max range (the beam model's point
+            mass sits there).
         beam_model: the sensor model, ``"normal"`` (the tutorial's) or ``"beam"`` (the robust mixture), static:
             see :mod:`bayesmap.model.sensor`.
         z_hit, z_short, z_max, z_rand: the beam mixture's weights (dynamic; >= 0, sum 1; PR eq. 6.12); unused by
@@ -228,7 +229,8 @@ def scan_args(poses, params: ModelParams, beam_angles) -> tuple:
     if poses.ndim != 2 or poses.shape[1] != 2 or poses.shape[0] < 1:
         raise BayesmapError(f"poses must have shape (S, 2) (positions in meters), got {poses.shape}")
     if beam_angles.ndim != 2 or beam_angles.shape[0] != poses.shape[0] or beam_angles.shape[1] < 1:
-        raise BayesmapError(f"beam_angles must have shape (S, K) = ({poses.shape[0]}, K) with K >= 1, got {beam_angles.shape}")
+        raise BayesmapError(f"beam_angles must have shape (S, K) = ({poses.shape[0]}, K) with K >= 1, "
+                            f"got {beam_angles.shape}")
     if not (np.all(np.isfinite(poses)) and np.all(np.isfinite(beam_angles))):
         raise BayesmapError("poses and beam angles must be finite")
     dtype = jnp.result_type(float)

@@ -60,7 +60,8 @@ def check_max_range(table: RayTable, params: ModelParams) -> None:
                             f"params.max_range = {params.max_range!r} m")
 
 
-def likelihood_inputs(table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0) -> LikelihoodInputs:
+def likelihood_inputs(table: RayTable, readings, params: ModelParams,
+                      likelihood_power: float = 1.0) -> LikelihoodInputs:
     """Check a sampler's arguments and cast them for its kernel (see :class:`LikelihoodInputs`).
 
     Args:
@@ -119,9 +120,9 @@ def pair_log_likelihoods(table: RayTable, readings: np.ndarray, beam_model: str,
     pads lookups): ``y_r`` from ``readings`` ``(R,)`` (meters), ``t`` the pair's stopping distance (meters).
 
     Equal to ``reading_logpdf(beam_model, y, t, sensor_args)`` element by element (the same operations), computed in
-    one jitted call; for the beam model the point mass at the max range (:func:`~bayesmap.model.sensor.beam_log_max_mass`)
-    is computed only for the pairs of max-range readings. The result is dispatched asynchronously (the caller can
-    work on while it is computed)."""
+    one jitted call; for the beam model the point mass at the max range
+    (:func:`~bayesmap.model.sensor.beam_log_max_mass`) is computed only for the pairs of max-range readings. The
+    result is dispatched asynchronously (the caller can work on while it is computed)."""
     dtype = sensor_args[0].dtype
     y = np.asarray(readings, dtype=dtype)
     if beam_model == "beam":

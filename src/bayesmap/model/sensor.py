@@ -11,12 +11,12 @@ Two models, chosen by name (``ModelParams.beam_model``, static):
 The beam mixture as implemented
 -------------------------------
 
-A reading lives on ``[0, M]`` with ``M = max_range`` (meters; the model's max distance ``ModelParams.max_range``). Its law
-is a *mixed* measure: a density on ``[0, M)`` plus a point mass at ``y = M`` (a "max-range reading", no return).
-:func:`beam_logpdf` returns the log of the density for ``0 <= y < M`` and the log of the point mass for ``y >= M``
-(every ``y >= M`` is read as a max-range reading; a real sensor reports nothing beyond ``M``), i.e. the density
-with respect to Lebesgue measure on ``[0, M)`` plus a unit atom at ``M``; ``-inf`` for ``y < 0``. With weights
-``z_hit + z_short + z_max + z_rand = 1`` (PR eq. 6.12) and ``sigma = sensor_noise``:
+A reading lives on ``[0, M]`` with ``M = max_range`` (meters; the model's max distance ``ModelParams.max_range``).
+Its law is a *mixed* measure: a density on ``[0, M)`` plus a point mass at ``y = M`` (a "max-range reading", no
+return). :func:`beam_logpdf` returns the log of the density for ``0 <= y < M`` and the log of the point mass for
+``y >= M`` (every ``y >= M`` is read as a max-range reading; a real sensor reports nothing beyond ``M``), i.e. the
+density with respect to Lebesgue measure on ``[0, M)`` plus a unit atom at ``M``; ``-inf`` for ``y < 0``. With
+weights ``z_hit + z_short + z_max + z_rand = 1`` (PR eq. 6.12) and ``sigma = sensor_noise``:
 
 * **hit** (PR eqs. 6.4-6.6): ``Normal(d, sigma)`` conditioned on ``y >= 0`` (PR's normalizer ``eta`` for the
   lower end: the mass below 0 is renormalized away, ``eta = 1 / Phi(d / sigma)``), and *censored* at the upper
@@ -127,7 +127,8 @@ def beam_log_density(y, d, sigma, z_hit, z_short, z_max, z_rand, lambda_short, m
     z = (y - d) / sigma
     log_hit = jnp.log(z_hit) - 0.5 * z * z - jnp.log(sigma) - _HALF_LOG_2PI - log_mass_hit
     d_short = jnp.maximum(d, MIN_SHORT_DISTANCE)
-    log_short = jnp.log(z_short) + jnp.log(lambda_short) - lambda_short * y - jnp.log(-jnp.expm1(-lambda_short * d_short))
+    log_short = (jnp.log(z_short) + jnp.log(lambda_short) - lambda_short * y
+                 - jnp.log(-jnp.expm1(-lambda_short * d_short)))
     log_short = jnp.where(y <= d_short, log_short, -jnp.inf)
     log_rand = jnp.broadcast_to(jnp.log(z_rand) - jnp.log(max_range), log_hit.shape)
     return jnp.where(y < 0, -jnp.inf, _logsumexp(log_hit, log_short, log_rand))
@@ -272,7 +273,8 @@ def check_sensor_params(beam_model, z_hit, z_short, z_max, z_rand, lambda_short)
             raise BayesmapError(f"{name} must be a finite weight >= 0, got {value!r}")
         out[name] = v
     if not out["z_hit"] > 0:
-        raise BayesmapError(f"z_hit must be > 0 (the hit component is the only one that covers every reading), got {z_hit!r}")
+        raise BayesmapError(f"z_hit must be > 0 (the hit component is the only one that covers every reading), "
+                            f"got {z_hit!r}")
     total = sum(out.values())
     if abs(total - 1.0) > WEIGHT_SUM_TOL:
         listed = ", ".join(f"{k}={v!r}" for k, v in weights.items())

@@ -12,8 +12,9 @@ each frame only updates the two images' data (``AxesImage.set_data``) and the ti
 background and composites the fixed overlays (see :class:`ChainFigure`), so 100 frames of a 21 x 21 chain
 render in about a second, whatever the number of wall edges outlined.
 
-:func:`chain_gif` and :func:`chain_html` (or both at once, rendered once: :func:`chain_animation`) store the frames with one shared palette (192 greys plus 64 colours):
-greys within one level of the rendered frame, only antialiased edges of the red marks a few levels off.
+:func:`chain_gif` and :func:`chain_html` (or both at once, rendered once: :func:`chain_animation`) store the frames
+with one shared palette (192 greys plus 64 colours): greys within one level of the rendered frame, only antialiased
+edges of the red marks a few levels off.
 """
 
 from __future__ import annotations

@@ -382,7 +382,8 @@ def plot_convergence(
 
     Args:
         log_joints: ``(num_sweeps,)`` (one chain) or ``(num_chains, num_sweeps)``: ``log p(walls, readings)`` of
-            the map after sweep ``t + 1`` (e.g. :func:`bayesmap.model.generative.log_joint` of each sample), natural log.
+            the map after sweep ``t + 1`` (e.g. :func:`bayesmap.model.generative.log_joint` of each sample),
+            natural log.
         wrong_cells: integer counts of the same shape: the visible cells where the sample after each sweep
             disagrees with the true map (:meth:`bayesmap.scenes.Problem.wrong_visible_cells`). Adds a second
             panel below, sharing the sweep axis, with a dotted line at 2 (the tutorial's accuracy).

@@ -56,7 +56,8 @@ def _scan(problem) -> dict:
     """The scan keywords of :func:`~bayesmap.viz.maps.plot_map`: the one scan, or for several scans every beam of
     every scan, at most :data:`MAX_DRAWN_BEAMS` of them (evenly spaced) to keep the figures light."""
     if problem.multi_scan:
-        keep = np.unique(np.linspace(0, problem.table.num_rays - 1, min(MAX_DRAWN_BEAMS, problem.table.num_rays)).astype(int))
+        keep = np.unique(np.linspace(0, problem.table.num_rays - 1,
+                                     min(MAX_DRAWN_BEAMS, problem.table.num_rays)).astype(int))
         return dict(origins=problem.ray_origins[keep], beam_angles=problem.ray_angles[keep],
                     readings=problem.ray_readings[keep],
                     max_range_mask=None if problem.ray_max_range is None else problem.ray_max_range[keep])
@@ -73,15 +74,17 @@ def _map_figures(problem, result) -> list[str]:
     unit = "cells" if is_unit_grid(grid) else "m"
     figures = []
     if problem.truth is not None:
-        figures.append(_figure(figure_bytes(plot_map(grid, problem.truth, title="The map, the rays and the readings", **scan)),
-                               "The true map (walls black), the sensor, its rays and the noisy readings (dots).", "fig-map"))
+        figures.append(_figure(figure_bytes(plot_map(grid, problem.truth, title="The map, the rays and the readings",
+                                                     **scan)),
+                               "The true map (walls black), the sensor, its rays and the noisy readings (dots).",
+                               "fig-map"))
     figures.append(_figure(figure_bytes(plot_map(grid, None, title="What the robot sees", **scan)),
                            f"The data alone: rays from the sensor to each reading, axes in {unit}.", "fig-scan"))
     figures.append(_figure(figure_bytes(plot_posterior(grid, result.posterior, truth=problem.truth, std=True,
                                                        title="Posterior wall probability", **scan)),
                            f"Left: posterior probability that each cell is a wall (mean of sweeps {burn_in + 1}-"
-                           f"{summary['sweeps']}{', all chains' if np.ndim(result.samples) == 4 else ''}); true walls outlined "
-                           "when known. Right: posterior standard deviation (0 = certain, 0.5 = a coin flip).",
+                           f"{summary['sweeps']}{', all chains' if np.ndim(result.samples) == 4 else ''}); true walls "
+                           "outlined when known. Right: posterior standard deviation (0 = certain, 0.5 = a coin flip).",
                            "fig-posterior"))
     return figures
 
@@ -108,8 +111,8 @@ def _diagnostic_figures(result, traces) -> list[str]:
         num = len(imp.log_weights)
         figures.append(_figure(figure_bytes(plot_importance(np.asarray(imp.log_weights), float(imp.ess))),
                                f"Importance sampling with {num:,} maps drawn from the prior: the "
-                               f"normalized log-weights. Effective sample size {_importance_ess(traces)}: one map takes "
-                               "(almost) all the weight, which is why the tutorial turns to Gibbs sampling.",
+                               f"normalized log-weights. Effective sample size {_importance_ess(traces)}: one map "
+                               "takes (almost) all the weight, which is why the tutorial turns to Gibbs sampling.",
                                "fig-importance"))
     return figures
 
@@ -167,6 +170,8 @@ def build_report(problem, result, traces, *, title: str, max_frames: int = 60) -
                                 title="Gibbs chain: sample and running mean")
     metric_html = _metrics_html(summary, _importance_ess(traces))
     stamp = _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    first_chain_note = " (first chain)" if samples.ndim == 4 else ""
+    slider_srcdoc = html.escape(page, quote=True)
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">
 <title>{html.escape(title)}</title><style>{_STYLE}</style></head>
@@ -179,10 +184,10 @@ on {stamp}.</p>
 <h2>Figures</h2>
 {''.join(figures)}
 <h2>The chain</h2>
-<p>Left, the sample after each sweep; right, the running mean of the samples so far{' (first chain)' if samples.ndim == 4 else ''}.</p>
+<p>Left, the sample after each sweep; right, the running mean of the samples so far{first_chain_note}.</p>
 <figure id="fig-animation"><img src="{_data_uri(gif, 'image/gif')}" alt="Animation of the Gibbs chain">
 <figcaption>The chain as an animation.</figcaption></figure>
-<iframe class="chain" id="chain-slider-page" title="Gibbs chain with a slider" srcdoc="{html.escape(page, quote=True)}"></iframe>
+<iframe class="chain" id="chain-slider-page" title="Gibbs chain with a slider" srcdoc="{slider_srcdoc}"></iframe>
 <h2>Settings</h2>
 <table class="settings" id="settings">{_settings_html(summary)}</table>
 </body></html>
