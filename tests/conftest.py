@@ -1,11 +1,8 @@
 """Shared fixtures: the tutorial scene with the tutorial's readings (key 0)."""
 
-from pathlib import Path
-
-import numpy as np
 import pytest
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+from helpers import SHARED_DATA
 
 
 @pytest.fixture(scope="session")
@@ -40,19 +37,3 @@ def small_log(tmp_path_factory, intel_log):
         lines = [line for line in handle if line.startswith("FLASER")][:12]
     path.write_text("".join(lines))
     return path
-
-
-def random_scene(rng, max_side=8, metric=False):
-    """A random small grid, position inside it, map and beam angles (numpy)."""
-    from bayesmap.geometry.grid import Grid
-
-    shape = (int(rng.integers(3, max_side + 1)), int(rng.integers(3, max_side + 1)))
-    if metric:
-        grid = Grid(shape, resolution=float(rng.choice([0.1, 0.25, 0.7])), origin=tuple(rng.normal(0, 3, 2)))
-    else:
-        grid = Grid(shape)
-    xmin, xmax, ymin, ymax = grid.extent
-    pos = np.array([rng.uniform(xmin, xmax), rng.uniform(ymin, ymax)])
-    walls = (rng.random(shape) < rng.uniform(0.1, 0.6)).astype(np.float32)
-    beam_angles = rng.uniform(-np.pi, 3 * np.pi, int(rng.integers(1, 60)))
-    return grid, pos, walls, beam_angles

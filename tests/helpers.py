@@ -1,6 +1,7 @@
 """Helpers shared by several test modules: scenes, checks and a CLI runner (not tests themselves)."""
 
 import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -10,6 +11,24 @@ from bayesmap.cli import main
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.model.generative import choices, make_params, multi_scan_model, scan_args, simulate_scan_readings
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+"""The read-only data beside the checkout (``../shared/data``): real logs and a floor plan."""
+
+
+def random_scene(rng, max_side=8, metric=False):
+    """A random small grid, position inside it, map and beam angles (numpy)."""
+    shape = (int(rng.integers(3, max_side + 1)), int(rng.integers(3, max_side + 1)))
+    if metric:
+        grid = Grid(shape, resolution=float(rng.choice([0.1, 0.25, 0.7])), origin=tuple(rng.normal(0, 3, 2)))
+    else:
+        grid = Grid(shape)
+    xmin, xmax, ymin, ymax = grid.extent
+    pos = np.array([rng.uniform(xmin, xmax), rng.uniform(ymin, ymax)])
+    walls = (rng.random(shape) < rng.uniform(0.1, 0.6)).astype(np.float32)
+    beam_angles = rng.uniform(-np.pi, 3 * np.pi, int(rng.integers(1, 60)))
+    return grid, pos, walls, beam_angles
+
 
 POSES = np.array([[1.2, 1.1], [4.3, 5.2], [2.6, 3.9]])  # three scans inside a 6 x 7 grid, meters
 

@@ -12,8 +12,7 @@ import typer
 
 from bayesmap.cli import app
 from bayesmap.errors import BayesmapError
-from conftest import SHARED_DATA
-from helpers import run_cli
+from helpers import SHARED_DATA, run_cli
 
 INTEL = SHARED_DATA / "carmen" / "intel-corrected.log.gz"
 

@@ -10,7 +10,7 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import angles, sensor_distances
 from bayesmap.geometry.raytable import build_ray_table, check_readings, visible_cells
 from bayesmap.io.ascii import tutorial_map
-from conftest import random_scene
+from helpers import random_scene
 
 
 def slab_distances(walls, pos, beam_angles, grid, max_distance):

@@ -24,7 +24,7 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import angles, cell_hit_distance, sensor_distances, unit_dir
 from bayesmap.geometry.raytable import RayTable, build_ray_table, build_ray_table_reference
 from bayesmap.io.ascii import tutorial_map
-from conftest import random_scene
+from helpers import random_scene
 
 RTOL = 1e-5
 ATOL_CELLS = 1e-5

@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bayesmap.errors import BayesmapError
-from conftest import SHARED_DATA
+from helpers import SHARED_DATA
 
 INTEL = SHARED_DATA / "carmen" / "intel-corrected.log.gz"
 WILLOW = SHARED_DATA / "maps" / "willow-full.pgm"
