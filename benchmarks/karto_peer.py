@@ -13,7 +13,8 @@ It prints, per log, the mean and the worst (largest) ATE over the seeds and the 
 Karto's result varies several-fold with the odometry seed, so one seed says little.
 
 Usage: PYTHONPATH=src python benchmarks/karto_peer.py [--seeds 0-4] [--logs intel,aces,csail]
-                                                    [--methods karto,bayesmap] [--json FILE]
+                                                    [--methods karto,bayesmap] [--beam-spacing bayesmap]
+                                                    [--json FILE]
 
 Runtime is each method's own measurement in seconds: for Karto the time spent in ``GraphSlam.process_scan`` over
 all scans (the Karto venv's interpreter start-up, imports and file exchange, about 0.5 s per run, are excluded;
@@ -23,6 +24,7 @@ the JSON file also holds the whole subprocess's wall time as ``wall_s``).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
@@ -48,6 +50,7 @@ KARTO_RUNNER = ROOT / "benchmarks" / "karto_runner.py"
 KARTO_PACKAGES = ("yag-slam", "opencv-python-headless")  # yag-slam 0.3.0 imports cv2 without declaring it
 KARTO_RANGE_THRESHOLD = 20.0
 """Meters: readings beyond this are not matched (yag-slam's default matcher ``range_threshold``)."""
+BEAM_SPACINGS = ("bayesmap", "both-ends")
 
 
 class Problem(NamedTuple):
@@ -57,8 +60,8 @@ class Problem(NamedTuple):
         name: log name (``"intel"``, ...).
         seed: odometry noise seed given to noisy_odometry.py.
         ranges: ``(S, K)`` float64, meters; values ``>= max_range`` mean "no return".
-        beam_angles: ``(K,)`` float64, radians, beam directions relative to the robot heading (bayesmap's rule,
-            ``bayesmap.io.carmen.beam_offsets``).
+        beam_angles: ``(K,)`` float64, radians, evenly spaced beam directions relative to the robot heading
+            (:func:`scan_beam_angles`; by default bayesmap's rule, ``bayesmap.io.carmen.beam_offsets``).
         max_range: meters, the log's saturation range (``math.inf`` if none).
         odometry: ``(S, 3)`` float64 odometry poses (x m, y m, theta rad), the first one the first true pose.
         truth: ``(S, 3)`` float64 true (corrected) poses, same units.
@@ -94,8 +97,28 @@ def read_tum_poses(path: Path) -> np.ndarray:
     return np.column_stack([rows[:, 1], rows[:, 2], 2 * np.arctan2(rows[:, 6], rows[:, 7])])
 
 
-def make_problem(name: str, seed: int, folder: Path) -> Problem:
+def scan_beam_angles(beams: int, spacing: str) -> np.ndarray:
+    """Beam directions ``(beams,)`` float64 in radians relative to the heading, over a 180 degree field of view.
+
+    ``spacing="bayesmap"`` is bayesmap's rule (``bayesmap.io.carmen.beam_offsets``: spacing pi/n for even n, the
+    last beam one step short of +90 degrees); ``"both-ends"`` spaces every scan's beams pi/(n-1) from -90 to +90
+    degrees. The two differ only for the 180-beam logs (intel, aces), and Karto's ATE depends on it (README).
+
+    Raises:
+        BayesmapError: ``spacing`` is neither, or ``beams < 2``.
+    """
+    if beams < 2 or spacing not in BEAM_SPACINGS:
+        raise BayesmapError(f"scan_beam_angles: need beams >= 2 and spacing in {BEAM_SPACINGS}, "
+                            f"got {beams!r}, {spacing!r}")
+    if spacing == "bayesmap":
+        return beam_offsets(beams)
+    return np.linspace(-math.pi / 2, math.pi / 2, beams)
+
+
+def make_problem(name: str, seed: int, folder: Path, spacing: str = "bayesmap") -> Problem:
     """Write ``name``'s noisy-odometry log for ``seed`` into ``folder`` and read it back as a :class:`Problem`.
+
+    ``spacing`` chooses the beam angles (:func:`scan_beam_angles`).
 
     Raises:
         BayesmapError: noisy_odometry.py failed, or its outputs do not agree on the number of scans.
@@ -109,7 +132,7 @@ def make_problem(name: str, seed: int, folder: Path) -> Problem:
     truth = read_tum_poses(Path(f"{prefix}.truth.tum"))
     if len(truth) != len(log):
         raise BayesmapError(f"{prefix}: {len(log)} scans but {len(truth)} true poses")
-    return Problem(name, seed, np.asarray(log.ranges), beam_offsets(log.ranges.shape[1]), log.max_range,
+    return Problem(name, seed, np.asarray(log.ranges), scan_beam_angles(log.ranges.shape[1], spacing), log.max_range,
                    np.asarray(log.poses), truth, Path(f"{prefix}.log.gz"))
 
 
@@ -241,15 +264,21 @@ def run_karto(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
     return fill_dropped_scans(poses, kept, problem.odometry), runtime
 
 
+@functools.cache
+def bayesmap_has_slam() -> bool:
+    """Whether this checkout's CLI has a ``slam`` command (asked once per run)."""
+    done = subprocess.run([sys.executable, "-m", "bayesmap.cli", "slam", "--help"], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+    return done.returncode == 0
+
+
 def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
     """bayesmap's SLAM pose of every scan, by the ``bayesmap slam`` command (not written yet).
 
     Raises:
         MethodUnavailable: the CLI has no ``slam`` command yet.
     """
-    done = subprocess.run([sys.executable, "-m", "bayesmap.cli", "slam", "--help"], capture_output=True, text=True,
-                          env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
-    if done.returncode != 0:
+    if not bayesmap_has_slam():
         raise MethodUnavailable("bayesmap has no `slam` command yet")
     raise MethodUnavailable("`bayesmap slam` exists: wire its output (poses (S, 3) per scan) into run_bayesmap")
 
@@ -330,6 +359,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--seeds", default="0-4", help="odometry noise seeds, e.g. 0-4 or 0,3 (default 0-4)")
     parser.add_argument("--logs", default="intel,aces,csail", help="comma-separated subset of intel,aces,csail")
     parser.add_argument("--methods", default="karto", help="comma-separated subset of karto,bayesmap")
+    parser.add_argument("--beam-spacing", choices=BEAM_SPACINGS, default="bayesmap",
+                        help="beam angles given to every method: bayesmap's rule (default) or pi/(n-1) for all n")
     parser.add_argument("--json", type=Path, default=None, help="write every run's figures and the summary here")
     args = parser.parse_args(argv)
     try:
@@ -356,7 +387,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="karto-peer-") as tmp:
         for log in args.logs:
             for seed in args.seeds:
-                record = run_one(make_problem(log, seed, Path(tmp)), args.methods)
+                record = run_one(make_problem(log, seed, Path(tmp), args.beam_spacing), args.methods)
                 records.append(record)
                 figures = ", ".join(f"{k} {v['ate_m']:.2f} m" for k, v in record.items()
                                     if isinstance(v, dict) and "ate_m" in v)
@@ -368,9 +399,10 @@ def main(argv: list[str] | None = None) -> int:
     for note in notes:
         print(f"\nnot run: {note}")
     print(f"\nscans given a pose from odometry because a method dropped them: {filled}")
-    print(f"total time {time.perf_counter() - start:.0f} s")
+    print(f"beam spacing: {args.beam_spacing}; total time {time.perf_counter() - start:.0f} s")
     if args.json is not None:
-        args.json.write_text(json.dumps({"runs": records, "summary": summary}, indent=1) + "\n")
+        args.json.write_text(json.dumps({"beam_spacing": args.beam_spacing, "seeds": args.seeds, "runs": records,
+                                              "summary": summary}, indent=1) + "\n")
     return 0
 
 
