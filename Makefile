@@ -31,7 +31,7 @@ docs: $(STAMP)
 # ruff ([tool.ruff] in pyproject.toml); imports of another module's private names inside bayesmap, which ruff's
 # PLC2701 does not see, are checked by tests/test_package_layout.py
 lint: $(STAMP)
-	$(BIN)/ruff check src tests notebooks
+	$(BIN)/ruff check src tests notebooks benchmarks
 
 # the tutorial notebook, executed, as one HTML file with its outputs
 notebook: $(STAMP)

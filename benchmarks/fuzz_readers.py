@@ -19,10 +19,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "tests" / "io")]
 
-from hypothesis import HealthCheck, given, seed as hypothesis_seed, settings  # noqa: E402
+import test_fuzz_readers as fuzz  # noqa: E402  (the test module's strategies, from tests/ on sys.path)
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import seed as hypothesis_seed  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
-
-import test_fuzz_readers as fuzz  # noqa: E402
 
 
 def main() -> int:
