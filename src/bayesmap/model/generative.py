@@ -17,6 +17,12 @@ a position and the scan's *world-frame* beam angles: the heading ``theta`` is al
 logs give world-frame angles; otherwise pass ``theta + angles_in_sensor_frame``). Every scan has the same number
 of beams ``K``; scans with different numbers of beams are not supported (resample them to a common ``K``).
 :func:`scan_args` builds and checks the arguments. The max distance ``params.max_range`` is also the sensor's max range.
+
+:data:`slam_model` adds the robot's poses as random choices (issue 15): poses ``1..S-1`` at ``"poses"`` from the
+odometry motion model (:mod:`bayesmap.model.motion`; pose 0 is fixed), then the same walls prior and the readings
+of each scan at its pose, with beam angles relative to the heading. With zero motion noise it is
+:data:`multi_scan_model` at the odometry path. :func:`slam_args`, :func:`slam_choices`, :func:`log_joint_slam` and
+:func:`simulate_slam` go with it; docs/slam.md derives the pose conditionals.
 """
 
 from __future__ import annotations
@@ -361,8 +367,9 @@ def slam_model(first_pose, odometry_increments, odometry_covs, params: ModelPara
 
     Args (see :func:`slam_args`):
         first_pose: ``(3,)`` the first pose (x m, y m, theta rad).
-        odometry_increments: ``(S - 1, 3)`` and odometry_covs ``(S - 1, 3, 3)``: the motion model's steps
+        odometry_increments: ``(S - 1, 3)`` the motion model's steps
             (:func:`bayesmap.model.motion.odometry_controls`).
+        odometry_covs: ``(S - 1, 3, 3)`` their covariances.
         params: the map and sensor parameters.
         sensor_angles: ``(S, K)`` beam angles relative to the robot's heading, radians.
 
@@ -421,8 +428,8 @@ def log_joint_slam(poses, walls, readings, odometry_increments, odometry_covs, p
             argument).
         walls: ``(nx, ny)`` array of 0/1 (float or bool).
         readings: ``(S, K)`` range readings, meters.
-        odometry_increments, odometry_covs: ``(S - 1, 3)``, ``(S - 1, 3, 3)``
-            (:func:`bayesmap.model.motion.odometry_controls`).
+        odometry_increments: ``(S - 1, 3)`` (:func:`bayesmap.model.motion.odometry_controls`).
+        odometry_covs: ``(S - 1, 3, 3)``.
         params: the model parameters.
         sensor_angles: ``(S, K)`` beam angles relative to the heading, radians.
 

@@ -283,7 +283,8 @@ def path_logpdf(path, first_pose, increments, covs):
     Args:
         path: ``(S, 3)`` poses (x m, y m, theta rad); ``path[0]`` must be ``first_pose`` (the fixed first pose).
         first_pose: ``(3,)`` the first pose.
-        increments: ``(S - 1, 3)``; covs: ``(S - 1, 3, 3)`` (:func:`odometry_controls`).
+        increments: ``(S - 1, 3)`` (:func:`odometry_controls`).
+        covs: ``(S - 1, 3, 3)``.
 
     Returns:
         A scalar float; ``-inf`` if ``path[0] != first_pose`` (the first pose is not random). Never raises.
