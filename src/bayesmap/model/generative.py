@@ -441,8 +441,9 @@ def log_joint_slam(poses, walls, readings, odometry_increments, odometry_covs, p
             ``(S, K)``.
     """
     poses = jnp.asarray(poses, dtype=jnp.result_type(float))
-    args = slam_args(poses[0] if poses.ndim == 2 and poses.shape[-1:] == (3,) and len(poses) else np.zeros(3),
-                     odometry_increments, odometry_covs, params, sensor_angles)
+    if poses.ndim != 2 or poses.shape[0] < 1 or poses.shape[1] != 3:
+        raise BayesmapError(f"poses must have shape (S, 3) (x m, y m, theta rad), got {tuple(poses.shape)}")
+    args = slam_args(poses[0], odometry_increments, odometry_covs, params, sensor_angles)
     if poses.shape != (args[4].shape[0], 3):
         raise BayesmapError(f"poses must have shape (S, 3) = ({args[4].shape[0]}, 3), got {tuple(poses.shape)}")
     readings = jnp.asarray(readings)
