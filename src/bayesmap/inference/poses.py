@@ -207,7 +207,7 @@ def discrete_pose_gibbs(data: SlamData, candidates, likelihood_power: float = 1.
     def update(key, t, poses, walls):
         logw = _log_conditional(t, cands[t], poses, walls, data, eta)
         j = jax.random.categorical(key, logw)
-        return cands[t, j], True, logw[j]
+        return cands[t, j], jnp.bool_(True), logw[j]
 
     def step(key, state: PoseState):
         return _sweep(key, state, update)
@@ -222,14 +222,23 @@ def lattice_offsets(h_xy: float, h_theta: float, half_width: int = 2):
     Raises:
         BayesmapError: if a step is not finite and > 0 or ``half_width`` is not an integer >= 1.
     """
-    for name, h in (("h_xy", h_xy), ("h_theta", h_theta)):
-        if not (isinstance(h, (int, float)) and math.isfinite(h) and h > 0):
-            raise BayesmapError(f"{name} must be a finite number > 0, got {h!r}")
-    if int(half_width) != half_width or half_width < 1:
+    h_xy, h_theta = _positive("h_xy", h_xy), _positive("h_theta", h_theta)
+    if not isinstance(half_width, (int, np.integer)) or half_width < 1:
         raise BayesmapError(f"half_width must be an integer >= 1, got {half_width!r}")
     r = np.arange(-half_width, half_width + 1, dtype=np.float64)
     grid = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
     return jnp.asarray(grid * np.array([h_xy, h_xy, h_theta]), dtype=jnp.result_type(float))
+
+
+def _positive(name: str, value) -> float:
+    """``value`` as a float, checked finite and > 0 (else a BayesmapError naming ``name`` and the value)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise BayesmapError(f"{name} must be a finite number > 0, got {value!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise BayesmapError(f"{name} must be a finite number > 0, got {value!r}")
+    return v
 
 
 def lattice_pose_mh(data: SlamData, h_xy: float, h_theta: float, half_width: int = 2, jitter: float = 0.5,
@@ -265,13 +274,18 @@ def lattice_pose_mh(data: SlamData, h_xy: float, h_theta: float, half_width: int
     eta = check_likelihood_power(likelihood_power)
     unit = lattice_offsets(1.0, 1.0, half_width)
     center = unit.shape[0] // 2  # the zero offset: the current pose
-    if not (isinstance(jitter, (int, float)) and 0 <= jitter < 1):
+    try:
+        jitter_value = float(jitter)
+    except (TypeError, ValueError):
+        jitter_value = math.nan
+    if not 0 <= jitter_value < 1:
         raise BayesmapError(f"jitter must be a number in [0, 1), got {jitter!r}")
-    steps = lattice_offsets(h_xy, h_theta, 1)[-1]  # (h_xy, h_xy, h_theta)
+    h_xy, h_theta = _positive("h_xy", h_xy), _positive("h_theta", h_theta)
+    steps = jnp.asarray([h_xy, h_xy, h_theta], dtype=unit.dtype)
 
     def update(key, t, poses, walls):
         k_h, k_pick, k_acc = jax.random.split(key, 3)
-        offsets = unit * steps * jax.random.uniform(k_h, (3,), steps.dtype, 1 - jitter, 1 + jitter)
+        offsets = unit * steps * jax.random.uniform(k_h, (3,), steps.dtype, 1 - jitter_value, 1 + jitter_value)
         x = poses[t]
         logw = _log_conditional(t, x + offsets, poses, walls, data, eta)
         j = jax.random.categorical(k_pick, logw)
