@@ -1,0 +1,301 @@
+"""Exact pose conditionals given the map, and two MCMC kernels over the robot's poses (the SLAM model's path).
+
+The target is :data:`bayesmap.model.generative.slam_model`'s posterior over the poses given the walls: for a pose
+``t >= 1`` (pose 0 is fixed), everything in the model's ``assess`` score that depends on ``pose_t`` is
+
+    log p(pose_t | pose_{t-1})  +  log p(pose_{t+1} | pose_t)  (if t < S - 1)  +  eta log p(readings_t | walls, pose_t)
+
+(motion model: :func:`bayesmap.model.motion.motion_logpdf`; scan likelihood: :func:`scan_log_likelihood`; ``eta``
+the likelihood power, 1 for the posterior). :func:`pose_log_conditional` evaluates it at many candidate poses at
+once (vmapped exact ray casts), and the kernels draw from it:
+
+* :func:`discrete_pose_gibbs`: Gibbs over each pose restricted to a given finite candidate set (a model whose poses
+  take a few discrete values; the enumeration test uses it);
+* :func:`lattice_pose_mh`: for continuous poses, a multiple-try Metropolis move per pose (Liu, Liang & Wong 2000,
+  "The multiple-try method and local optimization in Metropolis sampling", JASA 95): the candidates are the current
+  pose plus a symmetric lattice of offsets (correlative scan matching's window, Olson 2009, "Real-time correlative
+  scan matching", ICRA), one is picked with probability proportional to its conditional and accepted with
+  ``min(1, Z(x) / Z(x'))``; see docs/slam.md for the derivation.
+
+Both are BlackJAX-style: pure ``init(poses, walls) -> PoseState`` and ``step(key, state) -> (PoseState,
+PoseInfo)``, jittable, keys passed explicitly; they leave the walls unchanged, so they compose with the map kernels
+of :mod:`bayesmap.inference` (Gibbs over the walls given the poses) into a chain on the joint posterior.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bayesmap.errors import BayesmapError
+from bayesmap.geometry.raycast import first_hit_distances
+from bayesmap.inference.base import SamplingAlgorithm
+from bayesmap.model.generative import ModelParams, check_likelihood_power, reading_log_likelihood
+from bayesmap.model.motion import motion_logpdf
+
+
+class SlamData(NamedTuple):
+    """What the pose conditionals condition on besides the poses and the walls (a pytree).
+
+    Attributes:
+        increments: ``(S - 1, 3)`` odometry increments (dx m, dy m, dtheta rad) in the previous pose's frame.
+        covs: ``(S - 1, 3, 3)`` their covariances (:func:`bayesmap.model.motion.odometry_controls`).
+        sensor_angles: ``(S, K)`` beam angles relative to the heading, radians.
+        readings: ``(S, K)`` range readings, meters.
+        params: the map and sensor parameters (:class:`bayesmap.model.generative.ModelParams`).
+    """
+
+    increments: jax.Array
+    covs: jax.Array
+    sensor_angles: jax.Array
+    readings: jax.Array
+    params: ModelParams
+
+
+def slam_data(odometry_increments, odometry_covs, sensor_angles, readings, params: ModelParams) -> SlamData:
+    """Build :class:`SlamData` (JAX arrays of the default float dtype) after checking the shapes.
+
+    Raises:
+        BayesmapError: if ``sensor_angles`` is not ``(S, K)`` with ``S >= 2`` (there is no pose to infer with one
+            scan), ``readings`` not ``(S, K)``, the increments not ``(S - 1, 3)``, the covariances not
+            ``(S - 1, 3, 3)``, or a value is not finite.
+    """
+    dtype = jnp.result_type(float)
+    arrays = [np.asarray(a, dtype=np.float64) for a in (odometry_increments, odometry_covs, sensor_angles, readings)]
+    increments, covs, angles, y = arrays
+    if angles.ndim != 2 or angles.shape[0] < 2 or angles.shape[1] < 1:
+        raise BayesmapError(f"sensor_angles must have shape (S, K) with S >= 2, K >= 1, got {angles.shape}")
+    s = angles.shape[0]
+    for name, a, shape in (("readings", y, angles.shape), ("odometry_increments", increments, (s - 1, 3)),
+                           ("odometry_covs", covs, (s - 1, 3, 3))):
+        if a.shape != shape:
+            raise BayesmapError(f"{name} must have shape {shape}, got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise BayesmapError(f"{name} must be finite")
+    return SlamData(*(jnp.asarray(a, dtype=dtype) for a in arrays), params=params)
+
+
+def scan_log_likelihood(walls, poses, sensor_angles, readings, params: ModelParams):
+    """The sensor model's log-likelihood of one scan's readings at each candidate pose.
+
+    Args:
+        walls: ``(nx, ny)`` array, cells > 0 are walls.
+        poses: ``(M, 3)`` candidate poses (x m, y m, theta rad).
+        sensor_angles: ``(K,)`` beam angles relative to the heading, radians.
+        readings: ``(K,)`` range readings, meters.
+        params: the model parameters (grid, max range, sensor model).
+
+    Returns:
+        ``(M,)`` float: ``sum_k log p(readings_k | exact distance at the pose)``, the exact ray cast
+        (:func:`bayesmap.geometry.raycast.first_hit_distances`) at world-frame angles ``theta + sensor_angles`` and
+        :func:`bayesmap.model.generative.reading_log_likelihood`: the arithmetic of the model's ``assess``. Never
+        raises.
+    """
+    walls = jnp.asarray(walls)
+
+    def one(pose):
+        d = first_hit_distances(walls, pose[:2], pose[2] + sensor_angles, params.grid, params.max_range)
+        return jnp.sum(reading_log_likelihood(readings, d, params))
+
+    return jax.vmap(one)(jnp.asarray(poses))
+
+
+def _log_conditional(t, candidates, poses, walls, data: SlamData, eta):
+    """:func:`pose_log_conditional` for a (possibly traced) ``t`` in ``1..S-1``, without checks."""
+    last = poses.shape[0] - 1
+    before = motion_logpdf(poses[t - 1], candidates, data.increments[t - 1], data.covs[t - 1])
+    nxt = jnp.minimum(t, last - 1)
+    after = motion_logpdf(candidates, poses[jnp.minimum(t + 1, last)], data.increments[nxt], data.covs[nxt])
+    after = jnp.where(t < last, after, 0.0)
+    like = scan_log_likelihood(walls, candidates, data.sensor_angles[t], data.readings[t], data.params)
+    return before + after + eta * like
+
+
+def pose_log_conditional(t: int, candidates, poses, walls, data: SlamData, likelihood_power: float = 1.0):
+    """``log p(pose_t = candidate | other poses, walls, readings)`` up to a constant (the same for every candidate).
+
+    Args:
+        t: the pose's index, ``1 <= t <= S - 1`` (pose 0 is fixed).
+        candidates: ``(M, 3)`` candidate poses (x m, y m, theta rad).
+        poses: ``(S, 3)`` the current path (its row ``t`` is ignored).
+        walls: ``(nx, ny)`` the map.
+        data: the odometry, sensor angles, readings and parameters (:func:`slam_data`).
+        likelihood_power: ``eta`` in (0, 1]: the scan's log-likelihood is multiplied by it.
+
+    Returns:
+        ``(M,)`` float: motion(``t - 1 -> candidate``) + motion(``candidate -> t + 1``, if ``t < S - 1``) + ``eta``
+        times :func:`scan_log_likelihood`; ``-inf`` where the motion model rules a candidate out.
+
+    Raises:
+        BayesmapError: if ``t`` is not an integer in ``1..S-1`` (the message names it), or ``likelihood_power`` is
+            not in (0, 1].
+    """
+    poses = jnp.asarray(poses)
+    if int(t) != t or not 1 <= int(t) < poses.shape[0]:
+        raise BayesmapError(f"t must be an integer in 1..{poses.shape[0] - 1} (pose 0 is fixed), got {t!r}")
+    eta = check_likelihood_power(likelihood_power)
+    return _log_conditional(int(t), jnp.asarray(candidates, dtype=poses.dtype), poses, walls, data, eta)
+
+
+class PoseState(NamedTuple):
+    """State of a pose kernel: ``poses`` ``(S, 3)`` (x m, y m, theta rad; row 0 fixed) and ``walls`` ``(nx, ny)``
+    (the map the poses are conditioned on; the pose kernels leave it unchanged)."""
+
+    poses: jax.Array
+    walls: jax.Array
+
+
+class PoseInfo(NamedTuple):
+    """What a pose sweep reports: ``accepted`` ``(S - 1,)`` bool, whether each pose ``1..S-1`` moved to the
+    proposed candidate (always True for Gibbs draws), and ``log_conditional`` ``(S - 1,)`` float, the log
+    conditional of each pose's new value (up to its constant)."""
+
+    accepted: jax.Array
+    log_conditional: jax.Array
+
+
+def _init(poses, walls) -> PoseState:
+    poses = jnp.asarray(poses, dtype=jnp.result_type(float))
+    return PoseState(poses=poses, walls=jnp.asarray(walls, dtype=jnp.float32))
+
+
+def _sweep(key, state: PoseState, update):
+    """Apply ``update(key, t, poses, walls) -> (pose, accepted, log_conditional)`` to ``t = 1..S-1`` in order."""
+    num_steps = state.poses.shape[0] - 1
+    keys = jax.random.split(key, num_steps)
+
+    def body(i, carry):
+        poses, accepted, logc = carry
+        pose, acc, lc = update(keys[i], i + 1, poses, state.walls)
+        return poses.at[i + 1].set(pose), accepted.at[i].set(acc), logc.at[i].set(lc)
+
+    init = (state.poses, jnp.zeros(num_steps, bool), jnp.zeros(num_steps, state.poses.dtype))
+    poses, accepted, logc = jax.lax.fori_loop(0, num_steps, body, init)
+    return PoseState(poses=poses, walls=state.walls), PoseInfo(accepted=accepted, log_conditional=logc)
+
+
+def discrete_pose_gibbs(data: SlamData, candidates, likelihood_power: float = 1.0) -> SamplingAlgorithm:
+    """Gibbs over the poses restricted to finite candidate sets: for ``t = 1..S-1`` in order, draw ``pose_t`` from
+    its exact conditional (:func:`pose_log_conditional`) over ``candidates[t]``.
+
+    It is a Gibbs sampler of the model whose pose ``t`` takes the values ``candidates[t]`` (the SLAM model's density
+    restricted to them): the chain stays on them if it starts on them (the current pose is one of the candidates;
+    its own value is not used). Source: Geman & Geman 1984 (systematic-scan Gibbs).
+
+    Args:
+        data: :func:`slam_data`.
+        candidates: ``(S, C, 3)`` candidate poses per scan (row 0 unused: pose 0 is fixed).
+        likelihood_power: ``eta`` in (0, 1].
+
+    Returns:
+        A :class:`bayesmap.inference.base.SamplingAlgorithm`: ``init(poses (S, 3), walls (nx, ny)) -> PoseState``,
+        ``step(key, PoseState) -> (PoseState, PoseInfo)``.
+
+    Raises:
+        BayesmapError: if ``candidates`` is not ``(S, C, 3)`` with ``C >= 1``, or ``likelihood_power`` is bad.
+    """
+    eta = check_likelihood_power(likelihood_power)
+    cands = jnp.asarray(candidates, dtype=data.increments.dtype)
+    s = data.sensor_angles.shape[0]
+    if cands.ndim != 3 or cands.shape[0] != s or cands.shape[1] < 1 or cands.shape[2] != 3:
+        raise BayesmapError(f"candidates must have shape (S, C, 3) = ({s}, C, 3), got {tuple(cands.shape)}")
+
+    def update(key, t, poses, walls):
+        logw = _log_conditional(t, cands[t], poses, walls, data, eta)
+        j = jax.random.categorical(key, logw)
+        return cands[t, j], jnp.bool_(True), logw[j]
+
+    def step(key, state: PoseState):
+        return _sweep(key, state, update)
+
+    return SamplingAlgorithm(init=_init, step=step)
+
+
+def lattice_offsets(h_xy: float, h_theta: float, half_width: int = 2):
+    """The symmetric window of offsets ``(L, 3)``, ``L = (2 w + 1)^3``: ``(i h_xy, j h_xy, k h_theta)`` for ``i, j,
+    k`` in ``-w..w`` (meters, meters, radians). Symmetric (``-o`` is in it with ``o``), as the MTM move needs.
+
+    Raises:
+        BayesmapError: if a step is not finite and > 0 or ``half_width`` is not an integer >= 1.
+    """
+    h_xy, h_theta = _positive("h_xy", h_xy), _positive("h_theta", h_theta)
+    if not isinstance(half_width, (int, np.integer)) or half_width < 1:
+        raise BayesmapError(f"half_width must be an integer >= 1, got {half_width!r}")
+    r = np.arange(-half_width, half_width + 1, dtype=np.float64)
+    grid = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
+    return jnp.asarray(grid * np.array([h_xy, h_xy, h_theta]), dtype=jnp.result_type(float))
+
+
+def _positive(name: str, value) -> float:
+    """``value`` as a float, checked finite and > 0 (else a BayesmapError naming ``name`` and the value)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise BayesmapError(f"{name} must be a finite number > 0, got {value!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise BayesmapError(f"{name} must be a finite number > 0, got {value!r}")
+    return v
+
+
+def lattice_pose_mh(data: SlamData, h_xy: float, h_theta: float, half_width: int = 2, jitter: float = 0.5,
+                    likelihood_power: float = 1.0) -> SamplingAlgorithm:
+    """Multiple-try Metropolis over each pose with a lattice window of candidates (exact for the pose posterior).
+
+    For ``t = 1..S-1`` in order, with ``x`` the current pose and ``pi`` its conditional
+    (:func:`pose_log_conditional`): draw the step sizes ``h = (h_xy u_x, h_xy u_y, h_theta u_theta)`` with ``u ~
+    Uniform(1 - jitter, 1 + jitter)`` each (independent of ``x``); score the window ``x + O_h``
+    (:func:`lattice_offsets` with those steps); pick ``x'`` with probability ``pi(x') / Z(x)``, ``Z(x)`` the sum of
+    ``pi`` over ``x + O_h``; score ``x' + O_h`` for ``Z(x')``; accept ``x'`` with probability
+    ``min(1, Z(x) / Z(x'))``. Because ``O_h`` is symmetric, this is Metropolis-Hastings with the proposal
+    ``q(x -> x') = pi(x') / Z(x)``, whose ratio is ``Z(x) / Z(x')`` (derivation in docs/slam.md; Liu, Liang & Wong
+    2000, with the whole window as the tries). Each fixed ``h`` leaves the conditional invariant, so the mixture over
+    random ``h`` does too; the random steps make the chain irreducible on the continuous poses (with ``jitter = 0``
+    it only visits ``x_0`` plus the lattice). The window is correlative scan matching's search (Olson 2009).
+
+    Args:
+        data: :func:`slam_data`.
+        h_xy: lattice step in x and y, meters, > 0.
+        h_theta: lattice step in theta, radians, > 0.
+        half_width: ``w``, the window has ``(2 w + 1)^3`` candidates.
+        jitter: in ``[0, 1)``; the steps' relative spread (0: a fixed lattice).
+        likelihood_power: ``eta`` in (0, 1].
+
+    Returns:
+        A :class:`bayesmap.inference.base.SamplingAlgorithm`: ``init(poses (S, 3), walls (nx, ny)) -> PoseState``,
+        ``step(key, PoseState) -> (PoseState, PoseInfo)`` (``accepted``: the move was accepted).
+
+    Raises:
+        BayesmapError: on a bad step, half width, jitter or likelihood power (the message names it).
+    """
+    eta = check_likelihood_power(likelihood_power)
+    unit = lattice_offsets(1.0, 1.0, half_width)
+    center = unit.shape[0] // 2  # the zero offset: the current pose
+    try:
+        jitter_value = float(jitter)
+    except (TypeError, ValueError):
+        jitter_value = math.nan
+    if not 0 <= jitter_value < 1:
+        raise BayesmapError(f"jitter must be a number in [0, 1), got {jitter!r}")
+    h_xy, h_theta = _positive("h_xy", h_xy), _positive("h_theta", h_theta)
+    steps = jnp.asarray([h_xy, h_xy, h_theta], dtype=unit.dtype)
+
+    def update(key, t, poses, walls):
+        k_h, k_pick, k_acc = jax.random.split(key, 3)
+        offsets = unit * steps * jax.random.uniform(k_h, (3,), steps.dtype, 1 - jitter_value, 1 + jitter_value)
+        x = poses[t]
+        logw = _log_conditional(t, x + offsets, poses, walls, data, eta)
+        j = jax.random.categorical(k_pick, logw)
+        proposal = x + offsets[j]
+        logw_back = _log_conditional(t, proposal + offsets, poses, walls, data, eta)
+        log_ratio = jax.nn.logsumexp(logw) - jax.nn.logsumexp(logw_back)
+        accept = jnp.log(jax.random.uniform(k_acc, (), steps.dtype)) < log_ratio
+        return jnp.where(accept, proposal, x), accept, jnp.where(accept, logw[j], logw[center])
+
+    def step(key, state: PoseState):
+        return _sweep(key, state, update)
+
+    return SamplingAlgorithm(init=_init, step=step)

@@ -1,0 +1,324 @@
+"""Pose conditionals and pose kernels (bayesmap.inference.poses) against the SLAM model's assess and enumeration."""
+
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.experimental import enable_x64
+
+from bayesmap.errors import BayesmapError
+from bayesmap.geometry.grid import Grid
+from bayesmap.inference.poses import (
+    discrete_pose_gibbs,
+    lattice_offsets,
+    lattice_pose_mh,
+    pose_log_conditional,
+    scan_log_likelihood,
+    slam_data,
+)
+from bayesmap.model import motion
+from bayesmap.model.generative import (
+    log_joint_scans,
+    make_params,
+    simulate_scan_readings,
+    slam_args,
+    slam_choices,
+    slam_model,
+)
+from conftest import random_scene
+
+
+def random_slam_scene(seed, beam_model="normal", num_scans=4):
+    """A random small grid and map (conftest.random_scene), a path of ``num_scans`` poses near its position,
+    odometry near the path, readings simulated at the path (some set to the max range)."""
+    rng = np.random.default_rng(seed)
+    grid, pos, walls, beam_angles = random_scene(rng, metric=bool(seed % 2))
+    params = make_params(0.3, 0.3, 1, grid, beam_model=beam_model)
+    step = 0.5 * grid.resolution
+    path = np.concatenate([np.tile(pos, (num_scans, 1)) + rng.normal(0, step, (num_scans, 2)),
+                           rng.uniform(-np.pi, np.pi, (num_scans, 1))], axis=1)
+    path[0, :2] = pos
+    odometry = path + rng.normal(0, [step, step, 0.1], path.shape)
+    odometry[0] = path[0]
+    inc, cov = motion.odometry_controls(odometry, motion.make_motion_params((0.2, 0.1, 0.2, 0.1), step, 0.1))
+    sensor_angles = np.tile(beam_angles[:12], (num_scans, 1)) - path[:, 2:3]
+    y = np.asarray(simulate_scan_readings(jax.random.key(seed), walls, path[:, :2], params,
+                                          path[:, 2:3] + sensor_angles), np.float64)
+    y = np.maximum(y, 0.0)
+    y[rng.random(y.shape) < 0.2] = params.max_range
+    return params, path, walls, inc, cov, sensor_angles, y, step
+
+
+@pytest.mark.parametrize("beam_model", ["normal", "beam"])
+@pytest.mark.parametrize("seed", range(4))
+def test_pose_conditional_equals_assess_differences(beam_model, seed):
+    """For every pose t >= 1 (the last one has no t+1 factor), the conditional at candidates minus at the current
+    pose equals assess(path with pose_t = candidate) - assess(path). Float64, 1e-6 absolute on differences of log
+    densities of size ~10-1000 (both sides are the same float64 arithmetic up to summation order, ~1e-12; a
+    missing factor, a wrong frame or a wrong angle convention changes them by far more than 1e-6)."""
+    with enable_x64():
+        params, path, walls, inc, cov, angles, y, step = random_slam_scene(seed, beam_model)
+        data = slam_data(inc, cov, angles, y, params)
+        assess = jax.jit(lambda p: slam_model.assess(slam_choices(p, walls, y),
+                                                     slam_args(path[0], inc, cov, params, angles))[0])
+        rng = np.random.default_rng(50 + seed)
+        for t in range(1, len(path)):
+            cands = path[t] + rng.normal(0, [step, step, 0.3], (6, 3))
+            got = np.asarray(pose_log_conditional(t, np.concatenate([path[t:t + 1], cands]), path, walls, data))
+            want = np.array([float(assess(jnp.asarray(path).at[t].set(c))) for c in cands])
+            base = float(assess(jnp.asarray(path)))
+            assert np.all(np.isfinite(want))
+            np.testing.assert_allclose(got[1:] - got[0], want - base, atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_tempered_pose_conditional(seed):
+    """With eta = 0.4: differences equal motion (path_logpdf) + eta * sensor part (log_joint_scans at the path,
+    whose prior term is the same for every candidate), float64 to 1e-6."""
+    with enable_x64():
+        eta = 0.4
+        params, path, walls, inc, cov, angles, y, step = random_slam_scene(seed)
+        data = slam_data(inc, cov, angles, y, params)
+
+        def target(p):
+            p = np.asarray(p)
+            return (float(motion.path_logpdf(p, path[0], inc, cov))
+                    + eta * float(log_joint_scans(walls, y, p[:, :2], params, p[:, 2:3] + angles)))
+
+        rng = np.random.default_rng(seed)
+        for t in (1, len(path) - 1):
+            cands = path[t] + rng.normal(0, [step, step, 0.3], (4, 3))
+            got = np.asarray(pose_log_conditional(t, np.concatenate([path[t:t + 1], cands]), path, walls, data, eta))
+            want = np.array([target(_with(path, t, c)) for c in cands])
+            np.testing.assert_allclose(got[1:] - got[0], want - target(path), atol=1e-6, rtol=0)
+
+
+def _with(path, t, pose):
+    out = np.array(path, copy=True)
+    out[t] = pose
+    return out
+
+
+def test_scan_log_likelihood_is_the_sensor_part_of_assess():
+    """At a single pose it equals log_joint_scans of that one scan minus the prior (float64, 1e-9)."""
+    with enable_x64():
+        params, path, walls, inc, cov, angles, y, _ = random_slam_scene(3)
+        got = np.asarray(scan_log_likelihood(walls, path, angles[0], y[0], params))
+        p = params.prior_wall_prob
+        prior = float(np.sum(np.where(walls > 0, np.log(p), np.log1p(-p))))
+        for m, pose in enumerate(path):
+            want = float(log_joint_scans(walls, y[:1], pose[None, :2], params, pose[2] + angles[:1])) - prior
+            assert got[m] == pytest.approx(want, abs=1e-6)
+
+
+def test_bad_arguments_are_errors():
+    params, path, walls, inc, cov, angles, y, _ = random_slam_scene(0)
+    data = slam_data(inc, cov, angles, y, params)
+    with pytest.raises(BayesmapError, match="got 0"):
+        pose_log_conditional(0, path[:1], path, walls, data)
+    with pytest.raises(BayesmapError, match="got 4"):
+        pose_log_conditional(4, path[:1], path, walls, data)
+    with pytest.raises(BayesmapError, match="likelihood_power"):
+        pose_log_conditional(1, path[:1], path, walls, data, likelihood_power=1.5)
+    with pytest.raises(BayesmapError, match="readings"):
+        slam_data(inc, cov, angles, y[:, :3], params)
+    with pytest.raises(BayesmapError, match="candidates"):
+        discrete_pose_gibbs(data, np.zeros((3, 2, 3)))
+    with pytest.raises(BayesmapError, match="h_theta"):
+        lattice_pose_mh(data, 0.1, -1.0)
+    with pytest.raises(BayesmapError, match="jitter"):
+        lattice_pose_mh(data, 0.1, 0.1, jitter=1.0)
+
+
+# --- enumeration: joint marginals of poses and walls on a tiny problem ----------------------------------------------
+
+TINY_GRID = Grid((3, 2))  # 6 unit cells: 2^6 maps
+MAX_RANGE = 1.5  # meters: short, so that walls beyond a beam's reach stay uncertain
+TINY_ODOMETRY = np.array([[0.0, 0.0, 0.0], [1.0, 0.1, 0.3], [2.0, 0.0, 0.9]])
+TINY_OFFSETS = np.array([[0.0, 0.0, 0.0], [0.15, -0.1, 0.15], [-0.1, 0.15, -0.15]])  # 3 candidates per pose
+
+
+def tiny_problem():
+    params = make_params(0.3, 0.5, 1, TINY_GRID, MAX_RANGE)
+    inc, cov = motion.odometry_controls(TINY_ODOMETRY, motion.make_motion_params((0.2, 0.1, 0.2, 0.1), 0.25, 0.2))
+    candidates = TINY_ODOMETRY[:, None, :] + TINY_OFFSETS[None]  # (3, 3, 3); row 0: pose 0 (fixed) repeated
+    candidates[0] = TINY_ODOMETRY[0]
+    angles = np.tile(np.array([-2.5, -0.9, 0.4, 1.9]), (3, 1))  # 4 beams, sensor frame
+    truth_path = np.stack([candidates[0, 0], candidates[1, 1], candidates[2, 2]])
+    truth = np.array([[0, 0], [0, 1], [0, 0]], np.float32)
+    y = np.asarray(simulate_scan_readings(jax.random.key(7), truth, truth_path[:, :2], params,
+                                          truth_path[:, 2:3] + angles), np.float64)
+    return params, inc, cov, candidates, angles, y
+
+
+def exact_marginals(params, inc, cov, candidates, angles, y):
+    """P(pose_1 = c), P(pose_2 = c) (3 each) and P(wall) (3, 2) from all 3 * 3 * 64 = 576 joint states, each
+    scored by the model's assess."""
+    args = slam_args(candidates[0, 0], inc, cov, params, angles)
+    maps = np.array(list(itertools.product([0.0, 1.0], repeat=6))).reshape(-1, 3, 2)
+    assess = jax.jit(jax.vmap(lambda p, w: slam_model.assess(slam_choices(p, w, y), args)[0], in_axes=(None, 0)))
+    logp = np.zeros((3, 3, len(maps)))
+    for i, j in itertools.product(range(3), range(3)):
+        path = jnp.asarray(np.stack([candidates[0, 0], candidates[1, i], candidates[2, j]]))
+        logp[i, j] = np.asarray(assess(path, jnp.asarray(maps)))
+    prob = np.exp(logp - logp.max())
+    prob /= prob.sum()
+    return prob.sum(axis=(1, 2)), prob.sum(axis=(0, 2)), np.tensordot(prob.sum(axis=(0, 1)), maps, axes=1)
+
+
+def wall_sweep(params, inc, cov, angles, y):
+    """A single-site Gibbs sweep over the walls given the poses, each cell's conditional from assess differences
+    (the reference map kernel of this test: Gibbs over the walls given the poses)."""
+
+    def log_joint(poses, walls):
+        return slam_model.assess(slam_choices(poses, walls, y), slam_args(TINY_ODOMETRY[0], inc, cov, params,
+                                                                          angles))[0]
+
+    def sweep(key, poses, walls):
+        keys = jax.random.split(key, walls.size)
+
+        def update(c, w):
+            flat = w.reshape(-1)
+            lw = jnp.stack([log_joint(poses, flat.at[c].set(v).reshape(w.shape)) for v in (0.0, 1.0)])
+            return flat.at[c].set(jax.random.categorical(keys[c], lw).astype(w.dtype)).reshape(w.shape)
+
+        return jax.lax.fori_loop(0, walls.size, update, walls)
+
+    return sweep
+
+
+def test_gibbs_over_poses_and_walls_matches_enumeration():
+    """Chains alternating discrete_pose_gibbs with a Gibbs sweep over the walls, against the exact joint marginals.
+
+    2,000 independent chains of 60 sweeps from random starts (20 burn-in: the state space has 576 states and a
+    sweep updates everything, so the chains forget their start in a few sweeps). Each chain's average over its last
+    40 sweeps is one estimate; the chains are independent, so the standard error of the mean of the 2,000 estimates
+    is their standard deviation / sqrt(2000) (this accounts for the autocorrelation within a chain). The tolerance
+    is 5 standard errors plus 2e-3 (the burn-in's remaining bias, which decays geometrically): a wrong
+    conditional (a missing motion factor, a wrong frame) moves these marginals by several percent."""
+    params, inc, cov, candidates, angles, y = tiny_problem()
+    p1, p2, pw = exact_marginals(params, inc, cov, candidates, angles, y)
+    # the test is only sharp if every candidate has real mass, the readings move the poses away from the motion
+    # model's preference (the odometry's own candidate, 0) and some walls are uncertain
+    assert 0.1 < p1.min() and 0.1 < p2.min() and p1.argmax() == 1
+    assert np.sum((pw > 0.1) & (pw < 0.9)) >= 2
+    data = slam_data(inc, cov, angles, y, params)
+    poses_kernel = discrete_pose_gibbs(data, candidates)
+    sweep = wall_sweep(params, inc, cov, angles, y)
+    cands = jnp.asarray(candidates, jnp.result_type(float))
+    num_chains, num_sweeps, burn_in = 2000, 60, 20
+
+    def chain(key):
+        k_init, k_walls, k_run = jax.random.split(key, 3)
+        idx = jax.random.randint(k_init, (3,), 0, 3)
+        walls = jax.random.bernoulli(k_walls, 0.5, TINY_GRID.shape).astype(jnp.float32)
+        state = poses_kernel.init(cands[jnp.arange(3), idx], walls)
+
+        def body(state, k):
+            k_p, k_w = jax.random.split(k)
+            state, _ = poses_kernel.step(k_p, state)
+            state = state._replace(walls=sweep(k_w, state.poses, state.walls))
+            which = jnp.all(state.poses[1:, None, :] == cands[1:], axis=-1)  # (2, 3) one-hot
+            return state, (which.astype(jnp.float32), state.walls)
+
+        _, (which, walls) = jax.lax.scan(body, state, jax.random.split(k_run, num_sweeps))
+        return which[burn_in:].mean(0), walls[burn_in:].mean(0)
+
+    which, walls = jax.jit(jax.vmap(chain))(jax.random.split(jax.random.key(0), num_chains))
+    which, walls = np.asarray(which), np.asarray(walls)
+    assert np.allclose(which.sum(-1), 1.0)  # every pose is always exactly one of its candidates
+    for est, exact in ((which[:, 0], p1), (which[:, 1], p2), (walls, pw)):
+        se = est.std(0) / np.sqrt(num_chains)
+        assert np.all(np.abs(est.mean(0) - exact) < 5 * se + 2e-3), (est.mean(0), exact, se)
+
+
+# --- lattice_pose_mh: the chain's pose marginal against the exact conditional ---------------------------------------
+
+
+def lattice_problem():
+    """Two scans on a 4 x 4 grid with a few walls: pose 0 fixed, pose 1 random (no t + 1 factor), 8 beams."""
+    grid = Grid((4, 4))
+    params = make_params(0.3, 0.3, 1, grid, 4.0)
+    walls = np.zeros(grid.shape, np.float32)
+    walls[3, :] = 1
+    walls[:, 3] = 1
+    walls[0, 1] = 1
+    odometry = np.array([[0.5, 0.5, 0.0], [1.5, 1.5, 0.5]])
+    inc, cov = motion.odometry_controls(odometry, motion.make_motion_params((0, 0, 0, 0), 0.15, 0.1))
+    angles = np.tile(np.linspace(-np.pi, np.pi, 8, endpoint=False), (2, 1))
+    truth = np.array([odometry[0], [1.62, 1.42, 0.58]])
+    y = np.asarray(simulate_scan_readings(jax.random.key(1), walls, truth[:, :2], params, truth[:, 2:3] + angles))
+    return slam_data(inc, cov, angles, y, params), odometry, walls
+
+
+def run_pose_chains(kernel, start, walls, num_chains, num_sweeps, burn_in):
+    """Pose 1 of ``num_chains`` independent chains, sweeps after ``burn_in``: ``(num_chains, kept, 3)``."""
+
+    def chain(key):
+        def body(state, k):
+            state, info = kernel.step(k, state)
+            return state, state.poses[1]
+
+        return jax.lax.scan(body, kernel.init(start, walls), jax.random.split(key, num_sweeps))[1][burn_in:]
+
+    return np.asarray(jax.jit(jax.vmap(chain))(jax.random.split(jax.random.key(3), num_chains)), np.float64)
+
+
+def test_lattice_mh_fixed_lattice_matches_the_exact_conditional():
+    """jitter = 0: the chain lives on x0 + the lattice (steps 0.1 m, 0.1 m, 0.1 rad), where its target is the
+    conditional restricted to the lattice points. Exact: the conditional on the 13^3 lattice points within 6 steps of
+    x0 (4 motion standard deviations; the test checks that the box's faces hold < 1e-3 of the mass), normalized.
+    Compared: the 1-D marginals of the lattice index in x, y and theta. 400 independent chains x 150 sweeps after 50
+    of burn-in; the standard error of a probability is the standard deviation of the per-chain frequencies /
+    sqrt(400) (independent chains, autocorrelation included); tolerance 5 standard errors + 3e-3 (burn-in bias).
+    A wrong acceptance ratio (e.g. accepting always, plain importance resampling in the window) flattens or sharpens
+    these marginals by several percent."""
+    with enable_x64():
+        data, odometry, walls = lattice_problem()
+        h, half = 0.1, 6
+        x0 = odometry[1]
+        r = np.arange(-half, half + 1)
+        idx = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
+        logp = np.asarray(pose_log_conditional(1, x0 + h * idx, odometry, walls, data))
+        prob = np.exp(logp - logp.max()).reshape(len(r), len(r), len(r))
+        prob /= prob.sum()
+        exact = [prob.sum(axis=(1, 2)), prob.sum(axis=(0, 2)), prob.sum(axis=(0, 1))]
+        assert all(m[0] + m[-1] < 1e-3 for m in exact)
+        assert lattice_offsets(h, h, 1).shape == (27, 3)
+        kernel = lattice_pose_mh(data, h, h, half_width=1, jitter=0.0)
+        poses = run_pose_chains(kernel, odometry, walls, 400, 200, 50)
+        steps = (poses - x0) / h
+        np.testing.assert_allclose(steps, np.round(steps), atol=1e-6)  # on the lattice
+        steps = np.round(steps).astype(int)
+        for d in range(3):
+            freq = (steps[..., d, None] == r).mean(axis=1)  # (chains, 13)
+            se = freq.std(0) / np.sqrt(len(freq))
+            assert np.all(np.abs(freq.mean(0) - exact[d]) < 5 * se + 3e-3), (d, freq.mean(0), exact[d], se)
+
+
+def test_lattice_mh_jittered_matches_the_continuous_conditional():
+    """jitter = 0.5 (continuous poses): the chain's mean and standard deviation of pose 1 in x, y and theta against
+    the exact conditional's, by quadrature on a 49^3 grid of step 0.025 (m, m, rad) over +-0.6 around the odometry
+    (4 motion standard deviations). Quadrature error: the grid is 6 times finer than the smallest standard
+    deviation; allowed 2e-3. Monte Carlo: 400 independent chains x 150 kept sweeps, standard error of the mean of
+    per-chain averages; tolerance 5 standard errors + 2e-3 (quadrature) for means, 20 % for standard deviations
+    (their sampling error and the burn-in)."""
+    with enable_x64():
+        data, odometry, walls = lattice_problem()
+        g = np.arange(-24, 25) * 0.025
+        pts = odometry[1] + np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+        logp = np.concatenate([np.asarray(pose_log_conditional(1, c, odometry, walls, data))
+                               for c in np.array_split(pts, 8)])
+        w = np.exp(logp - logp.max())
+        w /= w.sum()
+        mean = w @ pts
+        sd = np.sqrt(w @ (pts - mean) ** 2)
+        kernel = lattice_pose_mh(data, 0.1, 0.1, half_width=1, jitter=0.5)
+        poses = run_pose_chains(kernel, odometry, walls, 400, 200, 50)
+        per_chain = poses.mean(axis=1)
+        se = per_chain.std(0) / np.sqrt(len(per_chain))
+        assert np.all(np.abs(per_chain.mean(0) - mean) < 5 * se + 2e-3), (per_chain.mean(0), mean, se)
+        np.testing.assert_allclose(poses.reshape(-1, 3).std(0), sd, rtol=0.2)
+        assert len(np.unique(poses[:, -1, 0])) > 300  # continuous: the chains do not share a lattice

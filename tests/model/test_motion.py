@@ -1,0 +1,119 @@
+"""The odometry motion model (bayesmap.model.motion): controls, composition, sampling against the density."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.experimental import enable_x64
+from scipy import stats
+
+from bayesmap.errors import BayesmapError
+from bayesmap.model import motion
+
+
+def test_controls_of_a_known_path():
+    """PR Table 5.5 on hand-made steps: a pure rotation (rot1 = 0), a forward move, a move to the left and back."""
+    with enable_x64():
+        odo = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.5], [2.0 * np.cos(0.5), 2.0 * np.sin(0.5), 0.5],
+                        [2.0 * np.cos(0.5) - 3 * np.sin(0.5), 2.0 * np.sin(0.5) + 3 * np.cos(0.5), np.pi - 0.1]])
+        parts = np.asarray(motion.odometry_decomposition(jnp.asarray(odo)))
+        np.testing.assert_allclose(parts[0], [0.0, 0.0, 0.5], atol=1e-12)
+        np.testing.assert_allclose(parts[1], [0.0, 2.0, 0.0], atol=1e-12)
+        np.testing.assert_allclose(parts[2], [np.pi / 2, 3.0, np.pi - 0.1 - 0.5 - np.pi / 2], atol=1e-12)
+        inc, cov = motion.odometry_controls(odo)
+        np.testing.assert_allclose(np.asarray(inc), [[0, 0, 0.5], [2, 0, 0], [0, 3, np.pi - 0.6]], atol=1e-12)
+        # composing the increments from the first odometry pose gives the odometry back
+        path = [odo[0]]
+        for d in np.asarray(inc):
+            path.append(np.asarray(motion.compose(path[-1], d)))
+        np.testing.assert_allclose(np.array(path), odo, atol=1e-12)
+        # Sigma of the pure rotation: std(rot2) = a1 * 0.5, std(trans) = a4 * 0.5, plus the floors
+        p = motion.MotionParams()
+        v = np.array([[0, 1, 0], [0, 0, 0], [1, 0, 1]])  # V at rot1 = 0, trans = 0
+        m = np.diag([0.0, (p.a4 * 0.5) ** 2, (p.a1 * 0.5) ** 2])
+        want = v @ m @ v.T + np.diag([p.floor_xy ** 2, p.floor_xy ** 2, p.floor_theta ** 2])
+        np.testing.assert_allclose(np.asarray(cov[0]), want, atol=1e-15)
+
+
+def test_heading_wraps_in_controls_not_in_state():
+    """A turn across +-pi is a small rotation in the control; the composed heading keeps counting (no wrap)."""
+    with enable_x64():
+        odo = np.array([[0.0, 0.0, np.pi - 0.05], [0.0, 0.0, -np.pi + 0.05]])
+        inc, _ = motion.odometry_controls(odo)
+        np.testing.assert_allclose(np.asarray(inc[0]), [0, 0, 0.1], atol=1e-12)
+        assert float(motion.compose(odo[0], inc[0])[2]) == pytest.approx(np.pi + 0.05)
+
+
+def test_motion_logpdf_equals_scipy_multivariate_normal():
+    with enable_x64():
+        rng = np.random.default_rng(0)
+        odo = np.cumsum(rng.normal(0, 0.5, (6, 3)), axis=0)
+        inc, cov = motion.odometry_controls(odo, motion.make_motion_params((0.2, 0.1, 0.15, 0.05), 0.02, 0.01))
+        for t in range(5):
+            prev = rng.normal(0, 2, 3)
+            cands = prev + rng.normal(0, 0.7, (20, 3))
+            got = np.asarray(motion.motion_logpdf(prev, cands, inc[t], cov[t]))
+            c, s = np.cos(prev[2]), np.sin(prev[2])
+            d = cands - prev
+            err = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], -1) - np.asarray(inc[t])
+            want = stats.multivariate_normal(np.zeros(3), np.asarray(cov[t])).logpdf(err)
+            np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10)
+
+
+def test_one_step_samples_match_the_density():
+    """Mean and covariance of 20,000 one-step errors against the increment and Sigma. Monte Carlo error of a sample
+    mean is sigma / sqrt(n) (5 standard errors allowed); of a sample covariance entry about
+    sqrt((S_ii S_jj + S_ij^2) / n) (Wishart), also 5 standard errors."""
+    with enable_x64():
+        odo = np.array([[1.0, 2.0, 0.3], [1.8, 2.9, 1.1]])
+        inc, cov = motion.odometry_controls(odo, motion.make_motion_params((0.2, 0.1, 0.2, 0.1), 0.02, 0.01))
+        n = 20000
+        keys = jax.random.split(jax.random.key(3), n)
+        poses = np.asarray(jax.vmap(lambda k: motion.sample_path(k, odo[0], inc, cov)[1])(keys))
+        err = np.asarray(motion.motion_error(odo[0], poses, inc[0]))
+        sigma = np.asarray(cov[0])
+        sd = np.sqrt(np.diag(sigma))
+        assert np.all(np.abs(err.mean(0)) < 5 * sd / np.sqrt(n))
+        se_cov = np.sqrt((np.outer(np.diag(sigma), np.diag(sigma)) + sigma ** 2) / n)
+        assert np.all(np.abs(np.cov(err.T) - sigma) < 5 * se_cov)
+        # and the path's density is the density of these errors (unit Jacobian)
+        got = float(motion.path_logpdf(np.stack([odo[0], poses[0]]), odo[0], inc, cov))
+        assert got == pytest.approx(stats.multivariate_normal(np.zeros(3), sigma).logpdf(err[0]), abs=1e-9)
+
+
+def test_zero_noise_is_the_odometry_path():
+    zero = motion.make_motion_params((0, 0, 0, 0), 0, 0)
+    odo = np.array([[1.0, 2.0, 0.3], [1.8, 2.9, 1.1], [1.8, 2.9, 1.1], [0.5, 3.5, 2.9]])
+    inc, cov = motion.odometry_controls(odo, zero)
+    assert np.all(np.asarray(cov) == 0)
+    path = motion.sample_path(jax.random.key(0), odo[0], inc, cov)
+    np.testing.assert_allclose(np.asarray(path[:, :2]), odo[:, :2], atol=1e-5)
+    np.testing.assert_allclose(np.asarray(path[:, 2]), odo[:, 2], atol=1e-5)
+    assert float(motion.path_logpdf(path, odo[0], inc, cov)) == 0.0
+    moved = path.at[2, 0].add(0.01)
+    assert float(motion.path_logpdf(moved, odo[0], inc, cov)) == -np.inf
+    assert float(motion.path_logpdf(path.at[0, 1].add(0.01), odo[0], inc, cov)) == -np.inf  # pose 0 is fixed
+
+
+def test_odometry_path_distribution_is_sample_and_logpdf():
+    inc, cov = motion.odometry_controls(np.array([[0.0, 0.0, 0.0], [1.0, 0.2, 0.1], [1.5, 1.0, 0.9]]))
+    first = jnp.zeros(3)
+    trace = motion.odometry_path.simulate(jax.random.key(1), (first, inc, cov))
+    later = trace.get_retval()
+    assert later.shape == (2, 3)
+    want = motion.path_logpdf(jnp.concatenate([first[None], later]), first, inc, cov)
+    assert float(trace.get_score()) == pytest.approx(float(want), abs=1e-5)
+
+
+@pytest.mark.parametrize("kwargs, word", [({"alphas": (0.1, 0.1, 0.1)}, "alphas"),
+                                          ({"alphas": (0.1, -0.1, 0.1, 0.1)}, "a2"),
+                                          ({"floor_xy": float("nan")}, "floor_xy"),
+                                          ({"floor_theta": 0.0}, "floor_theta=0.0")])
+def test_bad_motion_params_name_the_value(kwargs, word):
+    with pytest.raises(BayesmapError, match=word):
+        motion.make_motion_params(**kwargs)
+
+
+def test_bad_odometry_is_an_error():
+    with pytest.raises(BayesmapError, match=r"\(4,\)"):
+        motion.odometry_controls(np.zeros(4))
