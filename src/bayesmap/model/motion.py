@@ -75,15 +75,14 @@ class MotionParams(Pytree):
     floor_theta: float = 0.005
 
 
-def make_motion_params(alphas=(0.1, 0.05, 0.1, 0.05), floor_xy: float = 0.01,
-                       floor_theta: float = 0.005) -> MotionParams:
+def make_motion_params(alphas=None, floor_xy: float | None = None, floor_theta: float | None = None) -> MotionParams:
     """Build :class:`MotionParams` after checking every value.
 
     Args:
         alphas: ``(a1, a2, a3, a4)``, PR Table 5.6's noise parameters as standard deviations (see
-            :class:`MotionParams` for units), each finite and >= 0.
-        floor_xy: meters, finite and >= 0.
-        floor_theta: radians, finite and >= 0.
+            :class:`MotionParams` for units), each finite and >= 0; default :class:`MotionParams`'s.
+        floor_xy: meters, finite and >= 0; default :class:`MotionParams`'s.
+        floor_theta: radians, finite and >= 0; default :class:`MotionParams`'s.
 
     All zero is the known-pose model (see the module docstring).
 
@@ -91,7 +90,10 @@ def make_motion_params(alphas=(0.1, 0.05, 0.1, 0.05), floor_xy: float = 0.01,
         BayesmapError: if there are not four alphas, a value is negative or not finite, or a floor is 0 while
             another value is not (the covariance of a standing robot would be singular); the message names it.
     """
-    alphas = tuple(alphas)
+    default = MotionParams()
+    alphas = (default.a1, default.a2, default.a3, default.a4) if alphas is None else tuple(alphas)
+    floor_xy = default.floor_xy if floor_xy is None else floor_xy
+    floor_theta = default.floor_theta if floor_theta is None else floor_theta
     if len(alphas) != 4:
         raise BayesmapError(f"alphas must be four numbers (a1, a2, a3, a4), got {alphas!r}")
     values = {"a1": alphas[0], "a2": alphas[1], "a3": alphas[2], "a4": alphas[3], "floor_xy": floor_xy,
