@@ -183,6 +183,8 @@ def _connections(reader, name: str, topic: str, msgtype: str, required: bool = T
 
 
 def _messages(reader, conns):
+    if not conns:  # (no connections would mean "all messages" to rosbags)
+        return
     for conn, _, raw in reader.messages(connections=conns):
         yield reader.deserialize(raw, conn.msgtype)
 
