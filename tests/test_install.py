@@ -8,6 +8,7 @@ it installing the lock (106 s measured on the 2-core machine, under load). Not c
 build isolation resolving the newest versions of the dependencies (checked by hand: 80 s, then `bayesmap demo` gave
 the same "1 of 217 visible cells wrong"), and the Makefile's chromium install."""
 
+import os
 import shutil
 import subprocess
 import sys
@@ -20,7 +21,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _run(args, cwd, timeout):
-    done = subprocess.run([str(a) for a in args], cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV")}
+    done = subprocess.run([str(a) for a in args], cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env)
     assert done.returncode == 0, f"{' '.join(map(str, args))} failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
     return done.stdout
 

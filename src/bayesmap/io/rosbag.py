@@ -104,7 +104,8 @@ def compose_poses(a, b) -> np.ndarray:
     """2-D pose composition ``a o b``: the pose ``b`` (given in the frame of ``a``) in ``a``'s parent frame.
 
     Args:
-        a, b: ``(..., 3)`` float64 ``[x (m), y (m), theta (rad)]`` (broadcast).
+        a: ``(..., 3)`` float64 ``[x (m), y (m), theta (rad)]``.
+        b: ``(..., 3)`` float64, the same (broadcast with ``a``).
 
     Returns:
         ``(..., 3)`` float64: ``[x_a + cos(t_a) x_b - sin(t_a) y_b, y_a + sin(t_a) x_b + cos(t_a) y_b, t_a + t_b]``
@@ -503,7 +504,8 @@ def write_log_bag(log: CarmenLog, path, ros2: bool = False, storage: str = "sqli
                   overwrite: bool = False) -> Path:
     """Write a log as a ROS bag: LaserScan on ``/scan``, Odometry on ``/odom``, ``/tf`` and ``/tf_static``.
 
-    The stamps are the log's timestamps (made strictly increasing, see :func:`_stamps`); each scan's Odometry and
+    The stamps are the log's timestamps, to the microsecond, made strictly increasing (a stamp not after the previous
+    one becomes that one plus 1 ms: CSAIL's log prints ``1.13486e+09`` for many scans); each scan's Odometry and
     ``odom -> base_link`` transform carry the same stamp, so reading the bag back needs no interpolation. The laser
     (frame ``laser``) is mounted at ``laser_offset`` on ``base_link`` (``/tf_static``), and the base's poses are the
     log's laser poses composed with the offset's inverse, so :func:`read_bag` gives back the log's poses. Beam
@@ -590,7 +592,8 @@ def write_occupancy_grid_bag(path, probability, grid: Grid, seen=None, stamp_ns:
         grid: the map's :class:`~bayesmap.geometry.grid.Grid`.
         seen: ``(nx, ny)`` bool, cells some beam crossed; default all.
         stamp_ns: the message's stamp and bag time, nanoseconds.
-        topic, frame_id: where the map is published and its frame.
+        topic: where the map is published.
+        frame_id: the map's frame.
         overwrite: replace ``path`` if it exists.
 
     Returns:
