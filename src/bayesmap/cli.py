@@ -609,6 +609,10 @@ def _format_scores(scores: dict) -> str:
 @app.command()
 def evaluate(
     log: Optional[Path] = typer.Option(None, "--log", help=EVALUATE_LOG_HELP),
+    bag: Optional[Path] = typer.Option(None, "--bag", help="a ROS bag, as --log (see infer --bag)"),
+    scan_topic: str = typer.Option("/scan", "--scan-topic", help="--bag: topic of the sensor_msgs/LaserScan messages"),
+    odom_topic: str = typer.Option("/odom", "--odom-topic", help="--bag: topic of the nav_msgs/Odometry poses"),
+    tf: bool = typer.Option(False, "--tf", help="--bag: the robot's poses from /tf (odom -> base_link), not odometry"),
     truth: Optional[Path] = typer.Option(None, "--truth", help=EVALUATE_TRUTH_HELP),
     scans: Optional[str] = typer.Option(None, "--scans", help=EVALUATE_SCANS_HELP),
     every: int = typer.Option(10, "--every", help="hold out every k-th scan"),
@@ -642,16 +646,15 @@ def evaluate(
     """Score bayesmap against log-odds mapping: on held-out beams of a log (occupancy AUC, predictive NLL), or
     against a known floor plan (accuracy, AUC, Brier score)."""
 
-    if (log is None) == (truth is None):
-        raise BayesmapError("give either --log FILE or --truth FILE")
+    if (log is None and bag is None) == (truth is None):
+        raise BayesmapError("give either --log FILE (or --bag PATH) or --truth FILE")
     if json_file is not None and json_file.exists() and not force:
         raise BayesmapError(f"{str(json_file)!r} already exists; pass --force to replace it")
     mapping = dict(sampler=sampler, sweeps=sweeps, seed=seed, sensor_noise=sensor_noise, beam_model=beam_model,
                    prior_wall_prob=prior_wall_prob, sensor_params=_sensor_params(beam_weights, lambda_short))
-    if log is not None:
-
-
-        carmen = read_carmen(log, max_range=max_range)
+    carmen = _read_log(log, bag, scan_topic, odom_topic, tf, max_range)
+    if carmen is not None:
+        log = log if log is not None else bag
         chosen = parse_scans(scans, len(carmen))
         check_problem_size(log_problem(carmen, chosen, resolution=resolution))  # the grid of all chosen scans
         scores = evaluate_log(carmen, chosen, every=every, resolution=resolution,

@@ -3,6 +3,7 @@ a bag written from a log reads back the log and maps to the same posterior (ROS 
 off-center laser with --tf); poses are interpolated; "no return" readings follow the max-range rule; every bad bag
 is one error line naming the topic or field (exit 2)."""
 
+import json
 import math
 
 import numpy as np
@@ -256,3 +257,17 @@ def test_convert_turns_a_ros1_bag_into_a_ros2_bag(tmp_path, bags, intel, monkeyp
     assert code == 0, err
     assert "40 scans of 180 beams" in out
     _same_scans(read_bag(tmp_path / "r2"), intel)
+
+
+def test_evaluate_takes_a_bag_as_it_takes_the_log(tmp_path, bags, monkeypatch, capsys):
+    scores = []
+    for source in (["--log", INTEL, "--scans", f"0:{SCANS}"], ["--bag", bags["ros2"]]):
+        out = tmp_path / f"scores{len(scores)}.json"
+        code, _, err = run_cli(monkeypatch, capsys, "evaluate", *source, "--resolution", "0.5", "--sweeps", "6",
+                               "--every", "5", "--json", out)
+        assert code == 0, err
+        scores.append(json.loads(out.read_text()))
+    for method in ("bayesmap", "logodds"):
+        assert scores[1][method]["beams"] == scores[0][method]["beams"] > 0
+        assert scores[1][method]["auc"] == pytest.approx(scores[0][method]["auc"], abs=1e-4)
+        assert scores[1][method]["nll"] == pytest.approx(scores[0][method]["nll"], abs=1e-4)
