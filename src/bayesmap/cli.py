@@ -647,7 +647,7 @@ def evaluate(
     against a known floor plan (accuracy, AUC, Brier score)."""
 
     if (log is None and bag is None) == (truth is None):
-        raise BayesmapError("give either --log FILE (or --bag PATH) or --truth FILE")
+        raise BayesmapError("give either --log FILE or --truth FILE (a ROS bag: --bag PATH, as --log)")
     if json_file is not None and json_file.exists() and not force:
         raise BayesmapError(f"{str(json_file)!r} already exists; pass --force to replace it")
     mapping = dict(sampler=sampler, sweeps=sweeps, seed=seed, sensor_noise=sensor_noise, beam_model=beam_model,
