@@ -432,6 +432,15 @@ def _stamps(log: CarmenLog) -> np.ndarray:
     return out
 
 
+def _latched_qos():
+    """ROS 2's QoS of a latched topic (``/tf_static``, ``/map``): reliable, transient local, keep last 1."""
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+    zero = QosTime(0, 0)  # 0: the middleware's default (no deadline, lifespan or lease)
+    return Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, zero, zero,
+               QosLiveliness.AUTOMATIC, zero, False)
+
+
 class _BagWriter:
     """One writer for both ROS versions: ``add(topic, msgtype)`` then ``write(topic, ns, message)``."""
 
@@ -456,7 +465,9 @@ class _BagWriter:
 
     def add(self, topic: str, msgtype: str, latching: bool = False) -> None:
         if self.ros2:
-            self.conns[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store)
+            qos = (_latched_qos(),) if latching else ()
+            self.conns[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store,
+                                                           offered_qos_profiles=qos)
         else:
             self.conns[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store,
                                                            latching=int(latching))
