@@ -25,8 +25,10 @@ from bayesmap.inference.driver import run_inference, run_logodds
 from bayesmap.inference.registry import SAMPLERS
 from bayesmap.inference.traces import chain_traces
 from bayesmap.io.ascii import load_map, tutorial_map
-from bayesmap.io.carmen import read_carmen
+from bayesmap.io.carmen import CarmenLog, read_carmen
 from bayesmap.io.files import check_replaceable_folder, replace_folder, write_atomic
+from bayesmap.io.maps_out import NPZ_FILE, encode_png16, encode_posterior_npz, posterior_std, seen_cells
+from bayesmap.io.rosbag import STORAGES, read_bag, write_log_bag, write_occupancy_grid_bag
 from bayesmap.io.rosmap import encode_rosmap, read_rosmap
 from bayesmap.scenes import log_problem, scan_problem, tutorial_problem
 from bayesmap.viz.common import figure_bytes
@@ -75,7 +77,8 @@ DIAGNOSTICS_FILE = "diagnostics.npz"  # written with --chains >= 2
 REPORT_FILE = "report.html"  # written by demo, and by infer --report
 ROSMAP_STEM = "map"  # infer --rosmap writes map.pgm and map.yaml (ROS map_server)
 ROSMAP_FILES = (ROSMAP_STEM + ".pgm", ROSMAP_STEM + ".yaml")
-ALL_OUTPUT_FILES = OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) + ROSMAP_FILES
+MAPS_FILES = (NPZ_FILE, "probability.png", "probability.yaml", "std.png", "std.yaml")  # infer --maps
+ALL_OUTPUT_FILES = OUTPUT_FILES + (DIAGNOSTICS_FILE, REPORT_FILE) + ROSMAP_FILES + MAPS_FILES
 """Every file a run may write into its output folder (an old run's that the new one does not write are removed)."""
 
 
@@ -183,11 +186,14 @@ def _check_truth_scene(truth: Path, resolution: float, num_poses: int, num_angle
 
 def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], seed: int, out: Path, force: bool,
                    title: str, chains: int = 1, report: bool = False, method: str = "gibbs",
-                   rosmap: bool = False) -> tuple[dict, list[str]]:
+                   rosmap: bool = False, maps: bool = False, out_bag: Optional[Path] = None) -> tuple[dict, list[str]]:
     """Map ``problem`` (Gibbs sampling, or log-odds mapping with ``method="logodds"``) and write the outputs into
-    ``out``; returns the summary and the names of the files written."""
+    ``out`` (and the OccupancyGrid bag ``out_bag``, after the folder); returns the summary and the names of the files
+    written."""
 
     _check_output_dir(out, force)
+    if out_bag is not None:
+        _check_out_bag(out_bag, force)
     check_problem_size(problem, chains=chains)
     if method == "logodds":
         result = run_logodds(problem)
@@ -214,12 +220,41 @@ def _run_and_write(problem, sampler: str, sweeps: int, burn_in: Optional[int], s
     if rosmap:
 
         files.update(encode_rosmap(ROSMAP_STEM, result.posterior, problem.grid))
+    seen = seen_cells(problem.table, problem.ray_readings) if (maps or out_bag is not None) else None
+    if maps:
+        files.update(_map_files(result.posterior, problem.grid, seen))
     if report:
 
         traces = chain_traces(problem, result, seed=seed)
         files[REPORT_FILE] = build_report(problem, result, traces, title=title).encode("utf-8")
     _write_outputs(out, files)
-    return result.summary, list(files)
+    written = list(files)
+    if out_bag is not None:
+        write_occupancy_grid_bag(out_bag, np.clip(result.posterior, 0.0, 1.0), problem.grid, seen, overwrite=force)
+        written.append(str(out_bag))
+    return result.summary, written
+
+
+def _map_files(posterior, grid, seen) -> dict[str, bytes]:
+    """``infer --maps``: posterior.npz, and probability and std as 16-bit PNGs with their YAML
+    (:mod:`bayesmap.io.maps_out`)."""
+    probability = np.clip(np.asarray(posterior, dtype=np.float64), 0.0, 1.0)
+    files = {NPZ_FILE: encode_posterior_npz(probability, grid, seen)}
+    files.update(encode_png16("probability", probability, grid, "probability"))
+    files.update(encode_png16("std", posterior_std(probability), grid, "std"))
+    return files
+
+
+def _check_out_bag(path: Path, force: bool) -> None:
+    """Refuse, before any work, an ``--out-bag`` that exists (without ``--force``) or cannot be written."""
+    if path.exists() and not force:
+        raise BayesmapError(f"{str(path)!r} already exists; pass --force to replace it")
+    if path.exists() and (path.suffix == ".bag") != path.is_file():
+        raise BayesmapError(f"--out-bag {str(path)!r}: a '.bag' name is a ROS 1 bag file, any other a ROS 2 bag "
+                            "folder")
+    parent = path.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise BayesmapError(f"--out-bag {str(path)!r} cannot be written (no folder {str(parent)!r} to write in)")
 
 
 def _print_summary(summary: dict, out: Path, written: list[str]) -> None:
@@ -338,6 +373,16 @@ EVALUATE_SENSOR_NOISE_HELP = "standard deviation of a reading, meters (default h
 EVALUATE_RANGE_OFFSET_HELP = "--log: meters the model subtracts from each returned reading (default one cell)"
 
 
+BAG_HELP = ("a ROS bag (a ROS 1 .bag file, or a ROS 2 bag folder: .db3 or .mcap): its LaserScans, with poses from "
+            "--odom-topic or --tf (as --log; 'no return' readings, see bayesmap.io.rosbag)")
+MAPS_HELP = ("also write posterior.npz (probability, std, seen, resolution, origin) and probability.png / std.png "
+             "(16-bit, with a map_server-style .yaml each)")
+OUT_BAG_HELP = ("also write the posterior as a nav_msgs/OccupancyGrid on /map (percent, -1 for unseen cells) into "
+                "this bag: a .bag name is ROS 1, any other a ROS 2 folder")
+LASER_OFFSET_HELP = ("the laser's mounting X Y THETA (m, m, rad) on base_link, written to /tf_static; the base's "
+                     "poses are the log's composed with its inverse")
+
+
 def _sampler_option(default: Optional[str], note: str = ""):
 
     return typer.Option(default, "--sampler", help=f"one of: {', '.join(SAMPLERS)}{note}")
@@ -366,6 +411,10 @@ def infer(
                                             help="ASCII map ('X' wall, '.' free); default the tutorial map"),
     log: Optional[Path] = typer.Option(None, "--log",
                                        help="a CARMEN log (.log or .log.gz): all its scans, or --scans / --scan"),
+    bag: Optional[Path] = typer.Option(None, "--bag", help=BAG_HELP),
+    scan_topic: str = typer.Option("/scan", "--scan-topic", help="--bag: topic of the sensor_msgs/LaserScan messages"),
+    odom_topic: str = typer.Option("/odom", "--odom-topic", help="--bag: topic of the nav_msgs/Odometry poses"),
+    tf: bool = typer.Option(False, "--tf", help="--bag: the robot's poses from /tf (odom -> base_link), not odometry"),
     scan: Optional[int] = typer.Option(None, "--scan",
                                        help="map only this scan of --log (one pose, the single-scan model)"),
     scans: Optional[str] = typer.Option(None, "--scans", help=SCANS_HELP),
@@ -397,6 +446,8 @@ def infer(
     report: bool = typer.Option(False, "--report", help=REPORT_HELP),
     rosmap: bool = typer.Option(False, "--rosmap",
                                 help="also write the posterior mean as a ROS map_server map (map.pgm + map.yaml)"),
+    maps: bool = typer.Option(False, "--maps", help=MAPS_HELP),
+    out_bag: Optional[Path] = typer.Option(None, "--out-bag", help=OUT_BAG_HELP),
     out: Path = typer.Option(Path("bayesmap-out"), "--out", help="output folder"),
     force: bool = typer.Option(False, "--force", help="replace bayesmap's outputs already in the folder"),
 ) -> None:
@@ -408,13 +459,13 @@ def infer(
     sensor_params = _sensor_params(beam_weights, lambda_short)
     if method == "logodds" and (report or chains != 1):
         raise BayesmapError("--report and --chains need --method gibbs (log-odds mapping has no chain)")
-    if log is not None:
+    carmen = _read_log(log, bag, scan_topic, odom_topic, tf, max_range)
+    if carmen is not None:
+        log = log if log is not None else bag
         if map_file is not None:
-            raise BayesmapError("give either --map or --log, not both")
+            raise BayesmapError("give either --map or --log / --bag, not both")
         if scan is not None and scans is not None:
             raise BayesmapError("give either --scan N or --scans SPEC, not both")
-
-        carmen = read_carmen(log, max_range=max_range)
         noise = scenes.real_sensor_noise(resolution) if sensor_noise is None else sensor_noise
         if scan is not None:
             if range_offset is not None or likelihood_power is not None:
@@ -436,7 +487,7 @@ def infer(
             title = f"{log.name}, {len(chosen)} scans"
     else:
         if scan is not None or scans is not None or likelihood_power is not None or max_range is not None:
-            raise BayesmapError("--scan, --scans, --likelihood-power and --max-range need --log FILE")
+            raise BayesmapError("--scan, --scans, --likelihood-power and --max-range need --log FILE (or --bag)")
         walls = load_map(map_file) if map_file is not None else tutorial_map()
         center = (float(walls.shape[0] // 2), float(walls.shape[1] // 2))  # the tutorial's GRID_SIZE // 2
         if pos is not None:
@@ -453,8 +504,58 @@ def infer(
     if sampler is None:
         sampler = "cellwise" if problem.multi_scan else "block"
     summary, written = _run_and_write(problem, sampler, sweeps, burn_in, seed, out, force, title=title,
-                                      chains=chains, report=report, method=method, rosmap=rosmap)
+                                      chains=chains, report=report, method=method, rosmap=rosmap, maps=maps,
+                                      out_bag=out_bag)
     _print_summary(summary, out, written)
+
+
+def _read_log(log: Optional[Path], bag: Optional[Path], scan_topic: str, odom_topic: str, tf: bool,
+              max_range: Optional[float]):
+    """The scans of ``--log`` (CARMEN) or ``--bag`` (ROS 1 or 2) as a ``CarmenLog``, or None for neither."""
+    if log is not None and bag is not None:
+        raise BayesmapError("give either --log or --bag, not both")
+    if bag is None:
+        if tf or scan_topic != "/scan" or odom_topic != "/odom":
+            raise BayesmapError("--scan-topic, --odom-topic and --tf need --bag PATH")
+        return None if log is None else read_carmen(log, max_range=max_range)
+    return read_bag(bag, scan_topic=scan_topic, odom_topic=odom_topic, tf=tf, max_range=max_range)
+
+
+@app.command()
+def convert(
+    log: Path = typer.Argument(..., help="a CARMEN log (.log or .log.gz), or a ROS bag"),
+    out: Path = typer.Argument(..., help="the bag to write: a .bag file (ROS 1), or a folder with --ros2"),
+    ros2: bool = typer.Option(False, "--ros2", help="write a ROS 2 bag (a folder) instead of ROS 1"),
+    storage: str = typer.Option("sqlite3", "--storage", help=f"ROS 2 storage: {' or '.join(STORAGES)}"),
+    laser_offset: tuple[float, float, float] = typer.Option(
+        (0.0, 0.0, 0.0), "--laser-offset", help=LASER_OFFSET_HELP,
+        callback=_in_range("--laser-offset", -MAX_COORDINATE, MAX_COORDINATE)),
+    scans: Optional[str] = typer.Option(None, "--scans", help="scans to write (as infer --scans); default all"),
+    scan_topic: str = typer.Option("/scan", "--scan-topic", help="a bag LOG: topic of its LaserScan messages"),
+    odom_topic: str = typer.Option("/odom", "--odom-topic", help="a bag LOG: topic of its Odometry poses"),
+    tf: bool = typer.Option(False, "--tf", help="a bag LOG: its poses from /tf, not odometry"),
+    force: bool = typer.Option(False, "--force", help="replace OUT if it exists"),
+) -> None:
+    """Write a log as a ROS bag: LaserScan on /scan, Odometry on /odom, tf (odom -> base_link) and /tf_static
+    (base_link -> laser), at the log's timestamps."""
+
+    if storage not in STORAGES:
+        raise BayesmapError(f"unknown --storage {storage!r}; choose {' or '.join(STORAGES)}")
+    if storage != "sqlite3" and not ros2:
+        raise BayesmapError("--storage applies to ROS 2 bags (--ros2)")
+    is_bag = log.is_dir() or log.suffix == ".bag"
+    if not is_bag and (tf or scan_topic != "/scan" or odom_topic != "/odom"):
+        raise BayesmapError(f"--scan-topic, --odom-topic and --tf apply to a bag, and {str(log)!r} is not one "
+                            "(a ROS 1 bag ends in .bag, a ROS 2 bag is a folder)")
+    source = read_bag(log, scan_topic=scan_topic, odom_topic=odom_topic, tf=tf) if is_bag else read_carmen(log)
+    chosen = parse_scans(scans, len(source))
+    if len(chosen) < len(source):
+        source = CarmenLog(path=source.path, ranges=source.ranges[chosen], poses=source.poses[chosen],
+                           angles=source.angles[chosen], timestamps=source.timestamps[chosen],
+                           max_range=source.max_range, is_max_range=source.is_max_range[chosen])
+    write_log_bag(source, out, ros2=ros2, storage=storage, laser_offset=laser_offset, overwrite=force)
+    typer.echo(f"wrote {out} (ROS {2 if ros2 else 1}{', ' + storage if ros2 else ''}): {len(source)} scans of "
+               f"{source.ranges.shape[1]} beams on /scan, /odom, /tf, /tf_static")
 
 
 @app.command()
@@ -508,6 +609,10 @@ def _format_scores(scores: dict) -> str:
 @app.command()
 def evaluate(
     log: Optional[Path] = typer.Option(None, "--log", help=EVALUATE_LOG_HELP),
+    bag: Optional[Path] = typer.Option(None, "--bag", help="a ROS bag, as --log (see infer --bag)"),
+    scan_topic: str = typer.Option("/scan", "--scan-topic", help="--bag: topic of the sensor_msgs/LaserScan messages"),
+    odom_topic: str = typer.Option("/odom", "--odom-topic", help="--bag: topic of the nav_msgs/Odometry poses"),
+    tf: bool = typer.Option(False, "--tf", help="--bag: the robot's poses from /tf (odom -> base_link), not odometry"),
     truth: Optional[Path] = typer.Option(None, "--truth", help=EVALUATE_TRUTH_HELP),
     scans: Optional[str] = typer.Option(None, "--scans", help=EVALUATE_SCANS_HELP),
     every: int = typer.Option(10, "--every", help="hold out every k-th scan"),
@@ -541,16 +646,15 @@ def evaluate(
     """Score bayesmap against log-odds mapping: on held-out beams of a log (occupancy AUC, predictive NLL), or
     against a known floor plan (accuracy, AUC, Brier score)."""
 
-    if (log is None) == (truth is None):
-        raise BayesmapError("give either --log FILE or --truth FILE")
+    if (log is None and bag is None) == (truth is None):
+        raise BayesmapError("give either --log FILE or --truth FILE (a ROS bag: --bag PATH, as --log)")
     if json_file is not None and json_file.exists() and not force:
         raise BayesmapError(f"{str(json_file)!r} already exists; pass --force to replace it")
     mapping = dict(sampler=sampler, sweeps=sweeps, seed=seed, sensor_noise=sensor_noise, beam_model=beam_model,
                    prior_wall_prob=prior_wall_prob, sensor_params=_sensor_params(beam_weights, lambda_short))
-    if log is not None:
-
-
-        carmen = read_carmen(log, max_range=max_range)
+    carmen = _read_log(log, bag, scan_topic, odom_topic, tf, max_range)
+    if carmen is not None:
+        log = log if log is not None else bag
         chosen = parse_scans(scans, len(carmen))
         check_problem_size(log_problem(carmen, chosen, resolution=resolution))  # the grid of all chosen scans
         scores = evaluate_log(carmen, chosen, every=every, resolution=resolution,
