@@ -30,6 +30,10 @@ API: dict[str, str] = {
     "read_carmen": "bayesmap.io.carmen",
     "read_rosmap": "bayesmap.io.rosmap",
     "write_rosmap": "bayesmap.io.rosmap",
+    "read_bag": "bayesmap.io.rosbag",
+    "write_log_bag": "bayesmap.io.rosbag",
+    "read_tum": "bayesmap.io.tum",
+    "write_tum": "bayesmap.io.tum",
     # geometry
     "Grid": "bayesmap.geometry.grid",
     "sensor_distances": "bayesmap.geometry.raycast",
@@ -43,6 +47,11 @@ API: dict[str, str] = {
     "log_joint": "bayesmap.model.generative",
     "simulate": "bayesmap.model.generative",
     "simulate_readings": "bayesmap.model.generative",
+    "slam_model": "bayesmap.model.generative",
+    "log_joint_slam": "bayesmap.model.generative",
+    "simulate_slam": "bayesmap.model.generative",
+    "MotionParams": "bayesmap.model.motion",
+    "make_motion_params": "bayesmap.model.motion",
     "walls_prior": "bayesmap.model.generative",
     # scenes
     "Problem": "bayesmap.scenes",
@@ -68,6 +77,7 @@ API: dict[str, str] = {
     # evaluation
     "evaluate_log": "bayesmap.evaluation.heldout",
     "evaluate_truth": "bayesmap.evaluation.heldout",
+    "score_trajectory": "bayesmap.evaluation.trajectory",
     # visualisation
     "plot_map": "bayesmap.viz.maps",
     "plot_posterior": "bayesmap.viz.maps",
