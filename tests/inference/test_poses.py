@@ -27,7 +27,7 @@ from bayesmap.model.generative import (
     slam_choices,
     slam_model,
 )
-from conftest import random_scene
+from helpers import random_scene
 
 
 def random_slam_scene(seed, beam_model="normal", num_scans=4):
