@@ -27,3 +27,16 @@ def test_no_module_imports_another_modules_private_names():
     assert len(files) > 50
     found = [f"{p.relative_to(ROOT)}: {hit}" for p in files for hit in private_imports(p.read_text())]
     assert found == []
+
+
+def test_no_test_imports_a_conftest():
+    """Shared test code lives in tests/helpers.py: ``from conftest import`` finds whichever conftest.py was imported
+    last (tests/viz has its own), so it breaks depending on which tests are collected together."""
+    found = []
+    for path in (ROOT / "tests").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module == "conftest":
+                found.append(str(path.relative_to(ROOT)))
+            if isinstance(node, ast.Import) and any(a.name == "conftest" for a in node.names):
+                found.append(str(path.relative_to(ROOT)))
+    assert found == []
