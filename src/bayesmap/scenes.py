@@ -709,7 +709,9 @@ def slam_tutorial_problem(seed: int = 0, num_poses: int = 8, motion=None, num_an
         seed: seed of the odometry noise and of the readings.
         num_poses: ``S``, 2 to 64.
         motion: the model's motion noise (:class:`bayesmap.model.motion.MotionParams`); default its defaults.
-        num_angles, prior_wall_prob, sensor_noise: the tutorial's parameters.
+        num_angles: beams per scan (the tutorial's ``num_angles``).
+        prior_wall_prob: the prior probability of a wall (the tutorial's).
+        sensor_noise: the standard deviation of a reading, meters (the tutorial's).
 
     Raises:
         BayesmapError: if ``num_poses`` is not an integer in 2..64, or on bad parameters (the message names them).
