@@ -151,3 +151,24 @@ def test_bad_arguments_are_errors():
     rays = MAX_DENSE_ENTRIES // (512 * 512) + 1
     with pytest.raises(BayesmapError, match="MAX_DENSE_ENTRIES"):
         dense_gibbs(np.zeros((1, 3)), np.zeros((1, rays)), np.ones((1, rays)), big)
+
+
+def test_moving_the_poses_does_not_recompile():
+    """The dense state and sweep at other poses (same S, K, grid) reuse the compiled code: one cache entry."""
+    from bayesmap.inference.dense import dense_sweep
+
+    params, walls, poses, angles, y = random_poses_scene(1)
+    lo = prior_log_odds(params.prior_wall_prob)
+    flat_y = jnp.asarray(y.reshape(-1), jnp.float32)
+
+    @jax.jit
+    def sweep(key, p, w):
+        return dense_sweep(key, dense_state(w, p, angles, params), flat_y, params, 1.0, lo)[0].walls
+
+    first = sweep(jax.random.key(0), poses, walls)
+    moved = poses + np.array([0.1, -0.05, 0.3])
+    second = sweep(jax.random.key(0), moved, walls)
+    assert sweep._cache_size() == 1
+    assert not np.array_equal(np.asarray(dense_state(walls, moved, angles, params).distances),
+                              np.asarray(dense_state(walls, poses, angles, params).distances))
+    assert first.shape == second.shape == walls.shape
