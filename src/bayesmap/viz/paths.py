@@ -124,7 +124,10 @@ def plot_slam(grid, posterior, mean_path, pose_cov, samples, *, true_path=None, 
     for k, e in enumerate(ellipses):
         e.set_gid("ellipses" if k == 0 else None)
         ax.add_patch(e)
-    handles.append(Patch(facecolor="none", edgecolor=MEAN_COLOR, label="95 % ellipses"))
+    sd = np.sqrt(np.clip(np.linalg.eigvalsh(cov[:, :2, :2])[:, -1], 0.0, None))  # each pose's largest position sd
+    unit = "cells" if is_unit_grid(grid) else "m"
+    handles.append(Patch(facecolor="none", edgecolor=MEAN_COLOR,
+                         label=f"95 % ellipses (largest sd {sd.max():.2g} {unit})"))
     draw_legend(ax, handles)
     return fig
 
