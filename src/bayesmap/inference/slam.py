@@ -180,7 +180,9 @@ class SlamResult(NamedTuple):
         pose_cov: ``(S, 3, 3)`` float64 posterior pose covariances (m^2, m rad, rad^2).
         posterior: ``(nx, ny)`` float64 posterior wall probabilities: the mean over kept sweeps and chains of the
             conditional wall probabilities.
-        acceptance_rate: the fraction of accepted pose moves over kept sweeps (1.0 for Gibbs draws).
+        acceptance_rate: the fraction of accepted pose moves over kept sweeps (1.0 for Gibbs draws); a
+            multiple-try move that picks the current pose counts as accepted, so this overstates how often a pose
+            moves.
         runtime_s: wall-clock seconds of the run, compilation included.
         last_walls: ``(nx, ny)`` float32, the last chain's last map sample.
     """
