@@ -682,6 +682,99 @@ def evaluate(
         typer.echo(f"wrote {json_file}")
 
 
+SLAM_OUTPUT_FILES = ("trajectory.tum", "trajectory_samples.npy", "pose_cov.npy")
+"""What ``bayesmap slam`` writes besides posterior.npy, posterior.png, summary.json and report.html."""
+
+
+def _slam_files(problem, result, settings: dict, report: bool) -> tuple[dict, dict[str, bytes]]:
+    """The summary and the output files of a ``bayesmap slam`` run (see :func:`slam`)."""
+    import tempfile
+
+    from bayesmap.evaluation.trajectory import score_trajectory
+    from bayesmap.io.files import read_bytes
+    from bayesmap.io.tum import write_tum
+    from bayesmap.viz.paths import plot_slam, slam_report
+
+    summary = {
+        "source": problem.source,
+        "settings": settings,
+        "runtime_s": result.runtime_s,
+        "acceptance_rate": result.acceptance_rate,
+        "posterior": score_trajectory(result.mean_path, problem.true_poses, result.pose_cov),
+        "odometry": score_trajectory(problem.odometry, problem.true_poses),
+        "map_cells_wrong": int(np.sum((result.posterior > 0.5) != (problem.truth > 0))),
+    }
+    fig = plot_slam(problem.params.grid, result.posterior, result.mean_path, result.pose_cov, result.pose_samples,
+                    true_path=problem.true_poses, odometry=problem.odometry, truth=problem.truth,
+                    title=f"bayesmap slam: {problem.num_scans} poses, {settings['sweeps']} sweeps")
+    png = figure_bytes(fig, "png")
+    with tempfile.TemporaryDirectory() as tmp:  # write_tum writes files; the folder is replaced as a whole below
+        tum = read_bytes(write_tum(Path(tmp) / "trajectory.tum", np.arange(problem.num_scans), result.mean_path),
+                         "trajectory")[1]
+    files = {
+        "trajectory.tum": tum,
+        "trajectory_samples.npy": _npy(result.pose_samples),
+        "pose_cov.npy": _npy(result.pose_cov),
+        "posterior.npy": _npy(result.posterior.astype("float32")),
+        "posterior.png": png,
+        "summary.json": (json.dumps(summary, indent=2) + "\n").encode(),
+    }
+    if report:
+        files[REPORT_FILE] = slam_report(png, summary, title=f"bayesmap slam: {problem.source}").encode("utf-8")
+    return summary, files
+
+
+@app.command()
+def slam(
+    log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log whose pose fields hold odometry (not yet)"),
+    sweeps: int = typer.Option(60, help="joint sweeps (pose moves, then a map sweep)",
+                               callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
+    burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: a third)",
+                                          callback=_in_range("--burn-in", 0, MAX_SWEEPS)),
+    seed: int = typer.Option(0, help="seed of the simulated odometry and readings, and of the chain",
+                             callback=_in_range("--seed", 0, 2**32 - 1)),
+    num_poses: int = typer.Option(8, "--num-poses", help="poses on the loop around the tutorial room",
+                                  callback=_in_range("--num-poses", 2, 64)),
+    report: bool = typer.Option(False, "--report", help="also write report.html (the figure and the summary)"),
+    out: Path = typer.Option(Path("bayesmap-out"), "--out", help="output folder"),
+    force: bool = typer.Option(False, "--force", help="replace bayesmap's outputs already in the folder"),
+) -> None:
+    """Joint SLAM on the tutorial map: a robot drives a loop with noisy odometry; infer its path and the map.
+
+    Writes trajectory.tum (posterior mean pose per scan, stamps = scan indices), trajectory_samples.npy (N, S, 3),
+    pose_cov.npy (S, 3, 3), posterior.npy, posterior.png and summary.json (ATE and 95 % ellipse coverage of the
+    posterior and of the odometry), and with --report report.html."""
+    from bayesmap.inference.slam import run_slam
+
+    if log is not None:
+        raise BayesmapError(f"bayesmap slam --log {str(log)!r}: not yet (real logs are the next step); "
+                            "run bayesmap slam without --log for the tutorial scene")
+    burn_in = sweeps // 3 if burn_in is None else burn_in
+    if burn_in >= sweeps:
+        raise BayesmapError(f"--burn-in must be smaller than --sweeps ({sweeps}), got {burn_in}")
+    _check_output_dir(out, force)
+    clash = [name for name in SLAM_OUTPUT_FILES if (out / name).exists()] if out.is_dir() and not force else []
+    if clash:
+        raise BayesmapError(f"{str(out / clash[0])!r} already exists; pass --force to replace bayesmap's outputs "
+                            f"in {str(out)!r}")
+    problem = scenes.slam_tutorial_problem(seed=seed, num_poses=num_poses)
+    result = run_slam(problem, sweeps=sweeps, burn_in=burn_in, seed=seed)
+    settings = {"sweeps": sweeps, "burn_in": burn_in, "seed": seed, "num_poses": num_poses,
+                "num_angles": problem.params.num_angles, "prior_wall_prob": problem.params.prior_wall_prob,
+                "sensor_noise": problem.params.sensor_noise, "odometry_alphas": list(scenes.SLAM_ODOMETRY_ALPHAS),
+                "pose_kernel": "lattice_pose_mh", "map_kernel": "dense single-site Gibbs, raster order"}
+    summary, files = _slam_files(problem, result, settings, report)
+    replace_folder(out, files, owned=ALL_OUTPUT_FILES + SLAM_OUTPUT_FILES)
+    post, odo = summary["posterior"], summary["odometry"]
+    typer.echo(f"data:     {problem.source}, {problem.readings.shape[1]} beams per scan")
+    typer.echo(f"sweeps:   {sweeps} (posterior over the last {sweeps - burn_in}); pose acceptance "
+               f"{result.acceptance_rate:.2f}")
+    typer.echo(f"runtime:  {result.runtime_s:.2f} s (compilation included)")
+    typer.echo(f"path:     ATE {post['ate_rmse_m']:.3f} m (odometry {odo['ate_rmse_m']:.3f} m); 95 % ellipses "
+               f"cover {post['coverage']:.0%} of the true positions")
+    typer.echo(f"outputs:  {out}/ ({', '.join(files)})")
+
+
 @app.command("app")
 def explorer(
     host: str = typer.Option("127.0.0.1", help="interface to listen on (default: this machine only)"),

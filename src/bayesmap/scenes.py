@@ -603,3 +603,135 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
     return Problem(params=params, observations=obs, poses=chosen.poses, world_angles=chosen.world_angles,
                    source=label, extra={"max_range": obs.max_range, "scans": len(scans), "range_offset": offset},
                    range_offset=offset, likelihood_power=eta)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# SLAM at the tutorial's scale (issue 15): a robot with noisy odometry on a loop around the tutorial's room
+# ---------------------------------------------------------------------------------------------------------------
+
+SLAM_ODOMETRY_ALPHAS = (0.05, 0.02, 0.05, 0.01)
+"""PR Table 5.6's ``(a1, a2, a3, a4)`` (standard deviations) of the simulated odometry of
+:func:`slam_tutorial_problem`: the defaults of ``tools/noisy_odometry.py`` (5 % of each turn, 0.02 rad of heading
+per meter, 5 % of each distance, 0.01 m per radian). The model's motion noise is separate (``motion``)."""
+
+SLAM_LOOP_CENTER = (6.0, 8.5)
+"""Center of the built-in loop path, meters: the middle of the tutorial room's free space."""
+
+SLAM_LOOP_RADII = (4.5, 4.0)
+"""Half axes of the built-in loop (an ellipse), meters: every point of it keeps at least 1.1 m from the walls."""
+
+
+@dataclass(frozen=True, eq=False)
+class SlamProblem:
+    """A SLAM problem: scans taken along a path that is known only through odometry.
+
+    Attributes:
+        params: the map and sensor parameters (grid, sensor model, prior).
+        motion: the model's odometry motion noise (:class:`bayesmap.model.motion.MotionParams`).
+        odometry: ``(S, 3)`` float64 odometry poses (x m, y m, theta rad), ``odometry[0]`` the fixed first pose.
+        sensor_angles: ``(S, K)`` float64 beam angles relative to the heading, radians.
+        readings: ``(S, K)`` float64 range readings, meters.
+        true_poses: ``(S, 3)`` float64 true path, or None for real data.
+        truth: ``(nx, ny)`` float32 true map, or None.
+        likelihood_power: ``eta`` in (0, 1] (1: the posterior).
+        source: a description for summaries.
+    """
+
+    params: ModelParams
+    motion: object
+    odometry: np.ndarray
+    sensor_angles: np.ndarray
+    readings: np.ndarray
+    true_poses: np.ndarray | None = None
+    truth: np.ndarray | None = None
+    likelihood_power: float = 1.0
+    source: str = ""
+
+    @property
+    def num_scans(self) -> int:
+        """``S``."""
+        return self.odometry.shape[0]
+
+
+def simulate_odometry(true_poses, alphas=SLAM_ODOMETRY_ALPHAS, seed: int = 0) -> np.ndarray:
+    """Noisy odometry of a true path: PR Table 5.6 (``sample_motion_model_odometry``) with the noise as standard
+    deviations, exactly as ``tools/noisy_odometry.py``: each true motion split into ``(rot1, trans, rot2)``, each
+    perturbed by a zero-mean Normal (``std(rot1) = a1 |rot1| + a2 trans``, ``std(trans) = a3 trans + a4 (|rot1| +
+    |rot2|)``, ``std(rot2) = a1 |rot2| + a2 trans``; radians, meters), chained from the first true pose.
+
+    Args:
+        true_poses: ``(S, 3)`` true path (x m, y m, theta rad).
+        alphas: ``(a1, a2, a3, a4)``, each >= 0.
+        seed: ``numpy.random.default_rng`` seed.
+
+    Returns:
+        ``(S, 3)`` float64 odometry poses (headings wrapped to ``[-pi, pi)``), row 0 the true first pose.
+
+    Raises:
+        BayesmapError: if ``true_poses`` is not ``(S, 3)`` finite or there are not four alphas >= 0.
+    """
+    poses = np.asarray(true_poses, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != 3 or len(poses) < 1 or not np.all(np.isfinite(poses)):
+        raise BayesmapError(f"true_poses must be finite with shape (S, 3), got {poses.shape}")
+    a = np.asarray(alphas, dtype=np.float64)
+    if a.shape != (4,) or not np.all(np.isfinite(a) & (a >= 0)):
+        raise BayesmapError(f"alphas must be four finite numbers >= 0, got {alphas!r}")
+    rng = np.random.default_rng(seed)
+
+    def wrap(x):
+        return (x + math.pi) % (2 * math.pi) - math.pi
+
+    out = [poses[0]]
+    for (x0, y0, t0), (x1, y1, t1) in zip(poses[:-1], poses[1:]):
+        trans = math.hypot(x1 - x0, y1 - y0)
+        rot1 = wrap(math.atan2(y1 - y0, x1 - x0) - t0) if trans > 1e-6 else 0.0
+        rot2 = wrap(t1 - t0 - rot1)
+        r1 = rot1 + rng.normal(0, a[0] * abs(rot1) + a[1] * trans)
+        tr = trans + rng.normal(0, a[2] * trans + a[3] * (abs(rot1) + abs(rot2)))
+        r2 = rot2 + rng.normal(0, a[0] * abs(rot2) + a[1] * trans)
+        ox, oy, ot = out[-1]
+        out.append(np.array([ox + tr * math.cos(ot + r1), oy + tr * math.sin(ot + r1), wrap(ot + r1 + r2)]))
+    return np.stack(out)
+
+
+def slam_tutorial_problem(seed: int = 0, num_poses: int = 8, motion=None, num_angles: int = TUTORIAL_NUM_ANGLES,
+                          prior_wall_prob: float = TUTORIAL_PRIOR,
+                          sensor_noise: float = TUTORIAL_SENSOR_NOISE) -> SlamProblem:
+    """The tutorial's map scanned by a robot driving once around the room, known only through its odometry.
+
+    The true path: ``num_poses`` poses equally spaced (counter-clockwise) on the ellipse :data:`SLAM_LOOP_CENTER`,
+    :data:`SLAM_LOOP_RADII`, each heading along the loop; the odometry: :func:`simulate_odometry` of it with
+    :data:`SLAM_ODOMETRY_ALPHAS` and ``seed``; the readings: the tutorial's sensor model (``num_angles`` equally
+    spaced beams, relative to the heading) simulated at the true poses with ``jax.random.key(seed)``, clipped at 0
+    as :func:`tutorial_problem`'s.
+
+    Args:
+        seed: seed of the odometry noise and of the readings.
+        num_poses: ``S``, 2 to 64.
+        motion: the model's motion noise (:class:`bayesmap.model.motion.MotionParams`); default its defaults.
+        num_angles: beams per scan (the tutorial's ``num_angles``).
+        prior_wall_prob: the prior probability of a wall (the tutorial's).
+        sensor_noise: the standard deviation of a reading, meters (the tutorial's).
+
+    Raises:
+        BayesmapError: if ``num_poses`` is not an integer in 2..64, or on bad parameters (the message names them).
+    """
+    from bayesmap.model.generative import simulate_scan_readings
+    from bayesmap.model.motion import MotionParams
+
+    if isinstance(num_poses, bool) or not isinstance(num_poses, (int, np.integer)) or not 2 <= num_poses <= 64:
+        raise BayesmapError(f"num_poses must be an integer from 2 to 64, got {num_poses!r}")
+    walls = tutorial_map()
+    params = make_params(prior_wall_prob, sensor_noise, num_angles, Grid(shape=walls.shape))
+    phase = 2 * np.pi * np.arange(num_poses) / num_poses - np.pi / 2
+    (cx, cy), (rx, ry) = SLAM_LOOP_CENTER, SLAM_LOOP_RADII
+    heading = np.arctan2(ry * np.cos(phase), -rx * np.sin(phase))
+    true_poses = np.column_stack([cx + rx * np.cos(phase), cy + ry * np.sin(phase), heading])
+    odometry = simulate_odometry(true_poses, SLAM_ODOMETRY_ALPHAS, seed)
+    sensor_angles = np.tile(np.asarray(angles(num_angles), dtype=np.float64), (num_poses, 1))
+    readings = simulate_scan_readings(jax.random.key(seed), walls, true_poses[:, :2], params,
+                                      true_poses[:, 2:3] + sensor_angles)
+    readings = np.maximum(np.asarray(readings, dtype=np.float64), 0.0)
+    return SlamProblem(params=params, motion=MotionParams() if motion is None else motion, odometry=odometry,
+                       sensor_angles=sensor_angles, readings=readings, true_poses=true_poses, truth=walls,
+                       source=f"tutorial map, loop of {num_poses} poses, odometry seed {seed}")
