@@ -461,44 +461,15 @@ def infer(
         raise BayesmapError("--report and --chains need --method gibbs (log-odds mapping has no chain)")
     carmen = _read_log(log, bag, scan_topic, odom_topic, tf, max_range)
     if carmen is not None:
-        log = log if log is not None else bag
         if map_file is not None:
             raise BayesmapError("give either --map or --log / --bag, not both")
-        if scan is not None and scans is not None:
-            raise BayesmapError("give either --scan N or --scans SPEC, not both")
-        noise = scenes.real_sensor_noise(resolution) if sensor_noise is None else sensor_noise
-        if scan is not None:
-            if range_offset is not None or likelihood_power is not None:
-                raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), "
-                                    "not to --scan N")
-            scan = int(parse_scans(str(scan), len(carmen))[0])  # a negative index counts from the end, as in --scans
-            problem = scan_problem(carmen, scan, resolution=resolution,
-                                   prior_wall_prob=prior_wall_prob or scenes.TUTORIAL_PRIOR,
-                                   sensor_noise=noise, beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL,
-                                   sensor_params=sensor_params)
-            title = f"{log.name} scan {scan}"
-        else:
-            chosen = parse_scans(scans, len(carmen))
-            problem = log_problem(carmen, chosen, resolution=resolution,
-                                  prior_wall_prob=scenes.LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
-                                  sensor_noise=noise, beam_model=beam_model or scenes.LOG_BEAM_MODEL,
-                                  range_offset=range_offset, sensor_params=sensor_params,
-                                  likelihood_power=likelihood_power)
-            title = f"{log.name}, {len(chosen)} scans"
+        problem, title = _log_scene(carmen, log if log is not None else bag, scan, scans, resolution, prior_wall_prob,
+                                    sensor_noise, beam_model, range_offset, likelihood_power, sensor_params)
     else:
         if scan is not None or scans is not None or likelihood_power is not None or max_range is not None:
             raise BayesmapError("--scan, --scans, --likelihood-power and --max-range need --log FILE (or --bag)")
-        walls = load_map(map_file) if map_file is not None else tutorial_map()
-        center = (float(walls.shape[0] // 2), float(walls.shape[1] // 2))  # the tutorial's GRID_SIZE // 2
-        if pos is not None:
-            _check_free_cell(walls, pos, str(map_file) if map_file else "the tutorial map")
-        problem = tutorial_problem(walls, pos=pos if pos is not None else center, seed=seed,
-                                   prior_wall_prob=(scenes.TUTORIAL_PRIOR if prior_wall_prob is None
-                                                    else prior_wall_prob),
-                                   sensor_noise=scenes.TUTORIAL_SENSOR_NOISE if sensor_noise is None else sensor_noise,
-                                   num_angles=num_angles, source=str(map_file) if map_file else "tutorial map",
-                                   beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL,
-                                   sensor_params=sensor_params)
+        problem = _map_scene(map_file, pos, seed, prior_wall_prob, sensor_noise, num_angles, beam_model,
+                             sensor_params)
         title = problem.source
     title = ("Log-odds occupancy, " if method == "logodds" else "Posterior wall probability, ") + title
     if sampler is None:
@@ -507,6 +478,45 @@ def infer(
                                       chains=chains, report=report, method=method, rosmap=rosmap, maps=maps,
                                       out_bag=out_bag)
     _print_summary(summary, out, written)
+
+
+def _log_scene(carmen, path: Path, scan, scans, resolution, prior_wall_prob, sensor_noise, beam_model, range_offset,
+               likelihood_power, sensor_params):
+    """``(problem, title)`` of ``infer --log/--bag``: one scan (``--scan N``, the single-scan model and the tutorial's
+    defaults) or several (``--scans``, the log defaults of :mod:`bayesmap.scenes`)."""
+    if scan is not None and scans is not None:
+        raise BayesmapError("give either --scan N or --scans SPEC, not both")
+    noise = scenes.real_sensor_noise(resolution) if sensor_noise is None else sensor_noise
+    if scan is not None:
+        if range_offset is not None or likelihood_power is not None:
+            raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), "
+                                "not to --scan N")
+        scan = int(parse_scans(str(scan), len(carmen))[0])  # a negative index counts from the end, as in --scans
+        problem = scan_problem(carmen, scan, resolution=resolution,
+                               prior_wall_prob=scenes.TUTORIAL_PRIOR if prior_wall_prob is None else prior_wall_prob,
+                               sensor_noise=noise, beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL,
+                               sensor_params=sensor_params)
+        return problem, f"{path.name} scan {scan}"
+    chosen = parse_scans(scans, len(carmen))
+    problem = log_problem(carmen, chosen, resolution=resolution,
+                          prior_wall_prob=scenes.LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
+                          sensor_noise=noise, beam_model=beam_model or scenes.LOG_BEAM_MODEL,
+                          range_offset=range_offset, sensor_params=sensor_params, likelihood_power=likelihood_power)
+    return problem, f"{path.name}, {len(chosen)} scans"
+
+
+def _map_scene(map_file, pos, seed, prior_wall_prob, sensor_noise, num_angles, beam_model, sensor_params):
+    """The problem of ``infer --map`` (or the tutorial map): readings simulated from the sensor at ``pos`` (default
+    the map's center, the tutorial's ``GRID_SIZE // 2``), which must be a free cell."""
+    walls = load_map(map_file) if map_file is not None else tutorial_map()
+    center = (float(walls.shape[0] // 2), float(walls.shape[1] // 2))
+    if pos is not None:
+        _check_free_cell(walls, pos, str(map_file) if map_file else "the tutorial map")
+    return tutorial_problem(walls, pos=pos if pos is not None else center, seed=seed,
+                            prior_wall_prob=scenes.TUTORIAL_PRIOR if prior_wall_prob is None else prior_wall_prob,
+                            sensor_noise=scenes.TUTORIAL_SENSOR_NOISE if sensor_noise is None else sensor_noise,
+                            num_angles=num_angles, source=str(map_file) if map_file else "tutorial map",
+                            beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL, sensor_params=sensor_params)
 
 
 def _read_log(log: Optional[Path], bag: Optional[Path], scan_topic: str, odom_topic: str, tf: bool,
