@@ -134,3 +134,24 @@ def by_gid(ax, gid):
     found = [a for a in ax.get_children() if a.get_gid() == gid]
     assert len(found) == 1, f"expected one artist with gid {gid!r}, found {len(found)}"
     return found[0]
+
+
+def exact_slam_marginals(params, inc, cov, candidates, angles, y):
+    """Exact marginals of a tiny SLAM problem whose poses 1 and 2 take 3 candidate values each (``candidates``
+    ``(3, 3, 3)``, pose 0 fixed at ``candidates[0, 0]``) and whose grid has 6 cells: ``P(pose_1 = c)`` (3,),
+    ``P(pose_2 = c)`` (3,) and ``P(wall)`` (grid shape), from all 3 * 3 * 64 = 576 joint states, each scored by the
+    model's assess."""
+    import itertools
+
+    from bayesmap.model.generative import slam_args, slam_choices, slam_model
+
+    args = slam_args(candidates[0, 0], inc, cov, params, angles)
+    maps = np.array(list(itertools.product([0.0, 1.0], repeat=6))).reshape((-1,) + params.grid.shape)
+    assess = jax.jit(jax.vmap(lambda p, w: slam_model.assess(slam_choices(p, w, y), args)[0], in_axes=(None, 0)))
+    logp = np.zeros((3, 3, len(maps)))
+    for i, j in itertools.product(range(3), range(3)):
+        path = jnp.asarray(np.stack([candidates[0, 0], candidates[1, i], candidates[2, j]]))
+        logp[i, j] = np.asarray(assess(path, jnp.asarray(maps)))
+    prob = np.exp(logp - logp.max())
+    prob /= prob.sum()
+    return prob.sum(axis=(1, 2)), prob.sum(axis=(0, 2)), np.tensordot(prob.sum(axis=(0, 1)), maps, axes=1)

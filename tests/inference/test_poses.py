@@ -1,6 +1,5 @@
 """Pose conditionals and pose kernels (bayesmap.inference.poses) against the SLAM model's assess and enumeration."""
 
-import itertools
 
 import jax
 import jax.numpy as jnp
@@ -27,7 +26,7 @@ from bayesmap.model.generative import (
     slam_choices,
     slam_model,
 )
-from helpers import random_scene
+from helpers import exact_slam_marginals, random_scene
 
 
 def random_slam_scene(seed, beam_model="normal", num_scans=4):
@@ -153,21 +152,6 @@ def tiny_problem():
     return params, inc, cov, candidates, angles, y
 
 
-def exact_marginals(params, inc, cov, candidates, angles, y):
-    """P(pose_1 = c), P(pose_2 = c) (3 each) and P(wall) (3, 2) from all 3 * 3 * 64 = 576 joint states, each
-    scored by the model's assess."""
-    args = slam_args(candidates[0, 0], inc, cov, params, angles)
-    maps = np.array(list(itertools.product([0.0, 1.0], repeat=6))).reshape(-1, 3, 2)
-    assess = jax.jit(jax.vmap(lambda p, w: slam_model.assess(slam_choices(p, w, y), args)[0], in_axes=(None, 0)))
-    logp = np.zeros((3, 3, len(maps)))
-    for i, j in itertools.product(range(3), range(3)):
-        path = jnp.asarray(np.stack([candidates[0, 0], candidates[1, i], candidates[2, j]]))
-        logp[i, j] = np.asarray(assess(path, jnp.asarray(maps)))
-    prob = np.exp(logp - logp.max())
-    prob /= prob.sum()
-    return prob.sum(axis=(1, 2)), prob.sum(axis=(0, 2)), np.tensordot(prob.sum(axis=(0, 1)), maps, axes=1)
-
-
 def wall_sweep(params, inc, cov, angles, y):
     """A single-site Gibbs sweep over the walls given the poses, each cell's conditional from assess differences
     (the reference map kernel of this test: Gibbs over the walls given the poses)."""
@@ -199,7 +183,7 @@ def test_gibbs_over_poses_and_walls_matches_enumeration():
     is 5 standard errors plus 2e-3 (the burn-in's remaining bias, which decays geometrically): a wrong
     conditional (a missing motion factor, a wrong frame) moves these marginals by several percent."""
     params, inc, cov, candidates, angles, y = tiny_problem()
-    p1, p2, pw = exact_marginals(params, inc, cov, candidates, angles, y)
+    p1, p2, pw = exact_slam_marginals(params, inc, cov, candidates, angles, y)
     # the test is only sharp if every candidate has real mass, the readings move the poses away from the motion
     # model's preference (the odometry's own candidate, 0) and some walls are uncertain
     assert 0.1 < p1.min() and 0.1 < p2.min() and p1.argmax() == 1

@@ -1,6 +1,5 @@
 """The joint SLAM chain (bayesmap.inference.slam) and the tutorial SLAM scene (scenes.slam_tutorial_problem)."""
 
-import itertools
 
 import jax
 import jax.numpy as jnp
@@ -13,8 +12,9 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.inference.poses import discrete_pose_gibbs, slam_data
 from bayesmap.inference.slam import pose_summary, run_slam, slam_kernel
 from bayesmap.model import motion
-from bayesmap.model.generative import make_params, simulate_scan_readings, slam_args, slam_choices, slam_model
+from bayesmap.model.generative import make_params, simulate_scan_readings
 from bayesmap.scenes import simulate_odometry, slam_tutorial_problem
+from helpers import exact_slam_marginals
 
 GRID = Grid((2, 3))  # 6 unit cells: 64 maps
 ODOMETRY = np.array([[0.0, 0.0, 0.0], [0.2, 1.0, 1.2], [0.0, 2.0, 2.0]])
@@ -36,27 +36,13 @@ def tiny_problem():
     return params, inc, cov, candidates, angles, y
 
 
-def exact_joint_marginals(params, inc, cov, candidates, angles, y):
-    """P(pose_1 = c), P(pose_2 = c) and P(wall) (2, 3) from all 3 * 3 * 64 joint states scored by assess."""
-    args = slam_args(candidates[0, 0], inc, cov, params, angles)
-    maps = np.array(list(itertools.product([0.0, 1.0], repeat=6))).reshape(-1, 2, 3)
-    assess = jax.jit(jax.vmap(lambda p, w: slam_model.assess(slam_choices(p, w, y), args)[0], in_axes=(None, 0)))
-    logp = np.zeros((3, 3, len(maps)))
-    for i, j in itertools.product(range(3), range(3)):
-        path = jnp.asarray(np.stack([candidates[0, 0], candidates[1, i], candidates[2, j]]))
-        logp[i, j] = np.asarray(assess(path, jnp.asarray(maps)))
-    prob = np.exp(logp - logp.max())
-    prob /= prob.sum()
-    return prob.sum(axis=(1, 2)), prob.sum(axis=(0, 2)), np.tensordot(prob.sum(axis=(0, 1)), maps, axes=1)
-
-
 def test_joint_kernel_matches_enumeration():
     """slam_kernel with discrete_pose_gibbs and the dense map sweep against the exact joint marginals of poses and
     walls. 2,000 independent chains of 50 sweeps from random starts (15 burn-in); each chain's average over its kept
     sweeps is one estimate, so the standard error is their standard deviation / sqrt(2000) (autocorrelation
     included). Tolerance: 5 standard errors plus 2e-3 for the burn-in's remaining (geometrically decaying) bias."""
     params, inc, cov, candidates, angles, y = tiny_problem()
-    p1, p2, pw = exact_joint_marginals(params, inc, cov, candidates, angles, y)
+    p1, p2, pw = exact_slam_marginals(params, inc, cov, candidates, angles, y)
     assert 0.05 < p1.min() and 0.05 < p2.min()  # every candidate has mass: the test is sharp
     assert np.sum((pw > 0.1) & (pw < 0.9)) >= 2
     data = slam_data(inc, cov, angles, y, params)
