@@ -87,6 +87,20 @@ def sweeps_keep_ray_bits(fast, state, num_sweeps: int) -> int:
     return changed
 
 
+def run_main(*args) -> int:
+    """Run the ``bayesmap`` command line in-process with ``args`` (any objects, made strings) and return its exit
+    code; ``sys.argv`` is restored afterwards (for module-scoped fixtures, where ``monkeypatch`` is not available)."""
+    old = sys.argv
+    sys.argv = ["bayesmap", *map(str, args)]
+    try:
+        main()
+    except SystemExit as exc:
+        return 0 if exc.code is None else exc.code
+    finally:
+        sys.argv = old
+    return 0
+
+
 def run_cli(monkeypatch, capsys, *args):
     monkeypatch.setattr(sys, "argv", ["bayesmap", *map(str, args)])
     code = 0

@@ -12,7 +12,7 @@ import pytest
 from bayesmap.errors import BayesmapError
 from bayesmap.io.carmen import CarmenLog, read_carmen
 from bayesmap.io.rosbag import compose_poses, invert_pose, read_bag, write_log_bag
-from helpers import SHARED_DATA, run_cli
+from helpers import SHARED_DATA, run_cli, run_main
 
 INTEL = SHARED_DATA / "carmen" / "intel-corrected.log.gz"
 SCANS = 40
@@ -35,23 +35,12 @@ def intel():
 def bags(tmp_path_factory, intel):
     """Bags of the log's first 40 scans: ROS 1 and ROS 2 (sqlite3) written by `bayesmap convert`, ROS 2 mcap and an
     off-center laser (ROS 1) by write_log_bag."""
-    import sys
-
     folder = tmp_path_factory.mktemp("bags")
     out = {"ros1": folder / "intel.bag", "ros2": folder / "intel-ros2", "mcap": folder / "intel-mcap",
            "offset": folder / "offset.bag"}
-    from bayesmap.cli import main
-
     for args in (["convert", INTEL, out["ros1"], "--scans", f"0:{SCANS}"],
                  ["convert", INTEL, out["ros2"], "--ros2", "--scans", f"0:{SCANS}"]):
-        old = sys.argv
-        sys.argv = ["bayesmap", *map(str, args)]
-        try:
-            with pytest.raises(SystemExit) as exit_info:
-                main()
-        finally:
-            sys.argv = old
-        assert exit_info.value.code == 0
+        assert run_main(*args) == 0
     write_log_bag(intel, out["mcap"], ros2=True, storage="mcap")
     write_log_bag(intel, out["offset"], laser_offset=OFFSET)
     return out
@@ -107,18 +96,7 @@ def log_posterior(tmp_path_factory):
 
 
 def _infer(args):
-    import sys
-
-    from bayesmap.cli import main
-
-    old = sys.argv
-    sys.argv = ["bayesmap", "infer", *map(str, args)]
-    try:
-        with pytest.raises(SystemExit) as exit_info:
-            main()
-    finally:
-        sys.argv = old
-    assert exit_info.value.code == 0
+    assert run_main("infer", *args) == 0
 
 
 @pytest.mark.parametrize("kind, extra", [("ros1", []), ("ros2", []), ("offset", ["--tf"])])
