@@ -443,8 +443,10 @@ class Explorer:
             text = f"{n_walls} walls, path of {len(self.path)} poses, {self.num_angles} beams"
             if self.running:
                 return text + f"; run {self.runs}: SLAM running ({self.slam_sweeps()} sweeps)"
-            if self.slam is not None and self.stale:
-                text += " (the scene changed since the last SLAM run; run again)"
+            if self.slam is not None:
+                text += f"; run {self.runs}: SLAM, {self.slam.sweeps} sweeps in {self.slam.result.runtime_s:.2f} s"
+                if self.stale:
+                    text += " (the scene changed since; run again)"
             return text
         text = f"{n_walls} walls, sensor at ({self.pos[0]:.2f}, {self.pos[1]:.2f}), {self.num_angles} beams"
         if self.running:
@@ -530,10 +532,23 @@ class Explorer:
         return "".join(out)
 
     def _path_svg(self) -> str:
-        """The path mode's layer: after a SLAM run the odometry (grey dashes), the pose samples (small purple dots)
-        and the posterior mean path (green); then the drawn path (orange) with its numbered poses and headings."""
+        """The path mode's layer: the drawn path (orange) with its numbered poses and headings; after a SLAM run,
+        above it, the odometry (grey dashes), the pose samples (small purple dots) and the posterior mean path
+        (green)."""
         s = self.cell_px()
         out = []
+        if self.path:
+            true = self.true_path()
+            out.append(_polyline(self, true, "path", 'stroke="#ff7f0e" stroke-width="1.5"'))
+            px, py = self._to_px(true[:, :2])
+            r = max(4.0, s * 0.35)
+            for k, (a, b, t) in enumerate(zip(px, py, true[:, 2])):
+                hx, hy = a + 1.6 * r * np.cos(t), b - 1.6 * r * np.sin(t)
+                out.append(f'<g class="pose" data-k="{k}"><line x1="{a:.1f}" y1="{b:.1f}" x2="{hx:.1f}" '
+                           f'y2="{hy:.1f}" stroke="black" stroke-width="1.5"/><circle cx="{a:.1f}" cy="{b:.1f}" '
+                           f'r="{r:.1f}" fill="#ff7f0e" fill-opacity="0.6" stroke="black"/><text x="{a:.1f}" '
+                           f'y="{b:.1f}" font-size="{r * 1.3:.0f}" text-anchor="middle" '
+                           f'dominant-baseline="central">{k + 1}</text></g>')
         if self.slam is not None:
             res = self.slam.result
             out.append(_polyline(self, self.slam.problem.odometry, "odometry",
@@ -541,20 +556,8 @@ class Explorer:
             samples = res.pose_samples[:: max(1, len(res.pose_samples) // 100)].reshape(-1, 3)
             sx, sy = self._to_px(samples[:, :2])
             out.append('<g class="pose-samples" fill="#9467bd" fill-opacity="0.5">' + "".join(
-                f'<circle class="pose-sample" cx="{a:.1f}" cy="{b:.1f}" r="1.5"/>' for a, b in zip(sx, sy)) + "</g>")
-            out.append(_polyline(self, res.mean_path, "mean-path", 'stroke="#2ca02c" stroke-width="2.5"'))
-        if not self.path:
-            return "".join(out)
-        true = self.true_path()
-        out.append(_polyline(self, true, "path", 'stroke="#ff7f0e" stroke-width="2"'))
-        px, py = self._to_px(true[:, :2])
-        r = max(4.0, s * 0.35)
-        for k, (a, b, t) in enumerate(zip(px, py, true[:, 2])):
-            hx, hy = a + 1.6 * r * np.cos(t), b - 1.6 * r * np.sin(t)
-            out.append(f'<g class="pose" data-k="{k}"><line x1="{a:.1f}" y1="{b:.1f}" x2="{hx:.1f}" y2="{hy:.1f}" '
-                       f'stroke="black" stroke-width="1.5"/><circle cx="{a:.1f}" cy="{b:.1f}" r="{r:.1f}" '
-                       f'fill="#ff7f0e" stroke="black"/><text x="{a:.1f}" y="{b:.1f}" font-size="{r * 1.3:.0f}" '
-                       f'text-anchor="middle" dominant-baseline="central">{k + 1}</text></g>')
+                f'<circle class="pose-sample" cx="{a:.1f}" cy="{b:.1f}" r="2"/>' for a, b in zip(sx, sy)) + "</g>")
+            out.append(_polyline(self, res.mean_path, "mean-path", 'stroke="#2ca02c" stroke-width="2"'))
         return "".join(out)
 
 
@@ -624,7 +627,10 @@ class ExplorerPage:
         ui.page_title("bayesmap explorer")
         ui.label("bayesmap: Bayesian occupancy-grid mapping").classes("text-h5")
         ui.label("Click a cell to toggle a wall, drag to paint, drag the orange sensor to move it. Run inference "
-                 "to infer the walls from the beams' noisy range readings.").classes("text-body2 text-grey-8")
+                 "to infer the walls from the beams' noisy range readings. In path mode, clicks on free cells add "
+                 "poses to a path and Run SLAM infers the path and the map from simulated odometry and readings "
+                 "(green: posterior mean path, dots: pose samples, grey dashes: odometry).").classes(
+            "text-body2 text-grey-8")
         self.message = ui.label("").classes("bm-message text-negative text-body1")
 
     def _build_map_panel(self) -> None:
@@ -735,7 +741,9 @@ class ExplorerPage:
         self.slam_label.set_visibility(ex.path_mode)
         self.slam_label.set_text(ex.slam_text())
         self.sample_slider.set_enabled(result_on and not self.average.value and not ex.path_mode)
-        if result_on:
+        if ex.path_mode:
+            self.sample_label.set_text("path mode: the SLAM posterior's average")
+        elif result_on:
             n = len(ex.result.samples)
             self.sample_slider.props(f"max={n}")
             self.sample_label.set_text("average of sweeps %d-%d" % (ex.result.summary["burn_in"] + 1, n)
