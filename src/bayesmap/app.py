@@ -296,6 +296,11 @@ class Explorer:
                            readings=readings, true_poses=true_poses, truth=self.walls.copy(),
                            source=f"app: path of {len(true_poses)} poses, seed {self.seed}")
 
+    def _slam_scene(self) -> tuple:
+        """What a SLAM run's scene depends on (to tell whether it changed during a run)."""
+        return (tuple(map(tuple, self.true_path().tolist())), self.walls.tobytes(), self.prior_wall_prob,
+                self.sensor_noise, self.num_angles)
+
     def slam_sweeps(self) -> int:
         """The joint sweeps of a path-mode run: the sweeps setting, at most :data:`SLAM_MAX_SWEEPS`."""
         return min(self.sweeps, SLAM_MAX_SWEEPS)
@@ -312,6 +317,7 @@ class Explorer:
         from bayesmap.inference.slam import run_slam
 
         try:
+            scene = self._slam_scene()
             problem = self.slam_problem()
             sweeps = self.slam_sweeps()
             result = run_slam(problem, sweeps=sweeps, burn_in=sweeps // 3, seed=self.seed)
@@ -320,7 +326,7 @@ class Explorer:
                           ate_mean=score_trajectory(result.mean_path, problem.true_poses)["ate_rmse_m"],
                           ate_odometry=score_trajectory(problem.odometry, problem.true_poses)["ate_rmse_m"])
             self.slam = run
-            self.stale = False
+            self.stale = self._slam_scene() != scene  # poses or settings changed while it ran
             return run
         finally:
             self.running = False
