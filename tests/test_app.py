@@ -143,3 +143,79 @@ def test_cli_app_rejects_bad_port_in_one_line():
             assert out.returncode == 2, out.stderr
             assert len(out.stderr.strip().splitlines()) == 1 and out.stderr.startswith("error: ")
             assert words in out.stderr
+
+
+# -- path mode (issue 15): a drawn path, simulated odometry and readings, joint SLAM --------------------------------
+
+
+def test_path_building_refuses_walls_and_repeats():
+    ex = Explorer()
+    ex.set_path_mode(True)
+    ex.add_pose((4, 6))
+    ex.add_pose((10, 10))
+    with pytest.raises(BayesmapError, match=r"cell \(2, 1\) is a wall"):
+        ex.add_pose((2, 1))
+    with pytest.raises(BayesmapError, match=r"cell \(10, 10\) is already"):
+        ex.add_pose((10, 10))
+    with pytest.raises(BayesmapError, match=r"cell \(21, 3\) is outside"):
+        ex.add_pose((21, 3))
+    ex.add_pose((10, 14))
+    assert np.array_equal(ex.walls, tutorial_map())  # nothing was drawn
+    # headings point to the next pose; the last pose keeps the last step's heading
+    np.testing.assert_allclose(ex.true_path(), [[4, 6, np.arctan2(4, 6)], [10, 10, np.pi / 2], [10, 14, np.pi / 2]])
+    ex.clear_path()
+    assert ex.path == [] and ex.true_path().shape == (0, 3)
+
+
+def test_slam_scene_needs_two_poses_and_uses_the_settings():
+    ex = Explorer()
+    ex.set_path_mode(True)
+    ex.add_pose((4, 6))
+    assert ex.start_run()  # claim a run: a refused scene must still release it
+    with pytest.raises(BayesmapError, match="at least 2 poses, it has 1"):
+        ex.run_slam()
+    assert not ex.running and ex.slam is None
+    ex.clear_path()
+    ex.add_pose((8, 8))
+    ex.add_pose((14, 8))
+    ex.set_setting("num_angles", 24)
+    ex.set_setting("sensor_noise", 0.2)
+    pb = ex.slam_problem()
+    from bayesmap.scenes import SLAM_ODOMETRY_ALPHAS, simulate_odometry
+
+    assert pb.readings.shape == pb.sensor_angles.shape == (2, 24)
+    assert pb.params.sensor_noise == pytest.approx(0.2)
+    np.testing.assert_array_equal(pb.true_poses, ex.true_path())
+    np.testing.assert_array_equal(pb.odometry, simulate_odometry(ex.true_path(), SLAM_ODOMETRY_ALPHAS, ex.seed))
+    # the readings are simulated at the true poses, beams relative to the heading (+x here): the beam straight
+    # ahead of the first pose reads about the 8.5 m to the wall at x = 17 (noise 0.2 m: 5 sigma)
+    ahead = np.argmin(np.abs(pb.sensor_angles[0]))
+    assert pb.sensor_angles[0, ahead] == 0.0 and abs(pb.readings[0, ahead] - 8.5) < 1.0
+    assert ex.slam_sweeps() == 100 and (ex.set_setting("sweeps", 2000), ex.slam_sweeps())[1] == 200
+
+
+def test_slam_run_on_a_three_pose_path():
+    ex = Explorer()
+    ex.set_path_mode(True)
+    for cell in [(4, 6), (10, 10), (14, 14)]:
+        ex.add_pose(cell)
+    ex.set_setting("sweeps", 10)
+    assert ex.start_run() and not ex.start_run()
+    run = ex.run_slam()
+    assert not ex.running and ex.slam is run and not ex.stale
+    res = run.result
+    assert run.sweeps == 10
+    assert res.pose_samples.shape == (10 - 10 // 3, 3, 3) and res.mean_path.shape == (3, 3)
+    assert res.posterior.shape == (21, 21) and np.array_equal(ex.shown(None), res.posterior)
+    np.testing.assert_allclose(res.pose_samples[:, 0], np.broadcast_to(ex.true_path()[0], (7, 3)), atol=1e-6)  # fixed
+    # the joint chain beats the odometry it starts from (seed 0: 0.02 m against 0.20 m); the map is nearly right
+    assert run.ate_mean < 0.5 * run.ate_odometry
+    assert np.sum((res.posterior > 0.5) != (ex.walls > 0)) <= 20
+    assert "ATE of the posterior mean" in ex.slam_text()
+    svg = ex.svg(ex.shown(None))
+    assert svg.count('class="pose"') == 3 and svg.count('class="pose-sample"') == 7 * 3
+    assert 'class="mean-path"' in svg and 'class="odometry"' in svg and 'class="sensor"' not in svg
+    ex.add_pose((12, 10))
+    assert ex.stale and "run again" in ex.status()
+    ex.set_path_mode(False)
+    assert 'class="sensor"' in ex.svg(ex.shown(None)) and ex.shown(None) is None  # the map mode is untouched

@@ -7,6 +7,7 @@ was attempted. Screenshots go to test-artifacts/ (app-before.png, app-after.png)
 from __future__ import annotations
 
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -294,3 +295,53 @@ def test_load_save_and_single_run(open_page, tmp_path):
     assert "run 1: 100 sweeps" in _status(page)
     inferred = _inferred(page)
     assert all(inferred.get((i, j), 0) > 0.9 for i, j in [(0, 3), (4, 3), (2, 0), (2, 6)])
+
+
+def test_path_mode_runs_slam(open_page):
+    """Path mode: clicks add poses (a wall click only shows a message), Run SLAM shows the map, odometry, pose samples,
+    mean path and the ATEs."""
+    page = open_page()
+    walls = _walls(page)
+    field = page.locator(".bm-field-sweeps input")
+    field.fill("10")
+    field.press("Enter")
+    page.click(".bm-path-mode")
+    page.wait_for_function("() => document.querySelector('.bm-run').textContent.includes('Run SLAM')")
+    assert page.locator(".bm-map svg circle.sensor").count() == 0  # the single sensor is not drawn in path mode
+
+    # too few poses: Run SLAM says so and runs nothing
+    page.click(".bm-run")
+    page.wait_for_function("() => document.querySelector('.bm-message').innerText.includes('at least 2 poses')")
+
+    for k, (i, j) in enumerate([(4, 6), (10, 10), (14, 14)]):
+        page.mouse.click(*_cell_px(page, i, j))
+        page.wait_for_function(f"() => document.querySelectorAll('.bm-map svg g.pose').length === {k + 1}")
+    assert page.inner_text(".bm-message") == ""
+    page.mouse.click(*_cell_px(page, 2, 1))  # a wall: a message, no pose, no change to the map
+    page.wait_for_function("() => document.querySelector('.bm-message').innerText.includes('cell (2, 1) is a wall')")
+    assert page.locator(".bm-map svg g.pose").count() == 3 and _walls(page) == walls
+    assert page.text_content(".bm-map svg g.pose[data-k='2'] text") == "3"
+
+    page.evaluate("() => { const b = document.querySelector('.bm-run'); b.click(); b.click(); }")
+    page.wait_for_function("() => document.querySelector('.bm-slam').innerText.includes('ATE of the posterior mean')",
+                           timeout=120000)
+    text = page.inner_text(".bm-slam")
+    assert "3 poses, 10 sweeps" in text
+    ate_mean, ate_odometry = (float(v) for v in re.findall(r"([0-9.]+) m", text))
+    assert ate_mean < ate_odometry
+    assert page.locator(".bm-map svg circle.pose-sample").count() == 7 * 3  # 10 sweeps, 3 burn-in, 3 poses
+    assert page.locator(".bm-map svg polyline.mean-path").count() == 1
+    assert page.locator(".bm-map svg polyline.odometry").count() == 1
+    inferred = _inferred(page)
+    # a free cell on the path (an absent cell is below 0.005) and a wall next to pose 3
+    assert inferred.get((12, 10), 0.0) < 0.5 and inferred.get((12, 14), 0.0) > 0.5
+    assert "run 1" in _status(page)
+    page.screenshot(path=str(ARTIFACTS / "app-path.png"))
+
+    # Clear path removes the poses and the SLAM result; back in map mode the sensor is there again
+    page.click(".bm-clear-path")
+    page.wait_for_function("() => document.querySelectorAll('.bm-map svg g.pose').length === 0")
+    assert page.locator(".bm-map svg circle.pose-sample").count() == 0
+    page.click(".bm-path-mode")
+    page.wait_for_selector(".bm-map svg circle.sensor")
+    assert _walls(page) == walls

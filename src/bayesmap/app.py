@@ -12,7 +12,11 @@ It does what the tutorial's final interactive widget does, offline and without J
 * buttons Run inference (fast 2x2 block Gibbs in a worker thread, with a progress bar; a click while a run is going
   does nothing), Clear walls, Clear inferred walls; load an ASCII map file and save the drawn map;
 * after a run, a sample slider and a "show average" switch; the inferred walls drawn as cell opacity (the tutorial's
-  style) or as a heatmap.
+  style) or as a heatmap;
+* a path mode (issue 15): clicks on free cells append sensor poses to a path (headings towards the next pose); Run
+  SLAM simulates odometry (:func:`bayesmap.scenes.simulate_odometry`) and readings along it and runs the joint chain
+  (:func:`bayesmap.inference.slam.run_slam`), then draws the posterior map, the odometry, the pose samples, the
+  posterior mean path and the ATE of the mean and of the odometry.
 
 Each browser tab gets its own :class:`Explorer`, so tabs are independent sessions. The page's scripts and styles are
 NiceGUI's own, served by the app itself: nothing is fetched from the network.
@@ -35,9 +39,13 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import sensor_distances
 from bayesmap.inference.driver import DEFAULT_SWEEPS, InferenceResult, run_inference
 from bayesmap.io.ascii import format_map, parse_map, tutorial_map
-from bayesmap.scenes import TUTORIAL_POS, Problem, tutorial_problem
+from bayesmap.scenes import TUTORIAL_POS, Problem, SlamProblem, tutorial_problem
 
 SAMPLER = "block"
+
+SLAM_MAX_SWEEPS = 200
+"""The most joint sweeps a path-mode run does (the sweeps setting is capped at it): a SLAM sweep costs about 0.25 s
+on the tutorial map, against about 1 ms for a map-only sweep."""
 
 
 @dataclass(frozen=True)
@@ -67,6 +75,27 @@ class Setting:
                 raise BayesmapError(f"{self.label} must be a whole number, got {value!r}")
             return int(number)
         return number
+
+
+@dataclass(frozen=True)
+class SlamRun:
+    """One path-mode run: the scene, the joint chain's result and the ATEs (root mean square, meters, after a
+    rigid alignment: :func:`bayesmap.evaluation.trajectory.absolute_trajectory_error`).
+
+    Attributes:
+        problem: the :class:`~bayesmap.scenes.SlamProblem` (true path, odometry ``(S, 3)``, readings ``(S, K)``).
+        result: the :class:`~bayesmap.inference.slam.SlamResult` (pose samples ``(N, S, 3)``, mean path ``(S, 3)``,
+            posterior map ``(nx, ny)``).
+        sweeps: joint sweeps run (the first third burn-in).
+        ate_mean: ATE of the posterior mean path, meters.
+        ate_odometry: ATE of the odometry, meters.
+    """
+
+    problem: SlamProblem
+    result: object
+    sweeps: int
+    ate_mean: float
+    ate_odometry: float
 
 
 SETTINGS: dict[str, Setting] = {
@@ -117,6 +146,9 @@ class Explorer:
         self._lock = threading.Lock()
         self._problem: Problem | None = None
         self._beams: tuple | None = None  # (problem, hits, readings) of the last drawing
+        self.path_mode = False
+        self.path: list[np.ndarray] = []
+        self.slam: SlamRun | None = None
 
     # -- the scene ---------------------------------------------------------------------------------------------
 
@@ -151,7 +183,7 @@ class Explorer:
 
     def _changed(self) -> None:
         self._problem = None
-        if self.result is not None:
+        if self.result is not None or self.slam is not None:
             self.stale = True
 
     def set_wall(self, cell: tuple[int, int], value: bool) -> bool:
@@ -188,9 +220,125 @@ class Explorer:
             self._changed()
 
     def clear_inferred(self) -> None:
-        """Forget the last inference."""
+        """Forget the last inference (and the last SLAM run)."""
         self.result = None
+        self.slam = None
         self.stale = False
+
+    # -- path mode ----------------------------------------------------------------------------------------------
+
+    def set_path_mode(self, on: bool) -> None:
+        """Switch path mode on or off (the drawn path and the last SLAM run are kept)."""
+        self.path_mode = bool(on)
+
+    def add_pose(self, cell: tuple[int, int]) -> None:
+        """Append the center of ``cell`` ``(i, j)`` to the path.
+
+        Raises:
+            BayesmapError: naming the cell, if it is outside the grid, a wall, or the path's last pose (nothing
+                changes).
+        """
+        i, j = (int(v) for v in cell)
+        if not (0 <= i < self.grid.shape[0] and 0 <= j < self.grid.shape[1]):
+            raise BayesmapError(f"cell ({i}, {j}) is outside the {self.grid.shape[0]} x {self.grid.shape[1]} grid")
+        if self.walls[i, j] > 0.5:
+            raise BayesmapError(f"cell ({i}, {j}) is a wall: a pose must be on a free cell (walls cannot be drawn "
+                                "in path mode)")
+        xy = self.grid.cell_centers()[i, j].astype(np.float64)
+        if self.path and np.array_equal(xy, self.path[-1]):
+            raise BayesmapError(f"cell ({i}, {j}) is already the path's last pose")
+        self.path.append(xy)
+        if self.slam is not None:
+            self.stale = True
+
+    def clear_path(self) -> None:
+        """Remove every pose of the path and forget the last SLAM run."""
+        self.path = []
+        self.slam = None
+        self.stale = self.result is not None and self.stale
+
+    def true_path(self) -> np.ndarray:
+        """``(S, 3)`` float64 drawn path (x m, y m, theta rad): each heading points to the next pose, the last
+        pose keeps the heading of the step before it (0 for a single pose)."""
+        xy = np.asarray(self.path, dtype=np.float64).reshape(-1, 2)
+        if len(xy) < 2:
+            return np.column_stack([xy, np.zeros(len(xy))])
+        step = np.diff(xy, axis=0)
+        heading = np.arctan2(step[:, 1], step[:, 0])
+        return np.column_stack([xy, np.append(heading, heading[-1])])
+
+    def slam_problem(self) -> SlamProblem:
+        """The SLAM scene of the drawn walls and path: odometry simulated from the path by
+        :func:`bayesmap.scenes.simulate_odometry` (:data:`bayesmap.scenes.SLAM_ODOMETRY_ALPHAS`, this session's
+        seed), readings simulated at the true poses with the current ``num_angles`` beams (relative to the heading),
+        ``sensor_noise`` and ``prior_wall_prob``, as :func:`bayesmap.scenes.slam_tutorial_problem` does.
+
+        Raises:
+            BayesmapError: if the path has fewer than 2 poses.
+        """
+        import jax
+
+        from bayesmap.geometry.raycast import angles
+        from bayesmap.model.generative import make_params, simulate_scan_readings
+        from bayesmap.model.motion import MotionParams
+
+        if len(self.path) < 2:
+            raise BayesmapError(f"the path needs at least 2 poses, it has {len(self.path)}: click free cells to add "
+                                "poses")
+        true_poses = self.true_path()
+        params = make_params(self.prior_wall_prob, self.sensor_noise, self.num_angles, self.grid)
+        odometry = scenes.simulate_odometry(true_poses, scenes.SLAM_ODOMETRY_ALPHAS, self.seed)
+        sensor_angles = np.tile(np.asarray(angles(self.num_angles), dtype=np.float64), (len(true_poses), 1))
+        readings = simulate_scan_readings(jax.random.key(self.seed), self.walls, true_poses[:, :2], params,
+                                          true_poses[:, 2:3] + sensor_angles)
+        readings = np.maximum(np.asarray(readings, dtype=np.float64), 0.0)
+        return SlamProblem(params=params, motion=MotionParams(), odometry=odometry, sensor_angles=sensor_angles,
+                           readings=readings, true_poses=true_poses, truth=self.walls.copy(),
+                           source=f"app: path of {len(true_poses)} poses, seed {self.seed}")
+
+    def _slam_scene(self) -> tuple:
+        """What a SLAM run's scene depends on (to tell whether it changed during a run)."""
+        return (tuple(map(tuple, self.true_path().tolist())), self.walls.tobytes(), self.prior_wall_prob,
+                self.sensor_noise, self.num_angles)
+
+    def slam_sweeps(self) -> int:
+        """The joint sweeps of a path-mode run: the sweeps setting, at most :data:`SLAM_MAX_SWEEPS`."""
+        return min(self.sweeps, SLAM_MAX_SWEEPS)
+
+    def run_slam(self) -> SlamRun:
+        """Run joint SLAM on the drawn walls and path (:meth:`slam_problem`; :meth:`slam_sweeps` sweeps, the
+        first third burn-in, seed = this session's seed); call :meth:`start_run` first (blocking; the app calls it in
+        a worker thread).
+
+        Raises:
+            BayesmapError: if the path has fewer than 2 poses.
+        """
+        from bayesmap.evaluation.trajectory import score_trajectory
+        from bayesmap.inference.slam import run_slam
+
+        try:
+            scene = self._slam_scene()
+            problem = self.slam_problem()
+            sweeps = self.slam_sweeps()
+            result = run_slam(problem, sweeps=sweeps, burn_in=sweeps // 3, seed=self.seed)
+            self.progress = 1.0
+            run = SlamRun(problem=problem, result=result, sweeps=sweeps,
+                          ate_mean=score_trajectory(result.mean_path, problem.true_poses)["ate_rmse_m"],
+                          ate_odometry=score_trajectory(problem.odometry, problem.true_poses)["ate_rmse_m"])
+            self.slam = run
+            self.stale = self._slam_scene() != scene  # poses or settings changed while it ran
+            return run
+        finally:
+            self.running = False
+
+    def slam_text(self) -> str:
+        """One line about the last SLAM run (its ATEs), or how to start one."""
+        if self.slam is None:
+            return (f"path: {len(self.path)} poses (at least 2 needed); Run SLAM does up to {SLAM_MAX_SWEEPS} "
+                    "sweeps (about 0.25 s each on the tutorial map)")
+        s = self.slam
+        return (f"SLAM: {s.problem.num_scans} poses, {s.sweeps} sweeps in {s.result.runtime_s:.1f} s; ATE of the "
+                f"posterior mean {s.ate_mean:.3f} m, of the odometry {s.ate_odometry:.3f} m")
 
     def set_setting(self, name: str, value) -> float | int:
         """Set one of :data:`SETTINGS` after checking it; returns the value set.
@@ -228,6 +376,8 @@ class Explorer:
         self.result = None
         self.stale = False
         self._problem = None
+        self.path = []
+        self.slam = None
 
     def map_text(self) -> str:
         """The drawn map in the ASCII format (:func:`bayesmap.io.ascii.format_map`)."""
@@ -281,7 +431,10 @@ class Explorer:
 
     def shown(self, sample: int | None) -> np.ndarray | None:
         """``(nx, ny)`` float wall probabilities to draw: the posterior mean (``sample`` None) or sample ``sample``
-        (0-based sweep index) of the last run; None without a run."""
+        (0-based sweep index) of the last run; None without a run. In path mode: the last SLAM run's posterior
+        map (``sample`` ignored), or None."""
+        if self.path_mode:
+            return None if self.slam is None else self.slam.result.posterior
         if self.result is None:
             return None
         if sample is None:
@@ -292,6 +445,15 @@ class Explorer:
     def status(self) -> str:
         """One line about the scene and the last run."""
         n_walls = int(self.walls.sum())
+        if self.path_mode:
+            text = f"{n_walls} walls, path of {len(self.path)} poses, {self.num_angles} beams"
+            if self.running:
+                return text + f"; run {self.runs}: SLAM running ({self.slam_sweeps()} sweeps)"
+            if self.slam is not None:
+                text += f"; run {self.runs}: SLAM, {self.slam.sweeps} sweeps in {self.slam.result.runtime_s:.2f} s"
+                if self.stale:
+                    text += " (the scene changed since; run again)"
+            return text
         text = f"{n_walls} walls, sensor at ({self.pos[0]:.2f}, {self.pos[1]:.2f}), {self.num_angles} beams"
         if self.running:
             return text + f"; run {self.runs}: {self.progress:.0%} done"
@@ -358,6 +520,9 @@ class Explorer:
                 inset = max(1, s // 5) if shown is not None else 0
                 out.append(f'<rect class="wall" data-i="{i}" data-j="{j}" x="{x + inset}" y="{y + inset}" '
                            f'width="{s - 2 * inset}" height="{s - 2 * inset}" fill="#333"/>')
+        if self.path_mode:
+            out.append(self._path_svg())
+            return "".join(out)
         hits, readings = self.beams()
         sx, sy = self._to_px(self.pos)
         hx, hy = self._to_px(hits)
@@ -371,6 +536,42 @@ class Explorer:
                    'stroke="black" stroke-width="1.5" style="cursor: grab">'
                    '<title>sensor: drag to move</title></circle>')
         return "".join(out)
+
+    def _path_svg(self) -> str:
+        """The path mode's layer: the drawn path (orange) with its numbered poses and headings; after a SLAM run,
+        above it, the odometry (grey dashes), the pose samples (small purple dots) and the posterior mean path
+        (green)."""
+        s = self.cell_px()
+        out = []
+        if self.path:
+            true = self.true_path()
+            out.append(_polyline(self, true, "path", 'stroke="#ff7f0e" stroke-width="1.5"'))
+            px, py = self._to_px(true[:, :2])
+            r = max(4.0, s * 0.35)
+            for k, (a, b, t) in enumerate(zip(px, py, true[:, 2])):
+                hx, hy = a + 1.6 * r * np.cos(t), b - 1.6 * r * np.sin(t)
+                out.append(f'<g class="pose" data-k="{k}"><line x1="{a:.1f}" y1="{b:.1f}" x2="{hx:.1f}" '
+                           f'y2="{hy:.1f}" stroke="black" stroke-width="1.5"/><circle cx="{a:.1f}" cy="{b:.1f}" '
+                           f'r="{r:.1f}" fill="#ff7f0e" fill-opacity="0.6" stroke="black"/><text x="{a:.1f}" '
+                           f'y="{b:.1f}" font-size="{r * 1.3:.0f}" text-anchor="middle" '
+                           f'dominant-baseline="central">{k + 1}</text></g>')
+        if self.slam is not None:
+            res = self.slam.result
+            out.append(_polyline(self, self.slam.problem.odometry, "odometry",
+                                 'stroke="#777" stroke-width="2" stroke-dasharray="5 3"'))
+            samples = res.pose_samples[:: max(1, len(res.pose_samples) // 100)].reshape(-1, 3)
+            sx, sy = self._to_px(samples[:, :2])
+            out.append('<g class="pose-samples" fill="#9467bd" fill-opacity="0.5">' + "".join(
+                f'<circle class="pose-sample" cx="{a:.1f}" cy="{b:.1f}" r="2"/>' for a, b in zip(sx, sy)) + "</g>")
+            out.append(_polyline(self, res.mean_path, "mean-path", 'stroke="#2ca02c" stroke-width="2"'))
+        return "".join(out)
+
+
+def _polyline(explorer: Explorer, xy, cls: str, style: str) -> str:
+    """An SVG polyline of world points ``xy`` ``(S, 2+)`` (meters) with class ``cls``."""
+    px, py = explorer._to_px(np.asarray(xy, dtype=np.float64)[:, :2])
+    points = " ".join(f"{a:.1f},{b:.1f}" for a, b in zip(px, py))
+    return f'<polyline class="{cls}" points="{points}" fill="none" {style}/>'
 
 
 def _heat_colors() -> list[str]:
@@ -418,6 +619,7 @@ class ExplorerPage:
             with ui.column().classes("gap-1").style("min-width: 360px"):
                 self._build_settings()
                 self._build_run_controls()
+                self._build_path_controls()
                 self._build_view_controls()
                 self._build_file_controls()
         self._connect()
@@ -431,7 +633,10 @@ class ExplorerPage:
         ui.page_title("bayesmap explorer")
         ui.label("bayesmap: Bayesian occupancy-grid mapping").classes("text-h5")
         ui.label("Click a cell to toggle a wall, drag to paint, drag the orange sensor to move it. Run inference "
-                 "to infer the walls from the beams' noisy range readings.").classes("text-body2 text-grey-8")
+                 "to infer the walls from the beams' noisy range readings. In path mode, clicks on free cells add "
+                 "poses to a path and Run SLAM infers the path and the map from simulated odometry and readings "
+                 "(green: posterior mean path, dots: pose samples, grey dashes: odometry).").classes(
+            "text-body2 text-grey-8")
         self.message = ui.label("").classes("bm-message text-negative text-body1")
 
     def _build_map_panel(self) -> None:
@@ -473,6 +678,16 @@ class ExplorerPage:
         self.progress = ui.linear_progress(value=0.0, show_value=False).classes("bm-progress")
         self.progress.set_visibility(False)
 
+    def _build_path_controls(self) -> None:
+        """The path mode switch, Clear path, and the line with the last SLAM run's ATEs."""
+        ui = self.ui
+        ui.separator()
+        with ui.row().classes("items-center"):
+            self.path_switch = ui.switch("path mode (clicks add poses; Run SLAM)", value=False).classes("bm-path-mode")
+            self.clear_path_button = (ui.button("Clear path", on_click=lambda: (self.ex.clear_path(), self.redraw()))
+                                      .classes("bm-clear-path").props("outline"))
+        self.slam_label = ui.label("").classes("bm-slam text-body2")
+
     def _build_view_controls(self) -> None:
         """What to show after a run: the average or one sample, as opacity or heatmap."""
         ui = self.ui
@@ -503,6 +718,7 @@ class ExplorerPage:
             number.on("keydown.enter", lambda _e, n=name, f=number: self.apply_setting(n, f.value, f))
             number.on("blur", lambda _e, n=name, f=number: self.apply_setting(n, f.value, f))
         self.run_button.on_click(self.run_clicked)
+        self.path_switch.on_value_change(lambda e: (self.ex.set_path_mode(e.value), self.clear_error(), self.redraw()))
         self.average.on_value_change(lambda _e: self.redraw())
         self.sample_slider.on_value_change(lambda _e: self.redraw())
         self.heat.on_value_change(lambda _e: self.redraw())
@@ -526,8 +742,14 @@ class ExplorerPage:
         shown = ex.shown(None if (self.average.value or not result_on) else int(self.sample_slider.value) - 1)
         self.image.content = ex.svg(shown, heatmap=self.heat.value == "heatmap")
         self.legend.style(f"background: {_legend_gradient(self.heat.value == 'heatmap')}")
-        self.sample_slider.set_enabled(result_on and not self.average.value)
-        if result_on:
+        self.run_button.set_text("Run SLAM" if ex.path_mode else "Run inference")
+        self.clear_path_button.set_visibility(ex.path_mode)
+        self.slam_label.set_visibility(ex.path_mode)
+        self.slam_label.set_text(ex.slam_text())
+        self.sample_slider.set_enabled(result_on and not self.average.value and not ex.path_mode)
+        if ex.path_mode:
+            self.sample_label.set_text("path mode: the SLAM posterior's average")
+        elif result_on:
             n = len(ex.result.samples)
             self.sample_slider.props(f"max={n}")
             self.sample_label.set_text("average of sweeps %d-%d" % (ex.result.summary["burn_in"] + 1, n)
@@ -541,6 +763,10 @@ class ExplorerPage:
         button held move the sensor or paint; button up or leaving the drawing ends the drag."""
         ex, drag = self.ex, self.drag
         xy = ex.to_world(e.image_x, e.image_y)
+        if ex.path_mode:
+            if e.type == "mousedown":
+                self.add_pose(xy)
+            return
         if e.type == "mousedown":
             self.clear_error()
             if np.hypot(*(xy - ex.pos)) <= 0.6 * ex.grid.resolution:
@@ -566,6 +792,19 @@ class ExplorerPage:
         elif e.type in ("mouseup", "mouseleave") or not (e.buttons & 1):
             drag["mode"] = None
 
+    def add_pose(self, xy) -> None:
+        """Path mode: append the clicked cell to the path; a wall cell shows a message and changes nothing."""
+        cell = self.ex.cell_at(xy)
+        if cell is None:
+            return
+        try:
+            self.ex.add_pose(cell)
+        except BayesmapError as err:
+            self.show_error(str(err))
+            return
+        self.clear_error()
+        self.redraw()
+
     def apply_setting(self, name: str, value, source) -> None:
         """Set ``name`` from its slider or text field (``source``) and sync the other one; a bad value is shown
         as an error and the field is reset."""
@@ -584,25 +823,35 @@ class ExplorerPage:
         self.redraw()
 
     async def run_clicked(self) -> None:
-        """Run inference in a worker thread with a progress bar (a click while a run is going only warns)."""
+        """Run inference (in path mode: SLAM) in a worker thread with a progress bar (a click while a run is going
+        only warns). SLAM reports no progress while it runs: its bar is indeterminate."""
         from nicegui import run
 
         ui, ex = self.ui, self.ex
+        slam = ex.path_mode
+        if slam and len(ex.path) < 2:
+            self.show_error(f"the path needs at least 2 poses, it has {len(ex.path)}: click free cells to add poses")
+            return
         if not ex.start_run():
             ui.notify("inference is already running", type="warning")
             return
         self.clear_error()
         self.run_button.disable()
+        self.path_switch.disable()
         self.progress.set_visibility(True)
         self.progress.value = 0.0
+        if slam:
+            self.progress.props("indeterminate")
         poll = ui.timer(0.1, lambda: (self.progress.set_value(ex.progress), self.status.set_text(ex.status())))
         try:
-            await run.io_bound(ex.run)
+            await run.io_bound(ex.run_slam if slam else ex.run)
         except BayesmapError as err:
             self.show_error(str(err))
         finally:
             poll.cancel()
             self.run_button.enable()
+            self.path_switch.enable()
+            self.progress.props(remove="indeterminate")
             self.progress.set_visibility(False)
             if ex.result is not None:
                 self.sample_slider.value = len(ex.result.samples)
