@@ -271,30 +271,21 @@ class Explorer:
         """The SLAM scene of the drawn walls and path: odometry simulated from the path by
         :func:`bayesmap.scenes.simulate_odometry` (:data:`bayesmap.scenes.SLAM_ODOMETRY_ALPHAS`, this session's
         seed), readings simulated at the true poses with the current ``num_angles`` beams (relative to the heading),
-        ``sensor_noise`` and ``prior_wall_prob``, as :func:`bayesmap.scenes.slam_tutorial_problem` does.
+        ``sensor_noise`` and ``prior_wall_prob``, by :func:`bayesmap.scenes.simulated_slam_problem` (as the
+        tutorial SLAM scene).
 
         Raises:
             BayesmapError: if the path has fewer than 2 poses.
         """
-        import jax
-
-        from bayesmap.geometry.raycast import angles
-        from bayesmap.model.generative import make_params, simulate_scan_readings
-        from bayesmap.model.motion import MotionParams
+        from bayesmap.model.generative import make_params
 
         if len(self.path) < 2:
             raise BayesmapError(f"the path needs at least 2 poses, it has {len(self.path)}: click free cells to add "
                                 "poses")
         true_poses = self.true_path()
         params = make_params(self.prior_wall_prob, self.sensor_noise, self.num_angles, self.grid)
-        odometry = scenes.simulate_odometry(true_poses, scenes.SLAM_ODOMETRY_ALPHAS, self.seed)
-        sensor_angles = np.tile(np.asarray(angles(self.num_angles), dtype=np.float64), (len(true_poses), 1))
-        readings = simulate_scan_readings(jax.random.key(self.seed), self.walls, true_poses[:, :2], params,
-                                          true_poses[:, 2:3] + sensor_angles)
-        readings = np.maximum(np.asarray(readings, dtype=np.float64), 0.0)
-        return SlamProblem(params=params, motion=MotionParams(), odometry=odometry, sensor_angles=sensor_angles,
-                           readings=readings, true_poses=true_poses, truth=self.walls.copy(),
-                           source=f"app: path of {len(true_poses)} poses, seed {self.seed}")
+        return scenes.simulated_slam_problem(self.walls, true_poses, params, self.seed,
+                                             source=f"app: path of {len(true_poses)} poses, seed {self.seed}")
 
     def _slam_scene(self) -> tuple:
         """What a SLAM run's scene depends on (to tell whether it changed during a run)."""

@@ -716,9 +716,6 @@ def slam_tutorial_problem(seed: int = 0, num_poses: int = 8, motion=None, num_an
     Raises:
         BayesmapError: if ``num_poses`` is not an integer in 2..64, or on bad parameters (the message names them).
     """
-    from bayesmap.model.generative import simulate_scan_readings
-    from bayesmap.model.motion import MotionParams
-
     if isinstance(num_poses, bool) or not isinstance(num_poses, (int, np.integer)) or not 2 <= num_poses <= 64:
         raise BayesmapError(f"num_poses must be an integer from 2 to 64, got {num_poses!r}")
     walls = tutorial_map()
@@ -727,11 +724,36 @@ def slam_tutorial_problem(seed: int = 0, num_poses: int = 8, motion=None, num_an
     (cx, cy), (rx, ry) = SLAM_LOOP_CENTER, SLAM_LOOP_RADII
     heading = np.arctan2(ry * np.cos(phase), -rx * np.sin(phase))
     true_poses = np.column_stack([cx + rx * np.cos(phase), cy + ry * np.sin(phase), heading])
+    return simulated_slam_problem(walls, true_poses, params, seed, motion,
+                                  source=f"tutorial map, loop of {num_poses} poses, odometry seed {seed}")
+
+
+def simulated_slam_problem(walls, true_poses, params: ModelParams, seed: int, motion=None,
+                           source: str = "") -> SlamProblem:
+    """A SLAM scene simulated on a known map: a robot at ``true_poses`` known only through its odometry.
+
+    The odometry: :func:`simulate_odometry` of the true path with :data:`SLAM_ODOMETRY_ALPHAS` and ``seed``; the
+    readings: ``params``' sensor model (``params.num_angles`` equally spaced beams, relative to the heading) simulated
+    at the true poses with ``jax.random.key(seed)``, clipped at 0 as :func:`tutorial_problem`'s.
+
+    Args:
+        walls: ``(nx, ny)`` true map (cells > 0.5 are walls).
+        true_poses: ``(S, 3)`` the robot's path (x m, y m, theta rad), ``S >= 2``.
+        params: the model parameters (grid, sensor model, prior).
+        seed: seed of the odometry noise and of the readings.
+        motion: the model's motion noise (:class:`bayesmap.model.motion.MotionParams`); default its defaults.
+        source: a description for summaries.
+    """
+    from bayesmap.model.generative import simulate_scan_readings
+    from bayesmap.model.motion import MotionParams
+
+    walls = (np.asarray(walls) > 0.5).astype(np.float32)
+    true_poses = np.asarray(true_poses, dtype=np.float64)
     odometry = simulate_odometry(true_poses, SLAM_ODOMETRY_ALPHAS, seed)
-    sensor_angles = np.tile(np.asarray(angles(num_angles), dtype=np.float64), (num_poses, 1))
+    sensor_angles = np.tile(np.asarray(angles(params.num_angles), dtype=np.float64), (len(true_poses), 1))
     readings = simulate_scan_readings(jax.random.key(seed), walls, true_poses[:, :2], params,
                                       true_poses[:, 2:3] + sensor_angles)
     readings = np.maximum(np.asarray(readings, dtype=np.float64), 0.0)
     return SlamProblem(params=params, motion=MotionParams() if motion is None else motion, odometry=odometry,
                        sensor_angles=sensor_angles, readings=readings, true_poses=true_poses, truth=walls,
-                       source=f"tutorial map, loop of {num_poses} poses, odometry seed {seed}")
+                       source=source)
