@@ -35,10 +35,13 @@ import numpy as np
 
 from bayesmap import scenes
 from bayesmap.errors import BayesmapError
+from bayesmap.evaluation.trajectory import score_trajectory
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import sensor_distances
 from bayesmap.inference.driver import DEFAULT_SWEEPS, InferenceResult, run_inference
+from bayesmap.inference.slam import run_slam
 from bayesmap.io.ascii import format_map, parse_map, tutorial_map
+from bayesmap.model.generative import make_params
 from bayesmap.scenes import TUTORIAL_POS, Problem, SlamProblem, tutorial_problem
 
 SAMPLER = "block"
@@ -277,7 +280,6 @@ class Explorer:
         Raises:
             BayesmapError: if the path has fewer than 2 poses.
         """
-        from bayesmap.model.generative import make_params
 
         if len(self.path) < 2:
             raise BayesmapError(f"the path needs at least 2 poses, it has {len(self.path)}: click free cells to add "
@@ -304,8 +306,6 @@ class Explorer:
         Raises:
             BayesmapError: if the path has fewer than 2 poses.
         """
-        from bayesmap.evaluation.trajectory import score_trajectory
-        from bayesmap.inference.slam import run_slam
 
         try:
             scene = self._slam_scene()

@@ -21,18 +21,22 @@ from bayesmap import scenes  # the scene defaults
 from bayesmap.bench import format_table, run_bench
 from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.heldout import evaluate_log, evaluate_truth
+from bayesmap.evaluation.trajectory import score_trajectory
 from bayesmap.inference.driver import run_inference, run_logodds
 from bayesmap.inference.registry import SAMPLERS
+from bayesmap.inference.slam import run_slam
 from bayesmap.inference.traces import chain_traces
 from bayesmap.io.ascii import load_map, tutorial_map
 from bayesmap.io.carmen import CarmenLog, read_carmen
-from bayesmap.io.files import check_replaceable_folder, replace_folder, write_atomic
+from bayesmap.io.files import check_replaceable_folder, read_bytes, replace_folder, write_atomic
 from bayesmap.io.maps_out import NPZ_FILE, encode_png16, encode_posterior_npz, posterior_std, seen_cells
 from bayesmap.io.rosbag import STORAGES, read_bag, write_log_bag, write_occupancy_grid_bag
 from bayesmap.io.rosmap import encode_rosmap, read_rosmap
+from bayesmap.io.tum import write_tum
 from bayesmap.scenes import log_problem, scan_problem, tutorial_problem
 from bayesmap.viz.common import figure_bytes
 from bayesmap.viz.maps import plot_posterior, plot_posterior_path
+from bayesmap.viz.paths import plot_slam, slam_report
 from bayesmap.viz.report import build_report
 
 
@@ -700,10 +704,6 @@ def _slam_files(problem, result, settings: dict, report: bool) -> tuple[dict, di
     """The summary and the output files of a ``bayesmap slam`` run (see :func:`slam`)."""
     import tempfile
 
-    from bayesmap.evaluation.trajectory import score_trajectory
-    from bayesmap.io.files import read_bytes
-    from bayesmap.io.tum import write_tum
-    from bayesmap.viz.paths import plot_slam, slam_report
 
     summary = {
         "source": problem.source,
@@ -754,7 +754,6 @@ def slam(
     Writes trajectory.tum (posterior mean pose per scan, stamps = scan indices), trajectory_samples.npy (N, S, 3),
     pose_cov.npy (S, 3, 3), posterior.npy, posterior.png and summary.json (ATE and 95 % ellipse coverage of the
     posterior and of the odometry), and with --report report.html."""
-    from bayesmap.inference.slam import run_slam
 
     if log is not None:
         raise BayesmapError(f"bayesmap slam --log {str(log)!r}: not yet (real logs are the next step); "

@@ -55,7 +55,9 @@ from bayesmap.model.generative import (
     make_params,
     reading_log_likelihood,
     simulate_readings,
+    simulate_scan_readings,
 )
+from bayesmap.model.motion import MotionParams, wrap_angle
 
 # ---------------------------------------------------------------------------------------------------------------
 # Scene defaults: every default of a scene, in one place
@@ -677,20 +679,16 @@ def simulate_odometry(true_poses, alphas=SLAM_ODOMETRY_ALPHAS, seed: int = 0) ->
     if a.shape != (4,) or not np.all(np.isfinite(a) & (a >= 0)):
         raise BayesmapError(f"alphas must be four finite numbers >= 0, got {alphas!r}")
     rng = np.random.default_rng(seed)
-
-    def wrap(x):
-        return (x + math.pi) % (2 * math.pi) - math.pi
-
     out = [poses[0]]
     for (x0, y0, t0), (x1, y1, t1) in zip(poses[:-1], poses[1:]):
         trans = math.hypot(x1 - x0, y1 - y0)
-        rot1 = wrap(math.atan2(y1 - y0, x1 - x0) - t0) if trans > 1e-6 else 0.0
-        rot2 = wrap(t1 - t0 - rot1)
+        rot1 = wrap_angle(math.atan2(y1 - y0, x1 - x0) - t0) if trans > 1e-6 else 0.0
+        rot2 = wrap_angle(t1 - t0 - rot1)
         r1 = rot1 + rng.normal(0, a[0] * abs(rot1) + a[1] * trans)
         tr = trans + rng.normal(0, a[2] * trans + a[3] * (abs(rot1) + abs(rot2)))
         r2 = rot2 + rng.normal(0, a[0] * abs(rot2) + a[1] * trans)
         ox, oy, ot = out[-1]
-        out.append(np.array([ox + tr * math.cos(ot + r1), oy + tr * math.sin(ot + r1), wrap(ot + r1 + r2)]))
+        out.append(np.array([ox + tr * math.cos(ot + r1), oy + tr * math.sin(ot + r1), wrap_angle(ot + r1 + r2)]))
     return np.stack(out)
 
 
@@ -744,8 +742,6 @@ def simulated_slam_problem(walls, true_poses, params: ModelParams, seed: int, mo
         motion: the model's motion noise (:class:`bayesmap.model.motion.MotionParams`); default its defaults.
         source: a description for summaries.
     """
-    from bayesmap.model.generative import simulate_scan_readings
-    from bayesmap.model.motion import MotionParams
 
     walls = (np.asarray(walls) > 0.5).astype(np.float32)
     true_poses = np.asarray(true_poses, dtype=np.float64)

@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from bayesmap.errors import BayesmapError
+from bayesmap.model.motion import wrap_angle
 
 
 def _check_poses(estimate, truth, columns: int) -> tuple[np.ndarray, np.ndarray]:
@@ -44,11 +45,6 @@ def _check_poses(estimate, truth, columns: int) -> tuple[np.ndarray, np.ndarray]
         raise BayesmapError(f"estimate has {e.shape[0]} poses but truth has {g.shape[0]}: they must match scan "
                             "for scan")
     return e, g
-
-
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """Angles (radians) wrapped to ``[-pi, pi)``."""
-    return (angle + np.pi) % (2 * np.pi) - np.pi
 
 
 def align_rigid_2d(estimate, truth) -> tuple[np.ndarray, np.ndarray]:
@@ -112,7 +108,7 @@ def _relative_motion(poses: np.ndarray, delta: int) -> np.ndarray:
     a, b = poses[:-delta], poses[delta:]
     d = b[:, :2] - a[:, :2]
     c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], _wrap(b[:, 2] - a[:, 2])], axis=1)
+    return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], wrap_angle(b[:, 2] - a[:, 2])], axis=1)
 
 
 def relative_pose_error(estimate, truth, delta: int) -> dict[str, float]:
@@ -146,7 +142,7 @@ def relative_pose_error(estimate, truth, delta: int) -> dict[str, float]:
     rel_e, rel_g = _relative_motion(e, delta), _relative_motion(g, delta)
     # E = rel_g^-1 rel_e: rel_e's translation minus rel_g's, in rel_g's frame (its length is frame-free)
     trans = np.linalg.norm(rel_e[:, :2] - rel_g[:, :2], axis=1)
-    rot = _wrap(rel_e[:, 2] - rel_g[:, 2])
+    rot = wrap_angle(rel_e[:, 2] - rel_g[:, 2])
     return {"trans_rmse_m": float(np.sqrt(np.mean(trans**2))),
             "rot_rmse_deg": float(np.degrees(np.sqrt(np.mean(rot**2)))), "pairs": len(trans)}
 

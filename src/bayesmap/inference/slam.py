@@ -43,7 +43,7 @@ from bayesmap.inference.poses import (
     slam_data,
 )
 from bayesmap.model.generative import check_likelihood_power, make_params, prior_log_odds
-from bayesmap.model.motion import compose, motion_logpdf, odometry_controls
+from bayesmap.model.motion import compose, motion_logpdf, odometry_controls, wrap_angle
 
 LATTICE_STEP_CELLS = 0.1
 """Default lattice step of the pose kernel in x and y, in cells (0.1 m on the tutorial's 1 m cells)."""
@@ -166,7 +166,7 @@ def pose_summary(samples) -> tuple[np.ndarray, np.ndarray]:
     theta = ref + np.angle(np.exp(1j * circular_mean(samples[:, :, 2] - ref, axis=0)))
     mean = np.concatenate([samples[:, :, :2].mean(axis=0), theta[:, None]], axis=1)
     dev = samples - mean
-    dev[:, :, 2] = (dev[:, :, 2] + np.pi) % (2 * np.pi) - np.pi
+    dev[:, :, 2] = wrap_angle(dev[:, :, 2])
     cov = np.einsum("nsi,nsj->sij", dev, dev) / samples.shape[0]
     return mean, cov
 

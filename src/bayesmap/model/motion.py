@@ -114,8 +114,9 @@ def make_motion_params(alphas=None, floor_xy: float | None = None, floor_theta: 
 
 
 def wrap_angle(angle):
-    """Angles wrapped to ``[-pi, pi)``, radians (any shape; as ``tools/noisy_odometry.py``)."""
-    return (angle + jnp.pi) % (2 * jnp.pi) - jnp.pi
+    """Angles wrapped to ``[-pi, pi)``, radians (as ``tools/noisy_odometry.py``): a Python float, a numpy array
+    (float64 kept) or a JAX array (traceable), returned as the same kind, any shape."""
+    return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
 def odometry_decomposition(odometry):
