@@ -54,12 +54,29 @@ def _join(arrays, static):
     return jax.tree_util.tree_unflatten(treedef, [next(it) if x is None else x for x in rest])
 
 
-def _chain(key, initial_state, algorithm, num_sweeps: int):
+def scan_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, record):
+    """``num_sweeps`` steps of ``algorithm`` from ``initial_state`` by ``jax.lax.scan``, one key per sweep split
+    from ``key``; ``record(state, info)`` picks what each sweep keeps (a pytree). Pure and jittable; the loop every
+    chain of bayesmap runs (the map chains here, the joint chain of :mod:`bayesmap.inference.slam`).
+
+    Returns:
+        ``(final_state, records)``, each leaf of ``records`` with a leading ``(num_sweeps,)`` axis.
+    """
+
     def body(state, k):
         state, info = algorithm.step(k, state)
-        return state, (state.walls > 0, info.wall_prob)
+        return state, record(state, info)
 
-    final, (samples, wall_probs) = jax.lax.scan(body, initial_state, jax.random.split(key, num_sweeps))
+    return jax.lax.scan(body, initial_state, jax.random.split(key, num_sweeps))
+
+
+def _map_record(state, info):
+    """What a map chain keeps per sweep: the map as bool and the conditional wall probabilities (or None)."""
+    return state.walls > 0, info.wall_prob
+
+
+def _chain(key, initial_state, algorithm, num_sweeps: int):
+    final, (samples, wall_probs) = scan_chain(key, initial_state, algorithm, num_sweeps, _map_record)
     return samples, final, wall_probs
 
 

@@ -33,6 +33,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.base import SamplingAlgorithm
+from bayesmap.inference.chains import scan_chain
 from bayesmap.inference.dense import dense_readings, dense_state, dense_sweep
 from bayesmap.inference.poses import (
     PoseState,
@@ -119,14 +120,15 @@ def slam_kernel(data: SlamData, pose_kernel: SamplingAlgorithm, likelihood_power
     return SamplingAlgorithm(init=init, step=step)
 
 
+def _joint_record(state: SlamState, info: SlamInfo):
+    """What a joint chain keeps per sweep: the poses, walls, acceptances and wall probabilities."""
+    return state.poses, state.walls, info.accepted, info.wall_prob
+
+
 def _chain(key, state: SlamState, algorithm: SamplingAlgorithm, num_sweeps: int):
-    """``num_sweeps`` joint steps by ``lax.scan``: per sweep the poses, walls, acceptances and wall probabilities."""
-
-    def body(st, k):
-        st, info = algorithm.step(k, st)
-        return st, (st.poses, st.walls, info.accepted, info.wall_prob)
-
-    return jax.lax.scan(body, state, jax.random.split(key, num_sweeps))[1]
+    """``num_sweeps`` joint steps (:func:`bayesmap.inference.chains.scan_chain`): per sweep the poses, walls,
+    acceptances and wall probabilities."""
+    return scan_chain(key, state, algorithm, num_sweeps, _joint_record)[1]
 
 
 def run_slam_chains(key, algorithm: SamplingAlgorithm, initial: SlamState, num_sweeps: int, num_chains: int = 1):
