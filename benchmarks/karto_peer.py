@@ -7,8 +7,9 @@ For each log (intel, aces, csail) and each odometry noise seed, the script
      (see ``METHODS``): ``karto`` runs the ``yag-slam`` package (OpenKarto's scan matcher, loop closure and sparse
      pose adjustment, all at their defaults) in a virtual environment of its own, ``benchmarks/.venv-karto``, made
      on first use with ``python3.11 -m venv`` and pip; ``bayesmap`` will run ``bayesmap slam`` once it exists,
-  3. scores each trajectory against the truth with ``ate_rmse`` (absolute trajectory error: RMSE of the positions
-     after the best rigid 2-D alignment, no scale), and raw odometry the same way.
+  3. scores each trajectory against the truth with ``bayesmap.evaluation.trajectory.absolute_trajectory_error``
+     (absolute trajectory error: RMSE of the positions after the best rigid 2-D alignment, no scale), and raw
+     odometry the same way.
 It prints, per log, the mean and the worst (largest) ATE over the seeds and the mean runtime of each method.
 Karto's result varies several-fold with the odometry seed, so one seed says little.
 
@@ -39,7 +40,10 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from bayesmap.errors import BayesmapError
+from bayesmap.evaluation.trajectory import absolute_trajectory_error
 from bayesmap.io.carmen import beam_offsets, read_carmen
+from bayesmap.io.rosbag import compose_poses, invert_pose
+from bayesmap.io.tum import read_tum
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"  # the project's data lives at ../shared/data (shared/data/README.md)
@@ -82,21 +86,6 @@ class MethodUnavailable(Exception):
     """A method cannot run on this machine (yet); its table cells show "-"."""
 
 
-def read_tum_poses(path: Path) -> np.ndarray:
-    """Planar poses from a TUM trajectory file (``t x y z qx qy qz qw`` per line, rotation about z only).
-
-    Returns:
-        ``(S, 3)`` float64: x, y in meters and theta = 2 atan2(qz, qw) in radians.
-
-    Raises:
-        BayesmapError: the file does not hold rows of 8 numbers.
-    """
-    rows = np.loadtxt(path, ndmin=2)
-    if rows.shape[1] != 8:
-        raise BayesmapError(f"{path}: expected 8 columns (t x y z qx qy qz qw), got {rows.shape[1]}")
-    return np.column_stack([rows[:, 1], rows[:, 2], 2 * np.arctan2(rows[:, 6], rows[:, 7])])
-
-
 def scan_beam_angles(beams: int, spacing: str) -> np.ndarray:
     """Beam directions ``(beams,)`` float64 in radians relative to the heading, over a 180 degree field of view.
 
@@ -129,58 +118,11 @@ def make_problem(name: str, seed: int, folder: Path, spacing: str = "bayesmap") 
     if done.returncode != 0:
         raise BayesmapError(f"noisy_odometry.py failed for log {name!r} seed {seed}: {done.stderr.strip()[-500:]}")
     log = read_carmen(f"{prefix}.log.gz")
-    truth = read_tum_poses(Path(f"{prefix}.truth.tum"))
+    truth = read_tum(f"{prefix}.truth.tum")[1]
     if len(truth) != len(log):
         raise BayesmapError(f"{prefix}: {len(log)} scans but {len(truth)} true poses")
     return Problem(name, seed, np.asarray(log.ranges), scan_beam_angles(log.ranges.shape[1], spacing), log.max_range,
                    np.asarray(log.poses), truth, Path(f"{prefix}.log.gz"))
-
-
-def ate_rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
-    """Absolute trajectory error: RMSE of the positions after the best rigid 2-D alignment of estimate to truth.
-
-    The rotation and translation (no scale) minimizing the summed squared position error come in closed form from
-    the SVD of the cross-covariance (Umeyama, "Least-squares estimation of transformation parameters between two
-    point patterns", IEEE TPAMI 13(4), 1991, with the scale fixed at 1); the ATE is defined as in Sturm et al., "A
-    benchmark for the evaluation of RGB-D SLAM systems", IROS 2012. Headings are not scored. One function so that
-    the script can switch to ``bayesmap.evaluation.trajectory`` once that exists.
-
-    Args:
-        estimate: ``(S, 2)`` or ``(S, 3)`` float poses (x, y[, theta]) in meters (theta ignored).
-        truth: the same shape, the true poses of the same scans in the same order.
-
-    Returns:
-        The ATE in meters.
-
-    Raises:
-        BayesmapError: shapes differ, fewer than 2 poses, or a non-finite coordinate.
-    """
-    est = np.asarray(estimate, dtype=np.float64)[:, :2]
-    ref = np.asarray(truth, dtype=np.float64)[:, :2]
-    if est.shape != ref.shape or len(est) < 2:
-        raise BayesmapError(f"ate_rmse needs two (S>=2, 2) trajectories of one length, got {est.shape}, {ref.shape}")
-    if not (np.isfinite(est).all() and np.isfinite(ref).all()):
-        raise BayesmapError("ate_rmse got a non-finite position")
-    est_c, ref_c = est - est.mean(0), ref - ref.mean(0)
-    u, _, vt = np.linalg.svd(est_c.T @ ref_c)
-    flip = np.diag([1.0, np.sign(np.linalg.det(vt.T @ u.T))])  # a rotation, never a reflection
-    rotation = vt.T @ flip @ u.T
-    err = est_c @ rotation.T - ref_c
-    return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
-
-
-def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """SE(2) composition ``a (+) b`` of ``(3,)`` poses (x m, y m, theta rad): ``b`` expressed in ``a``'s frame."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    theta = math.remainder(a[2] + b[2], 2 * math.pi)
-    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], theta])
-
-
-def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """SE(2) increment ``a^-1 (+) b`` of ``(3,)`` poses: ``b`` seen from ``a``; ``compose(a, relative(a, b)) == b``."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    return np.array([c * dx + s * dy, -s * dx + c * dy, math.remainder(b[2] - a[2], 2 * math.pi)])
 
 
 def fill_dropped_scans(poses: np.ndarray, kept: np.ndarray, odometry: np.ndarray) -> np.ndarray:
@@ -203,7 +145,7 @@ def fill_dropped_scans(poses: np.ndarray, kept: np.ndarray, odometry: np.ndarray
         elif last is None:
             out[i] = odometry[i]
         else:
-            out[i] = compose(out[last], relative(odometry[last], odometry[i]))
+            out[i] = compose_poses(out[last], compose_poses(invert_pose(odometry[last]), odometry[i]))
     return out
 
 
@@ -306,7 +248,7 @@ def parse_seeds(text: str) -> list[int]:
 def run_one(problem: Problem, methods: list[str]) -> dict:
     """Scores of raw odometry and every method on one problem (method errors become an "unavailable" note)."""
     record: dict = {"log": problem.name, "seed": problem.seed, "scans": len(problem.truth),
-                    "odometry": {"ate_m": ate_rmse(problem.odometry, problem.truth)}}
+                    "odometry": {"ate_m": absolute_trajectory_error(problem.odometry, problem.truth)["rmse_m"]}}
     for name in methods:
         extra: dict = {}
         try:
@@ -314,7 +256,8 @@ def run_one(problem: Problem, methods: list[str]) -> dict:
         except MethodUnavailable as exc:
             record[name] = {"unavailable": str(exc)}
             continue
-        record[name] = {"ate_m": ate_rmse(poses, problem.truth), "runtime_s": runtime, **extra}
+        ate = absolute_trajectory_error(poses, problem.truth)["rmse_m"]
+        record[name] = {"ate_m": ate, "runtime_s": runtime, **extra}
     return record
 
 
