@@ -637,6 +637,8 @@ class SlamProblem:
         truth: ``(nx, ny)`` float32 true map, or None.
         likelihood_power: ``eta`` in (0, 1] (1: the posterior).
         source: a description for summaries.
+        max_range_mask: ``(S, K)`` bool, True for max-range readings (no return), or None (none are).
+        timestamps: ``(S,)`` float64 scan timestamps, seconds, or None (simulated scenes).
     """
 
     params: ModelParams
@@ -648,6 +650,8 @@ class SlamProblem:
     truth: np.ndarray | None = None
     likelihood_power: float = 1.0
     source: str = ""
+    max_range_mask: np.ndarray | None = None
+    timestamps: np.ndarray | None = None
 
     @property
     def num_scans(self) -> int:
@@ -753,3 +757,48 @@ def simulated_slam_problem(walls, true_poses, params: ModelParams, seed: int, mo
     return SlamProblem(params=params, motion=MotionParams() if motion is None else motion, odometry=odometry,
                        sensor_angles=sensor_angles, readings=readings, true_poses=true_poses, truth=walls,
                        source=source)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# SLAM on a real log: scans whose pose fields hold odometry (issue 15, item 4)
+# ---------------------------------------------------------------------------------------------------------------
+
+SLAM_LOG_MARGIN = 5.0
+"""Meters added around the odometry's endpoints for the grid of :func:`log_slam_problem`. The odometry's map is
+distorted by its drift, so the inferred map's extent is only known after the front end; the runner
+(:func:`bayesmap.inference.logslam.run_log_slam`) fits the final grid to the matched path."""
+
+
+def log_slam_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob: float = LOG_PRIOR,
+                     sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL,
+                     range_offset: float | None = None, sensor_params: dict | None = None,
+                     likelihood_power: float | None = None, motion=None) -> SlamProblem:
+    """A SLAM problem from a log whose pose fields hold odometry (a raw log, or a bag read with its odometry).
+
+    The sensor model and its defaults are :func:`log_problem`'s (beam mixture, half-cell noise, the range offset and
+    likelihood power of logs); the readings are the model's readings (max-range readings at exactly the max range,
+    returned readings minus the range offset). The grid covers the odometry's beam endpoints plus
+    :data:`SLAM_LOG_MARGIN` meters; the runner refits it to the inferred path.
+
+    Args:
+        log: a :class:`bayesmap.io.carmen.CarmenLog`; its poses are the odometry.
+        scans: scan indices (``(S,)`` ints, ``S >= 2``); default all.
+        motion: the motion noise (:class:`bayesmap.model.motion.MotionParams`); default its defaults.
+        (the others as :func:`log_problem`)
+
+    Raises:
+        BayesmapError: on fewer than two scans, bad indices or bad parameters (the message names the value).
+    """
+    scans = np.arange(len(log)) if scans is None else np.asarray(scans, dtype=np.int64).reshape(-1)
+    if len(scans) < 2:
+        raise BayesmapError(f"SLAM needs at least two scans, got {len(scans)}")
+    problem = log_problem(log, scans, resolution=resolution, prior_wall_prob=prior_wall_prob,
+                          sensor_noise=sensor_noise, beam_model=beam_model, margin=SLAM_LOG_MARGIN,
+                          range_offset=range_offset, sensor_params=sensor_params, likelihood_power=likelihood_power)
+    obs = problem.observations
+    mask = obs.max_range_mask if obs.max_range_mask is not None else np.zeros(obs.readings.shape, bool)
+    return SlamProblem(params=problem.params, motion=MotionParams() if motion is None else motion,
+                       odometry=np.asarray(problem.poses, np.float64), sensor_angles=obs.beam_angles,
+                       readings=problem.model_readings, likelihood_power=problem.likelihood_power,
+                       source=problem.source, max_range_mask=mask,
+                       timestamps=np.asarray(log.timestamps, np.float64)[scans])

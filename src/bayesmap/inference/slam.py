@@ -187,6 +187,7 @@ class SlamResult(NamedTuple):
             moves.
         runtime_s: wall-clock seconds of the run, compilation included.
         last_walls: ``(nx, ny)`` float32, the last chain's last map sample.
+        grid: the grid of ``posterior`` (a real log's is fitted to the inferred path), or None: the problem's.
     """
 
     pose_samples: np.ndarray
@@ -196,6 +197,7 @@ class SlamResult(NamedTuple):
     acceptance_rate: float
     runtime_s: float
     last_walls: np.ndarray
+    grid: object = None
 
 
 def _check_counts(sweeps, burn_in, chains) -> tuple[int, int, int]:
