@@ -114,3 +114,69 @@ def sensor_distances(walls, pos, beam_angles, grid: Grid | None = None, max_dist
     if max_distance is None:
         max_distance = grid.default_max_distance
     return first_hit_distances(walls, pos, jnp.asarray(beam_angles), grid, float(max_distance))
+
+
+def _march_one(is_wall, p, u, shape, max_cells):
+    """Distance in cells from ``p`` along ``u`` to the first wall cell of ``is_wall`` ``(nx, ny)`` bool, by grid
+    traversal, capped at ``max_cells``; see :func:`march_first_hit`."""
+    big = jnp.asarray(jnp.inf, p.dtype)
+    n = jnp.asarray(shape, jnp.int32)
+    with_u = jnp.abs(u) > PARALLEL_TOL
+    safe_u = jnp.where(with_u, u, 1.0)
+    # a sensor outside the grid: start where the ray enters the box of the cells (slab method)
+    low, high = (-0.5 - p) / safe_u, (n.astype(p.dtype) - 0.5 - p) / safe_u
+    inside_slab = (p >= -0.5) & (p <= n.astype(p.dtype) - 0.5)
+    t_in = jnp.where(with_u, jnp.minimum(low, high), jnp.where(inside_slab, -big, big))
+    t_out = jnp.where(with_u, jnp.maximum(low, high), jnp.where(inside_slab, big, -big))
+    t_enter, t_exit = jnp.maximum(jnp.max(t_in), 0.0), jnp.min(t_out)
+    start = p + jnp.where(t_enter > 0, t_enter, 0.0) * u
+    cell = jnp.clip(jnp.floor(start + 0.5).astype(jnp.int32), 0, n - 1)
+    cell = jnp.where(t_enter <= t_exit, cell, -1)  # a ray that misses the grid: nothing to visit
+    step = jnp.where(u >= 0, 1, -1).astype(jnp.int32)
+    boundary = cell.astype(p.dtype) + 0.5 * step.astype(p.dtype)
+    t_max = jnp.where(with_u, (boundary - p) / safe_u, big)
+    t_delta = jnp.where(with_u, 1.0 / jnp.abs(safe_u), big)
+
+    def inside(c):
+        return jnp.all((c >= 0) & (c < n))
+
+    def cond(carry):
+        c, t_max, entry, hit = carry
+        return ~hit & inside(c) & (entry < max_cells)
+
+    def body(carry):
+        c, t_max, entry, hit = carry
+        wall = is_wall[c[0], c[1]]
+        axis = jnp.argmin(t_max)
+        nxt = c.at[axis].add(step[axis])
+        return (jnp.where(wall, c, nxt), jnp.where(wall, t_max, t_max.at[axis].add(t_delta[axis])),
+                jnp.where(wall, entry, t_max[axis]), wall)
+
+    c, _, _, hit = jax.lax.while_loop(cond, body, (cell, t_max, jnp.zeros((), p.dtype), jnp.bool_(False)))
+    return jnp.where(hit, jnp.minimum(cell_hit_distance(p, u, c), max_cells), max_cells)
+
+
+@partial(jax.jit, static_argnames=("grid", "max_distance"))
+def march_first_hit(walls, pos, beam_angles, grid: Grid, max_distance: float):
+    """:func:`first_hit_distances` by grid traversal (Amanatides & Woo 1987, "A Fast Voxel Traversal Algorithm for
+    Ray Tracing"): each ray visits only the cells it crosses, in order, up to its first wall (work proportional to
+    the distance, not to the grid's size), and the distance to that wall is :func:`cell_hit_distance`, the
+    tutorial's arithmetic. The numbers equal :func:`first_hit_distances`' except for a ray that passes a grid vertex
+    to within rounding, whose diagonal neighbour the edge test may count and the traversal does not (tests compare
+    them on random maps).
+
+    Args:
+        walls: ``(nx, ny)`` array, cells > 0 are walls.
+        pos: ``(2,)`` sensor position, world meters.
+        beam_angles: ``(K,)`` world-frame beam angles, radians.
+        grid: the grid (static).
+        max_distance: the max distance, meters (static).
+
+    Returns:
+        ``(K,)`` distances in meters, JAX's default float dtype, at most ``max_distance``. Never raises.
+    """
+    p = grid.to_cell_coords(jnp.asarray(pos, jnp.result_type(float)))
+    is_wall = jnp.asarray(walls) > 0
+    max_cells = max_distance / grid.resolution
+    directions = unit_dir(jnp.asarray(beam_angles, p.dtype))
+    return jax.vmap(lambda u: _march_one(is_wall, p, u, grid.shape, max_cells))(directions) * grid.resolution

@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayesmap.errors import BayesmapError
-from bayesmap.geometry.raycast import first_hit_distances
+from bayesmap.geometry.raycast import march_first_hit
 from bayesmap.inference.base import SamplingAlgorithm
 from bayesmap.model.generative import ModelParams, check_likelihood_power, reading_log_likelihood
 from bayesmap.model.motion import motion_logpdf
@@ -90,15 +90,16 @@ def scan_log_likelihood(walls, poses, sensor_angles, readings, params: ModelPara
         params: the model parameters (grid, max range, sensor model).
 
     Returns:
-        ``(M,)`` float: ``sum_k log p(readings_k | exact distance at the pose)``, the exact ray cast
-        (:func:`bayesmap.geometry.raycast.first_hit_distances`) at world-frame angles ``theta + sensor_angles`` and
+        ``(M,)`` float: ``sum_k log p(readings_k | exact distance at the pose)``, the exact ray cast by grid
+        traversal (:func:`bayesmap.geometry.raycast.march_first_hit`, the numbers of
+        :func:`~bayesmap.geometry.raycast.first_hit_distances`) at world-frame angles ``theta + sensor_angles`` and
         :func:`bayesmap.model.generative.reading_log_likelihood`: the arithmetic of the model's ``assess``. Never
         raises.
     """
     walls = jnp.asarray(walls)
 
     def one(pose):
-        d = first_hit_distances(walls, pose[:2], pose[2] + sensor_angles, params.grid, params.max_range)
+        d = march_first_hit(walls, pose[:2], pose[2] + sensor_angles, params.grid, params.max_range)
         return jnp.sum(reading_log_likelihood(readings, d, params))
 
     return jax.vmap(one)(jnp.asarray(poses))
@@ -294,6 +295,53 @@ def lattice_pose_mh(data: SlamData, h_xy: float, h_theta: float, half_width: int
         log_ratio = jax.nn.logsumexp(logw) - jax.nn.logsumexp(logw_back)
         accept = jnp.log(jax.random.uniform(k_acc, (), steps.dtype)) < log_ratio
         return jnp.where(accept, proposal, x), accept, jnp.where(accept, logw[j], logw[center])
+
+    def step(key, state: PoseState):
+        return _sweep(key, state, update)
+
+    return SamplingAlgorithm(init=_init, step=step)
+
+
+RANDOM_WALK_STD = (0.01, 0.01, 0.003)
+"""Default proposal standard deviations of :func:`random_walk_pose_mh` (x m, y m, theta rad): about the spread of a
+pose given the map and a laser scan of a hundred or more beams (a centimeter, a sixth of a degree)."""
+
+
+def random_walk_pose_mh(data: SlamData, step_std=RANDOM_WALK_STD, likelihood_power: float = 1.0) -> SamplingAlgorithm:
+    """Random-walk Metropolis over each pose in turn (Metropolis et al. 1953): for ``t = 1..S-1``, propose ``x' = x +
+    step_std * N(0, I_3)`` and accept with probability ``min(1, pi(x') / pi(x))``, ``pi`` the pose's exact conditional
+    (:func:`pose_log_conditional`). One ray cast of the scan per proposal (the current pose's conditional is scored
+    again with it), against the ``(2 w + 1)^3`` of :func:`lattice_pose_mh`'s windows: the kernel for real logs, where
+    every scan casts hundreds of beams over a large grid.
+
+    Args:
+        data: :func:`slam_data`.
+        step_std: ``(3,)`` proposal standard deviations (x m, y m, theta rad), each finite and > 0.
+        likelihood_power: ``eta`` in (0, 1].
+
+    Returns:
+        A :class:`bayesmap.inference.base.SamplingAlgorithm` over :class:`PoseState` (``accepted``: the proposal was
+        accepted).
+
+    Raises:
+        BayesmapError: on a bad step or likelihood power (the message names it).
+    """
+    eta = check_likelihood_power(likelihood_power)
+    try:
+        values = [float(v) for v in np.asarray(step_std, dtype=object).reshape(-1)]
+    except (TypeError, ValueError):
+        values = []
+    if len(values) != 3 or not all(math.isfinite(v) and v > 0 for v in values):
+        raise BayesmapError(f"step_std must be three finite numbers > 0 (x m, y m, theta rad), got {step_std!r}")
+    scale = jnp.asarray(values, dtype=data.increments.dtype)
+
+    def update(key, t, poses, walls):
+        k_prop, k_acc = jax.random.split(key)
+        x = poses[t]
+        proposal = x + scale * jax.random.normal(k_prop, (3,), scale.dtype)
+        logc = _log_conditional(t, jnp.stack([x, proposal]), poses, walls, data, eta)
+        accept = jnp.log(jax.random.uniform(k_acc, (), scale.dtype)) < logc[1] - logc[0]
+        return jnp.where(accept, proposal, x), accept, jnp.where(accept, logc[1], logc[0])
 
     def step(key, state: PoseState):
         return _sweep(key, state, update)

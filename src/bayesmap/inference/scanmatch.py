@@ -124,6 +124,51 @@ def _lattice(h_xy: float, h_theta: float, w_xy: int, w_theta: int):
     return jnp.asarray(g * np.array([h_xy, h_xy, h_theta]))
 
 
+def empty_fields(grid: Grid) -> tuple:
+    """One zero field ``(nx, ny)`` float32 per entry of :data:`FIELDS`."""
+    return tuple(jnp.zeros(grid.shape, jnp.float32) for _ in FIELDS)
+
+
+def add_to_fields(fields: tuple, grid: Grid, pose, sensor_angles, readings, returned) -> tuple:
+    """:func:`add_scan` of one scan ``(K,)`` at ``pose`` ``(3,)`` to every field of :data:`FIELDS`. Jittable."""
+    return tuple(add_scan(field, grid, pose, sensor_angles, readings, returned, sigma, radius)
+                 for field, (sigma, radius) in zip(fields, FIELDS))
+
+
+def lattices(levels) -> list:
+    """The candidate offsets ``(M, 3)`` and field index of every search level (see :data:`MATCH_LEVELS`)."""
+    return [(_lattice(h, ht, w, wt), f) for h, ht, w, wt, f in levels]
+
+
+def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned, levels: list, log_prior=None):
+    """The coarse-to-fine search: at each level score ``center + offsets`` (:func:`field_scores` plus
+    ``log_prior(candidates)`` if given) and recenter on the best. Jittable.
+
+    Args:
+        levels: the output of :func:`lattices`.
+
+    Returns:
+        ``(best (3,), score)``: the best pose and its score at the last level.
+    """
+    best, score = center, jnp.asarray(0.0)
+    for offsets, f in levels:
+        cands = best + offsets
+        scores = field_scores(fields[f], grid, cands, sensor_angles, readings, returned)
+        if log_prior is not None:
+            scores = scores + log_prior(cands)
+        j = jnp.argmax(scores)
+        best, score = cands[j], scores[j]
+    return best, score
+
+
+def hit_fraction(fields: tuple, grid: Grid, pose, sensor_angles, readings, returned):
+    """The fraction of returned beams whose endpoint at ``pose`` lands where the fine field exceeds one half (within
+    about 1.2 sigma of a mapped endpoint): a match quality in [0, 1]. Jittable."""
+    cells, inside = _cells(grid, scan_endpoints(pose, sensor_angles, readings))
+    value = jnp.where(inside, fields[0][cells[..., 0], cells[..., 1]], 0.0)
+    return jnp.sum(returned & (value > 0.5)) / jnp.maximum(jnp.sum(returned), 1)
+
+
 def correlative_path(first_pose, data: ScanData, grid: Grid, levels=MATCH_LEVELS) -> np.ndarray:
     """Sequential correlative scan matching of every scan against the field of the scans before it.
 
@@ -144,28 +189,25 @@ def correlative_path(first_pose, data: ScanData, grid: Grid, levels=MATCH_LEVELS
         raise BayesmapError(f"scan data shapes disagree: readings {data.readings.shape}, angles "
                             f"{data.sensor_angles.shape}, returned {data.returned.shape}, increments "
                             f"{data.increments.shape}")
-    lattices = [(_lattice(h, ht, w, wt), f) for h, ht, w, wt, f in levels]
+    steps = lattices(levels)
     dtype = jnp.result_type(float)
-
-    def added(fields, pose, d, t):
-        return tuple(add_scan(field, grid, pose, d.sensor_angles[t], d.readings[t], d.returned[t], sigma, radius)
-                     for field, (sigma, radius) in zip(fields, FIELDS))
 
     @jax.jit
     def run(first, d: ScanData):
-        fields = added(tuple(jnp.zeros(grid.shape, jnp.float32) for _ in FIELDS), first, d, 0)
+        fields = add_to_fields(empty_fields(grid), grid, first, d.sensor_angles[0], d.readings[0], d.returned[0])
         path = jnp.zeros((s, 3), dtype).at[0].set(first)
 
         def body(t, carry):
             path, fields = carry
             prev = path[t - 1]
-            best = compose(prev, d.increments[t - 1])
-            for offsets, f in lattices:
-                cands = best + offsets
-                score = (motion_logpdf(prev, cands, d.increments[t - 1], d.covs[t - 1])
-                         + field_scores(fields[f], grid, cands, d.sensor_angles[t], d.readings[t], d.returned[t]))
-                best = cands[jnp.argmax(score)]
-            return path.at[t].set(best), added(fields, best, d, t)
+
+            def log_prior(cands):
+                return motion_logpdf(prev, cands, d.increments[t - 1], d.covs[t - 1])
+
+            best, _ = search(fields, grid, compose(prev, d.increments[t - 1]), d.sensor_angles[t], d.readings[t],
+                             d.returned[t], steps, log_prior)
+            return path.at[t].set(best), add_to_fields(fields, grid, best, d.sensor_angles[t], d.readings[t],
+                                                       d.returned[t])
 
         return jax.lax.fori_loop(1, s, body, (path, fields))[0]
 

@@ -1,0 +1,219 @@
+"""Loop closure and pose-graph optimization: the back end that turns the front end's drifting path into a globally
+consistent start for the joint chain (graph SLAM: Lu & Milios 1997, "Globally consistent range scan alignment";
+*Probabilistic Robotics* ch. 11; Karto's design, Konolige et al. 2010, "Efficient sparse pose adjustment").
+
+* **Edges.** Each consecutive pair of the front end's path gives a sequential edge (the relative pose between
+  them). A scan ``t`` whose estimate lies within :data:`LOOP_RADIUS` meters of an older scan ``s``
+  (``t - s >= LOOP_GAP``) is matched (correlative scan matching, :func:`bayesmap.inference.scanmatch.search`, with
+  the wide window :data:`LOOP_LEVELS`) against a local map of the scans ``s - LOOP_NEIGHBOURS .. s +
+  LOOP_NEIGHBOURS`` at their estimates; if at least :data:`LOOP_MIN_HIT_FRACTION` of its returned beams land on that
+  map, the match gives a loop edge ``s -> t``.
+* **Optimization.** The path minimizing ``sum over edges of rho(|W (relative(x_i, x_j) - z_ij)|^2)`` with the first
+  pose fixed, ``W`` the edge's square-root information and ``rho`` the Cauchy loss (a false loop closure costs a
+  bounded amount), by ``scipy.optimize.least_squares`` (trust-region reflective, sparse Jacobian).
+* Detection and optimization alternate :data:`ROUNDS` times: each round's path finds the loops the previous one's
+  drift hid.
+
+This is a start for the joint chain only; the chain's target does not depend on it.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.optimize
+import scipy.sparse
+
+from bayesmap.geometry.grid import Grid
+from bayesmap.inference.scanmatch import ScanData, add_to_fields, empty_fields, hit_fraction, lattices, search
+from bayesmap.model.motion import wrap_angle
+
+LOOP_GAP = 30
+"""Fewest scans between the two ends of a loop edge (closer scans are the sequential edges' business)."""
+
+LOOP_RADIUS = 4.0
+"""Meters: an older scan whose estimate is this close to scan ``t``'s is a loop candidate."""
+
+LOOP_NEIGHBOURS = 10
+"""Scans on each side of ``s`` that make the local map a loop candidate is matched against."""
+
+LOOP_LEVELS = ((0.1, 0.025, 15, 12, 1), (0.03, 0.007, 3, 3, 0), (0.01, 0.0025, 2, 2, 0), (0.003, 0.0008, 2, 2, 0))
+"""The loop search (as :data:`bayesmap.inference.scanmatch.MATCH_LEVELS`): +-1.5 m and +-0.3 rad around the
+current estimate, down to 3 mm and 0.05 degrees."""
+
+LOOP_MIN_HIT_FRACTION = 0.6
+"""Least fraction of a candidate's returned beams that must land on the local map for a loop edge."""
+
+LOCAL_MAP_HALF_WIDTH = 16.0
+"""Half the side of a local map's square grid, meters (a laser sees about this far indoors)."""
+
+LOCAL_MAP_RESOLUTION = 0.05
+"""Cell size of the local maps, meters."""
+
+SEQUENTIAL_STD = (0.03, 0.03, 0.01)
+"""Standard deviations of a sequential edge (x m, y m, theta rad): the front end's error per scan."""
+
+LOOP_STD = (0.05, 0.05, 0.02)
+"""Standard deviations of a loop edge (x m, y m, theta rad)."""
+
+CAUCHY_SCALE = 3.0
+"""The Cauchy loss's scale, in standard deviations: residuals beyond it count less and less."""
+
+ROUNDS = 3
+"""Rounds of loop detection and optimization."""
+
+LOOP_BATCH = 16
+"""Loop candidates matched at once (``vmap``; memory: two fields of the local grid each)."""
+
+
+class Edges(NamedTuple):
+    """Edges of a pose graph: ``i``, ``j`` ``(E,)`` int node indices, ``z`` ``(E, 3)`` measured pose of ``j`` in
+    ``i``'s frame (m, m, rad), ``std`` ``(E, 3)`` its standard deviations."""
+
+    i: np.ndarray
+    j: np.ndarray
+    z: np.ndarray
+    std: np.ndarray
+
+
+def relative(a, b) -> np.ndarray:
+    """Pose ``b`` ``(..., 3)`` in the frame of pose ``a`` ``(..., 3)`` (numpy; theta wrapped to ``[-pi, pi)``)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    d = b[..., :2] - a[..., :2]
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1],
+                     wrap_angle(b[..., 2] - a[..., 2])], axis=-1)
+
+
+def sequential_edges(path) -> Edges:
+    """The edges ``t - 1 -> t`` of ``path`` ``(S, 3)`` with :data:`SEQUENTIAL_STD`."""
+    path = np.asarray(path, np.float64)
+    n = len(path) - 1
+    return Edges(np.arange(n), np.arange(1, n + 1), relative(path[:-1], path[1:]),
+                 np.tile(np.asarray(SEQUENTIAL_STD), (n, 1)))
+
+
+def loop_candidates(path) -> np.ndarray:
+    """``(P, 2)`` int pairs ``(s, t)``: for each scan ``t``, the nearest scan ``s <= t - LOOP_GAP`` within
+    :data:`LOOP_RADIUS` meters of it in ``path`` ``(S, 3)``, if any."""
+    xy = np.asarray(path, np.float64)[:, :2]
+    pairs = []
+    for t in range(LOOP_GAP, len(xy)):
+        d = np.hypot(*(xy[: t - LOOP_GAP + 1] - xy[t]).T)
+        s = int(np.argmin(d))
+        if d[s] < LOOP_RADIUS:
+            pairs.append((s, t))
+    return np.asarray(pairs, np.int64).reshape(-1, 2)
+
+
+def _local_grid() -> Grid:
+    n = int(round(2 * LOCAL_MAP_HALF_WIDTH / LOCAL_MAP_RESOLUTION))
+    return Grid(shape=(n, n), resolution=LOCAL_MAP_RESOLUTION, origin=(-LOCAL_MAP_HALF_WIDTH, -LOCAL_MAP_HALF_WIDTH))
+
+
+def match_loops(path, data: ScanData, pairs) -> tuple[np.ndarray, np.ndarray]:
+    """Match scan ``t`` against the local map around scan ``s`` for each pair of ``pairs`` ``(P, 2)``.
+
+    Returns:
+        ``(poses (P, 3), hit_fraction (P,))``: scan ``t``'s matched world pose and its match quality
+        (:func:`bayesmap.inference.scanmatch.hit_fraction`).
+    """
+    path = np.asarray(path, np.float64)
+    grid = _local_grid()
+    steps = lattices(LOOP_LEVELS)
+    s_count = len(path)
+    offsets = np.arange(-LOOP_NEIGHBOURS, LOOP_NEIGHBOURS + 1)
+    angles, readings, returned = (jnp.asarray(np.asarray(a)) for a in (data.sensor_angles, data.readings,
+                                                                       data.returned))
+
+    def one(s, t, local_poses, center):
+        idx = jnp.clip(s + offsets, 0, s_count - 1)
+        fields = empty_fields(grid)
+
+        def body(k, f):
+            return add_to_fields(f, grid, local_poses[k], angles[idx[k]], readings[idx[k]], returned[idx[k]])
+
+        fields = jax.lax.fori_loop(0, len(offsets), body, fields)
+        best, _ = search(fields, grid, center, angles[t], readings[t], returned[t], steps)
+        return best, hit_fraction(fields, grid, best, angles[t], readings[t], returned[t])
+
+    run = jax.jit(jax.vmap(one))
+    poses, quality = [], []
+    for start in range(0, len(pairs), LOOP_BATCH):
+        batch = np.asarray(pairs[start:start + LOOP_BATCH])
+        pad = LOOP_BATCH - len(batch)
+        batch = np.concatenate([batch, np.repeat(batch[-1:], pad, axis=0)])
+        s, t = batch[:, 0], batch[:, 1]
+        shift = np.concatenate([path[s, :2], np.zeros((len(s), 1))], axis=1)  # local frame: scan s's position at 0
+        idx = np.clip(s[:, None] + offsets[None, :], 0, s_count - 1)
+        local = path[idx] - shift[:, None, :]
+        best, q = run(jnp.asarray(s), jnp.asarray(t), jnp.asarray(local), jnp.asarray(path[t] - shift))
+        poses.append(np.asarray(best, np.float64)[: LOOP_BATCH - pad] + shift[: LOOP_BATCH - pad])
+        quality.append(np.asarray(q)[: LOOP_BATCH - pad])
+    if not poses:
+        return np.zeros((0, 3)), np.zeros(0)
+    return np.concatenate(poses), np.concatenate(quality)
+
+
+def loop_edges(path, data: ScanData) -> Edges:
+    """The accepted loop edges of ``path`` (:func:`loop_candidates`, :func:`match_loops`, quality at least
+    :data:`LOOP_MIN_HIT_FRACTION`), with :data:`LOOP_STD`."""
+    pairs = loop_candidates(path)
+    if len(pairs) == 0:
+        return Edges(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+    poses, quality = match_loops(path, data, pairs)
+    ok = quality >= LOOP_MIN_HIT_FRACTION
+    s, t = pairs[ok, 0], pairs[ok, 1]
+    return Edges(s, t, relative(np.asarray(path)[s], poses[ok]), np.tile(np.asarray(LOOP_STD), (int(ok.sum()), 1)))
+
+
+def concat_edges(*edges: Edges) -> Edges:
+    """All edges of several :class:`Edges` in one."""
+    return Edges(*(np.concatenate(parts) for parts in zip(*edges)))
+
+
+def optimize_pose_graph(path, edges: Edges) -> np.ndarray:
+    """The path ``(S, 3)`` float64 minimizing the robust edge cost (module docstring), pose 0 fixed at ``path[0]``,
+    started at ``path``."""
+    path = np.asarray(path, np.float64)
+    n = len(path)
+    i, j = edges.i, edges.j
+
+    def residuals(x):
+        poses = np.concatenate([path[:1], x.reshape(n - 1, 3)])
+        e = relative(poses[i], poses[j]) - edges.z
+        e[:, 2] = wrap_angle(e[:, 2])
+        return (e / edges.std).reshape(-1)
+
+    rows = np.repeat(np.arange(len(i) * 3), 6)
+    cols = np.stack([3 * (i - 1)[:, None] + np.arange(3), 3 * (j - 1)[:, None] + np.arange(3)], axis=1)
+    cols = np.repeat(cols.reshape(len(i), 1, 6), 3, axis=1).reshape(-1)
+    keep = cols >= 0  # node 0 is fixed: no column
+    sparsity = scipy.sparse.coo_matrix((np.ones(keep.sum()), (rows[keep], cols[keep])),
+                                       shape=(3 * len(i), 3 * (n - 1))).tocsr()
+    sparsity.data[:] = 1
+    fit = scipy.optimize.least_squares(residuals, path[1:].reshape(-1), jac_sparsity=sparsity, loss="cauchy",
+                                       f_scale=CAUCHY_SCALE, x_scale=1.0, method="trf", max_nfev=50)
+    return np.concatenate([path[:1], fit.x.reshape(n - 1, 3)])
+
+
+def close_loops(path, data: ScanData, rounds: int = ROUNDS) -> tuple[np.ndarray, int]:
+    """Alternate loop detection and pose-graph optimization ``rounds`` times from the front end's ``path``.
+
+    Returns:
+        ``(path (S, 3) float64, number of loop edges of the last round)``.
+    """
+    path = np.asarray(path, np.float64)
+    sequential = sequential_edges(path)
+    count = 0
+    for _ in range(rounds):
+        loops = loop_edges(path, data)
+        count = len(loops.i)
+        if count == 0:
+            break
+        path = optimize_pose_graph(path, concat_edges(sequential, loops))
+    return path, count
+
