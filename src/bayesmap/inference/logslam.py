@@ -1,10 +1,27 @@
 """SLAM on a real log: the path and the map of hundreds of scans of a real building.
 
-The pipeline (each stage a start for the next; only the last defines the answer's target):
+The target is the SLAM model's posterior ``p(poses, walls | readings, odometry)``
+(:data:`bayesmap.model.generative.slam_model`, the readings' likelihood tempered by the problem's power as for
+mapping at known poses). :func:`run_log_slam` finds a start, then runs a blocked Gibbs chain on it:
 
-1. front end: sequential correlative scan matching (:func:`bayesmap.inference.scanmatch.correlative_path`);
-2. the final grid: fitted to the beam endpoints at the matched path, plus :data:`bayesmap.scenes.MARGIN`;
-3. the joint chain on ``p(poses, walls | readings, odometry)``.
+1. **Front end**: sequential correlative scan matching (:func:`bayesmap.inference.scanmatch.correlative_path`).
+2. **Back end**: loop closure and pose-graph optimization (:func:`bayesmap.inference.posegraph.close_loops`).
+   Stages 1 and 2 only choose where the chain starts; they do not enter its target.
+3. **The grid**: fitted to the beam endpoints at that path, plus :data:`MAP_MARGIN` meters.
+4. **The joint chain**, :data:`ROUNDS` rounds of two blocks (Gibbs over blocks; docs/slam.md):
+
+   * the walls given the poses: the ray-cell table is built at the current poses
+     (:func:`bayesmap.geometry.raytable.build_ray_table`) and :data:`MAP_SWEEPS` sweeps of the cellwise Gibbs
+     sampler run on it (:mod:`bayesmap.inference.cellwise`), continuing from the current walls;
+   * the poses given the walls: :data:`POSE_SWEEPS` sweeps of random-walk Metropolis over each pose
+     (:func:`bayesmap.inference.poses.random_walk_pose_mh`, exact ray casts by grid traversal).
+
+   Each block's kernel leaves the joint posterior invariant, so the chain does. The first :data:`BURN_IN_ROUNDS`
+   rounds are dropped; the pose samples of the others give the mean path and the covariances, and the map sweeps'
+   conditional wall probabilities the posterior map.
+
+The table is rebuilt (and its sampler compiled) once per round, not after every pose move: a round's map sweeps
+see the poses of the round's start, which is still an exact blocked Gibbs chain, only a slower-mixing one.
 """
 
 from __future__ import annotations
@@ -14,13 +31,16 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm import tqdm
 
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.inference.cellwise import cellwise_gibbs
-from bayesmap.inference.chains import run_chain
+from bayesmap.inference.chains import run_chain, scan_chain
+from bayesmap.inference.posegraph import close_loops
+from bayesmap.inference.poses import PoseState, random_walk_pose_mh, slam_data
 from bayesmap.inference.scanmatch import ScanData, correlative_path, scan_endpoints
-from bayesmap.inference.slam import SlamResult, pose_summary
+from bayesmap.inference.slam import SlamResult, check_counts, pose_summary
 from bayesmap.model.generative import make_params
 from bayesmap.model.motion import odometry_controls
 
@@ -28,8 +48,20 @@ FRONT_END_RESOLUTION = 0.05
 """Cell size of the front end's likelihood fields, meters (finer than the map: the fields resolve sub-cell
 shifts)."""
 
-MAP_MARGIN = 1.0
-"""Meters around the matched path's endpoints for the final grid."""
+MAP_MARGIN = 2.0
+"""Meters around the matched path's endpoints for the final grid (room for the chain's pose moves)."""
+
+ROUNDS = 6
+"""Default rounds of the joint chain (each: the walls given the poses, then the poses given the walls)."""
+
+BURN_IN_ROUNDS = 2
+"""Default rounds dropped before the posterior is averaged."""
+
+MAP_SWEEPS = 4
+"""Cellwise map sweeps per round."""
+
+POSE_SWEEPS = 8
+"""Pose sweeps (every pose once) per round."""
 
 
 def scan_data(problem) -> ScanData:
@@ -69,32 +101,95 @@ def with_grid(params, grid: Grid):
                        max_distance=params.max_range, beam_model=params.beam_model, **beam)
 
 
-def run_log_slam(problem, sweeps: int = 20, burn_in: int = 5, seed: int = 0, progress: bool = False) -> SlamResult:
-    """Infer the path and the map of a real log (:func:`bayesmap.scenes.log_slam_problem`).
+def _pose_chain(data, likelihood_power: float):
+    """A jitted ``run(key, poses, walls, num_sweeps) -> (poses (num_sweeps, S, 3), accepted (num_sweeps, S - 1))``
+    of :func:`bayesmap.inference.poses.random_walk_pose_mh` sweeps given the walls."""
+    kernel = random_walk_pose_mh(data, likelihood_power=likelihood_power)
 
-    STUB (interface only): front end, then a cellwise map chain at the front end's path; one pose sample.
+    def record(state, info):
+        return state.poses, info.accepted
+
+    def run(key, poses, walls, num_sweeps):
+        return scan_chain(key, PoseState(poses=poses, walls=walls), kernel, num_sweeps, record)[1]
+
+    return jax.jit(run, static_argnums=3)
+
+
+def _map_round(key, problem, params, poses, walls, sweeps: int):
+    """One map block: the table at ``poses`` and ``sweeps`` cellwise sweeps from ``walls``; returns the chain's
+    ``(last walls (nx, ny) float32, wall probabilities (sweeps, nx, ny))``."""
+    theta = poses[:, 2:3] + problem.sensor_angles
+    origins = np.repeat(poses[:, :2], problem.sensor_angles.shape[1], axis=0)
+    table = build_ray_table(params.grid, origins, theta.reshape(-1), params.max_range)
+    sampler = cellwise_gibbs(table, problem.readings.reshape(-1), params, problem.likelihood_power)
+    chain = run_chain(key, sampler, walls, sweeps)
+    return jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs)
+
+
+def start_path(problem) -> tuple[np.ndarray, int]:
+    """The joint chain's start: the front end's path after loop closure (:func:`front_end`,
+    :func:`bayesmap.inference.posegraph.close_loops`); returns ``(path (S, 3), number of loop edges)``."""
+    return close_loops(front_end(problem), scan_data(problem))
+
+
+def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, seed: int = 0, progress: bool = False,
+                 map_sweeps: int = MAP_SWEEPS, pose_sweeps: int = POSE_SWEEPS) -> SlamResult:
+    """Infer the path and the map of a real log (:func:`bayesmap.scenes.log_slam_problem`) with the pipeline of the
+    module docstring.
 
     Args:
         problem: a :class:`bayesmap.scenes.SlamProblem` from a log.
-        sweeps: map sweeps; burn_in: sweeps dropped; seed: the random seed; progress: show a tqdm bar.
+        rounds: rounds of the joint chain, >= 1.
+        burn_in: rounds dropped, ``0 <= burn_in < rounds``.
+        seed: the random seed (``jax.random.key(seed)``).
+        progress: show a progress bar (tqdm, on stderr) over the stages.
+        map_sweeps: cellwise map sweeps per round, >= 1.
+        pose_sweeps: pose sweeps per round, >= 1.
 
     Returns:
-        A :class:`bayesmap.inference.slam.SlamResult` whose ``grid`` is the fitted grid.
+        A :class:`bayesmap.inference.slam.SlamResult`: ``pose_samples`` ``(N, S, 3)`` with ``N = (rounds - burn_in)
+        pose_sweeps``, ``posterior`` on ``grid``, the grid fitted to the start path.
+
+    Raises:
+        BayesmapError: on bad counts (the message names the value).
     """
+    rounds, burn_in, _ = check_counts(rounds, burn_in, 1)
+    map_sweeps, _, _ = check_counts(map_sweeps, 0, 1)
+    pose_sweeps, _, _ = check_counts(pose_sweeps, 0, 1)
     start = time.perf_counter()
-    path = front_end(problem)
-    grid = fitted_grid(problem, path, problem.params.grid.resolution)
-    p = problem.params
-    params = with_grid(p, grid)
-    theta = path[:, 2:3] + problem.sensor_angles
-    origins = np.repeat(path[:, :2], problem.sensor_angles.shape[1], axis=0)
-    table = build_ray_table(grid, origins, theta.reshape(-1), p.max_range)
-    sampler = cellwise_gibbs(table, problem.readings.reshape(-1), params, problem.likelihood_power)
-    chain = run_chain(jax.random.key(seed), sampler, jnp.zeros(grid.shape, jnp.float32), sweeps)
-    posterior = np.asarray(chain.wall_probs[burn_in:] if chain.wall_probs is not None else chain.samples[burn_in:],
-                           np.float64).mean(axis=0)
-    samples = path[None]
+    with tqdm(total=2 + 2 * rounds, unit="stage", delay=1.0, disable=not progress, leave=False) as bar:
+        bar.set_description("front end")
+        path = front_end(problem)
+        bar.update()
+        bar.set_description("loop closure")
+        path, loops = close_loops(path, scan_data(problem))
+        bar.update()
+        grid = fitted_grid(problem, path, problem.params.grid.resolution)
+        params = with_grid(problem.params, grid)
+        increments, covs = odometry_controls(problem.odometry, problem.motion)
+        data = slam_data(increments, covs, problem.sensor_angles, problem.readings, params)
+        pose_chain = _pose_chain(data, problem.likelihood_power)
+        walls = jnp.zeros(grid.shape, jnp.float32)
+        poses = jnp.asarray(path, data.increments.dtype)
+        keys = jax.random.split(jax.random.key(seed), 2 * rounds)
+        samples, probs, accepted = [], [], []
+        for r in range(rounds):
+            bar.set_description(f"round {r + 1}/{rounds}: map")
+            walls, wall_probs = _map_round(keys[2 * r], problem, params, np.asarray(poses, np.float64), walls,
+                                           map_sweeps)
+            bar.update()
+            bar.set_description(f"round {r + 1}/{rounds}: poses")
+            pose_samples, acc = pose_chain(keys[2 * r + 1], poses, walls, pose_sweeps)
+            poses = pose_samples[-1]
+            bar.update()
+            if r >= burn_in:
+                samples.append(np.asarray(pose_samples, np.float64))
+                probs.append(wall_probs)
+                accepted.append(np.asarray(acc))
+    samples = np.concatenate(samples)
     mean, cov = pose_summary(samples)
-    return SlamResult(pose_samples=samples, mean_path=mean, pose_cov=cov, posterior=posterior, acceptance_rate=1.0,
-                      runtime_s=time.perf_counter() - start, last_walls=np.asarray(chain.samples[-1], np.float32),
-                      grid=grid)
+    posterior = np.concatenate(probs).astype(np.float64).mean(axis=0)
+    acceptance = float(np.concatenate(accepted).mean()) if accepted[0].size else 1.0
+    return SlamResult(pose_samples=samples, mean_path=mean, pose_cov=cov, posterior=posterior,
+                      acceptance_rate=acceptance, runtime_s=time.perf_counter() - start,
+                      last_walls=np.asarray(walls, np.float32), grid=grid, loop_edges=loops)

@@ -40,9 +40,9 @@ LOOP_RADIUS = 4.0
 LOOP_NEIGHBOURS = 10
 """Scans on each side of ``s`` that make the local map a loop candidate is matched against."""
 
-LOOP_LEVELS = ((0.1, 0.025, 15, 12, 1), (0.03, 0.007, 3, 3, 0), (0.01, 0.0025, 2, 2, 0), (0.003, 0.0008, 2, 2, 0))
-"""The loop search (as :data:`bayesmap.inference.scanmatch.MATCH_LEVELS`): +-1.5 m and +-0.3 rad around the
-current estimate, down to 3 mm and 0.05 degrees."""
+LOOP_LEVELS = ((0.1, 0.03, 15, 7, 1), (0.03, 0.01, 3, 3, 0), (0.01, 0.0033, 2, 2, 0), (0.003, 0.001, 2, 2, 0))
+"""The loop search (as :data:`bayesmap.inference.scanmatch.MATCH_LEVELS`): +-1.5 m and +-0.21 rad (12 degrees)
+around the current estimate, down to 3 mm and 0.06 degrees."""
 
 LOOP_MIN_HIT_FRACTION = 0.6
 """Least fraction of a candidate's returned beams that must land on the local map for a loop edge."""
@@ -59,14 +59,14 @@ SEQUENTIAL_STD = (0.03, 0.03, 0.01)
 LOOP_STD = (0.05, 0.05, 0.02)
 """Standard deviations of a loop edge (x m, y m, theta rad)."""
 
-CAUCHY_SCALE = 3.0
-"""The Cauchy loss's scale, in standard deviations: residuals beyond it count less and less."""
+CAUCHY_SCALE = 30.0
+"""The Cauchy loss's scale, in standard deviations: residuals beyond it count less and less. Large, because a true
+loop edge may disagree with the drifted path by meters (tens of standard deviations) before the optimization;
+the loss only bounds what a gross false match can do."""
 
 ROUNDS = 3
 """Rounds of loop detection and optimization."""
 
-LOOP_BATCH = 16
-"""Loop candidates matched at once (``vmap``; memory: two fields of the local grid each)."""
 
 
 class Edges(NamedTuple):
@@ -131,31 +131,18 @@ def match_loops(path, data: ScanData, pairs) -> tuple[np.ndarray, np.ndarray]:
 
     def one(s, t, local_poses, center):
         idx = jnp.clip(s + offsets, 0, s_count - 1)
-        fields = empty_fields(grid)
-
-        def body(k, f):
-            return add_to_fields(f, grid, local_poses[k], angles[idx[k]], readings[idx[k]], returned[idx[k]])
-
-        fields = jax.lax.fori_loop(0, len(offsets), body, fields)
+        fields = add_to_fields(empty_fields(grid), grid, local_poses, angles[idx], readings[idx], returned[idx])
         best, _ = search(fields, grid, center, angles[t], readings[t], returned[t], steps)
         return best, hit_fraction(fields, grid, best, angles[t], readings[t], returned[t])
 
-    run = jax.jit(jax.vmap(one))
-    poses, quality = [], []
-    for start in range(0, len(pairs), LOOP_BATCH):
-        batch = np.asarray(pairs[start:start + LOOP_BATCH])
-        pad = LOOP_BATCH - len(batch)
-        batch = np.concatenate([batch, np.repeat(batch[-1:], pad, axis=0)])
-        s, t = batch[:, 0], batch[:, 1]
-        shift = np.concatenate([path[s, :2], np.zeros((len(s), 1))], axis=1)  # local frame: scan s's position at 0
-        idx = np.clip(s[:, None] + offsets[None, :], 0, s_count - 1)
-        local = path[idx] - shift[:, None, :]
-        best, q = run(jnp.asarray(s), jnp.asarray(t), jnp.asarray(local), jnp.asarray(path[t] - shift))
-        poses.append(np.asarray(best, np.float64)[: LOOP_BATCH - pad] + shift[: LOOP_BATCH - pad])
-        quality.append(np.asarray(q)[: LOOP_BATCH - pad])
-    if not poses:
-        return np.zeros((0, 3)), np.zeros(0)
-    return np.concatenate(poses), np.concatenate(quality)
+    run = jax.jit(one)
+    poses, quality = np.zeros((len(pairs), 3)), np.zeros(len(pairs))
+    for k, (s, t) in enumerate(np.asarray(pairs)):
+        shift = np.array([path[s, 0], path[s, 1], 0.0])  # local frame: scan s's position at the origin
+        local = path[np.clip(s + offsets, 0, s_count - 1)] - shift
+        best, q = run(s, t, jnp.asarray(local), jnp.asarray(path[t] - shift))
+        poses[k], quality[k] = np.asarray(best, np.float64) + shift, float(q)
+    return poses, quality
 
 
 def loop_edges(path, data: ScanData) -> Edges:

@@ -70,14 +70,12 @@ class ScanData(NamedTuple):
     covs: jax.Array
 
 
-def _field_stencil(resolution: float, sigma: float, radius: float):
-    """Cell offsets ``(F, 2)`` int32 within ``radius`` meters and their field values ``(F,)``."""
-    r = int(math.floor(radius / resolution))
+def _field_stencil(resolution: float, radius: float):
+    """Cell offsets ``(F, 2)`` int32 within ``radius`` meters (plus half a cell diagonal) of a cell."""
+    r = int(math.ceil(radius / resolution + 0.75))
     ii, jj = np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1), indexing="ij")
-    d2 = (ii**2 + jj**2) * resolution**2
-    keep = d2 <= radius**2 + 1e-12
-    offsets = np.stack([ii[keep], jj[keep]], axis=-1).astype(np.int32)
-    return jnp.asarray(offsets), jnp.asarray(np.exp(-d2[keep] / (2 * sigma**2)), dtype=jnp.float32)
+    keep = (ii**2 + jj**2) * resolution**2 <= (radius + 0.75 * resolution) ** 2
+    return jnp.asarray(np.stack([ii[keep], jj[keep]], axis=-1).astype(np.int32))
 
 
 def scan_endpoints(poses, sensor_angles, readings):
@@ -95,25 +93,43 @@ def _cells(grid: Grid, xy):
 
 
 def add_scan(field, grid: Grid, pose, sensor_angles, readings, returned, sigma: float, radius: float):
-    """The likelihood field ``(nx, ny)`` float32 with one more scan's returned endpoints at ``pose`` (scatter-max of
-    the stencil of ``sigma`` and ``radius`` meters around each endpoint). Endpoints outside the grid are skipped.
-    Jittable."""
-    offsets, values = _field_stencil(grid.resolution, sigma, radius)
+    """The likelihood field ``(nx, ny)`` float32 with more endpoints: the returned beams of scans ``(..., K)`` at
+    poses ``(..., 3)`` (one scan or several), a scatter-max of ``exp(-d^2 / (2 sigma^2))`` over the cells whose
+    centers lie within ``radius`` meters of each endpoint, ``d`` the distance from the endpoint itself (not its
+    cell: no half-cell bias). Endpoints outside the grid are skipped. Jittable."""
+    offsets = _field_stencil(grid.resolution, radius)
+    coords = grid.to_cell_coords(scan_endpoints(pose, sensor_angles, readings)).reshape(-1, 2)
     cells, inside = _cells(grid, scan_endpoints(pose, sensor_angles, readings))
+    cells, ok = cells.reshape(-1, 2), (returned & inside).reshape(-1)
     target = cells[:, None, :] + offsets[None, :, :]
-    ok = (returned & inside)[:, None] & jnp.all((target >= 0) & (target < jnp.asarray(grid.shape)), axis=-1)
+    d2 = jnp.sum((target - coords[:, None, :]) ** 2, axis=-1) * grid.resolution**2  # from the endpoint itself
+    ok = ok[:, None] & jnp.all((target >= 0) & (target < jnp.asarray(grid.shape)), axis=-1) & (d2 <= radius**2)
+    vals = jnp.exp(-d2 / (2 * sigma**2)).astype(field.dtype)
     flat = jnp.where(ok, target[..., 0] * grid.shape[1] + target[..., 1], field.size)
-    vals = jnp.broadcast_to(values[None, :], flat.shape)
-    out = jnp.zeros(field.size + 1, jnp.float32).at[:-1].set(field.reshape(-1)).at[flat.reshape(-1)].max(
-        vals.reshape(-1))
-    return out[:-1].reshape(field.shape)
+    return field.reshape(-1).at[flat.reshape(-1)].max(vals.reshape(-1), mode="drop").reshape(field.shape)
 
 
-def field_scores(field, grid: Grid, candidates, sensor_angles, readings, returned):
+def field_scores(field, grid: Grid, candidates, sensor_angles, readings, returned, interpolate: bool = True):
     """``(M,)`` float32: ``sum_k log(field(endpoint_k) + FIELD_FLOOR)`` over the returned beams of one scan at each
-    candidate pose ``(M, 3)``; endpoints outside the grid count as unmapped."""
-    cells, inside = _cells(grid, scan_endpoints(candidates, sensor_angles, readings))
-    value = jnp.where(inside, field[cells[..., 0], cells[..., 1]], 0.0)
+    candidate pose ``(M, 3)``; the field bilinearly interpolated between cell centers (``interpolate``; else the
+    nearest cell's value, four times cheaper), endpoints outside the grid count as unmapped."""
+    ends = scan_endpoints(candidates, sensor_angles, readings)
+    if not interpolate:
+        cells, inside = _cells(grid, ends)
+        value = jnp.where(inside, field[cells[..., 0], cells[..., 1]], 0.0)
+    else:
+        c = grid.to_cell_coords(ends)
+        base = jnp.floor(c)
+        frac = c - base
+        base = base.astype(jnp.int32)
+        n = jnp.asarray(grid.shape)
+        value = jnp.zeros(c.shape[:-1], field.dtype)
+        for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
+            cell = base + jnp.asarray([di, dj])
+            ok = jnp.all((cell >= 0) & (cell < n), axis=-1)
+            cell = jnp.clip(cell, 0, n - 1)
+            weight = (frac[..., 0] if di else 1 - frac[..., 0]) * (frac[..., 1] if dj else 1 - frac[..., 1])
+            value = value + jnp.where(ok, weight * field[cell[..., 0], cell[..., 1]], 0.0)
     return jnp.sum(jnp.where(returned, jnp.log(value + FIELD_FLOOR), 0.0), axis=-1)
 
 
@@ -130,7 +146,7 @@ def empty_fields(grid: Grid) -> tuple:
 
 
 def add_to_fields(fields: tuple, grid: Grid, pose, sensor_angles, readings, returned) -> tuple:
-    """:func:`add_scan` of one scan ``(K,)`` at ``pose`` ``(3,)`` to every field of :data:`FIELDS`. Jittable."""
+    """:func:`add_scan` of scans ``(..., K)`` at poses ``(..., 3)`` to every field of :data:`FIELDS`. Jittable."""
     return tuple(add_scan(field, grid, pose, sensor_angles, readings, returned, sigma, radius)
                  for field, (sigma, radius) in zip(fields, FIELDS))
 
@@ -142,7 +158,8 @@ def lattices(levels) -> list:
 
 def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned, levels: list, log_prior=None):
     """The coarse-to-fine search: at each level score ``center + offsets`` (:func:`field_scores` plus
-    ``log_prior(candidates)`` if given) and recenter on the best. Jittable.
+    ``log_prior(candidates)`` if given) and recenter on the best; the fine field (index 0) is interpolated, the broad
+    one looked up at the nearest cell. Jittable.
 
     Args:
         levels: the output of :func:`lattices`.
@@ -153,7 +170,7 @@ def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned,
     best, score = center, jnp.asarray(0.0)
     for offsets, f in levels:
         cands = best + offsets
-        scores = field_scores(fields[f], grid, cands, sensor_angles, readings, returned)
+        scores = field_scores(fields[f], grid, cands, sensor_angles, readings, returned, interpolate=f == 0)
         if log_prior is not None:
             scores = scores + log_prior(cands)
         j = jnp.argmax(scores)

@@ -188,6 +188,7 @@ class SlamResult(NamedTuple):
         runtime_s: wall-clock seconds of the run, compilation included.
         last_walls: ``(nx, ny)`` float32, the last chain's last map sample.
         grid: the grid of ``posterior`` (a real log's is fitted to the inferred path), or None: the problem's.
+        loop_edges: loop edges of the start path's pose graph (real logs), or None.
     """
 
     pose_samples: np.ndarray
@@ -198,9 +199,10 @@ class SlamResult(NamedTuple):
     runtime_s: float
     last_walls: np.ndarray
     grid: object = None
+    loop_edges: int | None = None
 
 
-def _check_counts(sweeps, burn_in, chains) -> tuple[int, int, int]:
+def check_counts(sweeps, burn_in, chains) -> tuple[int, int, int]:
     """Validate the run's counts (BayesmapError naming the bad one)."""
     for name, value, low in (("sweeps", sweeps, 1), ("burn_in", burn_in, 0), ("chains", chains, 1)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
@@ -236,7 +238,7 @@ def run_slam(problem, sweeps: int = 100, burn_in: int = 20, seed: int = 0, chain
     Raises:
         BayesmapError: on bad counts (the message names the value) or bad problem data (as :func:`slam_kernel`).
     """
-    sweeps, burn_in, chains = _check_counts(sweeps, burn_in, chains)
+    sweeps, burn_in, chains = check_counts(sweeps, burn_in, chains)
     start = time.perf_counter()
     increments, covs = odometry_controls(problem.odometry, problem.motion)
     data = slam_data(increments, covs, problem.sensor_angles, problem.readings, problem.params)
