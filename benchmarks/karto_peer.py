@@ -6,7 +6,8 @@ For each log (intel, aces, csail) and each odometry noise seed, the script
   2. runs every method of ``--methods`` on it; a method is a function ``(Problem) -> (poses (S, 3), runtime_s)``
      (see ``METHODS``): ``karto`` runs the ``yag-slam`` package (OpenKarto's scan matcher, loop closure and sparse
      pose adjustment, all at their defaults) in a virtual environment of its own, ``benchmarks/.venv-karto``, made
-     on first use with ``python3.11 -m venv`` and pip; ``bayesmap`` will run ``bayesmap slam`` once it exists,
+     on first use with ``python3.11 -m venv`` and pip; ``bayesmap`` runs bayesmap's real-log SLAM
+     (``run_log_slam``, what ``bayesmap slam --log`` runs) in this process,
   3. scores each trajectory against the truth with ``bayesmap.evaluation.trajectory.absolute_trajectory_error``
      (absolute trajectory error: RMSE of the positions after the best rigid 2-D alignment, no scale), and raw
      odometry the same way.
@@ -25,10 +26,8 @@ the JSON file also holds the whole subprocess's wall time as ``wall_s``).
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import math
-import os
 import shutil
 import subprocess
 import sys
@@ -206,23 +205,20 @@ def run_karto(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
     return fill_dropped_scans(poses, kept, problem.odometry), runtime
 
 
-@functools.cache
-def bayesmap_has_slam() -> bool:
-    """Whether this checkout's CLI has a ``slam`` command (asked once per run)."""
-    done = subprocess.run([sys.executable, "-m", "bayesmap.cli", "slam", "--help"], capture_output=True, text=True,
-                          env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
-    return done.returncode == 0
-
-
 def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
-    """bayesmap's SLAM pose of every scan, by the ``bayesmap slam`` command (not written yet).
+    """bayesmap's SLAM: the posterior mean pose of every scan (``bayesmap.inference.logslam.run_log_slam`` at its
+    defaults, in this process, the same code as ``bayesmap slam --log``). ``extra`` gets the 95 % ellipse coverage
+    of the truth and the posterior's median position standard deviation. Runtime: the whole run, compilation
+    included."""
+    from bayesmap import scenes
+    from bayesmap.evaluation.trajectory import ellipse_coverage
+    from bayesmap.inference.logslam import run_log_slam
 
-    Raises:
-        MethodUnavailable: the CLI has no ``slam`` command yet.
-    """
-    if not bayesmap_has_slam():
-        raise MethodUnavailable("bayesmap has no `slam` command yet")
-    raise MethodUnavailable("`bayesmap slam` exists: wire its output (poses (S, 3) per scan) into run_bayesmap")
+    slam_problem = scenes.log_slam_problem(read_carmen(problem.log_path))
+    result = run_log_slam(slam_problem, seed=problem.seed)
+    extra["coverage"] = ellipse_coverage(result.mean_path, result.pose_cov, problem.truth)
+    extra["position_sd_median_m"] = float(np.median(np.sqrt(result.pose_cov[:, 0, 0] + result.pose_cov[:, 1, 1])))
+    return result.mean_path, result.runtime_s
 
 
 Method = Callable[[Problem, dict], tuple[np.ndarray, float]]

@@ -14,7 +14,8 @@ from bayesmap.model.motion import compose, make_motion_params, odometry_controls
 
 def room_scans(num_poses=12, seed=0):
     """An 8 x 6 m room with a pillar and a side wall on 0.05 m cells; a robot drives an arc through it; exact
-    readings (the first-hit distances) of 360 beams, one per degree (a laser scanner's spacing) at every true pose; odometry whose increments
+    readings (the first-hit distances) of 360 beams, one per degree (a laser scanner's
+    spacing) at every true pose; odometry whose increments
     carry 3 cm and 0.03 rad errors per step (so it drifts by decimeters)."""
     rng = np.random.default_rng(seed)
     grid = Grid(shape=(160, 120), resolution=0.05, origin=(0.0, 0.0))
@@ -39,7 +40,8 @@ def room_scans(num_poses=12, seed=0):
 def test_correlative_path_recovers_the_true_path():
     """Matching every scan against the field of the scans before it recovers the true path to 3 cm and 0.01 rad
     (the last search level resolves 3 mm; exact readings; the 0.05 m cells of the field and the nearest-cell lookup
-    limit it to about half a cell, 2.5 cm, plus the search's 3 mm), where the odometry is off by decimeters: a matcher that ignores the field or
+    limit it to about half a cell, 2.5 cm, plus the search's 3 mm), where the odometry is off by
+    decimeters: a matcher that ignores the field or
     searches the wrong frame stays on the odometry."""
     grid, truth, odometry, beams, readings = room_scans()
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))

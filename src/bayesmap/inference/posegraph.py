@@ -38,7 +38,16 @@ LOOP_RADIUS = 4.0
 """Meters: an older scan whose estimate is this close to scan ``t``'s is a loop candidate."""
 
 LOOP_NEIGHBOURS = 10
-"""Scans on each side of ``s`` that make the local map a loop candidate is matched against."""
+"""Scans on each side of ``s`` that make the local map a loop candidate is matched against (every other one:
+:data:`LOCAL_MAP_STEP`)."""
+
+LOCAL_MAP_STEP = 2
+"""Take every this many scans of ``s - LOOP_NEIGHBOURS .. s + LOOP_NEIGHBOURS`` into the local map (neighbouring
+scans overlap almost entirely; half of them cost half as much)."""
+
+LOOP_STRIDE = 3
+"""Match only every this many scans ``t`` as loop candidates: a robot coming back stays near the old path for
+several scans, each of which would give almost the same edge."""
 
 LOOP_LEVELS = ((0.1, 0.03, 15, 7, 1), (0.03, 0.01, 3, 3, 0), (0.01, 0.0033, 2, 2, 0), (0.003, 0.001, 2, 2, 0))
 """The loop search (as :data:`bayesmap.inference.scanmatch.MATCH_LEVELS`): +-1.5 m and +-0.21 rad (12 degrees)
@@ -97,11 +106,11 @@ def sequential_edges(path) -> Edges:
 
 
 def loop_candidates(path) -> np.ndarray:
-    """``(P, 2)`` int pairs ``(s, t)``: for each scan ``t``, the nearest scan ``s <= t - LOOP_GAP`` within
-    :data:`LOOP_RADIUS` meters of it in ``path`` ``(S, 3)``, if any."""
+    """``(P, 2)`` int pairs ``(s, t)``: for every :data:`LOOP_STRIDE`-th scan ``t``, the nearest scan
+    ``s <= t - LOOP_GAP`` within :data:`LOOP_RADIUS` meters of it in ``path`` ``(S, 3)``, if any."""
     xy = np.asarray(path, np.float64)[:, :2]
     pairs = []
-    for t in range(LOOP_GAP, len(xy)):
+    for t in range(LOOP_GAP, len(xy), LOOP_STRIDE):
         d = np.hypot(*(xy[: t - LOOP_GAP + 1] - xy[t]).T)
         s = int(np.argmin(d))
         if d[s] < LOOP_RADIUS:
@@ -125,7 +134,7 @@ def match_loops(path, data: ScanData, pairs) -> tuple[np.ndarray, np.ndarray]:
     grid = _local_grid()
     steps = lattices(LOOP_LEVELS)
     s_count = len(path)
-    offsets = np.arange(-LOOP_NEIGHBOURS, LOOP_NEIGHBOURS + 1)
+    offsets = np.arange(-LOOP_NEIGHBOURS, LOOP_NEIGHBOURS + 1, LOCAL_MAP_STEP)
     angles, readings, returned = (jnp.asarray(np.asarray(a)) for a in (data.sensor_angles, data.readings,
                                                                        data.returned))
 
