@@ -132,8 +132,7 @@ def first_hit_chords(walls, pos, beam_angles, grid: Grid, max_distance: float):
     :func:`cell_exit_distance`. Both are capped at ``max_distance`` and the exit is at least the entry; a beam with
     no wall within ``max_distance`` has entry = exit = ``max_distance``.
 
-    Args:
-        walls, pos, beam_angles, grid, max_distance: as :func:`first_hit_distances`.
+    The arguments are those of :func:`first_hit_distances`.
 
     Returns:
         ``(K, 2)`` entry and exit distances in meters, JAX's default float dtype; column 0 equals

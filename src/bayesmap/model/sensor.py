@@ -357,7 +357,8 @@ def chord_beam_logpdf(y, a, b, sigma, z_hit, z_short, z_max, z_rand, lambda_shor
         y: reading(s), meters; ``y >= max_range`` is a max-range reading.
         a: entry distance of the first wall cell, meters, in ``[0, max_range]`` (``max_range``: no wall).
         b: exit distance, meters, ``a <= b <= max_range`` (``b == a``: :func:`beam_logpdf` at ``d = a``).
-        sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range: as :func:`beam_logpdf`.
+        sigma: hit standard deviation (``sensor_noise``), meters, > 0; the remaining arguments (``z_hit``,
+            ``z_short``, ``z_max``, ``z_rand``, ``lambda_short``, ``max_range``) as :func:`beam_logpdf`.
 
     Returns:
         ``broadcast(y, a, b)`` float: ``log f(y | a, b)`` for ``0 <= y < M`` (1/m), ``log P(y = M | a, b)`` for
