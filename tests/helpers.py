@@ -33,12 +33,12 @@ def random_scene(rng, max_side=8, metric=False):
 POSES = np.array([[1.2, 1.1], [4.3, 5.2], [2.6, 3.9]])  # three scans inside a 6 x 7 grid, meters
 
 
-def scenes(beam_model, seed, max_distance=6.0, num_beams=10):
+def scenes(beam_model, seed, max_distance=6.0, num_beams=10, geometry="entry"):
     """Grid, params, poses (3, 2), world-frame angles (3, K) (each scan its own headings), truth map, readings
     (3, K) simulated from the model with about a quarter set to exactly the max range, and the ray table."""
     rng = np.random.default_rng(seed)
     grid = Grid((6, 7))
-    params = make_params(0.3, 0.4, num_beams, grid, max_distance, beam_model=beam_model)
+    params = make_params(0.3, 0.4, num_beams, grid, max_distance, beam_model=beam_model, geometry=geometry)
     angles = rng.uniform(-np.pi, np.pi, (len(POSES), num_beams))
     truth = (rng.random(grid.shape) < 0.25).astype(np.float32)
     y = np.asarray(simulate_scan_readings(jax.random.key(seed), truth, POSES, params, angles), np.float64)

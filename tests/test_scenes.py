@@ -90,7 +90,7 @@ def test_log_defaults_come_from_the_scene_defaults(small_log):
     assert (pb.params.prior_wall_prob == pytest.approx(scenes.LOG_PRIOR)
             and pb.params.beam_model == scenes.LOG_BEAM_MODEL)
     assert pb.params.sensor_noise == pytest.approx(0.1)  # half a 0.2 m cell
-    assert pb.range_offset == scenes.range_offset_meters(0.2) == 0.2
+    assert pb.range_offset == scenes.default_range_offset(0.2) == 0.2
     assert scenes.real_sensor_noise(0.2) == 0.1 and scenes.SENSOR_NOISE_CELLS == 0.5
 
 
@@ -174,6 +174,12 @@ def test_range_offset_shifts_only_returned_readings_the_model_scores(small_log):
     for bad in (-0.1, float("nan"), 1e6):
         with pytest.raises(BayesmapError, match="range_offset"):
             log_problem(log, resolution=0.2, range_offset=bad)
+    # the chord geometry models where in the cell the surface lies: no offset by default
+    chord = log_problem(log, resolution=0.2, geometry="chord")
+    assert pb.params.geometry == "entry"  # the log default (scenes.LOG_GEOMETRY)
+    assert chord.params.geometry == "chord" and chord.range_offset == 0.0 and chord.extra["geometry"] == "chord"
+    with pytest.raises(BayesmapError, match="'inside'"):
+        log_problem(log, resolution=0.2, geometry="inside")
 
 
 def test_likelihood_power_default_for_logs_and_bad_powers(small_log):

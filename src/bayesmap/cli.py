@@ -356,8 +356,11 @@ MAX_RANGE_HELP = ("--log: the laser's max range, meters; readings at or above it
 METHOD_HELP = "gibbs (the posterior, with --sampler) or logodds (classic log-odds mapping, no posterior)"
 BEAM_MODEL_HELP = ("sensor model: normal (the tutorial's; default for maps) or beam (robust mixture, "
                    "Probabilistic Robotics 6.3; default for logs)")
-RANGE_OFFSET_HELP = ("meters the model subtracts from each returned reading of a log (default one cell: a wall cell's "
-                     "reading is expected where the beam enters it, a real surface lies inside it)")
+RANGE_OFFSET_HELP = ("meters the model subtracts from each returned reading of a log (default one cell with "
+                     "--geometry entry: a wall cell's reading is expected where the beam enters it, a real surface "
+                     "lies inside it; 0 with --geometry chord)")
+GEOMETRY_HELP = (f"--log: where a wall cell's reading is expected: entry (the tutorial's, where the beam enters the "
+                 f"cell) or chord (anywhere on the beam's chord through the cell); default {scenes.LOG_GEOMETRY}")
 PRIOR_HELP = (f"prior probability that a cell is a wall (default {scenes.TUTORIAL_PRIOR}, the tutorial's; "
               f"{scenes.LOG_PRIOR} for several scans of a log)")
 SENSOR_NOISE_HELP = (f"standard deviation of a reading, meters (default {scenes.TUTORIAL_SENSOR_NOISE}, "
@@ -374,7 +377,8 @@ EVALUATE_MAX_RANGE_HELP = ("max range, meters: --truth, of the simulated sensor 
                            f"(default {scenes.SIMULATED_MAX_RANGE:g}); "
                            "--log, of the laser (default inferred from the log)")
 EVALUATE_SENSOR_NOISE_HELP = "standard deviation of a reading, meters (default half a cell)"
-EVALUATE_RANGE_OFFSET_HELP = "--log: meters the model subtracts from each returned reading (default one cell)"
+EVALUATE_RANGE_OFFSET_HELP = ("--log: meters the model subtracts from each returned reading (default one cell "
+                              "with --geometry entry, 0 with chord)")
 
 
 BAG_HELP = ("a ROS bag (a ROS 1 .bag file, or a ROS 2 bag folder: .db3 or .mcap): its LaserScans, with poses from "
@@ -430,6 +434,7 @@ def infer(
     method: str = typer.Option("gibbs", "--method", help=METHOD_HELP),
     beam_model: Optional[str] = typer.Option(None, "--beam-model", help=BEAM_MODEL_HELP),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help=RANGE_OFFSET_HELP),
+    geometry: Optional[str] = typer.Option(None, "--geometry", help=GEOMETRY_HELP),
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
     lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help=LAMBDA_SHORT_HELP),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
@@ -468,10 +473,13 @@ def infer(
         if map_file is not None:
             raise BayesmapError("give either --map or --log / --bag, not both")
         problem, title = _log_scene(carmen, log if log is not None else bag, scan, scans, resolution, prior_wall_prob,
-                                    sensor_noise, beam_model, range_offset, likelihood_power, sensor_params)
+                                    sensor_noise, beam_model, range_offset, likelihood_power, sensor_params, geometry)
     else:
         if scan is not None or scans is not None or likelihood_power is not None or max_range is not None:
             raise BayesmapError("--scan, --scans, --likelihood-power and --max-range need --log FILE (or --bag)")
+        if geometry is not None:
+            raise BayesmapError("--geometry applies to several scans of --log FILE (or --bag); maps keep the "
+                                "tutorial's entry geometry")
         problem = _map_scene(map_file, pos, seed, prior_wall_prob, sensor_noise, num_angles, beam_model,
                              sensor_params)
         title = problem.source
@@ -485,7 +493,7 @@ def infer(
 
 
 def _log_scene(carmen, path: Path, scan, scans, resolution, prior_wall_prob, sensor_noise, beam_model, range_offset,
-               likelihood_power, sensor_params):
+               likelihood_power, sensor_params, geometry=None):
     """``(problem, title)`` of ``infer --log/--bag``: one scan (``--scan N``, the single-scan model and the tutorial's
     defaults) or several (``--scans``, the log defaults of :mod:`bayesmap.scenes`)."""
     if scan is not None and scans is not None:
@@ -495,6 +503,8 @@ def _log_scene(carmen, path: Path, scan, scans, resolution, prior_wall_prob, sen
         if range_offset is not None or likelihood_power is not None:
             raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), "
                                 "not to --scan N")
+        if geometry is not None:
+            raise BayesmapError("--geometry applies to several scans (--scans), not to --scan N")
         scan = int(parse_scans(str(scan), len(carmen))[0])  # a negative index counts from the end, as in --scans
         problem = scan_problem(carmen, scan, resolution=resolution,
                                prior_wall_prob=scenes.TUTORIAL_PRIOR if prior_wall_prob is None else prior_wall_prob,
@@ -505,7 +515,8 @@ def _log_scene(carmen, path: Path, scan, scans, resolution, prior_wall_prob, sen
     problem = log_problem(carmen, chosen, resolution=resolution,
                           prior_wall_prob=scenes.LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
                           sensor_noise=noise, beam_model=beam_model or scenes.LOG_BEAM_MODEL,
-                          range_offset=range_offset, sensor_params=sensor_params, likelihood_power=likelihood_power)
+                          range_offset=range_offset, sensor_params=sensor_params, likelihood_power=likelihood_power,
+                          geometry=scenes.LOG_GEOMETRY if geometry is None else geometry)
     return problem, f"{path.name}, {len(chosen)} scans"
 
 
@@ -649,6 +660,7 @@ def evaluate(
     prior_wall_prob: float = typer.Option(scenes.LOG_PRIOR, "--prior-wall-prob",
                                           help="prior probability that a cell is a wall"),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help=EVALUATE_RANGE_OFFSET_HELP),
+    geometry: Optional[str] = typer.Option(None, "--geometry", help=GEOMETRY_HELP),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
     lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help=LAMBDA_SHORT_HELP),
@@ -672,15 +684,18 @@ def evaluate(
         chosen = parse_scans(scans, len(carmen))
         check_problem_size(log_problem(carmen, chosen, resolution=resolution))  # the grid of all chosen scans
         scores = evaluate_log(carmen, chosen, every=every, resolution=resolution,
-                              range_offset=range_offset, likelihood_power=likelihood_power, **mapping)
+                              range_offset=range_offset, likelihood_power=likelihood_power,
+                              geometry=scenes.LOG_GEOMETRY if geometry is None else geometry, **mapping)
         setup = scores["setup"]
         typer.echo(f"{log.name}: mapped {setup['train_scans']} scans, scored the {setup['test_scans']} held out "
                    f"(every {every}-th); grid {setup['grid'][0]} x {setup['grid'][1]} cells of {resolution:g} m; "
-                   f"{sampler}, {sweeps} sweeps, {beam_model} model")
+                   f"{sampler}, {sweeps} sweeps, {beam_model} model, {setup['geometry']} geometry")
     else:
 
         if likelihood_power is not None or range_offset is not None:
             raise BayesmapError("--likelihood-power and --range-offset apply to --log, not to --truth")
+        if geometry is not None:
+            raise BayesmapError("--geometry applies to --log, not to --truth")
 
         max_range = scenes.SIMULATED_MAX_RANGE if max_range is None else max_range
         _check_truth_scene(truth, resolution, num_poses, num_angles, max_range)

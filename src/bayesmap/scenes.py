@@ -104,12 +104,22 @@ LOG_PRIOR = 0.1
 of their cells occupied, and with 0.5 the robust beam model explains a long beam's reading as a sensor failure rather
 than as free space (the prior odds of "no wall in 100 cells" are 2^-100 against a likelihood ratio of at most 9)."""
 
+LOG_GEOMETRY = "entry"
+"""Wall geometry of real scans of a log (``ModelParams.geometry``): ``"entry"``, the tutorial's (a wall cell's reading
+is expected where the beam enters the cell), with a range offset of :data:`RANGE_OFFSET_CELLS`. The ``"chord"``
+geometry (the hit averaged over the beam's chord through the cell, :mod:`bayesmap.model.sensor`) needs no offset
+and predicts the held-out readings better on Intel, ACES and CSAIL at 0.05, 0.1 and 0.2 m (lower NLL in 9 of 9),
+but ranks the cells where held-out beams end worse (lower occupancy AUC in 9 of 9; README, held-out table), so it
+is not the default: ``--geometry chord``."""
+
 RANGE_OFFSET_CELLS = 1.0
-"""Default range offset of a log, in cells (:attr:`Problem.range_offset`). The tutorial's geometry puts a wall
-cell's expected reading where the beam enters the cell; a real surface is read somewhere inside it, and beams from
-other poses cross the cells along it. Chosen on validation scans that are never test scans (Intel, every other scan;
-within the scans ``bayesmap evaluate`` maps with, those with index 4 mod 10 held out, mapped from the rest; cellwise,
-60 sweeps): held-out occupancy AUC 0.929 with half a cell, 0.952 with one cell (log-odds mapping: 0.947)."""
+"""Default range offset of a log in the entry geometry, in cells (:attr:`Problem.range_offset`;
+:func:`default_range_offset`). The tutorial's geometry puts a wall cell's expected reading where the beam enters
+the cell; a real surface is read somewhere inside it, and beams from other poses cross the cells along it. Chosen
+on validation scans that are never test scans (Intel, every other scan; within the scans ``bayesmap evaluate`` maps
+with, those with index 4 mod 10 held out, mapped from the rest; cellwise, 60 sweeps): held-out occupancy AUC 0.929
+with half a cell, 0.952 with one cell (log-odds mapping: 0.947). The chord geometry models where in the cell the
+surface lies: its default offset is 0."""
 
 LOG_LIKELIHOOD_POWER = 0.1
 """Default likelihood power ``eta`` of a log (:attr:`Problem.likelihood_power`). The model treats every beam as
@@ -139,10 +149,11 @@ def real_sensor_noise(resolution: float) -> float:
     return SENSOR_NOISE_CELLS * resolution
 
 
-def range_offset_meters(resolution: float) -> float:
-    """The default range offset of a log on cells of ``resolution`` meters: :data:`RANGE_OFFSET_CELLS` cells, in
-    meters."""
-    return RANGE_OFFSET_CELLS * resolution
+def default_range_offset(resolution: float, geometry: str = LOG_GEOMETRY) -> float:
+    """The default range offset of a log on cells of ``resolution`` meters, in meters: :data:`RANGE_OFFSET_CELLS`
+    cells in the ``"entry"`` geometry, 0 in the ``"chord"`` geometry (which models where in the cell the surface
+    lies)."""
+    return 0.0 if geometry == "chord" else RANGE_OFFSET_CELLS * resolution
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -214,8 +225,9 @@ class Problem:
         extra: more JSON-serializable facts for the summary.
         range_offset: meters subtracted from every returned (not max-range) reading before the model sees it
             (:attr:`model_readings`); 0 for simulated data. For real data the tutorial's geometry expects a reading at
-            the face where the beam enters the wall cell, while a real surface lies inside the cell (default for logs:
-            :data:`RANGE_OFFSET_CELLS` cells).
+            the face where the beam enters the wall cell, while a real surface lies inside the cell (default for logs
+            in the entry geometry: :data:`RANGE_OFFSET_CELLS` cells; in the chord geometry none,
+            :func:`default_range_offset`).
         likelihood_power: ``eta`` in (0, 1]: the samplers target ``p(walls) p(readings | walls) ** eta``
             (:func:`bayesmap.model.generative.check_likelihood_power`); 1 (the posterior) except for logs
             (:data:`LOG_LIKELIHOOD_POWER`). The reference samplers support only 1.
@@ -443,9 +455,13 @@ class Problem:
         walls = np.asarray(walls) > 0.5
         p = float(self.params.prior_wall_prob)
         prior = walls.sum() * math.log(p) + (walls.size - walls.sum()) * math.log1p(-p)
-        d = self.table.first_wall_distances(walls)
-        ll = reading_log_likelihood(jnp.asarray(self.model_ray_readings), jnp.asarray(d, dtype=jnp.result_type(float)),
-                                    self.params)
+        dtype = jnp.result_type(float)
+        if self.params.geometry == "chord":
+            chords = jnp.asarray(self.table.first_wall_chords(walls), dtype=dtype)
+            d, exits = chords[:, 0], chords[:, 1]
+        else:
+            d, exits = jnp.asarray(self.table.first_wall_distances(walls), dtype=dtype), None
+        ll = reading_log_likelihood(jnp.asarray(self.model_ray_readings), d, self.params, exits)
         return float(prior + float(jnp.sum(ll)))
 
     @cached_property
@@ -562,7 +578,8 @@ def scan_problem(log, index: int, resolution: float = RESOLUTION, prior_wall_pro
 def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob: float = LOG_PRIOR,
                 sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL, margin: float = MARGIN,
                 grid: Grid | None = None, range_offset: float | None = None,
-                sensor_params: dict | None = None, likelihood_power: float | None = None) -> Problem:
+                sensor_params: dict | None = None, likelihood_power: float | None = None,
+                geometry: str = LOG_GEOMETRY) -> Problem:
     """Many scans of a real log at their poses: one map from all of them.
 
     The grid (``resolution`` meters per cell) covers the sensor positions and the endpoints of all beams that
@@ -580,10 +597,11 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
         margin: meters added around the data.
         grid: use this grid instead (e.g. one covering held-out scans too); its resolution wins.
         range_offset: meters the model subtracts from each returned reading (:attr:`Problem.range_offset`);
-            default :data:`RANGE_OFFSET_CELLS` (one) cell.
+            default :func:`default_range_offset` (one cell in the entry geometry, none in the chord geometry).
         sensor_params: the beam mixture's ``z_hit``, ``z_short``, ``z_max``, ``z_rand``, ``lambda_short`` (keywords of
             :func:`bayesmap.model.generative.make_params`); default :data:`bayesmap.model.sensor.BEAM_DEFAULTS`.
         likelihood_power: :attr:`Problem.likelihood_power`; default :data:`LOG_LIKELIHOOD_POWER`.
+        geometry: the wall geometry, ``"entry"`` (the tutorial's; default, :data:`LOG_GEOMETRY`) or ``"chord"``.
 
     Raises:
         BayesmapError: on bad parameters or scan indices, or a sensor position outside ``grid``.
@@ -594,16 +612,17 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
     resolution = grid.resolution
     noise = real_sensor_noise(resolution) if sensor_noise is None else sensor_noise
     params = make_params(prior_wall_prob, noise, obs.num_beams, grid, max_distance=obs.max_range,
-                         beam_model=beam_model, **(sensor_params or {}))
+                         beam_model=beam_model, geometry=geometry, **(sensor_params or {}))
     label = (f"{log.path} scans {scans[0]}..{scans[-1]} ({len(scans)})" if len(scans) > 1
              else f"{log.path} scan {scans[0]}")
-    offset = range_offset_meters(resolution) if range_offset is None else float(range_offset)
+    offset = default_range_offset(resolution, geometry) if range_offset is None else float(range_offset)
     if not (math.isfinite(offset) and 0 <= offset < obs.max_range):
         raise BayesmapError(f"range_offset must be between 0 and the max range {obs.max_range:g} m, "
                             f"got {range_offset!r}")
     eta = check_likelihood_power(LOG_LIKELIHOOD_POWER if likelihood_power is None else likelihood_power)
     return Problem(params=params, observations=obs, poses=chosen.poses, world_angles=chosen.world_angles,
-                   source=label, extra={"max_range": obs.max_range, "scans": len(scans), "range_offset": offset},
+                   source=label, extra={"max_range": obs.max_range, "scans": len(scans), "range_offset": offset,
+                                         "geometry": geometry},
                    range_offset=offset, likelihood_power=eta)
 
 

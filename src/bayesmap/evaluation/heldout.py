@@ -34,6 +34,7 @@ from bayesmap.model.generative import make_params, reading_log_likelihood
 from bayesmap.model.sensor import beam_sample
 from bayesmap.scenes import (
     LOG_BEAM_MODEL,
+    LOG_GEOMETRY,
     LOG_PRIOR,
     RESOLUTION,
     SIMULATED_CLEARANCE,
@@ -97,7 +98,7 @@ def _first_wall_positions(table: RayTable, walls_flat: np.ndarray) -> np.ndarray
     return first
 
 
-def predictive_log_density_samples(table: RayTable, readings, samples, logpdf) -> np.ndarray:
+def predictive_log_density_samples(table: RayTable, readings, samples, logpdf, chords: bool = False) -> np.ndarray:
     """``(R,)`` log posterior predictive density of each beam's reading: ``log (1/N) sum_n p(y | d(m_n))``.
 
     Args:
@@ -105,7 +106,9 @@ def predictive_log_density_samples(table: RayTable, readings, samples, logpdf) -
         readings: ``(R,)`` meters.
         samples: ``(N, nx, ny)`` posterior samples (0/1).
         logpdf: ``logpdf(y (R,), d (R,)) -> (R,)`` log-density of a reading given the first-wall distance (the
-            sensor model, e.g. :func:`bayesmap.model.sensor.reading_logpdf` with the problem's parameters).
+            sensor model, e.g. :func:`bayesmap.model.sensor.reading_logpdf` with the problem's parameters); with
+            ``chords``, ``logpdf(y, a, b)`` of the first wall cell's entry and exit distances ``a``, ``b`` (the chord
+            geometry, :attr:`~bayesmap.geometry.raytable.RayTable.pair_exits`).
 
     Raises:
         BayesmapError: on shapes that do not match.
@@ -116,16 +119,23 @@ def predictive_log_density_samples(table: RayTable, readings, samples, logpdf) -
         raise BayesmapError(f"samples must have shape (N, {table.grid.shape[0]}, {table.grid.shape[1]}), "
                             f"got {samples.shape}")
     dists = np.append(table.pair_dists.astype(np.float64), table.max_distance)
-    logs = np.stack([np.asarray(logpdf(y, dists[_first_wall_positions(table, s.reshape(-1))]), dtype=np.float64)
-                     for s in samples])
+    exits = np.append(table.pair_exits.astype(np.float64), table.max_distance) if chords else None
+
+    def one(sample):
+        first = _first_wall_positions(table, sample.reshape(-1))
+        args = (dists[first], exits[first]) if chords else (dists[first],)
+        return np.asarray(logpdf(y, *args), dtype=np.float64)
+
+    logs = np.stack([one(s) for s in samples])
     top = logs.max(axis=0)
     return top + np.log(np.mean(np.exp(logs - top), axis=0))
 
 
-def predictive_log_density_independent(table: RayTable, readings, prob, logpdf, chunk: int = 1 << 22) -> np.ndarray:
+def predictive_log_density_independent(table: RayTable, readings, prob, logpdf, chunk: int = 1 << 22,
+                                      chords: bool = False) -> np.ndarray:
     """``(R,)`` log predictive density of each beam's reading when cells are walls independently with probability
     ``prob`` ``(nx, ny)``: ``log(sum_k q_k prod_{j<k}(1 - q_j) p(y | t_k) + prod_j (1 - q_j) p(y | max))`` over the
-    ray's cells ``k`` in order (see the module docstring). ``logpdf`` as in
+    ray's cells ``k`` in order (see the module docstring). ``logpdf`` and ``chords`` as in
     :func:`predictive_log_density_samples`. Computed in log space over the table's pairs, ``chunk`` rays' pairs at a
     time.
 
@@ -155,13 +165,15 @@ def predictive_log_density_independent(table: RayTable, readings, prob, logpdf, 
     exclusive = np.where(inclusive_count - certain > 0, -np.inf, inclusive - log_free)
     with np.errstate(divide="ignore"):
         log_q = np.log(qp)
-    log_ll = np.asarray(logpdf(y[rays], table.pair_dists.astype(np.float64)), dtype=np.float64)
+    pair_args = (table.pair_dists.astype(np.float64),) + ((table.pair_exits.astype(np.float64),) if chords else ())
+    log_ll = np.asarray(logpdf(y[rays], *pair_args), dtype=np.float64)
     terms = log_q + exclusive + log_ll
     # the "no wall on the ray" term
     last = np.maximum(ends - 1, 0)
     empty = ends == starts
     none = np.where(empty, 0.0, np.where(inclusive_count[last] > 0, -np.inf, inclusive[last]))
-    none_term = none + np.asarray(logpdf(y, np.full(table.num_rays, table.max_distance)), dtype=np.float64)
+    no_wall = (np.full(table.num_rays, table.max_distance),) * (2 if chords else 1)
+    none_term = none + np.asarray(logpdf(y, *no_wall), dtype=np.float64)
     # per-ray logsumexp of its terms and the no-wall term
     top = none_term.copy()
     np.maximum.at(top, rays, terms)
@@ -195,11 +207,15 @@ def truth_scores(prob, truth, known=None) -> dict[str, float]:
 # -- drivers: a log with held-out scans, a floor plan with synthetic scans ------------------------------------------
 
 
-def _sensor_logpdf(params):
-    """``logpdf(y, d)`` of the problem's sensor model, numpy in and out
+def sensor_logpdf(params):
+    """``logpdf(y, d)`` (``logpdf(y, a, b)`` in the chord geometry) of the problem's sensor model, numpy in and out
     (:func:`bayesmap.model.generative.reading_log_likelihood`)."""
 
-    return lambda y, d: np.asarray(reading_log_likelihood(np.asarray(y), np.asarray(d), params), dtype=np.float64)
+    def logpdf(y, d, exits=None):
+        return np.asarray(reading_log_likelihood(np.asarray(y), np.asarray(d), params,
+                                                 None if exits is None else np.asarray(exits)), dtype=np.float64)
+
+    return logpdf
 
 
 def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, float]]:
@@ -217,15 +233,16 @@ def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, f
     # every map, so the comparison is fair)
     table, y, mask = test.table, test.ray_readings, test.ray_max_range
     y_model = test.model_ray_readings
-    logpdf = _sensor_logpdf(test.params)
+    logpdf = sensor_logpdf(test.params)
+    chords = test.params.geometry == "chord"
     hit, miss = beam_hits_and_misses(table, y, mask)
     out = {}
     for name, (prob, samples) in maps.items():
         if samples is not None and len(samples):
             keep = samples[np.unique(np.linspace(0, len(samples) - 1, min(max_samples, len(samples))).astype(int))]
-            logp = predictive_log_density_samples(table, y_model, keep, logpdf)
+            logp = predictive_log_density_samples(table, y_model, keep, logpdf, chords=chords)
         else:
-            logp = predictive_log_density_independent(table, y_model, prob, logpdf)
+            logp = predictive_log_density_independent(table, y_model, prob, logpdf, chords=chords)
         out[name] = {"auc": _auc(table, (hit, miss), prob), "nll": float(-np.mean(logp)),
                      "beams": int(table.num_rays), "positives": int(hit.sum()), "negatives": int(miss.sum())}
     return out
@@ -235,11 +252,12 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
                  sweeps: int = 100, seed: int = 0, prior_wall_prob: float = LOG_PRIOR,
                  sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL, progress: bool = True,
                  range_offset: float | None = None, sensor_params: dict | None = None,
-                 likelihood_power: float | None = None) -> dict:
+                 likelihood_power: float | None = None, geometry: str = LOG_GEOMETRY) -> dict:
     """Held-out evaluation on a log: hold out every ``every``-th of the chosen scans, map the rest with bayesmap
     (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
     held-out beams (see the module docstring). ``sensor_noise`` (default half a cell), ``range_offset``,
-    ``sensor_params`` and ``likelihood_power``: see :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses
+    ``sensor_params``, ``likelihood_power`` and ``geometry``: see :func:`bayesmap.scenes.log_problem` (log-odds
+    mapping always uses
     the measured ranges); the other defaults are the scene defaults of :mod:`bayesmap.scenes`.
 
     Returns:
@@ -257,7 +275,7 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
     grid = log_problem(log, scans, resolution=resolution).grid  # covers all chosen scans, held-out ones too
     kwargs = dict(resolution=resolution, prior_wall_prob=prior_wall_prob, sensor_noise=sensor_noise,
                   beam_model=beam_model, grid=grid, range_offset=range_offset, sensor_params=sensor_params,
-                  likelihood_power=likelihood_power)
+                  likelihood_power=likelihood_power, geometry=geometry)
     train_problem = log_problem(log, train, **kwargs)
     test_problem = log_problem(log, test, **kwargs)
     start = time.perf_counter()
@@ -274,6 +292,7 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
         "sweeps": int(sweeps), "beam_model": beam_model, "sensor_noise": float(train_problem.params.sensor_noise),
         "prior_wall_prob": float(prior_wall_prob), "train_pairs": int(train_problem.table.num_pairs),
         "range_offset": float(train_problem.range_offset), "likelihood_power": float(train_problem.likelihood_power),
+        "geometry": geometry,
     }
     return scores
 

@@ -66,6 +66,37 @@ def cell_hit_distance(p, u, cell):
     return jnp.min(jnp.where(hit, s, jnp.inf), axis=-1)
 
 
+def cell_exit_distance(p, u, cell, xp=jnp):
+    """Ray parameter at which the ray ``p + s u`` leaves a cell it crosses (the chord geometry's exit distance),
+    by the slab method (Kay & Kajiya 1986; Amanatides & Woo 1987): ``min`` over the axes the ray moves along
+    (``|u_a| >= PARALLEL_TOL``, as the edge test) of ``(cell_a + sign(u_a) / 2 - p_a) / u_a``.
+
+    Args:
+        p: ``(..., 2)`` ray origin in cell coordinates.
+        u: ``(..., 2)`` unit direction.
+        cell: ``(..., 2)`` cell indices ``(i, j)``, the cell centered at ``(i, j)``.
+        xp: the array module, ``jax.numpy`` (default, for the model) or ``numpy`` (for the ray-cell table).
+
+    Returns:
+        ``(...)`` distance in cells, in the dtype of ``p`` and ``u`` (``inf`` for a ray that moves along neither
+        axis). For a cell the ray does not cross the number has no meaning. Never raises.
+    """
+    moving = xp.abs(u) >= PARALLEL_TOL
+    face = xp.asarray(cell, dtype=p.dtype) + xp.where(u > 0, 0.5, -0.5).astype(p.dtype)
+    s = xp.where(moving, (face - p) / xp.where(moving, u, 1.0), xp.inf)
+    return xp.min(s, axis=-1)
+
+
+def _ray_setup(walls, pos, grid: Grid):
+    """The ray origin ``p`` (cell coordinates), every cell ``(nx ny, 2)`` and the wall mask ``(nx ny,)``, for
+    :func:`first_hit_distances` and :func:`first_hit_chords`."""
+    p = grid.to_cell_coords(jnp.asarray(pos))
+    ii, jj = jnp.meshgrid(jnp.arange(grid.shape[0]), jnp.arange(grid.shape[1]), indexing="ij")
+    cells = jnp.stack([ii.ravel(), jj.ravel()], axis=-1)
+    is_wall = walls.reshape(-1) > 0
+    return p, cells, is_wall
+
+
 @partial(jax.jit, static_argnames=("grid", "max_distance"))
 def first_hit_distances(walls, pos, beam_angles, grid: Grid, max_distance: float):
     """The jitted core of :func:`sensor_distances` (which fills in the defaults), for callers that already have a
@@ -81,15 +112,42 @@ def first_hit_distances(walls, pos, beam_angles, grid: Grid, max_distance: float
     Returns:
         ``(K,)`` distances in meters, JAX's default float dtype, at most ``max_distance``.
     """
-    p = grid.to_cell_coords(jnp.asarray(pos))
-    ii, jj = jnp.meshgrid(jnp.arange(grid.shape[0]), jnp.arange(grid.shape[1]), indexing="ij")
-    cells = jnp.stack([ii.ravel(), jj.ravel()], axis=-1)
-    is_wall = walls.reshape(-1) > 0
+    p, cells, is_wall = _ray_setup(walls, pos, grid)
     max_cells = max_distance / grid.resolution
 
     def one_ray(angle):
         distances = cell_hit_distance(p, unit_dir(angle)[None, :], cells)
         return jnp.minimum(jnp.min(jnp.where(is_wall, distances, jnp.inf)), max_cells)
+
+    return jax.vmap(one_ray)(beam_angles) * grid.resolution
+
+
+@partial(jax.jit, static_argnames=("grid", "max_distance"))
+def first_hit_chords(walls, pos, beam_angles, grid: Grid, max_distance: float):
+    """The chord of each beam through its first wall cell: entry and exit distance (the chord geometry,
+    :mod:`bayesmap.model.sensor`).
+
+    The first wall cell is the wall with the smallest entry distance (:func:`cell_hit_distance`), ties broken by the
+    smallest flat index ``i * ny + j`` (the ray-cell table's order); its exit distance is
+    :func:`cell_exit_distance`. Both are capped at ``max_distance`` and the exit is at least the entry; a beam with
+    no wall within ``max_distance`` has entry = exit = ``max_distance``.
+
+    The arguments are those of :func:`first_hit_distances`.
+
+    Returns:
+        ``(K, 2)`` entry and exit distances in meters, JAX's default float dtype; column 0 equals
+        :func:`first_hit_distances`. Never raises.
+    """
+    p, cells, is_wall = _ray_setup(walls, pos, grid)
+    max_cells = max_distance / grid.resolution
+
+    def one_ray(angle):
+        u = unit_dir(angle)
+        distances = jnp.where(is_wall, cell_hit_distance(p, u[None, :], cells), jnp.inf)
+        first = jnp.argmin(distances)  # the first of equal minima: the smallest flat index
+        entry = jnp.minimum(distances[first], max_cells)
+        exit_ = cell_exit_distance(p, u, cells[first].astype(p.dtype))
+        return jnp.stack([entry, jnp.clip(exit_, entry, max_cells)])
 
     return jax.vmap(one_ray)(beam_angles) * grid.resolution
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.geometry.raycast import PARALLEL_TOL, cell_hit_distance, unit_dir
+from bayesmap.geometry.raycast import PARALLEL_TOL, cell_exit_distance, cell_hit_distance, unit_dir
 
 _CHUNK_PAIRS = 1 << 18  # pairs per chunk of numpy passes over all pairs (temporaries of <= 2 MB: malloc reuses them)
 TRACE_THREADS = 4  # most threads tracing chunks of rays in build_ray_table (at most one per core)
@@ -112,6 +112,41 @@ class RayTable:
         keys.sort()
         keys &= np.uint64(0xFFFFFFFF)
         return keys.view(np.int64)
+
+    @cached_property
+    def pair_exits(self) -> np.ndarray:
+        """``(P,)`` exit distance of each pair (meters, the dtype of :attr:`pair_dists`): where the ray leaves the
+        cell (:func:`~bayesmap.geometry.raycast.cell_exit_distance` in float64 cell coordinates from the numbers
+        the table was traced from), at least the pair's entry distance and at most the max distance. The chord
+        geometry's ``b`` (:mod:`bayesmap.model.sensor`); computed on first use, a chunk of pairs at a time (4 bytes
+        per pair in float32)."""
+        dtype = self.pair_dists.dtype
+        out = np.empty(self.num_pairs, dtype=dtype)
+        if not self.num_pairs:
+            return out
+        p_table, u_table = _cell_frame(self.grid, self.origins, self.beam_angles)
+        p, u = p_table.astype(np.float64), u_table.astype(np.float64)
+        ny = self.grid.shape[1]
+        scale = dtype.type(self.grid.resolution)
+        for start in range(0, self.num_pairs, _CHUNK_PAIRS):
+            part = slice(start, start + _CHUNK_PAIRS)
+            rays, flat = self.pair_rays[part], self.pair_cells[part].astype(np.int64)
+            cells = np.stack([flat // ny, flat % ny], axis=-1).astype(np.float64)
+            exits = cell_exit_distance(p[rays], u[rays], cells, xp=np).astype(dtype) * scale
+            np.clip(exits, self.pair_dists[part], dtype.type(self.max_distance), out=out[part])
+        return out
+
+    def first_wall_chords(self, walls) -> np.ndarray:
+        """``(R, 2)`` entry and exit distance (meters) of each ray's first wall cell, both the max distance for a ray
+        with no wall: :func:`~bayesmap.geometry.raycast.first_hit_chords` from the table (column 0 is
+        :meth:`first_wall_distances`; the exit is :attr:`pair_exits` of the first wall pair)."""
+        is_wall = np.asarray(walls).reshape(-1)[self.pair_cells] > 0
+        first = np.full(self.num_rays, self.num_pairs, dtype=np.int64)
+        wall_pairs = np.flatnonzero(is_wall)
+        np.minimum.at(first, self.pair_rays[wall_pairs], wall_pairs)
+        entry = np.append(self.pair_dists, self.max_distance).astype(self.pair_dists.dtype)
+        exit_ = np.append(self.pair_exits, self.max_distance).astype(self.pair_dists.dtype)
+        return np.stack([entry[first], exit_[first]], axis=-1)
 
     def ray(self, r: int) -> tuple[np.ndarray, np.ndarray]:
         """Cells ``(n,)`` int32 and stopping distances ``(n,)`` (meters) of ray ``r``, in order along the ray."""

@@ -59,7 +59,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raytable import RayTable
 from bayesmap.inference.base import GibbsInfo, KernelFields, KernelSampler, SamplingAlgorithm
 from bayesmap.model.generative import ModelParams, prior_log_odds
-from bayesmap.model.likelihood import likelihood_inputs, log_likelihood_table, pair_log_likelihoods, tempered
+from bayesmap.model.likelihood import likelihood_inputs, no_wall_log_likelihoods, pair_log_likelihoods, tempered
 
 NO_WALL = float(1 << 22)  # "no such wall": a position beyond every ray (exact in float32)
 SEARCH_CHUNK = 32  # cells read per step of the walk along a ray to its next wall
@@ -396,11 +396,12 @@ class CellwiseGibbs(KernelSampler):
     """
 
     def __init__(self, table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0):
-        y, beam_model, sensor, dtype, eta = likelihood_inputs(table, readings, params, likelihood_power)
+        inputs = likelihood_inputs(table, readings, params, likelihood_power)
+        y, beam_model, sensor, dtype, eta = inputs[:5]
         num_rays, num_pairs = table.num_rays, table.num_pairs
         # dispatched first: XLA computes the log-likelihoods while numpy sorts the pairs into the lanes
-        max_ll = log_likelihood_table(beam_model, sensor, jnp.asarray(y, dtype), jnp.asarray(table.max_distance, dtype))
-        pair_ll = pair_log_likelihoods(table, y, beam_model, sensor)
+        max_ll = no_wall_log_likelihoods(inputs, table.max_distance)
+        pair_ll = pair_log_likelihoods(table, y, beam_model, sensor, inputs.geometry)
         if eta != 1.0:  # every log-likelihood the sweep looks up, tempered (eta = 1 would leave them as they are)
             pair_ll, max_ll = tempered(pair_ll, eta), tempered(max_ll, eta)
         counts = table.rays_per_cell()

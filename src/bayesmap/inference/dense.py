@@ -48,7 +48,13 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raycast import cell_hit_distance, unit_dir
 from bayesmap.inference.base import GibbsInfo, SamplingAlgorithm
-from bayesmap.model.generative import ModelParams, check_likelihood_power, prior_log_odds, reading_log_likelihood
+from bayesmap.model.generative import (
+    ModelParams,
+    check_entry_geometry,
+    check_likelihood_power,
+    prior_log_odds,
+    reading_log_likelihood,
+)
 from bayesmap.model.likelihood import tempered
 
 MAX_DENSE_ENTRIES = 1 << 24
@@ -201,8 +207,10 @@ def dense_readings(sensor_angles, readings, params: ModelParams) -> tuple[jax.Ar
 
     Raises:
         BayesmapError: if the angles are not ``(S, K)`` with ``S, K >= 1``, the readings not of that shape, a value
-            is not finite, a reading is negative, or the table is too large (:func:`check_dense_size`).
+            is not finite, a reading is negative, the table is too large (:func:`check_dense_size`), or
+            ``params.geometry`` is not ``"entry"`` (the dense table has entry distances only).
     """
+    check_entry_geometry(params, "the dense sweep")
     angles = np.asarray(sensor_angles, dtype=np.float64)
     y = np.asarray(readings, dtype=np.float64)
     if angles.ndim != 2 or min(angles.shape) < 1:

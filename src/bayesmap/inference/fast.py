@@ -113,6 +113,10 @@ class Levels(NamedTuple):
             models other than ``"normal"``, which are costly to evaluate (see :class:`FastKernel`); None for
             ``"normal"`` (evaluated in the step, as always); a test sets them to None to check the lookups against
             evaluating in the step.
+        stop_pos: ``(NL, C, E)`` int32 position on the ray of each configuration's first wall (``2**31 - 1`` if
+            none), in the chord geometry only (else None): a block wall and the first wall outside the block can
+            enter at the same distance (the sensor's cell and the next one always do) but have different chords, and
+            the first wall is then the earlier in the table's order, as in the model.
     """
 
     src: jax.Array
@@ -129,6 +133,7 @@ class Levels(NamedTuple):
     fix_pos: jax.Array
     stop_ll: jax.Array | None = None
     max_ll: jax.Array | None = None
+    stop_pos: jax.Array | None = None
 
 
 class _StepLayout(NamedTuple):
@@ -221,6 +226,9 @@ class FastGibbs(KernelSampler):
         self.table = table
         self.grid = table.grid
         self._y, self.beam_model, self._sensor_args = inputs.readings, inputs.beam_model, inputs.sensor_args
+        self.geometry = inputs.geometry
+        # log p(y | d) looked up from tables (the beam mixture, and any model in the chord geometry) or evaluated
+        self._lookup = self.beam_model != "normal" or self.geometry == "chord"
         self._dtype = inputs.dtype
         if pos is None:
             pos = table.origins[0] if table.num_rays else np.zeros(2)
@@ -263,17 +271,19 @@ class FastGibbs(KernelSampler):
             _bits=jnp.asarray(self._config_bits),
             _sensor=self._sensor_args, _pair_ll=self._pair_log_likelihoods(),
             _power=jnp.asarray(inputs.likelihood_power, dtype=self._dtype),
-            _beam_model=params.beam_model, _max_words=self._max_words, _zero_word=self._zero_word,
+            _beam_model=params.beam_model, _geometry=self.geometry, _max_words=self._max_words,
+            _zero_word=self._zero_word,
             _chunked=not bool(np.all(np.asarray(self._steps.commit))), _dtype=jnp.dtype(self._dtype).name)
 
     # -- static preparation (numpy) ------------------------------------------------------------------------------
 
     def _pair_log_likelihoods(self):
-        """``(P + 1,)`` ``log p(y_r | t)`` for each (ray r, cell) pair's stopping distance ``t`` (then a 0 for the
-        "no wall" index, whose value comes from ``Levels.max_ll``); None for ``"normal"``."""
-        if self.beam_model == "normal":
+        """``(P + 1,)`` ``log p(y_r | t)`` for each (ray r, cell) pair's stopping distance ``t`` (in the chord
+        geometry its chord, up to the pair's exit distance), then a 0 for the "no wall" index, whose value comes from
+        ``Levels.max_ll``; None for ``"normal"`` in the entry geometry (evaluated in the step)."""
+        if not self._lookup:
             return None
-        return pair_log_likelihoods(self.table, self._y, self.beam_model, self._sensor_args)
+        return pair_log_likelihoods(self.table, self._y, self.beam_model, self._sensor_args, self.geometry)
 
     def _block_entries(self):
         """All (block, ray) entries: ``(block, ray, pos (M, B), stop (M, B))`` sorted by block then ray."""
@@ -425,12 +435,24 @@ class FastGibbs(KernelSampler):
             fix_src=fill((), self._zero_word, fix_src, i32),
             fix_pos=fill((size,), -1, fix_pos, i32),
         )
-        if self.beam_model == "normal":
+        if not self._lookup:
             return packed
         no_wall = jnp.asarray(self.table.max_distance, dtype=dt)
+        stop_exit, no_wall_exit = None, None
+        if self.geometry == "chord":  # the exit of each configuration's first wall: its block cell first on the ray
+            on_ray = self._config_bits[None] & (pos[:, None, :] >= 0)  # (M, C, B)
+            first = np.argmin(np.where(on_ray, pos[:, None, :], np.iinfo(np.int64).max), axis=-1)  # (M, C)
+            pair = self.table.offsets[ray][:, None] + np.take_along_axis(pos, first, axis=1)
+            exits = self.table.pair_exits[np.minimum(pair, self.table.num_pairs - 1)]
+            exit_c = np.where(np.any(on_ray, axis=-1), exits, np.inf)
+            stop_exit, no_wall_exit = fill((len(self._config_bits),), np.inf, exit_c, dt), no_wall
+            none = np.iinfo(np.int32).max
+            first_pos = np.where(np.any(on_ray, axis=-1), np.take_along_axis(pos, first, axis=1), none)
+            packed = packed._replace(stop_pos=fill((len(self._config_bits),), none, first_pos, i32))
         return packed._replace(
-            stop_ll=log_likelihood_table(self.beam_model, self._sensor_args, packed.y[:, None, :], packed.stop),
-            max_ll=log_likelihood_table(self.beam_model, self._sensor_args, packed.y, no_wall))
+            stop_ll=log_likelihood_table(self.beam_model, self._sensor_args, packed.y[:, None, :], packed.stop,
+                                         None if stop_exit is None else stop_exit),
+            max_ll=log_likelihood_table(self.beam_model, self._sensor_args, packed.y, no_wall, no_wall_exit))
 
     def _final_gathers(self, layout: _StepLayout, levels: np.ndarray):
         """Where a sweep's final state is in its buffer: ``(final_words, final_walls, final_fix)``. Each ray word
@@ -506,11 +528,16 @@ class FastKernel(KernelFields):
 
     _ARRAYS = ("_steps", "_final_words", "_final_walls", "_final_fix", "_pair_dists", "_pair_cells", "_pair_words",
                "_pair_shift", "_bits", "_sensor", "_pair_ll", "_power")
-    _STATIC = ("_max_words", "_zero_word", "_chunked", "_dtype", "_beam_model")
+    _STATIC = ("_max_words", "_zero_word", "_chunked", "_dtype", "_beam_model", "_geometry")
 
     @property
     def num_configurations(self) -> int:
         return int(self._bits.shape[0])
+
+    @property
+    def _lookup(self) -> bool:
+        """Whether ``log p(y | d)`` is looked up (:attr:`FastGibbs._lookup`): the beam model, or the chord geometry."""
+        return self._beam_model != "normal" or self._geometry == "chord"
 
     def ray_bits(self, walls) -> jax.Array:
         """The walls along every ray as bit strings, ``(num_words + 1,)`` uint32 (see :class:`FastGibbsState`)."""
@@ -547,7 +574,7 @@ class FastKernel(KernelFields):
         lowest = word & (~word + jnp.uint32(1))
         bit = (WORD_BITS - 1) - jax.lax.clz(lowest).astype(jnp.int32)
         pair = jnp.where(found, pair0 + WORD_BITS * w + bit, self._pair_dists.shape[0] - 1)
-        if self._beam_model != "normal":
+        if self._lookup:
             return self._pair_dists[pair], pair, found
         return self._pair_dists[pair]
 
@@ -555,18 +582,25 @@ class FastKernel(KernelFields):
         """Conditional scores of the blocks of one level from their rays' words ``(W, E)``: log-odds ``(A,)`` for
         single cells, else log-weights ``(A, C)`` up to a constant; and the words with the blocks' bits cleared."""
         outside = words & ~lv.block_bits
-        if self._beam_model == "normal":
+        if not self._lookup:
             m_out = self._first_outside(lv.pair0, outside)  # (E,)
             d = jnp.minimum(lv.stop, m_out[None, :])  # (C, E)
             ll = normal_logpdf(lv.y[None, :], d, *self._sensor)  # the tutorial's Normal, evaluated in the step
         else:  # d = stop if stop < m_out else m_out, each log p(y | d) looked up (see the class docstring)
             m_out, pair, found = self._first_outside(lv.pair0, outside)
             if lv.stop_ll is None or lv.max_ll is None:  # not looked up: evaluated (tests compare the two)
+                if self._geometry == "chord":
+                    raise BayesmapError("the chord geometry's log-likelihoods are looked up: Levels.stop_ll and "
+                                        "Levels.max_ll are needed")
                 stop_ll = reading_logpdf(self._beam_model, lv.y[None, :], lv.stop, self._sensor)
                 m_ll = reading_logpdf(self._beam_model, lv.y, m_out, self._sensor)
             else:
                 stop_ll, m_ll = lv.stop_ll, jnp.where(found, self._pair_ll[pair], lv.max_ll)
-            ll = jnp.where(lv.stop < m_out[None, :], stop_ll, m_ll[None, :])
+            if lv.stop_pos is None:
+                ll = jnp.where(lv.stop < m_out[None, :], stop_ll, m_ll[None, :])
+            else:  # the chord geometry: the first wall in the table's order (ties in distance have other chords)
+                out_pos = jnp.where(found, pair - lv.pair0, jnp.iinfo(jnp.int32).max)
+                ll = jnp.where(lv.stop_pos < out_pos[None, :], stop_ll, m_ll[None, :])
         ll = tempered(ll, self._power)  # each log p(y | d) times eta (1: the posterior; exact)
         num_blocks = lv.log_prior.shape[0]
         # sum over each block's rays with a dense (A, E) mask: scatters are slow loops on the CPU

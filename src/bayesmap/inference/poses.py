@@ -34,7 +34,7 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raycast import march_first_hit
 from bayesmap.inference.base import SamplingAlgorithm
-from bayesmap.model.generative import ModelParams, check_likelihood_power, reading_log_likelihood
+from bayesmap.model.generative import ModelParams, check_entry_geometry, check_likelihood_power, reading_log_likelihood
 from bayesmap.model.motion import motion_logpdf
 
 
@@ -62,8 +62,9 @@ def slam_data(odometry_increments, odometry_covs, sensor_angles, readings, param
     Raises:
         BayesmapError: if ``sensor_angles`` is not ``(S, K)`` with ``S >= 2`` (there is no pose to infer with one
             scan), ``readings`` not ``(S, K)``, the increments not ``(S - 1, 3)``, the covariances not
-            ``(S - 1, 3, 3)``, or a value is not finite.
+            ``(S - 1, 3, 3)``, a value is not finite, or ``params.geometry`` is not ``"entry"``.
     """
+    check_entry_geometry(params, "the pose moves")
     dtype = jnp.result_type(float)
     arrays = [np.asarray(a, dtype=np.float64) for a in (odometry_increments, odometry_covs, sensor_angles, readings)]
     increments, covs, angles, y = arrays

@@ -6,6 +6,10 @@
   vmapped over beams) at address ``"readings"``. ``params.beam_model`` picks it (:mod:`bayesmap.model.sensor`):
   ``"normal"`` (default) is the tutorial's ``Normal(exact distance, sensor_noise)`` (``genjax.normal``, unchanged);
   ``"beam"`` is the robust beam mixture of *Probabilistic Robotics* sec. 6.3 with a point mass at the max range.
+  ``params.geometry`` says where a wall cell's reading is expected: ``"entry"`` (default, the tutorial's) at the
+  face where the beam enters the first wall cell; ``"chord"`` anywhere on the beam's chord through that cell (the
+  sensor model's hit averaged over the chord, :mod:`bayesmap.model.sensor`; the readings' distribution then takes
+  the entry and exit distances from :func:`bayesmap.geometry.raycast.first_hit_chords`).
 
 :data:`full_model` is the tutorial's single scan; its arguments are ``(pos, params, beam_angles)``: the sensor
 position (world meters; the tutorial's unit cells by default), the :class:`ModelParams` and the beam angles
@@ -38,7 +42,7 @@ from genjax import Pytree
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.geometry.raycast import angles, first_hit_distances
+from bayesmap.geometry.raycast import angles, first_hit_chords, first_hit_distances
 from bayesmap.model import motion, sensor
 
 
@@ -61,6 +65,9 @@ class ModelParams(Pytree):
         z_hit, z_short, z_max, z_rand: the beam mixture's weights (dynamic; >= 0, sum 1; PR eq. 6.12); unused by
             ``"normal"``. Defaults :data:`bayesmap.model.sensor.BEAM_DEFAULTS` (0.8, 0.05, 0.05, 0.1).
         lambda_short: rate of the beam model's short component, 1/m (dynamic; PR eq. 6.7); default 0.1.
+        geometry: ``"entry"`` (the tutorial's: a wall cell's reading is expected where the beam enters it) or
+            ``"chord"`` (the hit averaged over the beam's chord through the cell), static: see
+            :mod:`bayesmap.model.sensor`.
     """
 
     prior_wall_prob: float = 0.5
@@ -74,6 +81,7 @@ class ModelParams(Pytree):
     z_max: float = sensor.BEAM_DEFAULTS["z_max"]
     z_rand: float = sensor.BEAM_DEFAULTS["z_rand"]
     lambda_short: float = sensor.BEAM_DEFAULTS["lambda_short"]
+    geometry: str = Pytree.static(default="entry")
 
     @property
     def max_range(self) -> float:
@@ -125,18 +133,20 @@ def make_params(
     z_max: float = sensor.BEAM_DEFAULTS["z_max"],
     z_rand: float = sensor.BEAM_DEFAULTS["z_rand"],
     lambda_short: float = sensor.BEAM_DEFAULTS["lambda_short"],
+    geometry: str = "entry",
 ) -> ModelParams:
     """Build :class:`ModelParams` after checking every value.
 
     The first five arguments keep their positions; the sensor model's are keyword-only: ``beam_model``
     (``"normal"`` or ``"beam"``), the mixture weights ``z_hit, z_short, z_max, z_rand`` and ``lambda_short`` (1/m),
-    see :mod:`bayesmap.model.sensor` (checked for either model).
+    see :mod:`bayesmap.model.sensor` (checked for either model), and the wall ``geometry`` (``"entry"`` or
+    ``"chord"``).
 
     Raises:
         BayesmapError: if ``prior_wall_prob`` is not in (0, 1), ``sensor_noise`` is not finite and > 0,
             ``num_angles`` is not an integer >= 1, ``max_distance`` is not finite and > 0, ``beam_model`` is
-            unknown, or the mixture parameters are bad (:func:`bayesmap.model.sensor.check_sensor_params`); the message
-            names the bad value.
+            unknown, ``geometry`` is unknown, or the mixture parameters are bad
+            (:func:`bayesmap.model.sensor.check_sensor_params`); the message names the bad value.
     """
     p = float(prior_wall_prob)
     if not (0.0 < p < 1.0):
@@ -149,6 +159,7 @@ def make_params(
     if max_distance is not None and not (math.isfinite(float(max_distance)) and float(max_distance) > 0):
         raise BayesmapError(f"max_distance must be a finite number > 0 (meters), got {max_distance!r}")
     weights = sensor.check_sensor_params(beam_model, z_hit, z_short, z_max, z_rand, lambda_short)
+    sensor.check_geometry(geometry)
     return ModelParams(
         prior_wall_prob=p,
         sensor_noise=noise,
@@ -156,6 +167,7 @@ def make_params(
         grid=grid or Grid(shape=(21, 21)),
         max_distance=None if max_distance is None else float(max_distance),
         beam_model=beam_model,
+        geometry=geometry,
         **dict(zip(("z_hit", "z_short", "z_max", "z_rand", "lambda_short"), weights)),
     )
 
@@ -167,9 +179,16 @@ def walls_prior(shape: tuple[int, int]):
 
 @genjax.gen
 def sensor_model_single(pos, walls, params: ModelParams, angle):
-    """One beam, a scalar reading (meters) at address ``()`` given the exact distance ``d`` to the first wall
-    (capped at ``params.max_range``): ``Normal(d, sensor_noise)`` for ``beam_model="normal"`` (the tutorial's, through
-    ``genjax.normal`` exactly as before), the beam mixture :data:`bayesmap.model.sensor.beam_reading` for ``"beam"``."""
+    """One beam, a scalar reading (meters) at address ``()`` given the first wall: in the ``"entry"`` geometry its
+    exact distance ``d`` (capped at ``params.max_range``), ``Normal(d, sensor_noise)`` for ``beam_model="normal"``
+    (the tutorial's, through ``genjax.normal`` exactly as before) or the beam mixture
+    :data:`bayesmap.model.sensor.beam_reading` for ``"beam"``; in the ``"chord"`` geometry the entry and exit
+    distances ``(a, b)`` of the first wall cell (:func:`bayesmap.geometry.raycast.first_hit_chords`) and
+    :data:`~bayesmap.model.sensor.chord_normal_reading` or :data:`~bayesmap.model.sensor.chord_beam_reading`."""
+    if params.geometry == "chord":
+        chord = first_hit_chords(walls, pos, angle[None], params.grid, params.max_range)[0]
+        reading = sensor.reading_distribution(params.beam_model, "chord")
+        return reading(chord[0], chord[1], *params.sensor_args) @ ()
     exact = first_hit_distances(walls, pos, angle[None], params.grid, params.max_range)[0]
     if params.beam_model == "normal":
         return genjax.normal(exact, params.sensor_noise) @ ()
@@ -283,10 +302,34 @@ def simulate_scan_readings(key, walls, poses, params: ModelParams, beam_angles):
     return trace.get_retval()
 
 
-def reading_log_likelihood(readings, distances, params: ModelParams):
-    """Per-beam log-likelihood ``log p(y | d)`` of readings ``y`` given exact distances ``d`` (meters, same shape)
-    under ``params.beam_model``: :func:`bayesmap.model.sensor.reading_logpdf` with ``params.sensor_args``."""
-    return sensor.reading_logpdf(params.beam_model, jnp.asarray(readings), jnp.asarray(distances), params.sensor_args)
+def reading_log_likelihood(readings, distances, params: ModelParams, exit_distances=None):
+    """Per-beam log-likelihood ``log p(y | d)`` of readings ``y`` given the first wall's entry distances ``d``
+    (meters, same shape) under ``params.beam_model``: :func:`bayesmap.model.sensor.reading_logpdf` with
+    ``params.sensor_args``; in the ``"chord"`` geometry with the first wall cell's exit distances
+    ``exit_distances`` (meters, same shape).
+
+    Raises:
+        BayesmapError: if ``params.geometry`` is ``"chord"`` and ``exit_distances`` is None.
+    """
+    if params.geometry == "chord":
+        if exit_distances is None:
+            raise BayesmapError("the chord geometry needs the first wall cells' exit distances")
+        exit_distances = jnp.asarray(exit_distances)
+    else:
+        exit_distances = None
+    return sensor.reading_logpdf(params.beam_model, jnp.asarray(readings), jnp.asarray(distances), params.sensor_args,
+                                 exit_distances)
+
+
+def check_entry_geometry(params: ModelParams, what: str) -> None:
+    """Refuse the chord geometry where only the tutorial's entry geometry is implemented (``what`` names the caller:
+    the dense SLAM sweep and the pose moves compute only entry distances).
+
+    Raises:
+        BayesmapError: if ``params.geometry`` is not ``"entry"``, naming it and ``what``.
+    """
+    if params.geometry != "entry":
+        raise BayesmapError(f"{what} supports only geometry 'entry', got params.geometry = {params.geometry!r}")
 
 
 def model_args(pos, params: ModelParams, beam_angles=None) -> tuple:

@@ -25,7 +25,13 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raytable import RayTable, check_readings
 from bayesmap.model.generative import ModelParams, check_likelihood_power
-from bayesmap.model.sensor import beam_log_density, beam_log_max_mass, reading_logpdf
+from bayesmap.model.sensor import (
+    beam_log_density,
+    beam_log_max_mass,
+    chord_beam_log_density,
+    chord_beam_log_max_mass,
+    reading_logpdf,
+)
 
 
 class LikelihoodInputs(NamedTuple):
@@ -37,6 +43,9 @@ class LikelihoodInputs(NamedTuple):
         sensor_args: ``params.sensor_args`` as scalar arrays of ``dtype``.
         dtype: the kernel's float dtype (``jnp.result_type(float)``: float32 unless x64 is enabled).
         likelihood_power: ``eta`` in (0, 1] (:func:`tempered`).
+        geometry: ``params.geometry`` (``"entry"`` or ``"chord"``): with ``"chord"`` the tables score each pair's
+            chord, from its entry distance to its exit distance
+            (:attr:`~bayesmap.geometry.raytable.RayTable.pair_exits`).
     """
 
     readings: np.ndarray
@@ -44,6 +53,7 @@ class LikelihoodInputs(NamedTuple):
     sensor_args: tuple
     dtype: jnp.dtype
     likelihood_power: float
+    geometry: str = "entry"
 
 
 def check_max_range(table: RayTable, params: ModelParams) -> None:
@@ -80,7 +90,7 @@ def likelihood_inputs(table: RayTable, readings, params: ModelParams,
     dtype = jnp.result_type(float)
     sensor_args = tuple(jnp.asarray(a, dtype=dtype) for a in params.sensor_args)
     return LikelihoodInputs(readings=y, beam_model=params.beam_model, sensor_args=sensor_args, dtype=dtype,
-                            likelihood_power=eta)
+                            likelihood_power=eta, geometry=params.geometry)
 
 
 def tempered(log_likelihood, likelihood_power):
@@ -93,31 +103,44 @@ def tempered(log_likelihood, likelihood_power):
 
 
 @partial(jax.jit, static_argnames=("beam_model",))
-def log_likelihood_table(beam_model: str, sensor_args, y, d):
+def log_likelihood_table(beam_model: str, sensor_args, y, d, exit_distance=None):
     """``log p(y | d)`` of the sensor model ``beam_model`` (``sensor_args`` as :attr:`LikelihoodInputs.sensor_args`)
     for readings ``y`` and distances ``d`` (meters, broadcast shapes; result of their shape and dtype), 0 where ``d``
-    is ``inf`` (a block configuration that does not stop the ray: never selected)."""
-    ll = reading_logpdf(beam_model, y, d, sensor_args)
+    is ``inf`` (a block configuration that does not stop the ray: never selected). With ``exit_distance`` (meters,
+    broadcast with ``d``) the chord geometry's ``log p(y | d, exit_distance)``."""
+    finite = jnp.isfinite(d)
+    if exit_distance is None:
+        ll = reading_logpdf(beam_model, y, d, sensor_args)
+    else:  # the chord's closed form is evaluated at a finite chord where d is inf (and then not selected)
+        ll = reading_logpdf(beam_model, y, jnp.where(finite, d, 0.0), sensor_args,
+                            jnp.where(finite, exit_distance, 0.0))
     return jnp.where(jnp.isfinite(d), ll, 0.0)
 
 
 @partial(jax.jit, static_argnames=("beam_model",))
-def _pair_log_likelihood_table(beam_model, sensor_args, y, d, max_pairs):
-    """:func:`pair_log_likelihoods` from the readings ``y`` ``(P,)`` and distances ``d`` ``(P,)`` of the pairs and the
-    pairs ``max_pairs`` ``(K,)`` int whose reading is at or beyond the beam model's max range."""
-    if beam_model == "beam":  # what beam_logpdf selects, each part only where it is selected
+def _pair_log_likelihood_table(beam_model, sensor_args, y, d, max_pairs, exits=None):
+    """:func:`pair_log_likelihoods` from the readings ``y`` ``(P,)`` and distances ``d`` ``(P,)`` of the pairs (with
+    ``exits`` ``(P,)``, the chord geometry's exit distances) and the pairs ``max_pairs`` ``(K,)`` int whose reading is
+    at or beyond the beam model's max range."""
+    if beam_model == "beam" and exits is None:  # what beam_logpdf selects, each part only where it is selected
         ll = beam_log_density(y, d, *sensor_args)
         ll = ll.at[max_pairs].set(beam_log_max_mass(d[max_pairs], *sensor_args), indices_are_sorted=True,
                                   unique_indices=True)
+    elif beam_model == "beam":  # the same for chord_beam_logpdf
+        ll = chord_beam_log_density(y, d, exits, *sensor_args)
+        ll = ll.at[max_pairs].set(chord_beam_log_max_mass(d[max_pairs], exits[max_pairs], *sensor_args),
+                                  indices_are_sorted=True, unique_indices=True)
     else:
-        ll = reading_logpdf(beam_model, y, d, sensor_args)
+        ll = reading_logpdf(beam_model, y, d, sensor_args, exits)
     return jnp.append(jnp.where(jnp.isfinite(d), ll, 0.0), jnp.zeros(1, ll.dtype))
 
 
-def pair_log_likelihoods(table: RayTable, readings: np.ndarray, beam_model: str, sensor_args) -> jax.Array:
+def pair_log_likelihoods(table: RayTable, readings: np.ndarray, beam_model: str, sensor_args,
+                         geometry: str = "entry") -> jax.Array:
     """``(P + 1,)`` ``log p(y_r | t)`` of the sensor model ``beam_model`` (with ``sensor_args``, scalar arrays of the
     kernel dtype, as ``params.sensor_args``) for every (ray r, cell) pair of ``table``, then a 0 (the index ``P``
-    pads lookups): ``y_r`` from ``readings`` ``(R,)`` (meters), ``t`` the pair's stopping distance (meters).
+    pads lookups): ``y_r`` from ``readings`` ``(R,)`` (meters), ``t`` the pair's stopping distance (meters); in the
+    ``"chord"`` ``geometry`` ``log p(y_r | t, e)`` with ``e`` the pair's exit distance (:attr:`RayTable.pair_exits`).
 
     Equal to ``reading_logpdf(beam_model, y, t, sensor_args)`` element by element (the same operations), computed in
     one jitted call; for the beam model the point mass at the max range
@@ -129,5 +152,15 @@ def pair_log_likelihoods(table: RayTable, readings: np.ndarray, beam_model: str,
         max_pairs = table.ray_pairs(np.flatnonzero(y >= np.asarray(sensor_args[-1])))
     else:
         max_pairs = np.zeros(0, dtype=np.int64)
+    exits = np.asarray(table.pair_exits, dtype=dtype) if geometry == "chord" else None
     return _pair_log_likelihood_table(beam_model, sensor_args, table.per_pair(y),
-                                      np.asarray(table.pair_dists, dtype=dtype), max_pairs)
+                                      np.asarray(table.pair_dists, dtype=dtype), max_pairs, exits)
+
+
+def no_wall_log_likelihoods(inputs: LikelihoodInputs, max_distance: float) -> jax.Array:
+    """``(R,)`` ``log p(y_r | no wall)`` of every ray: the sensor model at the max distance (meters; in the chord
+    geometry the chord ``[max_distance, max_distance]``), in the kernel dtype."""
+    no_wall = jnp.asarray(max_distance, inputs.dtype)
+    exits = no_wall if inputs.geometry == "chord" else None
+    return log_likelihood_table(inputs.beam_model, inputs.sensor_args, jnp.asarray(inputs.readings, inputs.dtype),
+                                no_wall, exits)

@@ -42,6 +42,28 @@ The mixture (PR eq. 6.11) is therefore a probability measure on ``[0, M]`` for e
 hit's parts adding up to ``z_hit`` (tested by quadrature in ``tests/test_sensor.py``). Everything is computed in
 log space (``log_ndtr``, ``logsumexp``), so far tails do not underflow to ``-inf``.
 
+The chord geometry (``ModelParams.geometry = "chord"``)
+-----------------------------------------------------
+
+The tutorial's geometry (``"entry"``) expects a wall cell's reading at ``d = a``, the distance at which the beam
+enters the first wall cell. With ``"chord"`` the beam's first wall cell is entered at ``a`` and left at ``b >= a``
+(meters, ``b`` capped at the max range) and the reflecting surface lies anywhere on that chord, uniformly: the
+surface distance is ``x ~ Uniform[a, b]`` and the hit component is the sensor model's hit at ``x``, averaged over
+``x``. With ``Phi`` the standard Normal CDF and ``G(t) = t Phi(t) + phi(t)`` (``G' = Phi``):
+
+* ``"normal"``: ``f(y | a, b) = (Phi((y - a) / sigma) - Phi((y - b) / sigma)) / (b - a)``
+  (:func:`chord_normal_logpdf`), which tends to ``Normal(y; a, sigma)`` as ``b -> a``;
+* ``"beam"``: the hit is conditioned on ``y >= 0`` and censored at ``M`` *jointly* over ``(x, y)``: its density on
+  ``[0, M)`` is ``(Phi((y - a) / sigma) - Phi((y - b) / sigma)) / (sigma (G(b / sigma) - G(a / sigma)))`` and its
+  mass at ``M`` is ``(G((b - M) / sigma) - G((a - M) / sigma)) / (G(b / sigma) - G(a / sigma))``
+  (:func:`chord_beam_logpdf`); with ``b -> a`` both tend to the entry geometry's ``eta N(y; a, sigma)`` and
+  ``eta (1 - Phi((M - a) / sigma))``. The short component keeps ``d = a`` (objects in front of the wall).
+
+A beam with no wall within range has ``a = b = M``. The mixture (PR sec. 6.3) is Thrun, Burgard & Fox's; averaging
+its hit over the chord of the cell is bayesmap's own (derivation and stability in ``docs/sensor.md``). Everything
+is in log space (``log_ndtr``, log-differences of CDFs), and a chord shorter than :data:`CHORD_MIN_WIDTH` sigmas is
+scored at its midpoint, where the difference of CDFs would cancel (relative error below ``CHORD_MIN_WIDTH**2``).
+
 Default parameters (:data:`BEAM_DEFAULTS`)
 ------------------------------------------
 
@@ -66,12 +88,23 @@ import math
 import genjax
 import jax
 import jax.numpy as jnp
-from jax.scipy.special import log_ndtr, ndtr, ndtri
+from jax.scipy.special import erf, log_ndtr, ndtr, ndtri
 
 from bayesmap.errors import BayesmapError
 
 SENSOR_MODELS = ("normal", "beam")
 """Names of the sensor models (``ModelParams.beam_model``)."""
+
+GEOMETRIES = ("entry", "chord")
+"""Names of the wall geometries (``ModelParams.geometry``): the reading expected at the face where the beam enters
+the first wall cell (the tutorial's), or the hit averaged over the beam's chord through that cell (module
+docstring)."""
+
+CHORD_MIN_WIDTH = 1.0e-3
+"""Chords shorter than this many ``sigma`` are scored at their midpoint (the Normal or hit at ``(a + b) / 2``): the
+difference of CDFs would cancel, and the midpoint's relative error is below ``CHORD_MIN_WIDTH**2 (1 + z**2) / 24``."""
+
+_ASYMPTOTIC_G = -10.0  # below this t, log G(t) from its asymptotic series (the direct formula cancels)
 
 MIN_SHORT_DISTANCE = 1.0e-6
 """Shortest interval ``[0, d]`` of the short component, meters (its normalizer is infinite at ``d = 0``)."""
@@ -199,6 +232,184 @@ def beam_sample(key, d, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_
     return jnp.asarray(candidates[comp], dtype)
 
 
+# --- The chord geometry: the hit averaged over the beam's chord through the first wall cell -----------------------
+
+
+def _log_diff_exp(larger, smaller):
+    """``log(exp(larger) - exp(smaller))`` for ``larger >= smaller`` (arrays), ``-inf`` where both are ``-inf``."""
+    gap = jnp.minimum(smaller - larger, 0.0)
+    return jnp.where(jnp.isneginf(larger), -jnp.inf, larger + jnp.log(-jnp.expm1(gap)))
+
+
+def log_ndtr_difference(upper, lower):
+    """``log(Phi(upper) - Phi(lower))`` for ``upper >= lower`` (arrays, broadcast), stable in both tails: the
+    difference of upper-tail CDFs where both are above 0, of lower-tail CDFs where both are below 0 (each as a
+    log-difference of ``log_ndtr``), and ``(erf(upper / sqrt 2) - erf(lower / sqrt 2)) / 2`` (two terms of one sign,
+    no cancellation) where they straddle 0. ``-inf`` where ``upper == lower``. Never raises."""
+    upper, lower = jnp.asarray(upper), jnp.asarray(lower)
+    above = _log_diff_exp(log_ndtr(-lower), log_ndtr(-upper))
+    below = _log_diff_exp(log_ndtr(upper), log_ndtr(lower))
+    straddle = jnp.log(0.5 * (erf(upper / math.sqrt(2.0)) - erf(lower / math.sqrt(2.0))))
+    return jnp.where(lower > 0, above, jnp.where(upper < 0, below, straddle))
+
+
+def log_normal_partial_expectation(t):
+    """``log G(t)`` with ``G(t) = t Phi(t) + phi(t) = int_{-inf}^t Phi(u) du = E[(t - Z)^+]`` (``Z`` standard
+    Normal), for any ``t`` (array, float): directly for ``t >= -10`` (the cancellation of the two terms costs at most
+    a factor ``t**2 = 100`` of rounding), else from the asymptotic series ``G(t) = phi(t) / t**2 (1 - 3 / t**2 +
+    15 / t**4 - 105 / t**6 + ...)`` (Abramowitz & Stegun 7.1.23 for the Mills ratio; truncation below 1e-5).
+    Never raises."""
+    t = jnp.asarray(t)
+    direct_t = jnp.maximum(t, _ASYMPTOTIC_G)
+    direct = jnp.log(direct_t * ndtr(direct_t) + jnp.exp(-0.5 * direct_t * direct_t - _HALF_LOG_2PI))
+    far = jnp.minimum(t, _ASYMPTOTIC_G)
+    inv = 1.0 / (far * far)
+    series = (-0.5 * far * far - _HALF_LOG_2PI + jnp.log(inv)
+              + jnp.log1p(inv * (-3.0 + inv * (15.0 - 105.0 * inv))))
+    return jnp.where(t >= _ASYMPTOTIC_G, direct, series)
+
+
+def _chord_parts(a, b, sigma):
+    """``(width in sigmas, wide, safe width, midpoint)`` of chords ``[a, b]``: ``wide`` where the chord is at least
+    :data:`CHORD_MIN_WIDTH` sigmas long (scored by the closed form), else at the midpoint."""
+    a, b = jnp.asarray(a), jnp.asarray(b)
+    width = (b - a) / sigma
+    wide = width >= CHORD_MIN_WIDTH
+    return width, wide, jnp.where(wide, width, 1.0), 0.5 * (a + b)
+
+
+def chord_normal_logpdf(y, a, b, sigma):
+    """The Normal averaged over the chord: ``log f(y | a, b)``, ``f = (Phi((y - a) / sigma) - Phi((y - b) / sigma))
+    / (b - a)``, the density of ``x + sigma Z`` with ``x ~ Uniform[a, b]`` (see the module docstring).
+
+    Args:
+        y: reading(s), meters (any shape).
+        a: entry distance(s) of the first wall cell, meters (broadcast).
+        b: exit distance(s), meters, ``b >= a`` (broadcast); ``b == a`` gives :func:`normal_logpdf` at ``a``.
+        sigma: standard deviation, meters, > 0.
+
+    Returns:
+        ``broadcast(y, a, b)`` float log-density (1/m); chords shorter than :data:`CHORD_MIN_WIDTH` sigmas are
+        scored at the midpoint. Never raises.
+    """
+    y = jnp.asarray(y)
+    _, wide, safe, mid = _chord_parts(a, b, sigma)
+    upper = (y - a) / sigma
+    lower = jnp.where(wide, upper - safe, upper - 1.0)
+    averaged = log_ndtr_difference(upper, lower) - jnp.log(safe) - jnp.log(sigma)
+    return jnp.where(wide, averaged, normal_logpdf(y, mid, sigma))
+
+
+def _chord_log_mass_hit(a, b, sigma):
+    """``log P(hit >= 0)`` over the chord: ``log((1 / w) int_{a/sigma}^{b/sigma} Phi(t) dt)`` (``w = (b - a) /
+    sigma``), computed as ``log1p((G(-b / sigma) - G(-a / sigma)) / w)`` (``G(t) - G(-t) = t``; both ``G`` terms are
+    at most ``phi(0)``, so nothing cancels for ``a >= 0``); ``log Phi(mid / sigma)`` for short chords."""
+    _, wide, safe, mid = _chord_parts(a, b, sigma)
+    def g(t):
+        return t * ndtr(t) + jnp.exp(-0.5 * t * t - _HALF_LOG_2PI)
+
+    averaged = jnp.log1p((g(-jnp.asarray(b) / sigma) - g(-jnp.asarray(a) / sigma)) / safe)
+    return jnp.where(wide, averaged, log_ndtr(mid / sigma))
+
+
+def chord_beam_log_density(y, a, b, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range):
+    """The continuous part of the chord beam mixture (:func:`chord_beam_logpdf` for readings below the max range):
+    the hit averaged over the chord ``[a, b]`` and conditioned on ``y >= 0`` jointly, the short component on
+    ``[0, a]``, the uniform. Arguments as :func:`chord_beam_logpdf`.
+
+    Returns:
+        ``broadcast(y, a, b)`` float ``log f(y | a, b)`` (1/m), ``-inf`` for ``y < 0``. Never raises.
+    """
+    y = jnp.asarray(y)
+    log_hit = jnp.log(z_hit) + chord_normal_logpdf(y, a, b, sigma) - _chord_log_mass_hit(a, b, sigma)
+    d_short = jnp.maximum(jnp.asarray(a), MIN_SHORT_DISTANCE)
+    log_short = (jnp.log(z_short) + jnp.log(lambda_short) - lambda_short * y
+                 - jnp.log(-jnp.expm1(-lambda_short * d_short)))
+    log_short = jnp.where(y <= d_short, log_short, -jnp.inf)
+    log_rand = jnp.broadcast_to(jnp.log(z_rand) - jnp.log(max_range), log_hit.shape)
+    return jnp.where(y < 0, -jnp.inf, _logsumexp(log_hit, jnp.broadcast_to(log_short, log_hit.shape), log_rand))
+
+
+def chord_beam_log_max_mass(a, b, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range):
+    """The point mass of the chord beam mixture at the max range: ``log(z_max + z_hit P(hit censored to M))`` with
+    ``P = (G((b - M) / sigma) - G((a - M) / sigma)) / (G(b / sigma) - G(a / sigma))`` (module docstring), the
+    numerator as a log-difference of :func:`log_normal_partial_expectation` (stable far below the max range).
+    Arguments as :func:`chord_beam_logpdf` without ``y``.
+
+    Returns:
+        ``broadcast(a, b)`` float log-probability. Never raises.
+    """
+    a, b = jnp.asarray(a), jnp.asarray(b)
+    _, wide, safe, mid = _chord_parts(a, b, sigma)
+    hi = jnp.where(wide, (b - max_range) / sigma, 0.0)
+    lo = jnp.where(wide, (a - max_range) / sigma, -1.0)
+    averaged = _log_diff_exp(log_normal_partial_expectation(hi), log_normal_partial_expectation(lo)) - jnp.log(safe)
+    log_censored = jnp.where(wide, averaged, log_ndtr((mid - max_range) / sigma))
+    log_tail = jnp.log(z_hit) + log_censored - _chord_log_mass_hit(a, b, sigma)
+    return jnp.logaddexp(jnp.log(z_max), log_tail)
+
+
+def chord_beam_logpdf(y, a, b, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range):
+    """Log-density of the beam mixture with its hit averaged over the chord ``[a, b]`` of the first wall cell
+    (module docstring; PR sec. 6.3 for the mixture, the chord averaging is bayesmap's).
+
+    Args:
+        y: reading(s), meters; ``y >= max_range`` is a max-range reading.
+        a: entry distance of the first wall cell, meters, in ``[0, max_range]`` (``max_range``: no wall).
+        b: exit distance, meters, ``a <= b <= max_range`` (``b == a``: :func:`beam_logpdf` at ``d = a``).
+        sigma: hit standard deviation (``sensor_noise``), meters, > 0; the remaining arguments (``z_hit``,
+            ``z_short``, ``z_max``, ``z_rand``, ``lambda_short``, ``max_range``) as :func:`beam_logpdf`.
+
+    Returns:
+        ``broadcast(y, a, b)`` float: ``log f(y | a, b)`` for ``0 <= y < M`` (1/m), ``log P(y = M | a, b)`` for
+        ``y >= M``, ``-inf`` for ``y < 0``. Never raises.
+    """
+    args = (sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range)
+    continuous = chord_beam_log_density(y, a, b, *args)
+    return jnp.where(jnp.asarray(y) >= max_range, chord_beam_log_max_mass(a, b, *args), continuous)
+
+
+CHORD_PROPOSALS = 32
+"""Proposals of :func:`chord_beam_sample`'s rejection step (each accepted with probability >= 1/2)."""
+
+
+def chord_normal_sample(key, a, b, sigma):
+    """One draw of :func:`chord_normal_logpdf`: ``x ~ Uniform[a, b]``, then ``x + sigma Z`` (scalar, meters)."""
+    k_x, k_z = jax.random.split(key)
+    a = jnp.asarray(a)
+    x = a + (jnp.asarray(b) - a) * jax.random.uniform(k_x, a.shape, a.dtype)
+    return x + sigma * jax.random.normal(k_z, a.shape, a.dtype)
+
+
+def chord_beam_sample(key, a, b, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range):
+    """One draw of :func:`chord_beam_logpdf` (scalar ``a``, ``b``; meters). The hit draws the surface ``x`` from
+    its law given ``y >= 0`` (density proportional to ``Phi(x / sigma)`` on ``[a, b]``: uniform proposals accepted
+    with probability ``Phi(x / sigma) >= 1/2``, the first of :data:`CHORD_PROPOSALS` accepted, so a draw is exact
+    but for probability ``2**-32``), then ``y`` as :func:`beam_sample`'s hit at ``x``; the other components as
+    :func:`beam_sample` with ``d = a``."""
+    a = jnp.asarray(a)
+    dtype = jnp.result_type(a.dtype, float)
+    k_x, k_acc, k_rest = jax.random.split(key, 3)
+    xs = a + (jnp.asarray(b) - a) * jax.random.uniform(k_x, (CHORD_PROPOSALS,), dtype)
+    accept = jax.random.uniform(k_acc, (CHORD_PROPOSALS,), dtype) < ndtr(xs / sigma)
+    x = xs[jnp.argmax(accept)]
+    draw = beam_sample(k_rest, a, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range)
+    k_comp, k_u = jax.random.split(k_rest)  # beam_sample's own keys: the same component and uniform
+    weights = jnp.stack([jnp.asarray(w, dtype) for w in (z_hit, z_short, z_max, z_rand)])
+    comp = jax.random.categorical(k_comp, jnp.log(weights))
+    u = jax.random.uniform(k_u, a.shape, dtype=dtype)
+    hit = jnp.minimum(x - sigma * ndtri(u * ndtr(x / sigma)), max_range)
+    return jnp.asarray(jnp.where(comp == 0, hit, draw), dtype)
+
+
+chord_normal_reading = genjax.exact_density(chord_normal_sample, chord_normal_logpdf, name="chord_normal_reading")
+"""GenJAX distribution of the ``"normal"`` model in the chord geometry, arguments ``(a, b, sigma)``."""
+
+chord_beam_reading = genjax.exact_density(chord_beam_sample, chord_beam_logpdf, name="chord_beam_reading")
+"""GenJAX distribution of the ``"beam"`` model in the chord geometry, arguments ``(a, b, sigma, z_hit, z_short,
+z_max, z_rand, lambda_short, max_range)``."""
+
+
 normal_reading = genjax.normal
 """GenJAX distribution of the ``"normal"`` model: ``genjax.normal``, arguments ``(d, sigma)``."""
 
@@ -207,29 +418,35 @@ beam_reading = genjax.exact_density(beam_sample, beam_logpdf, name="beam_reading
 max_range)``: ``simulate`` draws with :func:`beam_sample`, ``assess`` scores with :func:`beam_logpdf`."""
 
 
-def reading_distribution(beam_model: str):
-    """The GenJAX distribution of ``beam_model`` (:data:`normal_reading` or :data:`beam_reading`); it takes
-    ``(d, *sensor_args)``, see :func:`reading_logpdf`.
+def reading_distribution(beam_model: str, geometry: str = "entry"):
+    """The GenJAX distribution of ``beam_model`` in ``geometry``: :data:`normal_reading` or :data:`beam_reading`
+    (``"entry"``, arguments ``(d, *sensor_args)``), :data:`chord_normal_reading` or :data:`chord_beam_reading`
+    (``"chord"``, arguments ``(a, b, *sensor_args)``); see :func:`reading_logpdf`.
 
     Raises:
-        BayesmapError: on an unknown name.
+        BayesmapError: on an unknown model or geometry name.
     """
     check_beam_model(beam_model)
+    if check_geometry(geometry) == "chord":
+        return chord_normal_reading if beam_model == "normal" else chord_beam_reading
     return normal_reading if beam_model == "normal" else beam_reading
 
 
-def reading_logpdf(beam_model: str, y, d, sensor_args: tuple):
-    """Log-density of readings ``y`` given exact distances ``d`` (meters, broadcast) under ``beam_model``.
+def reading_logpdf(beam_model: str, y, d, sensor_args: tuple, exit_distance=None):
+    """Log-density of readings ``y`` given the first wall's distances ``d`` (meters, broadcast) under ``beam_model``.
 
     Args:
         beam_model: ``"normal"`` or ``"beam"`` (static).
         y: readings, meters.
-        d: exact distances to the first wall, meters (broadcast with ``y``).
+        d: entry distances of the first wall cell, meters (broadcast with ``y``).
         sensor_args: ``(sigma,)`` for ``"normal"``; ``(sigma, z_hit, z_short, z_max, z_rand, lambda_short,
             max_range)`` for ``"beam"`` (``ModelParams.sensor_args``).
+        exit_distance: None for the tutorial's entry geometry; else the chord geometry's exit distances ``b >= d``
+            (meters, broadcast).
 
     Returns:
-        ``broadcast(y, d)`` float (:func:`normal_logpdf` or :func:`beam_logpdf`).
+        ``broadcast(y, d)`` float (:func:`normal_logpdf` or :func:`beam_logpdf`; with ``exit_distance``
+        :func:`chord_normal_logpdf` or :func:`chord_beam_logpdf`).
 
     Raises:
         BayesmapError: on an unknown model name or the wrong number of arguments.
@@ -238,7 +455,18 @@ def reading_logpdf(beam_model: str, y, d, sensor_args: tuple):
     want = 1 if beam_model == "normal" else 7
     if len(sensor_args) != want:
         raise BayesmapError(f"sensor model {beam_model!r} takes {want} parameters, got {len(sensor_args)}")
+    if exit_distance is not None:
+        logpdf = chord_normal_logpdf if beam_model == "normal" else chord_beam_logpdf
+        return logpdf(y, d, exit_distance, *sensor_args)
     return normal_logpdf(y, d, *sensor_args) if beam_model == "normal" else beam_logpdf(y, d, *sensor_args)
+
+
+def check_geometry(geometry) -> str:
+    """Return ``geometry`` if it names a wall geometry (:data:`GEOMETRIES`), else raise :class:`BayesmapError`
+    naming it."""
+    if geometry not in GEOMETRIES:
+        raise BayesmapError(f"unknown geometry {geometry!r}; choose one of {', '.join(GEOMETRIES)}")
+    return geometry
 
 
 def check_beam_model(beam_model) -> str:
