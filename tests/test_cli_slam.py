@@ -42,7 +42,7 @@ def test_slam_writes_all_outputs(tmp_path, monkeypatch, capsys):
 
 
 @pytest.mark.parametrize("args, match", [
-    (["--log", "x.log"], "not yet"),
+    (["--log", "x.log"], "'x.log' does not exist"),
     (["--num-poses", "1"], "--num-poses"),
     (["--num-poses", "65"], "--num-poses"),
     (["--sweeps", "0"], "--sweeps"),

@@ -5,6 +5,7 @@ User errors (bad files, values, folders) print one line ``error: ...`` on stderr
 
 from __future__ import annotations
 
+import inspect
 import io
 import json
 import math
@@ -23,16 +24,24 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.heldout import evaluate_log, evaluate_truth
 from bayesmap.evaluation.trajectory import score_trajectory
 from bayesmap.inference.driver import run_inference, run_logodds
+from bayesmap.inference.logslam import run_log_slam
 from bayesmap.inference.registry import SAMPLERS
 from bayesmap.inference.slam import run_slam
 from bayesmap.inference.traces import chain_traces
 from bayesmap.io.ascii import load_map, tutorial_map
 from bayesmap.io.carmen import CarmenLog, read_carmen
 from bayesmap.io.files import check_replaceable_folder, read_bytes, replace_folder, write_atomic
-from bayesmap.io.maps_out import NPZ_FILE, encode_png16, encode_posterior_npz, posterior_std, seen_cells
+from bayesmap.io.maps_out import (
+    NPZ_FILE,
+    encode_png16,
+    encode_posterior_npz,
+    posterior_std,
+    seen_cells,
+    seen_cells_along,
+)
 from bayesmap.io.rosbag import STORAGES, read_bag, write_log_bag, write_occupancy_grid_bag
 from bayesmap.io.rosmap import encode_rosmap, read_rosmap
-from bayesmap.io.tum import write_tum
+from bayesmap.io.tum import encode_tum, match_stamps, read_tum, tum_stamps
 from bayesmap.scenes import log_problem, scan_problem, tutorial_problem
 from bayesmap.viz.common import figure_bytes
 from bayesmap.viz.maps import plot_posterior, plot_posterior_path
@@ -377,6 +386,14 @@ EVALUATE_MAX_RANGE_HELP = ("max range, meters: --truth, of the simulated sensor 
                            f"(default {scenes.SIMULATED_MAX_RANGE:g}); "
                            "--log, of the laser (default inferred from the log)")
 EVALUATE_SENSOR_NOISE_HELP = "standard deviation of a reading, meters (default half a cell)"
+EVALUATE_SWEEPS = 100
+"""``evaluate``'s Gibbs sweeps of a map (half burn-in); with --truth-trajectory a SLAM run's (``bayesmap slam``'s)."""
+EVALUATE_SWEEPS_HELP = (f"Gibbs sweeps (default {EVALUATE_SWEEPS}, half burn-in); with --truth-trajectory the "
+                        "SLAM run's, as bayesmap slam --sweeps")
+TRUTH_TRAJECTORY_HELP = ("a true trajectory (TUM: t x y z qx qy qz qw) of --log's scans: score SLAM's path and the "
+                         "raw odometry against it (ATE, RPE over 1 and 10 scans, 95 % ellipse coverage)")
+RUN_HELP = ("with --truth-trajectory: score this bayesmap slam output folder (trajectory.tum, pose_cov.npy) instead "
+            "of running SLAM on --log")
 EVALUATE_RANGE_OFFSET_HELP = ("--log: meters the model subtracts from each returned reading (default one cell "
                               "with --geometry entry, 0 with chord)")
 
@@ -631,6 +648,118 @@ def _format_scores(scores: dict) -> str:
     return "\n".join(lines)
 
 
+TRAJECTORY_COLUMNS = (("ate_rmse_m", "ATE m"), ("rpe1_trans_rmse_m", "RPE1 m"), ("rpe1_rot_rmse_deg", "RPE1 deg"),
+                      ("rpe10_trans_rmse_m", "RPE10 m"), ("rpe10_rot_rmse_deg", "RPE10 deg"),
+                      ("coverage", "cover95"))
+"""The columns of ``evaluate --truth-trajectory``'s table: the keys of
+:func:`bayesmap.evaluation.trajectory.score_trajectory` and their headings."""
+
+
+def _format_trajectory_scores(scores: dict) -> str:
+    """The trajectory table: one row per method (bayesmap, odometry), :data:`TRAJECTORY_COLUMNS` as columns."""
+    lines = [f"{'method':<10}" + "".join(f"{head:>11}" for _, head in TRAJECTORY_COLUMNS)]
+    for name in ("bayesmap", "odometry"):
+        vals = scores[name]
+        lines.append(f"{name:<10}" + "".join(f"{'-':>11}" if vals.get(key) is None else f"{vals[key]:>11.4f}"
+                                              for key, _ in TRAJECTORY_COLUMNS))
+    return "\n".join(lines)
+
+
+def _load_npy(path: Path, what: str) -> np.ndarray:
+    """A ``.npy`` array (no pickles), or a BayesmapError naming the file."""
+    name, data = read_bytes(path, what)
+    try:
+        return np.load(io.BytesIO(data), allow_pickle=False)
+    except (ValueError, OSError, EOFError) as err:
+        raise BayesmapError(f"{what} {name!r} is not a .npy array: {_one_line(err)}") from None
+
+
+def read_slam_run(run: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The trajectory of a ``bayesmap slam`` output folder: ``(stamps (S,), mean path (S, 3), pose_cov (S, 3, 3))``
+    from its trajectory.tum and pose_cov.npy (x, y m, theta rad; covariances m^2, m rad, rad^2).
+
+    Raises:
+        BayesmapError: naming the folder or file: not a folder, a file missing or unreadable, or a pose_cov.npy
+            whose shape does not match the trajectory's poses.
+    """
+    run = Path(run)
+    if not run.is_dir():
+        raise BayesmapError(f"--run {str(run)!r} is not a folder (give the --out folder of bayesmap slam)")
+    stamps, mean = read_tum(run / "trajectory.tum")
+    cov = _load_npy(run / "pose_cov.npy", "pose covariances")
+    if cov.shape != (len(mean), 3, 3):
+        raise BayesmapError(f"{str(run / 'pose_cov.npy')!r} has shape {cov.shape}, but trajectory.tum has "
+                            f"{len(mean)} poses: expected ({len(mean)}, 3, 3)")
+    return stamps, mean, cov.astype(np.float64)
+
+
+def truth_of_scans(truth_stamps, truth_poses, scans, stamps, num_log_scans: int, name: str = "the truth"):
+    """The true pose of each scan of a run, and how it was paired: ``((S, 3) poses, "order" or "timestamp")``.
+
+    By order when the truth has one pose per scan of the run (``S`` poses) or of the whole log (``num_log_scans``
+    poses: those of the run's ``scans``); otherwise by timestamp (:func:`bayesmap.io.tum.match_stamps`: each of the
+    run's ``stamps`` to the truth stamp within :data:`bayesmap.io.tum.STAMP_TOLERANCE`).
+
+    Args:
+        truth_stamps: ``(T,)`` stamps of the truth (seconds or scan indices); truth_poses: ``(T, 3)`` (x, y m,
+            theta rad).
+        scans: ``(S,)`` indices of the run's scans in the log; stamps: ``(S,)`` their TUM stamps.
+        num_log_scans: the log's number of scans; name: the truth's name for messages.
+
+    Raises:
+        BayesmapError: naming the counts, if neither rule pairs every scan.
+    """
+    truth_poses = np.asarray(truth_poses, dtype=np.float64)
+    count, s = len(truth_poses), len(scans)
+    if count == s:
+        return truth_poses, "order"
+    if count == num_log_scans:
+        return truth_poses[np.asarray(scans)], "order"
+    try:
+        return truth_poses[match_stamps(stamps, truth_stamps)], "timestamp"
+    except BayesmapError as err:
+        raise BayesmapError(f"{name} has {count} poses, not one per scan of the run ({s}) or of the log "
+                            f"({num_log_scans}), and its stamps do not pair with the run's: {err}") from None
+
+
+def _evaluate_trajectory(log, bag, scan_topic, odom_topic, tf, max_range, truth_path: Path, run: Optional[Path],
+                         scans, resolution, sweeps, seed, json_file) -> None:
+    """``evaluate --truth-trajectory``: the scores of SLAM's path (a run of :func:`run_log_slam` on the log, or the
+    folder ``run``) and of the log's odometry against the true trajectory; prints the table, writes ``json_file``."""
+    truth_stamps, truth_poses = read_tum(truth_path)
+    if run is not None:
+        if scans is not None or sweeps is not None:
+            raise BayesmapError("--scans and --sweeps describe a new SLAM run; --run DIR is scored on its own scans")
+        stamps, mean, cov = read_slam_run(run)
+    carmen = _read_log(log, bag, scan_topic, odom_topic, tf, max_range)
+    path = log if log is not None else bag
+    log_stamps = tum_stamps(carmen.timestamps)
+    setup = {"log": str(path), "truth": str(truth_path), "log_scans": len(carmen)}
+    if run is not None:
+        try:
+            chosen = match_stamps(stamps, log_stamps)
+        except BayesmapError as err:
+            raise BayesmapError(f"{str(run / 'trajectory.tum')!r} is not a path of {path.name}'s scans: its stamps "
+                                f"are not the log's (scan timestamps, or indices where they do not increase "
+                                f"strictly): {err}") from None
+        setup["run"] = str(run)
+    else:
+        _, result, chosen, settings = _log_slam(carmen, path, scans, resolution, sweeps, None, seed)
+        stamps, mean, cov = log_stamps[chosen], result.mean_path, result.pose_cov
+        setup.update(settings=settings, runtime_s=result.runtime_s, acceptance_rate=result.acceptance_rate)
+    truth, paired = truth_of_scans(truth_stamps, truth_poses, chosen, stamps, len(carmen), name=str(truth_path))
+    setup.update(scans=len(chosen), paired_by=paired)
+    scores = {"setup": setup, "bayesmap": score_trajectory(mean, truth, cov),
+              "odometry": score_trajectory(np.asarray(carmen.poses, np.float64)[chosen], truth)}
+    source = f"the run in {run}" if run is not None else f"a new run ({setup['runtime_s']:.1f} s)"
+    typer.echo(f"{path.name}: {len(chosen)} scans, {source}, against {truth_path.name} (paired by {paired}); "
+               "ATE after the best rigid 2-D alignment, RPE over 1 and 10 scans, coverage of the 95 % ellipses")
+    typer.echo(_format_trajectory_scores(scores))
+    if json_file is not None:
+        write_atomic(json_file, json.dumps(scores, indent=2) + "\n", overwrite=True)
+        typer.echo(f"wrote {json_file}")
+
+
 @app.command()
 def evaluate(
     log: Optional[Path] = typer.Option(None, "--log", help=EVALUATE_LOG_HELP),
@@ -639,13 +768,16 @@ def evaluate(
     odom_topic: str = typer.Option("/odom", "--odom-topic", help="--bag: topic of the nav_msgs/Odometry poses"),
     tf: bool = typer.Option(False, "--tf", help="--bag: the robot's poses from /tf (odom -> base_link), not odometry"),
     truth: Optional[Path] = typer.Option(None, "--truth", help=EVALUATE_TRUTH_HELP),
+    truth_trajectory: Optional[Path] = typer.Option(None, "--truth-trajectory", help=TRUTH_TRAJECTORY_HELP),
+    run: Optional[Path] = typer.Option(None, "--run", help=RUN_HELP),
     scans: Optional[str] = typer.Option(None, "--scans", help=EVALUATE_SCANS_HELP),
     every: int = typer.Option(10, "--every", help="hold out every k-th scan"),
     resolution: float = typer.Option(scenes.RESOLUTION,
                                      help="meters per cell (--log; for a bare .pgm --truth, its pixel size)",
                                      callback=_in_range("--resolution", 0, MAX_RESOLUTION, lo_open=True, unit=" m")),
     sampler: str = _sampler_option("cellwise"),
-    sweeps: int = typer.Option(100, help="Gibbs sweeps (half burn-in)", callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
+    sweeps: Optional[int] = typer.Option(None, "--sweeps", help=EVALUATE_SWEEPS_HELP,
+                                         callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
     beam_model: str = typer.Option(scenes.LOG_BEAM_MODEL, "--beam-model",
                                    help="sensor model of mapping and scoring: beam or normal"),
     num_poses: int = typer.Option(scenes.SIMULATED_NUM_POSES, "--num-poses", help="--truth: number of simulated scans",
@@ -670,8 +802,23 @@ def evaluate(
     force: bool = typer.Option(False, "--force", help="replace the --json file if it exists"),
 ) -> None:
     """Score bayesmap against log-odds mapping: on held-out beams of a log (occupancy AUC, predictive NLL), or
-    against a known floor plan (accuracy, AUC, Brier score)."""
+    against a known floor plan (accuracy, AUC, Brier score). With --truth-trajectory, score SLAM's path (a new run
+    on the log, or the folder --run) and the log's raw odometry against the true trajectory (ATE, RPE, coverage of
+    the 95 % pose ellipses)."""
 
+    if truth_trajectory is not None or run is not None:
+        if truth_trajectory is None:
+            raise BayesmapError("--run DIR needs --truth-trajectory TRUE.tum (and --log FILE)")
+        if truth is not None:
+            raise BayesmapError("give either --truth (a floor plan) or --truth-trajectory (a true path), not both")
+        if log is None and bag is None:
+            raise BayesmapError("--truth-trajectory needs --log FILE (or --bag PATH): the log whose path it is")
+        if json_file is not None and json_file.exists() and not force:
+            raise BayesmapError(f"{str(json_file)!r} already exists; pass --force to replace it")
+        _evaluate_trajectory(log, bag, scan_topic, odom_topic, tf, max_range, truth_trajectory, run, scans,
+                             resolution, sweeps, seed, json_file)
+        return
+    sweeps = EVALUATE_SWEEPS if sweeps is None else sweeps
     if (log is None and bag is None) == (truth is None):
         raise BayesmapError("give either --log FILE or --truth FILE (a ROS bag: --bag PATH, as --log)")
     if json_file is not None and json_file.exists() and not force:
@@ -713,89 +860,208 @@ def evaluate(
 
 SLAM_OUTPUT_FILES = ("trajectory.tum", "trajectory_samples.npy", "pose_cov.npy")
 """What ``bayesmap slam`` writes besides posterior.npy, posterior.png, summary.json and report.html."""
+SLAM_OWNED_FILES = ALL_OUTPUT_FILES + SLAM_OUTPUT_FILES
+"""Every file a ``bayesmap slam`` run may write into its output folder."""
+
+TUTORIAL_SLAM_SWEEPS = 60
+"""``bayesmap slam``'s sweeps on the tutorial scene (a third burn-in); on a log the runner's default."""
+TUTORIAL_SLAM_POSES = 8
+"""Poses on the tutorial scene's loop (``--num-poses``)."""
+LOG_SLAM_DEFAULTS = {{"rounds": "sweeps"}.get(name, name): p.default
+                     for name, p in inspect.signature(run_log_slam).parameters.items() if name in ("rounds", "burn_in")}
+"""``run_log_slam``'s own rounds and burn-in rounds: ``bayesmap slam --log`` without --sweeps and --burn-in runs them
+(on a log, one "sweep" of the joint chain is a round: map sweeps given the poses, then pose sweeps given the map)."""
+
+SLAM_LOG_HELP = "a CARMEN log whose pose fields hold odometry (a raw log): infer its path and map"
+SLAM_SWEEPS_HELP = (f"joint sweeps (pose moves, then a map sweep); default {TUTORIAL_SLAM_SWEEPS} on the tutorial "
+                    "scene; on --log / --bag the joint chain's rounds (map sweeps, then pose sweeps), default "
+                    "the runner's (bayesmap.inference.logslam)")
+SLAM_BURN_IN_HELP = ("sweeps dropped before averaging (default: a third of --sweeps; on --log / --bag without "
+                     "--sweeps, the runner's)")
 
 
-def _slam_files(problem, result, settings: dict, report: bool) -> tuple[dict, dict[str, bytes]]:
-    """The summary and the output files of a ``bayesmap slam`` run (see :func:`slam`)."""
-    import tempfile
+def _check_slam_output_dir(out: Path, force: bool) -> None:
+    """:func:`_check_output_dir` for ``bayesmap slam``, whose outputs include :data:`SLAM_OUTPUT_FILES`."""
+    _check_output_dir(out, force)
+    clash = [name for name in SLAM_OUTPUT_FILES if (out / name).exists()] if out.is_dir() and not force else []
+    if clash:
+        raise BayesmapError(f"{str(out / clash[0])!r} already exists; pass --force to replace bayesmap's outputs "
+                            f"in {str(out)!r}")
 
 
-    summary = {
-        "source": problem.source,
-        "settings": settings,
-        "runtime_s": result.runtime_s,
-        "acceptance_rate": result.acceptance_rate,
-        "posterior": score_trajectory(result.mean_path, problem.true_poses, result.pose_cov),
-        "odometry": score_trajectory(problem.odometry, problem.true_poses),
-        "map_cells_wrong": int(np.sum((result.posterior > 0.5) != (problem.truth > 0))),
-    }
-    fig = plot_slam(problem.params.grid, result.posterior, result.mean_path, result.pose_cov, result.pose_samples,
-                    true_path=problem.true_poses, odometry=problem.odometry, truth=problem.truth,
-                    title=f"bayesmap slam: {problem.num_scans} poses, {settings['sweeps']} sweeps")
+def _slam_counts(sweeps: Optional[int], burn_in: Optional[int], default: dict) -> tuple[int, int]:
+    """``(sweeps, burn_in)`` of a SLAM run: the given ones, ``default`` (``{"sweeps", "burn_in"}``) where neither
+    is given, a third of the sweeps for a missing burn-in; refuses a burn-in that keeps no sweep."""
+    if sweeps is None:
+        sweeps = default["sweeps"]
+        burn_in = default["burn_in"] if burn_in is None else burn_in
+    burn_in = sweeps // 3 if burn_in is None else burn_in
+    if burn_in >= sweeps:
+        raise BayesmapError(f"--burn-in must be smaller than --sweeps ({sweeps}), got {burn_in}")
+    return sweeps, burn_in
+
+
+def _slam_files(problem, result, summary: dict, stamps, title: str, report: bool, rosmap: bool = False,
+                maps: bool = False) -> dict[str, bytes]:
+    """The output files of a ``bayesmap slam`` run (see :func:`slam`): ``stamps`` ``(S,)`` those of
+    trajectory.tum."""
+    grid = result.grid if result.grid is not None else problem.params.grid
+    fig = plot_slam(grid, result.posterior, result.mean_path, result.pose_cov, result.pose_samples,
+                    true_path=problem.true_poses, odometry=problem.odometry, truth=problem.truth, title=title)
     png = figure_bytes(fig, "png")
-    with tempfile.TemporaryDirectory() as tmp:  # write_tum writes files; the folder is replaced as a whole below
-        tum = read_bytes(write_tum(Path(tmp) / "trajectory.tum", np.arange(problem.num_scans), result.mean_path),
-                         "trajectory")[1]
     files = {
-        "trajectory.tum": tum,
+        "trajectory.tum": encode_tum(stamps, result.mean_path).encode(),
         "trajectory_samples.npy": _npy(result.pose_samples),
         "pose_cov.npy": _npy(result.pose_cov),
         "posterior.npy": _npy(result.posterior.astype("float32")),
         "posterior.png": png,
         "summary.json": (json.dumps(summary, indent=2) + "\n").encode(),
     }
+    if rosmap:
+        files.update(encode_rosmap(ROSMAP_STEM, result.posterior, grid))
+    if maps:
+        seen = seen_cells_along(grid, result.mean_path, problem.sensor_angles, problem.readings,
+                                float(problem.params.max_range))
+        files.update(_map_files(result.posterior, grid, seen))
     if report:
         files[REPORT_FILE] = slam_report(png, summary, title=f"bayesmap slam: {problem.source}").encode("utf-8")
-    return summary, files
+    return files
+
+
+def _grid_summary(grid) -> dict:
+    return {"shape": [int(n) for n in grid.shape], "resolution": float(grid.resolution),
+            "origin": [float(v) for v in grid.origin]}
+
+
+def _check_slam_size(problem) -> None:
+    """Refuse a SLAM problem whose grid or ray-cell table cannot fit (:func:`_check_sizes`), before any work."""
+    grid = problem.params.grid
+    length = min(float(problem.params.max_range), math.hypot(*grid.shape) * grid.resolution)
+    angles = np.asarray(problem.odometry)[:, 2:3] + np.asarray(problem.sensor_angles)
+    _check_sizes(grid.shape, grid.resolution, _beam_cells(length, grid.resolution, angles))
+
+
+def _log_slam(carmen, path: Path, scans: Optional[str], resolution: Optional[float], sweeps: Optional[int],
+              burn_in: Optional[int], seed: int):
+    """Run ``run_log_slam`` on the ``scans`` of a log (with a progress bar): ``(problem, result, chosen scan indices,
+    settings)``."""
+    chosen = parse_scans(scans, len(carmen))
+    resolution = scenes.RESOLUTION if resolution is None else resolution
+    sweeps, burn_in = _slam_counts(sweeps, burn_in, LOG_SLAM_DEFAULTS)
+    problem = scenes.log_slam_problem(carmen, chosen, resolution=resolution)
+    _check_slam_size(problem)
+    typer.echo(f"bayesmap slam: {path.name}, {len(chosen)} scans, {sweeps} sweeps ...", err=True)
+    result = run_log_slam(problem, rounds=sweeps, burn_in=burn_in, seed=seed, progress=True)
+    p = problem.params
+    settings = {"scans": scans if scans is not None else "all", "resolution": resolution, "sweeps": sweeps,
+                "burn_in": burn_in, "seed": seed, "prior_wall_prob": float(p.prior_wall_prob),
+                "sensor_noise": float(p.sensor_noise), "beam_model": p.beam_model,
+                "likelihood_power": float(problem.likelihood_power), "max_range_m": float(p.max_range),
+                "motion": {name: float(getattr(problem.motion, name))
+                           for name in ("a1", "a2", "a3", "a4", "floor_xy", "floor_theta")}}
+    return problem, result, chosen, settings
 
 
 @app.command()
 def slam(
-    log: Optional[Path] = typer.Option(None, "--log", help="a CARMEN log whose pose fields hold odometry (not yet)"),
-    sweeps: int = typer.Option(60, help="joint sweeps (pose moves, then a map sweep)",
-                               callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
-    burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: a third)",
+    log: Optional[Path] = typer.Option(None, "--log", help=SLAM_LOG_HELP),
+    bag: Optional[Path] = typer.Option(None, "--bag", help=BAG_HELP),
+    scan_topic: str = typer.Option("/scan", "--scan-topic", help="--bag: topic of the sensor_msgs/LaserScan messages"),
+    odom_topic: str = typer.Option("/odom", "--odom-topic", help="--bag: topic of the nav_msgs/Odometry poses"),
+    tf: bool = typer.Option(False, "--tf", help="--bag: the robot's poses from /tf (odom -> base_link), not odometry"),
+    scans: Optional[str] = typer.Option(None, "--scans", help=SCANS_HELP),
+    resolution: Optional[float] = typer.Option(None, "--resolution",
+                                               help=f"--log / --bag: meters per cell (default {scenes.RESOLUTION:g})",
+                                               callback=_in_range("--resolution", 0, MAX_RESOLUTION, lo_open=True,
+                                                                  unit=" m")),
+    sweeps: Optional[int] = typer.Option(None, "--sweeps", help=SLAM_SWEEPS_HELP,
+                                         callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
+    burn_in: Optional[int] = typer.Option(None, "--burn-in", help=SLAM_BURN_IN_HELP,
                                           callback=_in_range("--burn-in", 0, MAX_SWEEPS)),
-    seed: int = typer.Option(0, help="seed of the simulated odometry and readings, and of the chain",
+    seed: int = typer.Option(0, help="seed of the chain (and of the tutorial scene's odometry and readings)",
                              callback=_in_range("--seed", 0, 2**32 - 1)),
-    num_poses: int = typer.Option(8, "--num-poses", help="poses on the loop around the tutorial room",
-                                  callback=_in_range("--num-poses", 2, 64)),
+    num_poses: Optional[int] = typer.Option(None, "--num-poses",
+                                            help=f"tutorial scene: poses on the loop (default {TUTORIAL_SLAM_POSES})",
+                                            callback=_in_range("--num-poses", 2, 64)),
+    rosmap: bool = typer.Option(False, "--rosmap",
+                                help="also write the posterior mean as a ROS map_server map (map.pgm + map.yaml)"),
+    maps: bool = typer.Option(False, "--maps", help=MAPS_HELP),
     report: bool = typer.Option(False, "--report", help="also write report.html (the figure and the summary)"),
     out: Path = typer.Option(Path("bayesmap-out"), "--out", help="output folder"),
     force: bool = typer.Option(False, "--force", help="replace bayesmap's outputs already in the folder"),
 ) -> None:
-    """Joint SLAM on the tutorial map: a robot drives a loop with noisy odometry; infer its path and the map.
+    """Joint SLAM: infer the path and the map together. With --log FILE (pose fields = odometry) or --bag PATH, a
+    real robot's scans; with neither, the tutorial scene (a loop around the tutorial room, noisy odometry).
 
-    Writes trajectory.tum (posterior mean pose per scan, stamps = scan indices), trajectory_samples.npy (N, S, 3),
-    pose_cov.npy (S, 3, 3), posterior.npy, posterior.png and summary.json (ATE and 95 % ellipse coverage of the
-    posterior and of the odometry), and with --report report.html."""
+    Writes trajectory.tum (posterior mean pose per scan, stamped with the log's scan timestamps, or the scan indices
+    where they do not increase strictly; the tutorial's: scan indices), trajectory_samples.npy (N, S, 3),
+    pose_cov.npy (S, 3, 3), posterior.npy, posterior.png, summary.json, and with --rosmap, --maps and --report
+    the maps and report.html as infer writes them."""
 
-    if log is not None:
-        raise BayesmapError(f"bayesmap slam --log {str(log)!r}: not yet (real logs are the next step); "
-                            "run bayesmap slam without --log for the tutorial scene")
-    burn_in = sweeps // 3 if burn_in is None else burn_in
-    if burn_in >= sweeps:
-        raise BayesmapError(f"--burn-in must be smaller than --sweeps ({sweeps}), got {burn_in}")
-    _check_output_dir(out, force)
-    clash = [name for name in SLAM_OUTPUT_FILES if (out / name).exists()] if out.is_dir() and not force else []
-    if clash:
-        raise BayesmapError(f"{str(out / clash[0])!r} already exists; pass --force to replace bayesmap's outputs "
-                            f"in {str(out)!r}")
-    problem = scenes.slam_tutorial_problem(seed=seed, num_poses=num_poses)
-    result = run_slam(problem, sweeps=sweeps, burn_in=burn_in, seed=seed)
-    settings = {"sweeps": sweeps, "burn_in": burn_in, "seed": seed, "num_poses": num_poses,
-                "num_angles": problem.params.num_angles, "prior_wall_prob": problem.params.prior_wall_prob,
-                "sensor_noise": problem.params.sensor_noise, "odometry_alphas": list(scenes.SLAM_ODOMETRY_ALPHAS),
-                "pose_kernel": "lattice_pose_mh", "map_kernel": "dense single-site Gibbs, raster order"}
-    summary, files = _slam_files(problem, result, settings, report)
-    replace_folder(out, files, owned=ALL_OUTPUT_FILES + SLAM_OUTPUT_FILES)
-    post, odo = summary["posterior"], summary["odometry"]
+    if log is not None and bag is not None:
+        raise BayesmapError("give either --log or --bag, not both")
+    if log is None and bag is None:
+        if scans is not None or resolution is not None:
+            raise BayesmapError("--scans and --resolution need --log FILE (or --bag PATH)")
+    elif num_poses is not None:
+        raise BayesmapError("--num-poses applies to the tutorial scene, not to --log / --bag")
+    _check_slam_output_dir(out, force)
+    carmen = _read_log(log, bag, scan_topic, odom_topic, tf, None)
+    if carmen is None:
+        num_poses = TUTORIAL_SLAM_POSES if num_poses is None else num_poses
+        sweeps, burn_in = _slam_counts(sweeps, burn_in, {"sweeps": TUTORIAL_SLAM_SWEEPS, "burn_in": None})
+        problem = scenes.slam_tutorial_problem(seed=seed, num_poses=num_poses)
+        result = run_slam(problem, sweeps=sweeps, burn_in=burn_in, seed=seed)
+        settings = {"sweeps": sweeps, "burn_in": burn_in, "seed": seed, "num_poses": num_poses,
+                    "num_angles": problem.params.num_angles, "prior_wall_prob": problem.params.prior_wall_prob,
+                    "sensor_noise": problem.params.sensor_noise, "odometry_alphas": list(scenes.SLAM_ODOMETRY_ALPHAS),
+                    "pose_kernel": "lattice_pose_mh", "map_kernel": "dense single-site Gibbs, raster order"}
+        summary = {
+            "source": problem.source,
+            "settings": settings,
+            "runtime_s": result.runtime_s,
+            "acceptance_rate": result.acceptance_rate,
+            "posterior": score_trajectory(result.mean_path, problem.true_poses, result.pose_cov),
+            "odometry": score_trajectory(problem.odometry, problem.true_poses),
+            "map_cells_wrong": int(np.sum((result.posterior > 0.5) != (problem.truth > 0))),
+        }
+        stamps = np.arange(problem.num_scans)
+        title = f"bayesmap slam: {problem.num_scans} poses, {sweeps} sweeps"
+    else:
+        path = log if log is not None else bag
+        problem, result, chosen, settings = _log_slam(carmen, path, scans, resolution, sweeps, burn_in, seed)
+        sweeps, burn_in = settings["sweeps"], settings["burn_in"]
+        all_stamps = tum_stamps(carmen.timestamps)
+        stamps = all_stamps[chosen]
+        grid = result.grid if result.grid is not None else problem.params.grid
+        summary = {
+            "source": problem.source,
+            "settings": settings,
+            "runtime_s": result.runtime_s,
+            "num_scans": problem.num_scans,
+            "num_beams": int(problem.readings.shape[1]),
+            "pose_samples": int(len(result.pose_samples)),
+            "acceptance_rate": result.acceptance_rate,
+            "grid": _grid_summary(grid),
+            "trajectory_stamps": ("the scans' timestamps, seconds" if np.array_equal(all_stamps, carmen.timestamps)
+                                  else "scan indices of the log (its timestamps do not increase strictly)"),
+        }
+        title = f"bayesmap slam: {path.name}, {problem.num_scans} scans, {sweeps} sweeps"
+    files = _slam_files(problem, result, summary, stamps, title, report, rosmap=rosmap, maps=maps)
+    replace_folder(out, files, owned=SLAM_OWNED_FILES)
     typer.echo(f"data:     {problem.source}, {problem.readings.shape[1]} beams per scan")
     typer.echo(f"sweeps:   {sweeps} (posterior over the last {sweeps - burn_in}); pose acceptance "
                f"{result.acceptance_rate:.2f}")
     typer.echo(f"runtime:  {result.runtime_s:.2f} s (compilation included)")
-    typer.echo(f"path:     ATE {post['ate_rmse_m']:.3f} m (odometry {odo['ate_rmse_m']:.3f} m); 95 % ellipses "
-               f"cover {post['coverage']:.0%} of the true positions")
+    if "posterior" in summary:
+        post, odo = summary["posterior"], summary["odometry"]
+        typer.echo(f"path:     ATE {post['ate_rmse_m']:.3f} m (odometry {odo['ate_rmse_m']:.3f} m); 95 % ellipses "
+                   f"cover {post['coverage']:.0%} of the true positions")
+    else:
+        sd = np.sqrt(np.clip(np.linalg.eigvalsh(np.asarray(result.pose_cov)[:, :2, :2])[:, -1], 0.0, None))
+        g = summary["grid"]
+        typer.echo(f"path:     {problem.num_scans} poses; position sd median {np.median(sd):.3f} m, largest "
+                   f"{sd.max():.3f} m; map {g['shape'][0]} x {g['shape'][1]} cells of {g['resolution']:g} m")
     typer.echo(f"outputs:  {out}/ ({', '.join(files)})")
 
 

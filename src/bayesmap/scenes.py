@@ -797,13 +797,13 @@ def log_slam_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall
     The sensor model and its defaults are :func:`log_problem`'s (beam mixture, half-cell noise, the range offset and
     likelihood power of logs); the readings are the model's readings (max-range readings at exactly the max range,
     returned readings minus the range offset). The grid covers the odometry's beam endpoints plus
-    :data:`SLAM_LOG_MARGIN` meters; the runner refits it to the inferred path.
+    :data:`SLAM_LOG_MARGIN` meters; the runner refits it to the inferred path. The arguments not listed below are
+    :func:`log_problem`'s.
 
     Args:
         log: a :class:`bayesmap.io.carmen.CarmenLog`; its poses are the odometry.
         scans: scan indices (``(S,)`` ints, ``S >= 2``); default all.
         motion: the motion noise (:class:`bayesmap.model.motion.MotionParams`); default its defaults.
-        (the others as :func:`log_problem`)
 
     Raises:
         BayesmapError: on fewer than two scans, bad indices or bad parameters (the message names the value).

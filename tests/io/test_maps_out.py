@@ -8,9 +8,10 @@ from PIL import Image
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.io.maps_out import encode_png16, encode_posterior_npz, posterior_std, read_png16
+from bayesmap.io import maps_out
+from bayesmap.io.maps_out import encode_png16, encode_posterior_npz, posterior_std, read_png16, seen_cells
 from bayesmap.io.rosbag import occupancy_grid_data, read_occupancy_grid_bag, write_occupancy_grid_bag
-from helpers import run_cli
+from helpers import room_scans, run_cli
 
 GRID = Grid((5, 3), 0.25, (-1.5, 2.0))  # not square: a transposed array would not fit
 
@@ -25,6 +26,21 @@ def test_std_is_the_bernoulli_standard_deviation():
     np.testing.assert_allclose(posterior_std([[0.0, 0.5, 1.0, 0.1]]), [[0.0, 0.5, 0.0, 0.3]], atol=1e-12)
     with pytest.raises(BayesmapError, match=r"cell \(0, 1\) is 1.5"):
         posterior_std([[0.2, 1.5]])
+
+
+def test_seen_cells_along_a_path_is_seen_cells_of_its_table_in_any_chunks(monkeypatch):
+    """The cells the beams of scans at given poses crossed, built a few rays at a time: those of the scans' one
+    ray-cell table (the three scans of a 12 x 9 room, each ray chunk smaller than a scan)."""
+    problem = room_scans("beam")
+    poses, angles, readings = problem.poses, problem.observations.beam_angles, problem.observations.readings
+    whole = seen_cells(problem.table, problem.ray_readings)
+    assert whole.any() and not whole.all()
+    for chunk in (10_000, 30, 7):  # one table; scans one by one; 7 rays: still one scan per table
+        monkeypatch.setattr(maps_out, "SEEN_CHUNK_RAYS", chunk)
+        along = maps_out.seen_cells_along(problem.grid, poses, angles, readings, float(problem.params.max_range))
+        np.testing.assert_array_equal(along, whole)
+    with pytest.raises(BayesmapError, match="must agree"):
+        maps_out.seen_cells_along(problem.grid, poses[:2], angles, readings, 15.0)
 
 
 def test_npz_holds_probability_std_seen_and_the_grid(tmp_path):

@@ -11,7 +11,7 @@ import pytest
 
 from bayesmap.errors import BayesmapError
 from bayesmap.io.carmen import read_carmen
-from bayesmap.io.tum import read_tum, tum_stamps, write_tum
+from bayesmap.io.tum import STAMP_TOLERANCE, encode_tum, match_stamps, read_tum, tum_stamps, write_tum
 
 SLAM = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "slam"
 LINE = re.compile(r"^-?\d+(\.\d+)? -?\d+\.\d{6} -?\d+\.\d{6} 0 0 0 -?\d\.\d{9} -?\d\.\d{9}$")
@@ -177,3 +177,23 @@ def test_project_slam_files(tmp_path, name, scans, indices):
     assert read_tum(out)[0].tolist() == truth_stamps.tolist()
     for ours, theirs in zip(out.read_text().splitlines(), (SLAM / f"{name}-odom.truth.tum").read_text().splitlines()):
         assert ours.split()[:6] == theirs.split()[:6]
+
+
+def test_encode_tum_is_the_text_write_tum_writes(tmp_path):
+    stamps, poses = np.array([0.0, 1.0, 2.5]), np.array([[0.0, 1.0, 0.3], [2.0, -1.5, -3.0], [1e3, 2.0, 3.1]])
+    text = encode_tum(stamps, poses)
+    assert text == write_tum(tmp_path / "t.tum", stamps, poses).read_text()
+    assert len(text.splitlines()) == 3 and all(LINE.match(line) for line in text.splitlines())
+    with pytest.raises(BayesmapError, match="increase strictly"):
+        encode_tum([1.0, 1.0], poses[:2])
+
+
+def test_match_stamps_pairs_the_nearest_within_the_tolerance():
+    reference = np.array([10.0, 10.5, 11.0, 12.0])
+    np.testing.assert_array_equal(match_stamps([10.5, 12.0 + 0.5 * STAMP_TOLERANCE, 10.0], reference), [1, 3, 0])
+    assert match_stamps([3.0], [3.0]).tolist() == [0]  # one reference stamp
+    assert match_stamps(np.arange(5.0), np.arange(10.0)).tolist() == list(range(5))  # scan indices
+    with pytest.raises(BayesmapError, match=r"stamp 11.5 \(pose 1\) has no match within 0.0001 s \(the nearest is "):
+        match_stamps([10.0, 11.5], reference)
+    with pytest.raises(BayesmapError, match="two stamps pair with the same stamp 11.0"):
+        match_stamps([11.0, 11.0], reference, tolerance=0.0)

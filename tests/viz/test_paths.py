@@ -7,7 +7,7 @@ import pytest
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.viz.paths import CHI2_2D_95, ellipse_95, plot_slam, slam_report
+from bayesmap.viz.paths import CHI2_2D_95, MAX_MARKED_POSES, ellipse_95, plot_slam, slam_report
 from helpers import by_gid
 
 
@@ -39,6 +39,25 @@ def test_plot_slam_draws_every_layer():
         plot_slam(grid, np.zeros(grid.shape), mean, cov[:3], samples)
     with pytest.raises(BayesmapError, match="odometry"):
         plot_slam(grid, np.zeros(grid.shape), mean, cov, samples, odometry=mean[:2])
+
+
+def test_plot_slam_of_a_long_path_draws_every_ellipse_thin_without_markers():
+    """A real log's hundreds of poses: every ellipse drawn, thinner; no markers; the odometry faint."""
+    s = MAX_MARKED_POSES + 1
+    grid = Grid((40, 30), resolution=0.5, origin=(-1.0, -1.0))
+    t = np.linspace(0, 2 * np.pi, s)
+    mean = np.column_stack([8 + 5 * np.cos(t), 6 + 4 * np.sin(t), t])
+    cov = np.tile(np.eye(3) * 0.01, (s, 1, 1))
+    fig = plot_slam(grid, np.zeros(grid.shape), mean, cov, mean[None], odometry=mean * 1.1)
+    ax = fig.axes[0]
+    ellipses = [p for p in ax.patches if type(p).__name__ == "Ellipse"]
+    assert len(ellipses) == s and all(e.get_linewidth() < 1.0 for e in ellipses)
+    for gid in ("mean_path", "odometry"):
+        assert by_gid(ax, gid).get_marker() in (None, "None", "")
+    assert by_gid(ax, "odometry").get_alpha() < 1.0
+    short = plot_slam(grid, np.zeros(grid.shape), mean[:MAX_MARKED_POSES], cov[:MAX_MARKED_POSES],
+                      mean[None, :MAX_MARKED_POSES], odometry=mean[:MAX_MARKED_POSES]).axes[0]
+    assert by_gid(short, "mean_path").get_marker() == "." and by_gid(short, "odometry").get_alpha() is None
 
 
 def test_slam_report_escapes_and_embeds():

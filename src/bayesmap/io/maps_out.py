@@ -36,10 +36,11 @@ import yaml
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
+from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.io.files import read_bytes
 
-__all__ = ["posterior_std", "seen_cells", "encode_posterior_npz", "encode_png16", "read_png16", "PNG16_SCALE",
-           "NPZ_FILE"]
+__all__ = ["posterior_std", "seen_cells", "seen_cells_along", "encode_posterior_npz", "encode_png16", "read_png16",
+           "PNG16_SCALE", "NPZ_FILE"]
 
 PNG16_SCALE = 1.0 / 65535.0
 """A 16-bit pixel's value: ``pixel * PNG16_SCALE`` (probability and std both lie in [0, 1])."""
@@ -89,6 +90,45 @@ def seen_cells(table, readings) -> np.ndarray:
     out = np.zeros(table.num_cells, dtype=bool)
     out[np.asarray(table.pair_cells)[crossed]] = True
     return out.reshape(table.grid.shape)
+
+
+SEEN_CHUNK_RAYS = 100_000
+"""Rays per ray-cell table :func:`seen_cells_along` builds at a time (bounds its memory on a whole log)."""
+
+
+def seen_cells_along(grid: Grid, poses, sensor_angles, readings, max_range: float) -> np.ndarray:
+    """Cells some beam crossed, for scans at ``poses`` (a SLAM run's posterior mean path): :func:`seen_cells` of the
+    scans' ray-cell tables, built :data:`SEEN_CHUNK_RAYS` rays at a time.
+
+    Args:
+        grid: the map's :class:`~bayesmap.geometry.grid.Grid`.
+        poses: ``(S, 3)`` sensor poses (x, y in the grid's units, meters or cells; theta radians).
+        sensor_angles: ``(S, K)`` beam angles relative to the heading, radians.
+        readings: ``(S, K)`` readings in the grid's units (max-range readings at the max range, so such a beam saw
+            its whole length).
+        max_range: the longest beam, in the grid's units.
+
+    Returns:
+        ``(nx, ny)`` bool.
+
+    Raises:
+        BayesmapError: if the shapes disagree, or as :func:`bayesmap.geometry.raytable.build_ray_table`.
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    angles = np.asarray(sensor_angles, dtype=np.float64)
+    values = np.asarray(readings, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != 3 or angles.ndim != 2 or angles.shape[0] != len(poses) \
+            or values.shape != angles.shape:
+        raise BayesmapError(f"poses (S, 3), sensor angles (S, K) and readings (S, K) must agree, got {poses.shape}, "
+                            f"{angles.shape} and {values.shape}")
+    seen = np.zeros(grid.shape, dtype=bool)
+    per = max(1, SEEN_CHUNK_RAYS // max(angles.shape[1], 1))
+    for start in range(0, len(poses), per):
+        part = slice(start, start + per)
+        origins = np.repeat(poses[part, :2], angles.shape[1], axis=0)
+        table = build_ray_table(grid, origins, (poses[part, 2:3] + angles[part]).reshape(-1), max_range)
+        seen |= seen_cells(table, values[part])
+    return seen
 
 
 def encode_posterior_npz(probability, grid: Grid, seen=None) -> bytes:

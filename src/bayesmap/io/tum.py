@@ -56,6 +56,49 @@ def tum_stamps(log_timestamps) -> np.ndarray:
     return np.arange(len(t), dtype=np.float64)
 
 
+STAMP_TOLERANCE = 1e-4
+"""Seconds: the largest difference of two stamps :func:`match_stamps` pairs (0.1 ms: CARMEN writes microseconds,
+scanners scan at most about every 10 ms, and a bag's repeated stamps are spread 1 ms apart,
+:mod:`bayesmap.io.rosbag`); scan-index stamps are whole numbers, 1 apart."""
+
+
+def match_stamps(stamps, reference, tolerance: float = STAMP_TOLERANCE) -> np.ndarray:
+    """For each stamp, the index of the reference stamp it pairs with: the nearest one, if within ``tolerance``.
+
+    This is how TUM trajectories are paired pose by pose (as evo's ``associate`` does, with a tolerance far below
+    the time between scans, so that no stamp can pair with two).
+
+    Args:
+        stamps: ``(S,)`` stamps to pair (seconds or scan indices).
+        reference: ``(R,)`` stamps, strictly increasing (as :func:`read_tum` returns them).
+        tolerance: the largest accepted difference, seconds (``>= 0``).
+
+    Returns:
+        ``(S,)`` int64 indices into ``reference``, distinct.
+
+    Raises:
+        BayesmapError: naming the first stamp with no reference stamp within ``tolerance`` (and its position), or
+            two stamps that pair with the same reference stamp.
+    """
+    t = np.asarray(stamps, dtype=np.float64).reshape(-1)
+    ref = np.asarray(reference, dtype=np.float64).reshape(-1)
+    if ref.size == 0:
+        raise BayesmapError("no reference stamp to pair with")
+    right = np.clip(np.searchsorted(ref, t), 1, max(len(ref) - 1, 1)) if len(ref) > 1 else np.zeros(len(t), int)
+    left = np.maximum(right - 1, 0)
+    nearest = np.where(np.abs(ref[left] - t) <= np.abs(ref[right] - t), left, right).astype(np.int64)
+    off = np.flatnonzero(~(np.abs(ref[nearest] - t) <= tolerance))
+    if len(off):
+        i = int(off[0])
+        raise BayesmapError(f"stamp {t[i]!r} (pose {i}) has no match within {tolerance:g} s (the nearest is "
+                            f"{ref[nearest[i]]!r})")
+    twice = np.flatnonzero(np.diff(np.sort(nearest)) == 0)
+    if len(twice):
+        value = ref[np.sort(nearest)[twice[0]]]
+        raise BayesmapError(f"two stamps pair with the same stamp {value!r}")
+    return nearest
+
+
 def _parse_line(name: str, lineno: int, line: str) -> tuple[float, float, float, float]:
     """``(t, x, y, theta)`` of one TUM line; raises naming the file, line and value."""
     where = f"TUM trajectory {name!r}, line {lineno}"
@@ -125,26 +168,25 @@ def _format_stamp(s: float) -> str:
     return str(int(s)) if s.is_integer() and abs(s) < 2.0**53 else repr(s)
 
 
-def write_tum(path, stamps, poses, overwrite: bool = False):
-    """Write a planar trajectory as a TUM file, whole or not at all (:func:`bayesmap.io.files.write_atomic`).
+def encode_tum(stamps, poses) -> str:
+    """A planar trajectory as the text of a TUM file (what :func:`write_tum` writes; for a caller that writes the
+    file itself, such as an output folder replaced as a whole).
 
     Each line is ``t x y 0 0 0 sin(theta/2) cos(theta/2)``: positions with 6 decimals (meters), the yaw-only
     quaternion with 9; stamps that are whole numbers (scan indices) are written as integers, others in their
-    shortest exact decimal form. :func:`read_tum` reads the file back to the same stamps, to within 5e-7 m and
+    shortest exact decimal form. :func:`read_tum` reads the text back to the same stamps, to within 5e-7 m and
     about 1e-8 rad (theta comes back wrapped to ``[-pi, pi]``).
 
     Args:
-        path: the file to write.
         stamps: ``(S,)`` time stamps, strictly increasing (seconds or scan indices, see :func:`tum_stamps`).
         poses: ``(S, 3)`` rows ``(x, y, theta)``: meters, meters, radians.
-        overwrite: replace an existing file (else refuse it).
 
     Returns:
-        The path written (a :class:`pathlib.Path`).
+        The file's text, ``S`` lines each ending in a newline.
 
     Raises:
-        BayesmapError: if the shapes do not match, a value is not finite, the stamps do not increase strictly,
-            there is no pose, the file exists and ``overwrite`` is False, or it cannot be written.
+        BayesmapError: if the shapes do not match, a value is not finite, the stamps do not increase strictly, or
+            there is no pose.
     """
     t = np.asarray(stamps, dtype=np.float64)
     p = np.asarray(poses, dtype=np.float64)
@@ -160,6 +202,25 @@ def write_tum(path, stamps, poses, overwrite: bool = False):
     if len(drop):
         i = int(drop[0]) + 1
         raise BayesmapError(f"stamps must increase strictly: stamp {i} is {t[i]!r}, after {t[i - 1]!r}")
-    lines = [f"{_format_stamp(float(s))} {x:.6f} {y:.6f} 0 0 0 {math.sin(th / 2):.9f} {math.cos(th / 2):.9f}\n"
-             for s, (x, y, th) in zip(t, p)]
-    return write_atomic(path, "".join(lines), overwrite=overwrite)
+    return "".join(f"{_format_stamp(float(s))} {x:.6f} {y:.6f} 0 0 0 {math.sin(th / 2):.9f} {math.cos(th / 2):.9f}\n"
+                   for s, (x, y, th) in zip(t, p))
+
+
+def write_tum(path, stamps, poses, overwrite: bool = False):
+    """Write a planar trajectory as a TUM file (:func:`encode_tum`'s text), whole or not at all
+    (:func:`bayesmap.io.files.write_atomic`).
+
+    Args:
+        path: the file to write.
+        stamps: ``(S,)`` time stamps, strictly increasing (seconds or scan indices, see :func:`tum_stamps`).
+        poses: ``(S, 3)`` rows ``(x, y, theta)``: meters, meters, radians.
+        overwrite: replace an existing file (else refuse it).
+
+    Returns:
+        The path written (a :class:`pathlib.Path`).
+
+    Raises:
+        BayesmapError: as :func:`encode_tum`, or if the file exists and ``overwrite`` is False, or it cannot be
+            written.
+    """
+    return write_atomic(path, encode_tum(stamps, poses), overwrite=overwrite)

@@ -32,6 +32,9 @@ CHI2_2D_95 = -2.0 * math.log(0.05)
 Normal's 95 % ellipse is ``d^T Sigma^-1 d <= CHI2_2D_95``."""
 MAX_SAMPLE_PATHS = 40
 """At most this many posterior path samples are drawn (evenly spaced over the kept sweeps)."""
+MAX_MARKED_POSES = 50
+"""Paths of at most this many poses are drawn with a marker per pose; longer ones (a real log's hundreds of scans)
+with thin lines and no markers, the odometry faint, so that every ellipse stays visible."""
 
 
 def _path(name: str, poses, count: int | None = None) -> np.ndarray:
@@ -64,11 +67,14 @@ def plot_slam(grid, posterior, mean_path, pose_cov, samples, *, true_path=None, 
     Args:
         grid: the :class:`~bayesmap.geometry.grid.Grid`.
         posterior: ``(nx, ny)`` posterior wall probabilities in [0, 1].
-        mean_path: ``(S, 3)`` posterior mean poses (x m, y m, theta rad): a dark line with a dot per scan.
-        pose_cov: ``(S, 3, 3)`` pose covariances: the 95 % ellipse of each position (its ``(x, y)`` block).
+        mean_path: ``(S, 3)`` posterior mean poses (x m, y m, theta rad): a dark line with a dot per scan (up to
+            :data:`MAX_MARKED_POSES` poses; beyond, every line thin and without markers, the odometry faint).
+        pose_cov: ``(S, 3, 3)`` pose covariances: the 95 % ellipse of each position (its ``(x, y)`` block), every
+            one drawn.
         samples: ``(N, S, 3)`` posterior path samples: up to :data:`MAX_SAMPLE_PATHS` thin blue lines.
         true_path: optional ``(S, 3)`` true poses (green, with the heading as a short tick).
-        odometry: optional ``(S, 3)`` odometry poses (orange, dashed).
+        odometry: optional ``(S, 3)`` odometry poses (orange, dashed; a real log's drifts off the map, clipped to
+            the grid).
         truth: optional ``(nx, ny)`` true map (red outline).
         title: the axes' title; default "Posterior P(wall) and path".
 
@@ -101,28 +107,39 @@ def plot_slam(grid, posterior, mean_path, pose_cov, samples, *, true_path=None, 
     if truth is not None:
         draw_truth(ax, check_cells(truth, grid, "truth"), grid)
         handles.append(Patch(facecolor="none", edgecolor="#d62728", label="true walls"))
+    many = s > MAX_MARKED_POSES
+    thin = 0.5 if many else 1.0  # line width factor
+
+    def marked(marker: str, size: float | None = None) -> dict:  # a marker per pose, on short paths only
+        return {} if many else {"marker": marker} if size is None else {"marker": marker, "ms": size}
+
     picks = np.unique(np.linspace(0, len(paths) - 1, min(len(paths), MAX_SAMPLE_PATHS)).astype(int))
     for k, i in enumerate(picks):
-        ax.plot(paths[i, :, 0], paths[i, :, 1], color=SAMPLE_COLOR, lw=0.6, alpha=0.35, zorder=4,
+        ax.plot(paths[i, :, 0], paths[i, :, 1], color=SAMPLE_COLOR, lw=0.6 * thin, alpha=0.35, zorder=4,
                 gid="path_samples" if k == 0 else None)
     handles.append(Line2D([], [], color=SAMPLE_COLOR, lw=1, alpha=0.6, label="posterior samples"))
     if odometry is not None:
         odo = _path("odometry", odometry, s)
-        ax.plot(odo[:, 0], odo[:, 1], "--", color=ODOMETRY_COLOR, lw=1.4, marker="s", ms=3.5, zorder=5,
-                gid="odometry")
-        handles.append(Line2D([], [], ls="--", color=ODOMETRY_COLOR, marker="s", ms=3.5, label="odometry"))
+        style = marked("s", 3.5)
+        ax.plot(odo[:, 0], odo[:, 1], "--", color=ODOMETRY_COLOR, lw=1.4 * thin, alpha=0.5 if many else None,
+                zorder=5, gid="odometry", **style)
+        handles.append(Line2D([], [], ls="--", color=ODOMETRY_COLOR, alpha=0.5 if many else None,
+                              label="odometry", **style))
     if true_path is not None:
         true = _path("true_path", true_path, s)
-        ax.plot(true[:, 0], true[:, 1], color=TRUE_PATH_COLOR, lw=1.6, marker="o", ms=4, zorder=5, gid="true_path")
-        tick = 0.04 * max(grid.extent[1] - grid.extent[0], grid.extent[3] - grid.extent[2])
-        ax.quiver(true[:, 0], true[:, 1], np.cos(true[:, 2]) * tick, np.sin(true[:, 2]) * tick, angles="xy",
-                  scale_units="xy", scale=1, color=TRUE_PATH_COLOR, width=0.004, zorder=5)
-        handles.append(Line2D([], [], color=TRUE_PATH_COLOR, marker="o", ms=4, label="true path"))
-    ax.plot(mean[:, 0], mean[:, 1], color=MEAN_COLOR, lw=1.4, marker=".", ms=5, zorder=6, gid="mean_path")
-    handles.append(Line2D([], [], color=MEAN_COLOR, marker=".", label="posterior mean"))
+        style = marked("o", 4)
+        ax.plot(true[:, 0], true[:, 1], color=TRUE_PATH_COLOR, lw=1.6 * thin, zorder=5, gid="true_path", **style)
+        if not many:
+            tick = 0.04 * max(grid.extent[1] - grid.extent[0], grid.extent[3] - grid.extent[2])
+            ax.quiver(true[:, 0], true[:, 1], np.cos(true[:, 2]) * tick, np.sin(true[:, 2]) * tick, angles="xy",
+                      scale_units="xy", scale=1, color=TRUE_PATH_COLOR, width=0.004, zorder=5)
+        handles.append(Line2D([], [], color=TRUE_PATH_COLOR, label="true path", **style))
+    ax.plot(mean[:, 0], mean[:, 1], color=MEAN_COLOR, lw=1.4 * thin, zorder=6, gid="mean_path", **marked(".", 5))
+    handles.append(Line2D([], [], color=MEAN_COLOR, label="posterior mean", **marked(".")))
     ellipses = [e for e in (ellipse_95(m[:2], c[:2, :2]) for m, c in zip(mean, cov)) if e is not None]
     for k, e in enumerate(ellipses):
         e.set_gid("ellipses" if k == 0 else None)
+        e.set_linewidth(0.4 if many else 1.0)
         ax.add_patch(e)
     sd = np.sqrt(np.clip(np.linalg.eigvalsh(cov[:, :2, :2])[:, -1], 0.0, None))  # each pose's largest position sd
     unit = "cells" if is_unit_grid(grid) else "m"

@@ -1,0 +1,199 @@
+"""`bayesmap slam --log/--bag` on a slice of a real log, and `bayesmap evaluate --truth-trajectory`: the outputs,
+their shapes and stamps, the bag against the log, hand-computed trajectory scores, and one-line refusals."""
+
+import io
+import json
+import math
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from bayesmap.io.carmen import read_carmen
+from bayesmap.io.rosbag import read_bag
+from bayesmap.io.tum import read_tum, tum_stamps, write_tum
+from helpers import SHARED_DATA, run_cli, run_main
+
+SLICE = ("--scans", "0:25", "--resolution", "0.2", "--sweeps", "4", "--seed", "3")
+"""25 scans of ACES at 0.2 m cells, 4 sweeps: a slice whose timestamps increase strictly (ACES's do), so
+trajectory.tum carries them."""
+
+
+@pytest.fixture(scope="module")
+def aces_odom():
+    path = SHARED_DATA / "slam" / "aces-odom.log.gz"
+    if not path.exists():
+        pytest.skip("shared data not present")
+    return path
+
+
+@pytest.fixture(scope="module")
+def log_run(aces_odom, tmp_path_factory):
+    """One ``slam --log`` run on the slice with every optional output (the folder)."""
+    out = tmp_path_factory.mktemp("slamlog") / "run"
+    code = run_main("slam", "--log", aces_odom, *SLICE, "--rosmap", "--maps", "--report", "--out", out)
+    assert code == 0
+    return out
+
+
+def test_slam_log_writes_every_output(log_run, aces_odom):
+    names = {"trajectory.tum", "trajectory_samples.npy", "pose_cov.npy", "posterior.npy", "posterior.png",
+             "summary.json", "report.html", "map.pgm", "map.yaml", "posterior.npz", "probability.png",
+             "probability.yaml", "std.png", "std.yaml"}
+    assert {p.name for p in log_run.iterdir()} == names
+    stamps, poses = read_tum(log_run / "trajectory.tum")
+    log = read_carmen(aces_odom)
+    assert np.all(np.diff(log.timestamps) > 0)  # so the stamps are the scans' own, not indices
+    assert np.array_equal(stamps, tum_stamps(log.timestamps)[:25]) and np.array_equal(stamps, log.timestamps[:25])
+    samples = np.load(log_run / "trajectory_samples.npy")
+    cov = np.load(log_run / "pose_cov.npy")
+    assert samples.ndim == 3 and samples.shape[1:] == (25, 3) and cov.shape == (25, 3, 3)
+    assert np.allclose(poses[:, :2], samples[:, :, :2].mean(axis=0), atol=1e-5)  # the TUM file's 6 decimals
+    assert np.allclose(poses[0], log.poses[0], atol=1e-5)  # the first pose anchors the frame: the odometry's
+    summary = json.loads((log_run / "summary.json").read_text())
+    assert summary["num_scans"] == 25 and summary["settings"]["sweeps"] == 4 and summary["settings"]["seed"] == 3
+    assert summary["pose_samples"] == len(samples) and 0 <= summary["acceptance_rate"] <= 1
+    posterior = np.load(log_run / "posterior.npy")
+    assert list(posterior.shape) == summary["grid"]["shape"] and summary["grid"]["resolution"] == 0.2
+    assert posterior.min() >= 0 and posterior.max() <= 1
+    maps = np.load(log_run / "posterior.npz")
+    assert maps["probability"].shape == posterior.shape and maps["seen"].any() and not maps["seen"].all()
+    assert np.allclose(maps["origin"], summary["grid"]["origin"])
+    with Image.open(log_run / "posterior.png") as png:
+        png.verify()
+    assert "data:image/png;base64," in (log_run / "report.html").read_text()
+
+
+def test_slam_bag_gives_the_logs_trajectory(log_run, aces_odom, tmp_path, monkeypatch, capsys):
+    """The slice written as a ROS 1 bag by `bayesmap convert` maps to the log's path (same seed): the bag keeps
+    ranges and poses exactly and beam angles to 2e-7 rad (float32)."""
+    bag = tmp_path / "slice.bag"
+    code, _, err = run_cli(monkeypatch, capsys, "convert", aces_odom, bag, "--scans", "0:25")
+    assert code == 0, err
+    code, _, err = run_cli(monkeypatch, capsys, "slam", "--bag", bag, *SLICE, "--out", tmp_path / "bagrun")
+    assert code == 0, err
+    stamps, poses = read_tum(tmp_path / "bagrun" / "trajectory.tum")
+    log_stamps, log_poses = read_tum(log_run / "trajectory.tum")
+    assert np.allclose(stamps, read_bag(bag).timestamps, rtol=0, atol=1e-6)
+    assert np.allclose(stamps, log_stamps, rtol=0, atol=1e-6)
+    assert np.abs(poses[:, :2] - log_poses[:, :2]).max() < 1e-3  # meters
+    assert np.abs(np.angle(np.exp(1j * (poses[:, 2] - log_poses[:, 2])))).max() < 1e-3  # radians
+
+
+def test_evaluate_runs_slam_on_the_log(log_run, aces_odom, tmp_path, monkeypatch, capsys):
+    """Without --run, evaluate runs SLAM on the log's slice itself: the same path as `slam --log` with the same
+    options and seed (so the same scores as --run on that folder); the truth has one pose per scan of the whole log,
+    so the slice's poses are its rows 0..24; the odometry's scores are those of the log's poses."""
+    from bayesmap.evaluation.trajectory import score_trajectory
+
+    truth = SHARED_DATA / "slam" / "aces-odom.truth.tum"
+    code, out, err = run_cli(monkeypatch, capsys, "evaluate", "--log", aces_odom, "--truth-trajectory", truth,
+                             *SLICE, "--json", tmp_path / "new.json")
+    assert code == 0, err
+    code, _, err = run_cli(monkeypatch, capsys, "evaluate", "--log", aces_odom, "--truth-trajectory", truth,
+                           "--run", log_run, "--json", tmp_path / "run.json")
+    assert code == 0, err
+    new, old = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("new", "run"))
+    assert new["setup"]["paired_by"] == "order" and new["setup"]["scans"] == 25
+    # 1e-5 m: the run folder's trajectory.tum keeps 6 decimals
+    assert new["bayesmap"]["ate_rmse_m"] == pytest.approx(old["bayesmap"]["ate_rmse_m"], abs=1e-5)
+    _, true_poses = read_tum(truth)
+    expected = score_trajectory(read_carmen(aces_odom).poses[:25], true_poses[:25])
+    assert new["odometry"]["coverage"] is None and old["odometry"] == new["odometry"]
+    assert {k: v for k, v in new["odometry"].items() if v is not None} == pytest.approx(
+        {k: v for k, v in expected.items() if v is not None}, rel=1e-12)
+
+
+def _square_case(tmp_path):
+    """A 4-scan log, its true path (a 2 m square, heading along it), a run folder whose path is the square scaled
+    by 1.5 about its center, then turned by 0.7 rad and shifted (a rigid motion the ATE's alignment undoes), and
+    odometry (the log's poses) the square scaled by 2.
+
+    By hand: the best rigid alignment of a square scaled by s about its center is the identity (symmetry), each
+    corner then off by |s - 1| sqrt(2) m, so ATE = 0.5 sqrt(2) m (run) and sqrt(2) m (odometry); each 2 m side
+    is 2 s m long, so RPE over one scan is |2 s - 2| = 1 m (run) and 2 m (odometry), with no rotation error; the
+    95 % ellipse of radius sqrt(-2 ln 0.05) sd (2.45 sd) holds a 0.71 m error for sd 0.5 m, not for sd 0.1 m."""
+    center = np.array([1.0, 1.0])
+    corners = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    heading = np.array([0.0, math.pi / 2, math.pi, -math.pi / 2])
+    truth = np.column_stack([corners, heading])
+    phi, shift = 0.7, np.array([3.0, -1.0])
+    rot = np.array([[math.cos(phi), -math.sin(phi)], [math.sin(phi), math.cos(phi)]])
+    run_xy = (1.5 * (corners - center)) @ rot.T + center + shift
+    run_path = np.column_stack([run_xy, heading + phi])
+    odometry = np.column_stack([2.0 * (corners - center) + center, heading])
+    stamps = np.array([100.0, 100.5, 101.0, 101.5])
+    lines = [f"FLASER 3 1.0 1.5 2.0 {x!r} {y!r} {t!r} {x!r} {y!r} {t!r} {s!r} host {s!r}\n"
+             for (x, y, t), s in zip(odometry, stamps)]
+    (tmp_path / "square.log").write_text("".join(lines))
+    write_tum(tmp_path / "truth.tum", stamps, truth)
+    run = tmp_path / "run"
+    run.mkdir()
+    write_tum(run / "trajectory.tum", stamps, run_path)
+    sd = np.array([0.5, 0.5, 0.1, 0.1])
+    buf = io.BytesIO()
+    np.save(buf, np.eye(3)[None] * (sd**2)[:, None, None])
+    (run / "pose_cov.npy").write_bytes(buf.getvalue())
+    return stamps, truth
+
+
+def test_evaluate_run_scores_by_hand(tmp_path, monkeypatch, capsys):
+    _square_case(tmp_path)
+    code, out, err = run_cli(monkeypatch, capsys, "evaluate", "--log", tmp_path / "square.log", "--truth-trajectory",
+                             tmp_path / "truth.tum", "--run", tmp_path / "run", "--json", tmp_path / "s.json")
+    assert code == 0, err
+    assert "bayesmap" in out and "odometry" in out and "paired by order" in out
+    scores = json.loads((tmp_path / "s.json").read_text())
+    run, odo = scores["bayesmap"], scores["odometry"]
+    # 1e-6: the TUM file's 6 decimals of position (5e-7 m each)
+    assert run["ate_rmse_m"] == pytest.approx(0.5 * math.sqrt(2), abs=1e-6)
+    assert run["rpe1_trans_rmse_m"] == pytest.approx(1.0, abs=1e-6) and run["rpe1_rot_rmse_deg"] < 1e-5
+    assert run["coverage"] == 0.5 and run["poses"] == 4 and "rpe10_trans_rmse_m" not in run
+    assert odo["ate_rmse_m"] == pytest.approx(math.sqrt(2), abs=1e-9)
+    assert odo["rpe1_trans_rmse_m"] == pytest.approx(2.0, abs=1e-9) and odo["coverage"] is None
+
+
+def test_evaluate_pairs_a_longer_truth_by_timestamp(tmp_path, monkeypatch, capsys):
+    """A truth with poses between the scans (6 poses, 4 scans, a 5-scan log) pairs by stamp: the same scores."""
+    stamps, truth = _square_case(tmp_path)
+    extra = np.array([100.25, 101.25])
+    all_stamps = np.sort(np.concatenate([stamps, extra]))
+    poses = np.zeros((6, 3))
+    poses[np.searchsorted(all_stamps, stamps)] = truth
+    poses[np.searchsorted(all_stamps, extra)] = [[9.0, 9.0, 0.0], [-9.0, 4.0, 1.0]]  # off the path: must not pair
+    write_tum(tmp_path / "long.tum", all_stamps, poses)
+    code, out, err = run_cli(monkeypatch, capsys, "evaluate", "--log", tmp_path / "square.log", "--truth-trajectory",
+                             tmp_path / "long.tum", "--run", tmp_path / "run", "--json", tmp_path / "s.json")
+    assert code == 0, err
+    assert "paired by timestamp" in out
+    scores = json.loads((tmp_path / "s.json").read_text())
+    assert scores["bayesmap"]["ate_rmse_m"] == pytest.approx(0.5 * math.sqrt(2), abs=1e-6)
+    assert scores["odometry"]["ate_rmse_m"] == pytest.approx(math.sqrt(2), abs=1e-9)
+
+
+@pytest.mark.parametrize("make_args, match", [
+    (lambda t: ["slam", "--log", t / "square.log", "--bag", t / "x.bag"], "either --log or --bag"),
+    (lambda t: ["slam", "--log", t / "missing.log"], "missing.log"),
+    (lambda t: ["slam", "--log", t / "square.log", "--num-poses", "5"], "--num-poses"),
+    (lambda t: ["slam", "--scans", "0:5"], "--scans"),
+    (lambda t: ["slam", "--log", t / "square.log", "--sweeps", "4", "--burn-in", "4"], "--burn-in"),
+    (lambda t: ["evaluate", "--truth-trajectory", t / "truth.tum"], "needs --log"),
+    (lambda t: ["evaluate", "--log", t / "square.log", "--truth-trajectory", t / "missing.tum"], "missing.tum"),
+    (lambda t: ["evaluate", "--log", t / "square.log", "--truth-trajectory", t / "short.tum", "--run", t / "run"],
+     "3 poses, not one per scan of the run (4)"),
+    (lambda t: ["evaluate", "--log", t / "square.log", "--truth-trajectory", t / "truth.tum", "--run", t / "nope"],
+     "not a folder"),
+    (lambda t: ["evaluate", "--log", t / "square.log", "--truth-trajectory", t / "truth.tum", "--run", t / "bad"],
+     "pose_cov.npy"),
+    (lambda t: ["evaluate", "--log", t / "square.log", "--run", t / "run"], "--truth-trajectory"),
+])
+def test_slam_and_evaluate_errors_are_one_line_exit_2(tmp_path, monkeypatch, capsys, make_args, match):
+    stamps, truth = _square_case(tmp_path)
+    write_tum(tmp_path / "short.tum", stamps[:3] + 0.2, truth[:3])  # 3 poses at stamps no scan has
+    (tmp_path / "bad").mkdir()
+    write_tum(tmp_path / "bad" / "trajectory.tum", stamps, truth)  # and no pose_cov.npy
+    args = make_args(tmp_path)
+    code, _, err = run_cli(monkeypatch, capsys, *args, *(["--out", tmp_path / "o"] if args[0] == "slam" else []))
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("error: ") and match in lines[0], err
+    assert not (tmp_path / "o").exists()
