@@ -51,10 +51,10 @@ shifts)."""
 MAP_MARGIN = 2.0
 """Meters around the matched path's endpoints for the final grid (room for the chain's pose moves)."""
 
-ROUNDS = 6
+ROUNDS = 3
 """Default rounds of the joint chain (each: the walls given the poses, then the poses given the walls)."""
 
-BURN_IN_ROUNDS = 2
+BURN_IN_ROUNDS = 1
 """Default rounds dropped before the posterior is averaged."""
 
 MAP_SWEEPS = 4
