@@ -3,7 +3,8 @@
 Each particle is a map drawn from the prior by ``full_model.importance`` with the readings constrained; its log
 weight is ``log p(readings | walls)``. With a structured prior (:mod:`bayesmap.model.prior`) the observed
 ``"connections"`` are constrained too: the particles come from the independent prior and the weight adds the
-Markov random field's ``-J`` per differing pair of neighbours, so the weighted particles target the same posterior. Normalized weights ``w_i / sum_j w_j`` estimate posterior expectations;
+Markov random field's ``-J`` per differing pair of neighbours, so the weighted particles target the same posterior.
+Normalized weights ``w_i / sum_j w_j`` estimate posterior expectations;
 resampling draws unweighted maps. On the tutorial scene the weights collapse onto one particle (effective sample
 size about 1).
 

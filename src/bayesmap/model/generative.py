@@ -330,8 +330,9 @@ def model_args(pos, params: ModelParams, beam_angles=None) -> tuple:
 
 def choices(walls, readings, params: ModelParams | None = None):
     """The choice map ``{"walls": walls, "readings": readings}``; with ``params`` of a structured prior
-    (``params.structured``) also the observed ``"connections"``, all 1 (:func:`bayesmap.model.prior.observed_connections`),
-    so that ``assess`` scores the Markov random field's unnormalized prior."""
+    (``params.structured``) also the observed ``"connections"``, all 1
+    (:func:`bayesmap.model.prior.observed_connections`), so that ``assess`` scores the Markov random field's
+    unnormalized prior."""
     chm = C["walls"].set(jnp.asarray(walls)) | C["readings"].set(jnp.asarray(readings))
     if params is not None and params.structured:
         chm = chm | C["connections"].set(prior.observed_connections(jnp.shape(walls)))

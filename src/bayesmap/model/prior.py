@@ -279,7 +279,9 @@ def sample_prior(key, shape: tuple[int, int], prior_wall_prob: float, coupling: 
     def chain(k):
         k0, k1 = jax.random.split(k)
         start = (jax.random.uniform(k0, tuple(shape)) < p).astype(jnp.float32)
-        return jax.lax.fori_loop(0, int(sweeps), lambda t, w: checkerboard_sweep(jax.random.fold_in(k1, t), w, logit, j),
-                                 start)
+        def sweep(t, w):
+            return checkerboard_sweep(jax.random.fold_in(k1, t), w, logit, j)
+
+        return jax.lax.fori_loop(0, int(sweeps), sweep, start)
 
     return jnp.stack([chain(k) for k in jax.random.split(key, int(num_samples))])
