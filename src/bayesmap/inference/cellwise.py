@@ -30,12 +30,14 @@ classes would bring little parallelism. This sampler is the plain systematic-sca
   block's cells are one contiguous slice.
 
 The structured prior (:mod:`bayesmap.model.prior`, ``params.coupling > 0``): a cell's log-odds gain ``J (n_wall -
-n_free)`` over its 4-neighbours, read from the map in visiting order. Then no cell is independent of the others
-any more, so every cell is in the sweep (cells no ray crosses in the first group, with padding lanes only), and
-within each group the cells of one colour of the grid's checkerboard (``i + j`` even) come before the other's, so
-that the cells scored at once are rarely neighbours; the speculative rule also stops at the first draw that changes
-a cell with a neighbour later among the cells scored at once (whose score would otherwise be stale). The draws are
-still those of the one-cell-at-a-time sweep in this order. With ``J = 0`` nothing changes: the same order, lanes and
+n_free)`` over its 4-neighbours, read from the map in visiting order (which then holds every cell: those no ray
+crosses after the others). Within each group the cells of one colour of the grid's checkerboard (``i + j`` even) come
+before the other's, so that the cells scored at once are rarely neighbours; the speculative rule also stops at the
+first draw that changes a cell with a neighbour later among the cells scored at once (whose score would otherwise be
+stale). The cells no ray crosses now depend on their neighbours: after the crossed cells, those of colour even are
+drawn all at once, then those of colour odd (two cells of one colour are never neighbours, and such a cell's
+conditional involves only its neighbours: each is drawn from its exact conditional, chromatic Gibbs). The draws
+are those of the one-cell-at-a-time sweep in this order. With ``J = 0`` nothing changes: the same order, lanes and
 draws as without the structured prior.
 
 Posterior marginals: each update draws its cell from ``p(cell | rest)``; each sweep reports these probabilities in
@@ -198,10 +200,11 @@ def _row_blocks(num: np.ndarray, width: int, order: np.ndarray, first: int):
 class CellwiseKernel(KernelFields):
     """The sweep's data (pytree leaves) and code; built by :class:`CellwiseGibbs`. Problems with the same geometry
     and sensor model (other readings, prior, noise, mixture weights, coupling) share one compiled sweep.
-    ``_coupling`` is the structured prior's ``J`` (a scalar array), None for the independent prior."""
+    ``_coupling`` is the structured prior's ``J`` (a scalar array), None for the independent prior; ``_free_cells``
+    the cells no ray crosses (int32, ascending), None for the independent prior."""
 
     _ARRAYS = ("_lanes", "_free", "_rank", "_pair_cells", "_pair_ll", "_ray_start", "_ray_length", "_max_ll",
-               "_prior_log_odds", "_coupling")
+               "_prior_log_odds", "_coupling", "_free_cells")
     _STATIC = ("_shape", "_num_rays", "_num_pairs")
 
     # -- the per-ray rows ---------------------------------------------------------------------------------------
@@ -384,16 +387,29 @@ class CellwiseKernel(KernelFields):
         u = jax.random.uniform(key, walls.shape)
         prior = jax.nn.sigmoid(self._prior_log_odds)
         order = jnp.concatenate([lanes.cells for lanes in self._lanes])
+        if self._coupling is not None:  # every cell (those no ray crosses last), then the slot outside-the-grid
+            order = jnp.concatenate([order, self._free_cells])  # neighbours read: 2 * 0.5 - 1 = 0
         cur, u_order = walls[order], u[order]
-        if self._coupling is not None:  # the slot outside-the-grid neighbours read: 2 * 0.5 - 1 = 0
+        if self._coupling is not None:
             cur = jnp.append(cur, jnp.asarray(0.5, cur.dtype))
         probs = jnp.zeros(order.shape, jnp.float32)
         rows, base = state.ray_walls, 0
         for lanes in self._lanes:
             cur, rows, probs = self._sweep_group(lanes, base, cur, rows, probs, u_order)
             base += lanes.cells.shape[0]
-        walls = jnp.where(self._free, (u < prior).astype(walls.dtype), cur[self._rank])
-        wall_prob = jnp.where(self._free, prior.astype(jnp.float32), probs[self._rank])
+        if self._coupling is None:
+            walls = jnp.where(self._free, (u < prior).astype(walls.dtype), cur[self._rank])
+            wall_prob = jnp.where(self._free, prior.astype(jnp.float32), probs[self._rank])
+        else:  # the cells no ray crosses: one checkerboard colour at a time, each given its neighbours
+            walls, wall_prob = cur[self._rank], probs[self._rank]
+            nx, ny = self._shape
+            even = jnp.asarray((np.add.outer(np.arange(nx), np.arange(ny)) % 2 == 0).reshape(-1))
+            for colour in (even, ~even):
+                mask = self._free & colour
+                field = neighbour_field(walls.reshape(self._shape)).reshape(-1).astype(self._coupling.dtype)
+                p = jax.nn.sigmoid(self._prior_log_odds + self._coupling * field)
+                walls = jnp.where(mask, (u < p).astype(walls.dtype), walls)
+                wall_prob = jnp.where(mask, p.astype(jnp.float32), wall_prob)
         state = CellwiseState(walls=walls.reshape(self._shape), ray_walls=rows)
         return state, GibbsInfo(wall_prob=wall_prob.reshape(self._shape))
 
@@ -447,18 +463,21 @@ class CellwiseGibbs(KernelSampler):
             pair_ll, max_ll = tempered(pair_ll, eta), tempered(max_ll, eta)
         counts = table.rays_per_cell()
         structured = params.structured
-        if structured:  # every cell in the sweep, checkerboard colours one after the other (module docstring)
-            groups = checkerboard_groups(width_groups(np.maximum(counts, 1)), table.grid.shape)
+        groups = width_groups(counts)
+        free_cells = np.flatnonzero(counts == 0)
+        if structured:  # checkerboard colours one after the other in each group, every cell ranked (docstring)
+            groups = checkerboard_groups(groups, table.grid.shape)
+            rank = _visiting_rank(groups + [(0, free_cells)], table.num_cells)
         else:
-            groups = width_groups(counts)
-        rank = _visiting_rank(groups, table.num_cells)
+            rank = _visiting_rank(groups, table.num_cells)
         lanes = _lanes(table, counts, groups, rank, pair_ll, dtype)
         if structured:
             places = np.append(rank, table.num_cells).astype(np.int32)  # -1 (outside) -> the 0.5 slot
             lanes = tuple(part._replace(neighbours=jnp.asarray(places[neighbour_indices(table.grid.shape)[
                 np.asarray(part.cells)]])) for part in lanes)
         self.kernel = CellwiseKernel(
-            _lanes=lanes, _free=jnp.asarray((counts == 0) & (not structured)), _rank=jnp.asarray(rank),
+            _lanes=lanes, _free=jnp.asarray(counts == 0), _rank=jnp.asarray(rank),
+            _free_cells=jnp.asarray(free_cells, jnp.int32) if structured else None,
             _pair_cells=jnp.asarray(np.append(table.pair_cells, 0), jnp.int32),
             _pair_ll=pair_ll,
             _ray_start=jnp.asarray(np.append(table.offsets[:-1], num_pairs), jnp.int32),
