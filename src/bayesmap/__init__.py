@@ -53,6 +53,8 @@ API: dict[str, str] = {
     "MotionParams": "bayesmap.model.motion",
     "make_motion_params": "bayesmap.model.motion",
     "walls_prior": "bayesmap.model.generative",
+    "sample_prior": "bayesmap.model.prior",
+    "coupling_for_run_length": "bayesmap.model.prior",
     # scenes
     "Problem": "bayesmap.scenes",
     "Observations": "bayesmap.scenes",
@@ -81,6 +83,7 @@ API: dict[str, str] = {
     # visualisation
     "plot_map": "bayesmap.viz.maps",
     "plot_posterior": "bayesmap.viz.maps",
+    "plot_prior_samples": "bayesmap.viz.maps",
     "plot_convergence": "bayesmap.viz.diagnostics",
     "plot_importance": "bayesmap.viz.diagnostics",
     "save_figure": "bayesmap.viz.common",

@@ -42,6 +42,8 @@ from bayesmap.io.maps_out import (
 from bayesmap.io.rosbag import STORAGES, read_bag, write_log_bag, write_occupancy_grid_bag
 from bayesmap.io.rosmap import encode_rosmap, read_rosmap
 from bayesmap.io.tum import encode_tum, match_stamps, read_tum, tum_stamps
+from bayesmap.model import prior
+from bayesmap.model.prior import check_coupling, coupling_for_run_length
 from bayesmap.scenes import log_problem, scan_problem, tutorial_problem
 from bayesmap.viz.common import figure_bytes
 from bayesmap.viz.maps import plot_posterior, plot_posterior_path
@@ -355,6 +357,12 @@ def _in_range(name: str, lo: float | None = None, hi: float | None = None, lo_op
 POWER_HELP = ("--log: power eta in (0, 1] of the likelihood, sampling p(walls) p(readings | walls)^eta "
               "(a power posterior for beams that are not independent evidence; 1 is the plain posterior; "
               f"default {scenes.LOG_LIKELIHOOD_POWER} for logs)")
+COUPLING_HELP = ("the structured prior's coupling J >= 0, nats per pair of neighbouring cells that agree (a "
+                 "4-neighbour Markov random field, bayesmap.model.prior); default 0, independent cells (the tutorial's "
+                 "prior); with J > 0 --prior-wall-prob is a cell's wall probability given as many wall as free "
+                 "neighbours")
+RUN_LENGTH_HELP = ("the structured prior's coupling from a mean run length of equal cells, meters: "
+                   "J = log(L / resolution - 1) (bayesmap.model.prior.coupling_for_run_length); instead of --coupling")
 BEAM_WEIGHTS_HELP = ("beam model: mixture weights HIT,SHORT,MAX,RAND summing to 1 (default 0.8,0.05,0.05,0.1, "
                      "Probabilistic Robotics 6.3)")
 LAMBDA_SHORT_HELP = "beam model: rate of short readings, 1/m (default 0.1)"
@@ -408,6 +416,20 @@ LASER_OFFSET_HELP = ("the laser's mounting X Y THETA (m, m, rad) on base_link, w
                      "poses are the log's composed with its inverse")
 
 
+def _coupling(coupling: Optional[float], run_length: Optional[float], resolution: float) -> float:
+    """The structured prior's coupling from ``--coupling`` or ``--run-length`` (meters, at ``resolution`` meters per
+    cell); 0 when neither is given.
+
+    Raises:
+        BayesmapError: when both are given, or on a bad value (named).
+    """
+    if coupling is not None and run_length is not None:
+        raise BayesmapError("give either --coupling or --run-length, not both")
+    if run_length is not None:
+        return coupling_for_run_length(run_length, resolution)
+    return check_coupling(prior.DEFAULT_COUPLING if coupling is None else coupling)
+
+
 def _sampler_option(default: Optional[str], note: str = ""):
 
     return typer.Option(default, "--sampler", help=f"one of: {', '.join(SAMPLERS)}{note}")
@@ -455,6 +477,8 @@ def infer(
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
     lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help=LAMBDA_SHORT_HELP),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
+    coupling: Optional[float] = typer.Option(None, "--coupling", help=COUPLING_HELP),
+    run_length: Optional[float] = typer.Option(None, "--run-length", help=RUN_LENGTH_HELP),
     sampler: Optional[str] = _sampler_option(None, " (default block; cellwise for several scans of a log)"),
     sweeps: int = typer.Option(100, help="number of Gibbs sweeps", callback=_in_range("--sweeps", 1, MAX_SWEEPS)),
     burn_in: Optional[int] = typer.Option(None, "--burn-in", help="sweeps dropped before averaging (default: half)",
@@ -483,6 +507,8 @@ def infer(
     if method not in ("gibbs", "logodds"):
         raise BayesmapError(f"unknown method {method!r}; choose gibbs or logodds")
     sensor_params = _sensor_params(beam_weights, lambda_short)
+    carmen_like = log is not None or bag is not None
+    coupling = _coupling(coupling, run_length, resolution if carmen_like else 1.0)
     if method == "logodds" and (report or chains != 1):
         raise BayesmapError("--report and --chains need --method gibbs (log-odds mapping has no chain)")
     carmen = _read_log(log, bag, scan_topic, odom_topic, tf, max_range)
@@ -490,7 +516,8 @@ def infer(
         if map_file is not None:
             raise BayesmapError("give either --map or --log / --bag, not both")
         problem, title = _log_scene(carmen, log if log is not None else bag, scan, scans, resolution, prior_wall_prob,
-                                    sensor_noise, beam_model, range_offset, likelihood_power, sensor_params, geometry)
+                                    sensor_noise, beam_model, range_offset, likelihood_power, sensor_params, geometry,
+                                    coupling)
     else:
         if scan is not None or scans is not None or likelihood_power is not None or max_range is not None:
             raise BayesmapError("--scan, --scans, --likelihood-power and --max-range need --log FILE (or --bag)")
@@ -498,7 +525,7 @@ def infer(
             raise BayesmapError("--geometry applies to several scans of --log FILE (or --bag); maps keep the "
                                 "tutorial's entry geometry")
         problem = _map_scene(map_file, pos, seed, prior_wall_prob, sensor_noise, num_angles, beam_model,
-                             sensor_params)
+                             sensor_params, coupling)
         title = problem.source
     title = ("Log-odds occupancy, " if method == "logodds" else "Posterior wall probability, ") + title
     if sampler is None:
@@ -510,7 +537,7 @@ def infer(
 
 
 def _log_scene(carmen, path: Path, scan, scans, resolution, prior_wall_prob, sensor_noise, beam_model, range_offset,
-               likelihood_power, sensor_params, geometry=None):
+               likelihood_power, sensor_params, geometry=None, coupling=prior.DEFAULT_COUPLING):
     """``(problem, title)`` of ``infer --log/--bag``: one scan (``--scan N``, the single-scan model and the tutorial's
     defaults) or several (``--scans``, the log defaults of :mod:`bayesmap.scenes`)."""
     if scan is not None and scans is not None:
@@ -526,18 +553,19 @@ def _log_scene(carmen, path: Path, scan, scans, resolution, prior_wall_prob, sen
         problem = scan_problem(carmen, scan, resolution=resolution,
                                prior_wall_prob=scenes.TUTORIAL_PRIOR if prior_wall_prob is None else prior_wall_prob,
                                sensor_noise=noise, beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL,
-                               sensor_params=sensor_params)
+                               sensor_params=sensor_params, coupling=coupling)
         return problem, f"{path.name} scan {scan}"
     chosen = parse_scans(scans, len(carmen))
     problem = log_problem(carmen, chosen, resolution=resolution,
                           prior_wall_prob=scenes.LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
                           sensor_noise=noise, beam_model=beam_model or scenes.LOG_BEAM_MODEL,
                           range_offset=range_offset, sensor_params=sensor_params, likelihood_power=likelihood_power,
-                          geometry=scenes.LOG_GEOMETRY if geometry is None else geometry)
+                          geometry=scenes.LOG_GEOMETRY if geometry is None else geometry, coupling=coupling)
     return problem, f"{path.name}, {len(chosen)} scans"
 
 
-def _map_scene(map_file, pos, seed, prior_wall_prob, sensor_noise, num_angles, beam_model, sensor_params):
+def _map_scene(map_file, pos, seed, prior_wall_prob, sensor_noise, num_angles, beam_model, sensor_params,
+               coupling=prior.DEFAULT_COUPLING):
     """The problem of ``infer --map`` (or the tutorial map): readings simulated from the sensor at ``pos`` (default
     the map's center, the tutorial's ``GRID_SIZE // 2``), which must be a free cell."""
     walls = load_map(map_file) if map_file is not None else tutorial_map()
@@ -548,7 +576,8 @@ def _map_scene(map_file, pos, seed, prior_wall_prob, sensor_noise, num_angles, b
                             prior_wall_prob=scenes.TUTORIAL_PRIOR if prior_wall_prob is None else prior_wall_prob,
                             sensor_noise=scenes.TUTORIAL_SENSOR_NOISE if sensor_noise is None else sensor_noise,
                             num_angles=num_angles, source=str(map_file) if map_file else "tutorial map",
-                            beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL, sensor_params=sensor_params)
+                            beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL, sensor_params=sensor_params,
+                            coupling=coupling)
 
 
 def _read_log(log: Optional[Path], bag: Optional[Path], scan_topic: str, odom_topic: str, tf: bool,
@@ -794,6 +823,8 @@ def evaluate(
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help=EVALUATE_RANGE_OFFSET_HELP),
     geometry: Optional[str] = typer.Option(None, "--geometry", help=GEOMETRY_HELP),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
+    coupling: Optional[float] = typer.Option(None, "--coupling", help=COUPLING_HELP),
+    run_length: Optional[float] = typer.Option(None, "--run-length", help=RUN_LENGTH_HELP),
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
     lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help=LAMBDA_SHORT_HELP),
     seed: int = typer.Option(0, help="seed of the chain (and of the simulated scans)",
@@ -824,7 +855,8 @@ def evaluate(
     if json_file is not None and json_file.exists() and not force:
         raise BayesmapError(f"{str(json_file)!r} already exists; pass --force to replace it")
     mapping = dict(sampler=sampler, sweeps=sweeps, seed=seed, sensor_noise=sensor_noise, beam_model=beam_model,
-                   prior_wall_prob=prior_wall_prob, sensor_params=_sensor_params(beam_weights, lambda_short))
+                   prior_wall_prob=prior_wall_prob, sensor_params=_sensor_params(beam_weights, lambda_short),
+                   coupling=_coupling(coupling, run_length, resolution))
     carmen = _read_log(log, bag, scan_topic, odom_topic, tf, max_range)
     if carmen is not None:
         log = log if log is not None else bag

@@ -58,6 +58,7 @@ from bayesmap.model.generative import (
     simulate_scan_readings,
 )
 from bayesmap.model.motion import MotionParams, wrap_angle
+from bayesmap.model.prior import DEFAULT_COUPLING, disagreeing_pairs
 
 # ---------------------------------------------------------------------------------------------------------------
 # Scene defaults: every default of a scene, in one place
@@ -451,10 +452,14 @@ class Problem:
     def table_log_joint(self, walls) -> float:
         """``log p(walls, readings)`` from the ray-cell table: the prior's log-probability plus, per beam,
         the sensor model's log-density of its reading at the distance of its first wall (the max distance if none).
-        Memory and time grow with the table's pairs, not beams x cells."""
+        With a structured prior, the prior's part is :func:`bayesmap.model.prior.log_prior` (``-J`` per differing
+        pair of neighbours, as the model's observed connections score). Memory and time grow with the table's pairs,
+        not beams x cells."""
         walls = np.asarray(walls) > 0.5
         p = float(self.params.prior_wall_prob)
         prior = walls.sum() * math.log(p) + (walls.size - walls.sum()) * math.log1p(-p)
+        if self.params.structured:
+            prior -= float(self.params.coupling) * int(disagreeing_pairs(walls))
         dtype = jnp.result_type(float)
         if self.params.geometry == "chord":
             chords = jnp.asarray(self.table.first_wall_chords(walls), dtype=dtype)
@@ -485,10 +490,11 @@ class Problem:
 def tutorial_problem(walls=None, pos=TUTORIAL_POS, seed: int = TUTORIAL_SEED, prior_wall_prob: float = TUTORIAL_PRIOR,
                      sensor_noise: float = TUTORIAL_SENSOR_NOISE, num_angles: int = TUTORIAL_NUM_ANGLES,
                      source: str = "tutorial map", beam_model: str = TUTORIAL_BEAM_MODEL,
-                     sensor_params: dict | None = None) -> Problem:
+                     sensor_params: dict | None = None, coupling: float = DEFAULT_COUPLING) -> Problem:
     """The tutorial's scene: a map (default the built-in 21 x 21), the sensor at ``pos`` (meters, default the
     center) with heading 0, ``num_angles`` equally spaced beams, readings simulated from the sensor model with
-    ``jax.random.key(seed)`` (seed 0 gives the tutorial's readings).
+    ``jax.random.key(seed)`` (seed 0 gives the tutorial's readings). ``coupling``: the structured prior's ``J``
+    (:mod:`bayesmap.model.prior`; 0, the tutorial's independent prior); the readings do not depend on it.
 
     Raises:
         BayesmapError: on bad parameters or a sensor position outside the grid.
@@ -496,7 +502,7 @@ def tutorial_problem(walls=None, pos=TUTORIAL_POS, seed: int = TUTORIAL_SEED, pr
     walls = tutorial_map() if walls is None else (np.asarray(walls) > 0.5).astype(np.float32)
     grid = Grid(shape=walls.shape)
     params = make_params(prior_wall_prob, sensor_noise, num_angles, grid, beam_model=beam_model,
-                         **(sensor_params or {}))
+                         **(sensor_params or {}), coupling=coupling)
     grid.check_inside(pos)
     pos = np.asarray(pos, dtype=np.float64)
     beam_angles = np.asarray(angles(num_angles), dtype=np.float64)
@@ -546,7 +552,8 @@ def _log_scans(log, scans: np.ndarray, resolution: float, margin: float, grid: G
 
 def scan_problem(log, index: int, resolution: float = RESOLUTION, prior_wall_prob: float = TUTORIAL_PRIOR,
                  sensor_noise: float = TUTORIAL_SENSOR_NOISE, margin: float = MARGIN,
-                 beam_model: str = TUTORIAL_BEAM_MODEL, sensor_params: dict | None = None) -> Problem:
+                 beam_model: str = TUTORIAL_BEAM_MODEL, sensor_params: dict | None = None,
+                 coupling: float = DEFAULT_COUPLING) -> Problem:
     """The area around one real scan at its pose (a single-scan problem).
 
     ``sensor_noise`` should be about half a cell for real data: with the tutorial's 0.2 m on 0.1 m cells the
@@ -569,7 +576,7 @@ def scan_problem(log, index: int, resolution: float = RESOLUTION, prior_wall_pro
     scans = _log_scans(log, np.array([index]), resolution, margin, None)
     obs = scans.observations
     params = make_params(prior_wall_prob, sensor_noise, obs.num_beams, scans.grid, max_distance=obs.max_range,
-                         beam_model=beam_model, **(sensor_params or {}))
+                         beam_model=beam_model, **(sensor_params or {}), coupling=coupling)
     return Problem(params=params, observations=obs, poses=scans.poses, world_angles=scans.world_angles,
                    multi_scan=False, source=f"{log.path} scan {index}",
                    extra={"pose": [float(v) for v in scans.poses[0]], "max_range": obs.max_range})
@@ -579,7 +586,7 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
                 sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL, margin: float = MARGIN,
                 grid: Grid | None = None, range_offset: float | None = None,
                 sensor_params: dict | None = None, likelihood_power: float | None = None,
-                geometry: str = LOG_GEOMETRY) -> Problem:
+                geometry: str = LOG_GEOMETRY, coupling: float = DEFAULT_COUPLING) -> Problem:
     """Many scans of a real log at their poses: one map from all of them.
 
     The grid (``resolution`` meters per cell) covers the sensor positions and the endpoints of all beams that
@@ -602,6 +609,8 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
             :func:`bayesmap.model.generative.make_params`); default :data:`bayesmap.model.sensor.BEAM_DEFAULTS`.
         likelihood_power: :attr:`Problem.likelihood_power`; default :data:`LOG_LIKELIHOOD_POWER`.
         geometry: the wall geometry, ``"entry"`` (the tutorial's; default, :data:`LOG_GEOMETRY`) or ``"chord"``.
+        coupling: the structured prior's ``J`` (nats per agreeing pair of 4-neighbours,
+            :mod:`bayesmap.model.prior`); default 0, the independent prior.
 
     Raises:
         BayesmapError: on bad parameters or scan indices, or a sensor position outside ``grid``.
@@ -612,7 +621,7 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
     resolution = grid.resolution
     noise = real_sensor_noise(resolution) if sensor_noise is None else sensor_noise
     params = make_params(prior_wall_prob, noise, obs.num_beams, grid, max_distance=obs.max_range,
-                         beam_model=beam_model, geometry=geometry, **(sensor_params or {}))
+                         beam_model=beam_model, geometry=geometry, **(sensor_params or {}), coupling=coupling)
     label = (f"{log.path} scans {scans[0]}..{scans[-1]} ({len(scans)})" if len(scans) > 1
              else f"{log.path} scan {scans[0]}")
     offset = default_range_offset(resolution, geometry) if range_offset is None else float(range_offset)

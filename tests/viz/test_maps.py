@@ -11,7 +11,7 @@ from matplotlib.image import AxesImage
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import angles, sensor_distances
-from bayesmap.viz.maps import plot_map, plot_posterior, plot_posterior_path
+from bayesmap.viz.maps import plot_map, plot_posterior, plot_posterior_path, plot_prior_samples
 from helpers import POS, blurred, by_gid
 
 
@@ -281,3 +281,20 @@ def test_bad_scan_inputs(grid, walls, scan):
     with pytest.raises(BayesmapError, match="Grid"):
         plot_map((21, 21), walls)
 
+
+
+def test_plot_prior_samples(grid, walls):
+    """One panel per sample, each with its walls (the wall cells of that sample), default titles give the fraction
+    of walls; bad shapes and title counts are errors."""
+    empty = np.zeros_like(walls)
+    fig = plot_prior_samples(grid, np.stack([walls, empty, 1 - walls]), suptitle="prior")
+    axes = fig.get_axes()
+    assert len(axes) == 3
+    assert axes[0].get_title() == f"sample 0: {walls.mean():.2f} walls"
+    for ax, m in zip(axes, (walls, empty, 1 - walls)):
+        found = [a for a in ax.get_children() if a.get_gid() == "walls"]
+        assert len(found) == 1 and len(found[0].get_paths()) == int(m.sum())
+    with pytest.raises(BayesmapError, match="samples"):
+        plot_prior_samples(grid, walls)
+    with pytest.raises(BayesmapError, match="titles"):
+        plot_prior_samples(grid, np.stack([walls]), titles=["a", "b"])

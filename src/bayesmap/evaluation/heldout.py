@@ -31,6 +31,7 @@ from bayesmap.inference.driver import run_inference, run_logodds
 from bayesmap.inference.logodds import beam_hits_and_misses
 from bayesmap.io.rosmap import read_rosmap
 from bayesmap.model.generative import make_params, reading_log_likelihood
+from bayesmap.model.prior import DEFAULT_COUPLING
 from bayesmap.model.sensor import beam_sample
 from bayesmap.scenes import (
     LOG_BEAM_MODEL,
@@ -252,13 +253,14 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
                  sweeps: int = 100, seed: int = 0, prior_wall_prob: float = LOG_PRIOR,
                  sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL, progress: bool = True,
                  range_offset: float | None = None, sensor_params: dict | None = None,
-                 likelihood_power: float | None = None, geometry: str = LOG_GEOMETRY) -> dict:
+                 likelihood_power: float | None = None, geometry: str = LOG_GEOMETRY,
+                 coupling: float = DEFAULT_COUPLING) -> dict:
     """Held-out evaluation on a log: hold out every ``every``-th of the chosen scans, map the rest with bayesmap
     (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
     held-out beams (see the module docstring). ``sensor_noise`` (default half a cell), ``range_offset``,
-    ``sensor_params``, ``likelihood_power`` and ``geometry``: see :func:`bayesmap.scenes.log_problem` (log-odds
-    mapping always uses
-    the measured ranges); the other defaults are the scene defaults of :mod:`bayesmap.scenes`.
+    ``sensor_params``, ``likelihood_power``, ``geometry`` and ``coupling`` (the structured prior's): see
+    :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses the measured ranges); the other defaults are
+    the scene defaults of :mod:`bayesmap.scenes`.
 
     Returns:
         ``{"bayesmap": {...}, "logodds": {...}, "setup": {...}}`` (JSON-serializable).
@@ -275,7 +277,7 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
     grid = log_problem(log, scans, resolution=resolution).grid  # covers all chosen scans, held-out ones too
     kwargs = dict(resolution=resolution, prior_wall_prob=prior_wall_prob, sensor_noise=sensor_noise,
                   beam_model=beam_model, grid=grid, range_offset=range_offset, sensor_params=sensor_params,
-                  likelihood_power=likelihood_power, geometry=geometry)
+                  likelihood_power=likelihood_power, geometry=geometry, coupling=coupling)
     train_problem = log_problem(log, train, **kwargs)
     test_problem = log_problem(log, test, **kwargs)
     start = time.perf_counter()
@@ -293,6 +295,7 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
         "prior_wall_prob": float(prior_wall_prob), "train_pairs": int(train_problem.table.num_pairs),
         "range_offset": float(train_problem.range_offset), "likelihood_power": float(train_problem.likelihood_power),
         "geometry": geometry,
+        "coupling": float(train_problem.params.coupling),
     }
     return scores
 
@@ -323,7 +326,8 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
                    num_angles: int = SIMULATED_NUM_ANGLES, max_range: float = SIMULATED_MAX_RANGE,
                    sampler: str = "cellwise", sweeps: int = 100, seed: int = 0, sensor_noise: float | None = None,
                    beam_model: str = LOG_BEAM_MODEL, prior_wall_prob: float = LOG_PRIOR,
-                   clearance: float = SIMULATED_CLEARANCE, sensor_params: dict | None = None) -> dict:
+                   clearance: float = SIMULATED_CLEARANCE, sensor_params: dict | None = None,
+                   coupling: float = DEFAULT_COUPLING) -> dict:
     """Map synthetic scans of a known floor plan and score the maps against it.
 
     ``num_poses`` positions are drawn (seed ``seed``) uniformly among the known-free cells at least ``clearance``
@@ -335,7 +339,8 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
 
     Args:
         path: the floor plan, a ROS map (``.yaml``, or a bare ``.pgm`` with ``resolution`` meters per pixel).
-        sensor_noise: meters; default :func:`bayesmap.scenes.real_sensor_noise` (half a cell). The other defaults
+        sensor_noise: meters; default :func:`bayesmap.scenes.real_sensor_noise` (half a cell).
+        coupling: the structured prior's ``J`` (:mod:`bayesmap.model.prior`); default 0. The other defaults
             are the scene defaults of :mod:`bayesmap.scenes`.
 
     Returns:
@@ -375,7 +380,7 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
     relative = np.broadcast_to(np.linspace(0, 2 * np.pi, num_angles, endpoint=False), (num_poses, num_angles))
     noise = real_sensor_noise(grid.resolution) if sensor_noise is None else sensor_noise
     params = make_params(prior_wall_prob, noise, num_angles, grid, max_distance=max_range, beam_model=beam_model,
-                         **(sensor_params or {}))
+                         **(sensor_params or {}), coupling=coupling)
     world = poses[:, 2:3] + relative  # (the world-frame angles the Problem derives from the poses)
     table = build_ray_table(grid, np.repeat(positions, num_angles, axis=0), world.reshape(-1), max_range)
     readings = simulate_readings_from_table(jax.random.key(seed), table, walls, params).reshape(num_poses, num_angles)
@@ -397,5 +402,5 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
                        "num_poses": int(num_poses), "num_angles": int(num_angles), "max_range": float(max_range),
                        "sampler": sampler, "sweeps": int(sweeps), "beam_model": beam_model,
                        "sensor_noise": float(noise), "cells_scored": int(seen.sum()), "known_cells": int(known.sum()),
-                       "pairs": int(table.num_pairs)}
+                       "pairs": int(table.num_pairs), "coupling": float(coupling)}
     return scores

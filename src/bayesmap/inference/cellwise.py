@@ -29,6 +29,17 @@ classes would bring little parallelism. This sampler is the plain systematic-sca
   cells change rows per sweep on the Intel log). Within the sweep the map is kept in the visiting order, so that a
   block's cells are one contiguous slice.
 
+The structured prior (:mod:`bayesmap.model.prior`, ``params.coupling > 0``): a cell's log-odds gain ``J (n_wall -
+n_free)`` over its 4-neighbours, read from the map in visiting order (which then holds every cell: those no ray
+crosses after the others). Within each group the cells of one colour of the grid's checkerboard (``i + j`` even) come
+before the other's, so that the cells scored at once are rarely neighbours; the speculative rule also stops at the
+first draw that changes a cell with a neighbour later among the cells scored at once (whose score would otherwise be
+stale). The cells no ray crosses now depend on their neighbours: after the crossed cells, those of colour even are
+drawn all at once, then those of colour odd (two cells of one colour are never neighbours, and such a cell's
+conditional involves only its neighbours: each is drawn from its exact conditional, chromatic Gibbs). The draws
+are those of the one-cell-at-a-time sweep in this order. With ``J = 0`` nothing changes: the same order, lanes and
+draws as without the structured prior.
+
 Posterior marginals: each update draws its cell from ``p(cell | rest)``; each sweep reports these probabilities in
 its ``info`` (:attr:`bayesmap.inference.base.GibbsInfo.wall_prob`: the prior for cells no ray crosses), and the
 mean of these conditional probabilities over kept sweeps estimates the marginal ``P(cell is a wall | readings)``
@@ -59,7 +70,13 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raytable import RayTable
 from bayesmap.inference.base import GibbsInfo, KernelFields, KernelSampler, SamplingAlgorithm
 from bayesmap.model.generative import ModelParams, prior_log_odds
-from bayesmap.model.likelihood import likelihood_inputs, no_wall_log_likelihoods, pair_log_likelihoods, tempered
+from bayesmap.model.likelihood import (
+    likelihood_inputs,
+    no_wall_log_likelihoods,
+    pair_log_likelihoods,
+    tempered,
+)
+from bayesmap.model.prior import neighbour_field, neighbour_indices
 
 NO_WALL = float(1 << 22)  # "no such wall": a position beyond every ray (exact in float32)
 SEARCH_CHUNK = 32  # cells read per step of the walk along a ray to its next wall
@@ -106,12 +123,26 @@ def width_groups(counts: np.ndarray) -> list[tuple[int, np.ndarray]]:
 class Lanes(NamedTuple):
     """One group of cells of equal padded width ``W``: ``(n,)`` int32 ``cells``; per cell and lane, ``(n, W)``
     int32 ``rays`` (``R`` for padding), int32 ``positions`` along the ray, and ``log_lik`` ``log p(y_ray | stopping
-    distance of the cell)`` (0 for padding)."""
+    distance of the cell)`` (0 for padding); with the structured prior, ``neighbours`` ``(n, 4)`` int32 the places
+    of the cell's 4-neighbours in the visiting order (the number of visited cells, a slot that holds 0.5, for a
+    neighbour outside the grid), else None."""
 
     cells: jax.Array
     rays: jax.Array
     positions: jax.Array
     log_lik: jax.Array
+    neighbours: jax.Array | None = None
+
+
+def checkerboard_groups(groups, shape: tuple[int, int]):
+    """``groups`` (from :func:`width_groups`) with each group's cells reordered: those with ``i + j`` even first,
+    then the odd ones, each part ascending. Two cells of one part are never 4-neighbours."""
+    ny = shape[1]
+    out = []
+    for width, cells in groups:
+        odd = (cells // ny + cells % ny) % 2
+        out.append((width, cells[np.argsort(odd, kind="stable")]))
+    return out
 
 
 def _visiting_rank(groups, num_cells: int) -> np.ndarray:
@@ -173,10 +204,12 @@ def _row_blocks(num: np.ndarray, width: int, order: np.ndarray, first: int):
 @jax.tree_util.register_pytree_node_class
 class CellwiseKernel(KernelFields):
     """The sweep's data (pytree leaves) and code; built by :class:`CellwiseGibbs`. Problems with the same geometry
-    and sensor model (other readings, prior, noise, mixture weights) share one compiled sweep."""
+    and sensor model (other readings, prior, noise, mixture weights, coupling) share one compiled sweep.
+    ``_coupling`` is the structured prior's ``J`` (a scalar array), None for the independent prior; ``_free_cells``
+    the cells no ray crosses (int32, ascending), None for the independent prior."""
 
     _ARRAYS = ("_lanes", "_free", "_rank", "_pair_cells", "_pair_ll", "_ray_start", "_ray_length", "_max_ll",
-               "_prior_log_odds")
+               "_prior_log_odds", "_coupling", "_free_cells")
     _STATIC = ("_shape", "_num_rays", "_num_pairs")
 
     # -- the per-ray rows ---------------------------------------------------------------------------------------
@@ -318,12 +351,22 @@ class CellwiseKernel(KernelFields):
         def body(carry):
             i, cur, rows_all, probs = carry
             s = jnp.minimum(i, n - size)  # the block: cells s .. s + size - 1 of the group, those before i done
-            rays, positions, log_lik = (jax.lax.dynamic_slice_in_dim(a, s, size) for a in lanes[1:])
+            rays, positions, log_lik = (jax.lax.dynamic_slice_in_dim(a, s, size)
+                                        for a in (lanes.rays, lanes.positions, lanes.log_lik))
             score, can_add, can_remove = self._score(rows_all[rays], positions, log_lik)
-            prob = jax.nn.sigmoid(self._prior_log_odds + score)
+            log_odds = self._prior_log_odds + score
+            if lanes.neighbours is not None:  # the structured prior: J (n_wall - n_free), from the current map
+                neighbours = jax.lax.dynamic_slice_in_dim(lanes.neighbours, s, size)  # (size, 4) visiting places
+                log_odds = log_odds + self._coupling * jnp.sum(2.0 * cur[neighbours] - 1.0, axis=-1)
+                # a cell with a neighbour later among these: its change makes the later score stale
+                later = jnp.any((neighbours > base + s + j[:, None]) & (neighbours < base + s + size), axis=-1)
+            prob = jax.nn.sigmoid(log_odds)
             old = jax.lax.dynamic_slice_in_dim(cur, base + s, size) > 0
             new = jax.lax.dynamic_slice_in_dim(u, base + s, size) < prob
-            rewrites = (j >= i - s) & (new != old) & jnp.where(new, can_add, can_remove)
+            changes = jnp.where(new, can_add, can_remove)
+            if lanes.neighbours is not None:
+                changes = changes | later
+            rewrites = (j >= i - s) & (new != old) & changes
             stop = jnp.where(jnp.any(rewrites), jnp.argmax(rewrites), size)  # the first cell that changes rows
             keep = (j >= i - s) & (j <= stop)
             cur = jax.lax.dynamic_update_slice_in_dim(cur, jnp.where(keep, new, old).astype(cur.dtype), base + s, 0)
@@ -331,7 +374,10 @@ class CellwiseKernel(KernelFields):
                 probs, jnp.where(keep, prob.astype(probs.dtype), jax.lax.dynamic_slice_in_dim(probs, base + s, size)),
                 base + s, 0)
             k = s + jnp.minimum(stop, size - 1)
-            rows_all = jax.lax.cond(stop < size, lambda r: self._rewrite(lanes, k, jnp.any(new & (j == stop)), cur, r),
+            rewrite = stop < size
+            if lanes.neighbours is not None:  # a stop for a neighbour only: rows change only if the cell's rows do
+                rewrite = rewrite & jnp.any((j == stop) & jnp.where(new, can_add, can_remove))
+            rows_all = jax.lax.cond(rewrite, lambda r: self._rewrite(lanes, k, jnp.any(new & (j == stop)), cur, r),
                                     lambda r: r, rows_all)  # after writing cur: the walk reads the new map
             return s + jnp.minimum(stop + 1, size), cur, rows_all, probs
 
@@ -346,14 +392,29 @@ class CellwiseKernel(KernelFields):
         u = jax.random.uniform(key, walls.shape)
         prior = jax.nn.sigmoid(self._prior_log_odds)
         order = jnp.concatenate([lanes.cells for lanes in self._lanes])
+        if self._coupling is not None:  # every cell (those no ray crosses last), then the slot outside-the-grid
+            order = jnp.concatenate([order, self._free_cells])  # neighbours read: 2 * 0.5 - 1 = 0
         cur, u_order = walls[order], u[order]
+        if self._coupling is not None:
+            cur = jnp.append(cur, jnp.asarray(0.5, cur.dtype))
         probs = jnp.zeros(order.shape, jnp.float32)
         rows, base = state.ray_walls, 0
         for lanes in self._lanes:
             cur, rows, probs = self._sweep_group(lanes, base, cur, rows, probs, u_order)
             base += lanes.cells.shape[0]
-        walls = jnp.where(self._free, (u < prior).astype(walls.dtype), cur[self._rank])
-        wall_prob = jnp.where(self._free, prior.astype(jnp.float32), probs[self._rank])
+        if self._coupling is None:
+            walls = jnp.where(self._free, (u < prior).astype(walls.dtype), cur[self._rank])
+            wall_prob = jnp.where(self._free, prior.astype(jnp.float32), probs[self._rank])
+        else:  # the cells no ray crosses: one checkerboard colour at a time, each given its neighbours
+            walls, wall_prob = cur[self._rank], probs[self._rank]
+            nx, ny = self._shape
+            even = jnp.asarray((np.add.outer(np.arange(nx), np.arange(ny)) % 2 == 0).reshape(-1))
+            for colour in (even, ~even):
+                mask = self._free & colour
+                field = neighbour_field(walls.reshape(self._shape)).reshape(-1).astype(self._coupling.dtype)
+                p = jax.nn.sigmoid(self._prior_log_odds + self._coupling * field)
+                walls = jnp.where(mask, (u < p).astype(walls.dtype), walls)
+                wall_prob = jnp.where(mask, p.astype(jnp.float32), wall_prob)
         state = CellwiseState(walls=walls.reshape(self._shape), ray_walls=rows)
         return state, GibbsInfo(wall_prob=wall_prob.reshape(self._shape))
 
@@ -362,6 +423,8 @@ class CellwiseKernel(KernelFields):
         the sweep's own scoring (each cell alone, from the rows of ``walls``)."""
         rows_all = self.ray_walls(walls)
         out = jnp.full(self._shape[0] * self._shape[1], self._prior_log_odds, rows_all.dtype)
+        if self._coupling is not None:
+            out = out + self._coupling * neighbour_field(jnp.asarray(walls)).reshape(-1).astype(rows_all.dtype)
         for lanes in self._lanes:
             scores = self._score(rows_all[lanes.rays], lanes.positions, lanes.log_lik)[0]
             out = out.at[lanes.cells].add(scores)
@@ -379,8 +442,8 @@ class CellwiseGibbs(KernelSampler):
     Args:
         table: the ray-cell table (its rays in the order of ``readings``; any number of scans).
         readings: ``(R,)`` ranges, meters, max-range readings equal to the max distance.
-        params: model parameters (``prior_wall_prob`` and the sensor model; for ``"beam"`` the table's max distance
-            must be the model's max range ``params.max_range``).
+        params: model parameters (``prior_wall_prob``, the structured prior's ``coupling`` and the sensor model; for
+            ``"beam"`` the table's max distance must be the model's max range ``params.max_range``).
         likelihood_power: ``eta`` in (0, 1]: sample ``p(walls) p(readings | walls) ** eta``
             (every log-likelihood the sweep looks up times ``eta``: :func:`bayesmap.model.likelihood.tempered`); 1, the
             posterior, by default.
@@ -405,17 +468,29 @@ class CellwiseGibbs(KernelSampler):
         if eta != 1.0:  # every log-likelihood the sweep looks up, tempered (eta = 1 would leave them as they are)
             pair_ll, max_ll = tempered(pair_ll, eta), tempered(max_ll, eta)
         counts = table.rays_per_cell()
+        structured = params.structured
         groups = width_groups(counts)
-        rank = _visiting_rank(groups, table.num_cells)
+        free_cells = np.flatnonzero(counts == 0)
+        if structured:  # checkerboard colours one after the other in each group, every cell ranked (docstring)
+            groups = checkerboard_groups(groups, table.grid.shape)
+            rank = _visiting_rank(groups + [(0, free_cells)], table.num_cells)
+        else:
+            rank = _visiting_rank(groups, table.num_cells)
         lanes = _lanes(table, counts, groups, rank, pair_ll, dtype)
+        if structured:
+            places = np.append(rank, table.num_cells).astype(np.int32)  # -1 (outside) -> the 0.5 slot
+            lanes = tuple(part._replace(neighbours=jnp.asarray(places[neighbour_indices(table.grid.shape)[
+                np.asarray(part.cells)]])) for part in lanes)
         self.kernel = CellwiseKernel(
             _lanes=lanes, _free=jnp.asarray(counts == 0), _rank=jnp.asarray(rank),
+            _free_cells=jnp.asarray(free_cells, jnp.int32) if structured else None,
             _pair_cells=jnp.asarray(np.append(table.pair_cells, 0), jnp.int32),
             _pair_ll=pair_ll,
             _ray_start=jnp.asarray(np.append(table.offsets[:-1], num_pairs), jnp.int32),
             _ray_length=jnp.asarray(np.append(table.lengths, 0), jnp.int32),
             _max_ll=jnp.asarray(np.append(max_ll, 0.0), dtype),
             _prior_log_odds=jnp.asarray(prior_log_odds(params.prior_wall_prob), dtype),
+            _coupling=jnp.asarray(params.coupling, dtype) if structured else None,
             _shape=tuple(table.grid.shape), _num_rays=num_rays, _num_pairs=num_pairs)
 
     def ray_walls(self, walls) -> jax.Array:

@@ -28,7 +28,9 @@ inserted into each ray's two minima; a removed wall that was some ray's first or
 recompute the two minima from ``D`` and the map (for every ray at once: one vectorized pass over ``D``, equal to
 the old values on the rays the wall was not first or second on). The sensor model is
 :func:`bayesmap.model.generative.reading_log_likelihood`, tempered by :func:`bayesmap.model.likelihood.tempered`,
-and the prior part is :func:`bayesmap.model.generative.prior_log_odds`.
+and the prior part is :func:`bayesmap.model.generative.prior_log_odds`, plus, with the structured prior
+(:mod:`bayesmap.model.prior`, ``params.coupling > 0``), ``J (n_wall - n_free)`` over the cell's 4-neighbours in the
+current map (the raster sweep updates one cell at a time, so no two neighbours are drawn at once).
 
 Each cell is drawn with ``jax.random.categorical`` over its two values ``(free, wall)`` with one key of
 ``jax.random.split(key, N)``, as the reference raster sweep (:func:`bayesmap.inference.reference.reference_gibbs`)
@@ -56,6 +58,7 @@ from bayesmap.model.generative import (
     reading_log_likelihood,
 )
 from bayesmap.model.likelihood import tempered
+from bayesmap.model.prior import neighbour_indices
 
 MAX_DENSE_ENTRIES = 1 << 24
 """The largest dense table (``R * N`` rays times cells, 64 MB in float32) :func:`dense_gibbs` accepts."""
@@ -142,15 +145,20 @@ def dense_state(walls, poses, sensor_angles, params: ModelParams) -> DenseState:
 def cell_log_odds(state: DenseState, cell, readings, params: ModelParams, eta, prior_lo):
     """The conditional log-odds ``log p(cell = wall | rest) - log p(cell = free | rest)`` of one cell (flat index,
     traced or not) in ``state``, ``readings`` ``(R,)`` meters, likelihood power ``eta``, prior log-odds
-    ``prior_lo`` (:func:`bayesmap.model.generative.prior_log_odds`; see the module docstring). Returns a scalar
-    float."""
+    ``prior_lo`` (:func:`bayesmap.model.generative.prior_log_odds`; see the module docstring), plus the structured
+    prior's neighbour term when ``params.structured``. Returns a scalar float."""
     d = state.distances[:, cell]
     is_wall = state.walls.reshape(-1)[cell] > 0
     other = jnp.where(is_wall & (d == state.first), state.second, state.first)
     with_wall = jnp.minimum(d, other)
     diff = reading_log_likelihood(readings, with_wall, params) - reading_log_likelihood(readings, other, params)
     diff = jnp.where(d < other, diff, 0.0)
-    return prior_lo + jnp.sum(tempered(diff, eta))
+    log_odds = prior_lo + jnp.sum(tempered(diff, eta))
+    if params.structured:  # the structured prior's neighbour term, J (n_wall - n_free)
+        neighbours = jnp.asarray(neighbour_indices(params.grid.shape))[cell]
+        values = state.walls.reshape(-1)[jnp.maximum(neighbours, 0)]
+        log_odds = log_odds + params.coupling * jnp.sum(jnp.where(neighbours >= 0, 2.0 * values - 1.0, 0.0))
+    return log_odds
 
 
 def _set_cell(state: DenseState, cell, value, no_wall) -> DenseState:

@@ -170,6 +170,8 @@ def scene_summary(problem: Problem, method: dict, results: dict, posterior, mode
     summary = {"source": problem.source, **method}
     if model:
         summary.update(prior_wall_prob=float(params.prior_wall_prob), sensor_noise=float(params.sensor_noise))
+        if params.structured:  # the structured prior (bayesmap.model.prior); absent for the independent prior
+            summary.update(coupling=float(params.coupling), neighbourhood=int(params.neighbourhood))
     summary["num_angles"] = int(np.shape(problem.beam_angles)[-1])
     if problem.multi_scan:
         summary.update(num_scans=problem.num_scans, num_beams=int(problem.table.num_rays))

@@ -24,6 +24,15 @@ transition kernel* as the reference sweep in the same order; ``"chromatic"`` run
 are split (:func:`split_levels`) into fixed-size steps of a ``lax.scan`` of at most ``level_capacity`` (block,
 ray) entries; a block crossed by more rays is drawn over several steps (:class:`Levels`).
 
+The structured prior (:mod:`bayesmap.model.prior`, ``params.coupling > 0``) adds to a block's log-weights ``J`` times
+the agreements of its configuration with the block's 4-neighbours outside it, and ``J`` times the agreements of the
+pairs inside the block (enumerated with the configuration: :func:`bayesmap.model.prior.internal_agreements`); for one
+cell, ``J (n_wall - n_free)``. The blocks of a level must then not be neighbours either (two neighbouring cells drawn
+at once would each be drawn given the other's old value): the schedules count a shared edge between two blocks'
+cells as a conflict (:func:`dependency_levels` keeps their order). The neighbours' current values are read from the
+sweep's buffer, where every draw is written (:attr:`Levels.nbr_src`), and from the map at the start of the sweep
+(a copy of it sits after the ray words). With ``J = 0`` nothing changes.
+
 Each block is drawn by inverse CDF from one uniform (for single cells: wall with probability
 ``1 / (1 + exp(-log odds))``), which on the CPU is much cheaper than a Gumbel per configuration.
 """
@@ -49,6 +58,7 @@ from bayesmap.inference.schedules import (
 )
 from bayesmap.model.generative import ModelParams, prior_log_odds
 from bayesmap.model.likelihood import likelihood_inputs, log_likelihood_table, pair_log_likelihoods, tempered
+from bayesmap.model.prior import internal_agreements, neighbour_indices
 from bayesmap.model.sensor import normal_logpdf, reading_logpdf
 
 SCHEDULES = ("sequential", "chromatic")  # the ``schedule`` choices of :class:`FastGibbs`
@@ -117,6 +127,11 @@ class Levels(NamedTuple):
             none), in the chord geometry only (else None): a block wall and the first wall outside the block can
             enter at the same distance (the sensor's cell and the next one always do) but have different chords, and
             the first wall is then the earlier in the table's order, as in the model.
+        nbr_src: ``(NL, A, B, 4)`` int32, structured prior only (else None): buffer index where the current value of
+            each 4-neighbour of each block cell is (a block's draw, or the sweep's copy of the starting map), and
+        nbr_bit: ``(NL, A, B, 4)`` int32 which cell of that draw's configuration it is; and
+        nbr_on: ``(NL, A, B, 4)`` bool whether the neighbour counts: inside the grid, outside the block, and the step
+            draws the block.
     """
 
     src: jax.Array
@@ -134,6 +149,9 @@ class Levels(NamedTuple):
     stop_ll: jax.Array | None = None
     max_ll: jax.Array | None = None
     stop_pos: jax.Array | None = None
+    nbr_src: jax.Array | None = None
+    nbr_bit: jax.Array | None = None
+    nbr_on: jax.Array | None = None
 
 
 class _StepLayout(NamedTuple):
@@ -184,8 +202,9 @@ class FastGibbs(KernelSampler):
         table: the ray-cell table of the scene (its rays are in the order of ``readings``).
         readings: ``(R,)`` observed ranges, meters (for several scans, ``(S, K)`` readings flattened scan by scan,
             in the order of the table's rays); max-range readings equal to the max distance.
-        params: model parameters: ``prior_wall_prob`` and the sensor model (``beam_model``, ``sensor_noise`` and,
-            for ``"beam"``, the mixture's weights and ``lambda_short``, whose max range is the table's max distance);
+        params: model parameters: ``prior_wall_prob``, the structured prior's ``coupling`` and the sensor model
+            (``beam_model``, ``sensor_noise`` and, for ``"beam"``, the mixture's weights and ``lambda_short``, whose
+            max range is the table's max distance);
             geometry comes from the table. The dynamic parameters are kernel arrays (changing them reuses the
             compiled sweep); ``beam_model`` is static.
         order: ``"raster"`` or ``"outward"`` (block anchors' order).
@@ -233,9 +252,15 @@ class FastGibbs(KernelSampler):
         if pos is None:
             pos = table.origins[0] if table.num_rays else np.zeros(2)
         self.blocks = make_blocks(self.grid, block_size, order, pos)
+        self._block_shape = (min(int(block_size), self.grid.shape[0]), min(int(block_size), self.grid.shape[1]))
+        self._structured = params.structured
+        self._coupling = float(params.coupling)
+        neighbours = neighbour_indices(self.grid.shape) if self._structured else None
         make_levels = dependency_levels if schedule == "sequential" else chromatic_levels
-        base_levels = make_levels(self.blocks, table)
+        base_levels = make_levels(self.blocks, table, neighbours)
         self._num_cells = table.num_cells
+        # the structured prior: a copy of the map at the sweep's start after the ray words and the zero word
+        self._walls_words = table.num_cells if self._structured else 0
         # per-ray word layout of the state's bit strings, then one zero word
         num_words = (-(-table.lengths // WORD_BITS)).astype(np.int64)
         self._num_words = num_words
@@ -271,6 +296,8 @@ class FastGibbs(KernelSampler):
             _bits=jnp.asarray(self._config_bits),
             _sensor=self._sensor_args, _pair_ll=self._pair_log_likelihoods(),
             _power=jnp.asarray(inputs.likelihood_power, dtype=self._dtype),
+            _coupling=jnp.asarray(self._coupling, dtype=self._dtype) if self._structured else None,
+            _walls_words=self._walls_words,
             _beam_model=params.beam_model, _geometry=self.geometry, _max_words=self._max_words,
             _zero_word=self._zero_word,
             _chunked=not bool(np.all(np.asarray(self._steps.commit))), _dtype=jnp.dtype(self._dtype).name)
@@ -322,6 +349,8 @@ class FastGibbs(KernelSampler):
         layout = self._step_layout(levels, entries_per_step)
         src_words, fix_src, fix_pos = self._entry_sources(layout, chained)
         packed = self._levels_arrays(layout, levels, src_words, fix_src, fix_pos)
+        if self._structured:
+            packed = packed._replace(**self._neighbour_sources(layout, levels, chained))
         if not chained:
             return packed, None, None, None
         return (packed,) + self._final_gathers(layout, levels)
@@ -356,7 +385,7 @@ class FastGibbs(KernelSampler):
         carry_in = np.ones(num_steps, dtype=bool)
         carry_in[first_step] = False
         # the buffer: state words, one zero word, then per step its entries' words (W x E) and its draws (A)
-        base, stride = self._zero_word + 1, num_w * entries_per_step + width
+        base, stride = self._zero_word + 1 + self._walls_words, num_w * entries_per_step + width
         written = (base + step * stride)[:, None] + np.arange(num_w)[None, :] * entries_per_step + index[:, None]
         return _StepLayout(
             ray=ray, pos=pos, stop=stop, slot=sl, step=step, index=index, num_steps=num_steps,
@@ -397,8 +426,40 @@ class FastGibbs(KernelSampler):
         exists = np.vstack([self.blocks, np.full((1, size), -1)])[levels] >= 0  # (NL, A, B)
         bits_c = self._config_bits[None, None]  # (1, 1, C, B)
         prior = np.where(exists[:, :, None, :] & bits_c, self._prior_log_odds, 0.0).sum(-1)
+        if self._structured:  # the pairs of neighbours inside the block, enumerated with the configuration
+            prior = prior + self._coupling * internal_agreements(self._block_shape, self._config_bits)
         prior = np.where(np.any(bits_c & ~exists[:, :, None, :], axis=-1), -np.inf, prior)[layout.step_level]
         return np.where(layout.commit[:, None, None] | np.isinf(prior), prior, 0.0)
+
+    def _neighbour_sources(self, layout: _StepLayout, levels: np.ndarray, chained: bool) -> dict:
+        """The structured prior's :attr:`Levels.nbr_src`, ``nbr_bit`` and ``nbr_on`` of ``layout``: for each block
+        cell's 4-neighbour outside the block, the buffer index and configuration cell of its latest value before
+        the block's commit step (its last draw earlier in the sweep with ``chained``, else the sweep's copy of the
+        starting map, read as configuration index 0 or 1 at cell ``B - 1``)."""
+        size, nb = self.blocks.shape[1], len(self.blocks)
+        num_levels, width = levels.shape
+        first = self._zero_word + 1
+        latest_src = first + np.arange(self._num_cells, dtype=np.int64)
+        latest_bit = np.full(self._num_cells, size - 1, dtype=np.int64)
+        neighbours = neighbour_indices(self.grid.shape)
+        src = np.full((layout.num_steps, width, size, 4), self._zero_word, dtype=np.int64)
+        bit = np.zeros((layout.num_steps, width, size, 4), dtype=np.int64)
+        on = np.zeros((layout.num_steps, width, size, 4), dtype=bool)
+        draws = layout.base + self._max_words * layout.entries_per_step
+        for lv in range(num_levels):
+            step = layout.commit_step[lv]
+            slots = np.flatnonzero(levels[lv] < nb)
+            cells = self.blocks[levels[lv, slots]]  # (n, B)
+            near = neighbours[cells]  # (n, B, 4)
+            valid = (near >= 0) & ~np.any(near[..., None] == cells[:, None, None, :], axis=-1)
+            src[step, slots] = np.where(valid, latest_src[near], self._zero_word)
+            bit[step, slots] = np.where(valid, latest_bit[near], 0)
+            on[step, slots] = valid
+            if chained:  # the level's draws: no block of the level neighbours another, so after the level is right
+                latest_src[cells] = (draws + step * layout.stride + slots)[:, None]
+                latest_bit[cells] = np.arange(size)[None, :]
+        i32 = jnp.int32
+        return dict(nbr_src=jnp.asarray(src, i32), nbr_bit=jnp.asarray(bit, i32), nbr_on=jnp.asarray(on))
 
     def _levels_arrays(self, layout: _StepLayout, levels: np.ndarray, src_words, fix_src, fix_pos) -> Levels:
         """The :class:`Levels` of ``layout``: each entry's data at its (step, index), padding elsewhere; with the
@@ -505,7 +566,10 @@ class FastGibbs(KernelSampler):
             most = int(np.bincount(self._entries[0], minlength=len(self.blocks)).max(initial=1))
             self._single = self._pack(singles, max(most, 1), chained=False)[0]
         ray_bits = self.ray_bits(walls)
-        scores = jax.vmap(lambda lv: self.kernel._level_scores(ray_bits[lv.src], lv)[0])(self._single)[:, 0]
+        kernel = self.kernel
+        buffer = kernel.start_buffer(ray_bits, jnp.asarray(walls), 0)
+        scores = jax.vmap(lambda lv: kernel._level_scores(buffer[lv.src], lv, kernel._neighbour_field(buffer, lv))[0])(
+            self._single)[:, 0]
         if scores.ndim == 1:
             scores = jnp.stack([jnp.zeros_like(scores), scores], axis=-1)
         return scores
@@ -527,8 +591,8 @@ class FastKernel(KernelFields):
     then costs no more than the Normal's; the tables are recomputed with the readings, never compiled in."""
 
     _ARRAYS = ("_steps", "_final_words", "_final_walls", "_final_fix", "_pair_dists", "_pair_cells", "_pair_words",
-               "_pair_shift", "_bits", "_sensor", "_pair_ll", "_power")
-    _STATIC = ("_max_words", "_zero_word", "_chunked", "_dtype", "_beam_model", "_geometry")
+               "_pair_shift", "_bits", "_sensor", "_pair_ll", "_power", "_coupling")
+    _STATIC = ("_max_words", "_zero_word", "_chunked", "_dtype", "_beam_model", "_geometry", "_walls_words")
 
     @property
     def num_configurations(self) -> int:
@@ -578,9 +642,27 @@ class FastKernel(KernelFields):
             return self._pair_dists[pair], pair, found
         return self._pair_dists[pair]
 
-    def _level_scores(self, words, lv: Levels):
+    def start_buffer(self, ray_bits, walls, extra: int) -> jax.Array:
+        """A sweep's buffer: the ray words ``ray_bits`` (``(num_words + 1,)`` uint32), with the structured prior the
+        map ``walls`` ``(nx, ny)`` as uint32 0/1 (one word per cell), then ``extra`` zero words for the steps."""
+        parts = [ray_bits]
+        if self._walls_words:
+            parts.append((jnp.asarray(walls).reshape(-1) > 0).astype(jnp.uint32))
+        parts.append(jnp.zeros(extra, jnp.uint32))
+        return jnp.concatenate(parts)
+
+    def _neighbour_field(self, buffer, lv: Levels):
+        """``(A, B)`` ``n_wall - n_free`` over each block cell's counted 4-neighbours (:attr:`Levels.nbr_on`), their
+        values read from ``buffer``; None without the structured prior."""
+        if lv.nbr_src is None:
+            return None
+        values = self._bits[buffer[lv.nbr_src], lv.nbr_bit]  # (A, B, 4) bool
+        return jnp.sum(jnp.where(lv.nbr_on, jnp.where(values, 1.0, -1.0), 0.0), axis=-1).astype(self._dtype)
+
+    def _level_scores(self, words, lv: Levels, field=None):
         """Conditional scores of the blocks of one level from their rays' words ``(W, E)``: log-odds ``(A,)`` for
-        single cells, else log-weights ``(A, C)`` up to a constant; and the words with the blocks' bits cleared."""
+        single cells, else log-weights ``(A, C)`` up to a constant; and the words with the blocks' bits cleared.
+        ``field`` ``(A, B)``: the structured prior's :meth:`_neighbour_field` (times ``J``, added), or None."""
         outside = words & ~lv.block_bits
         if not self._lookup:
             m_out = self._first_outside(lv.pair0, outside)  # (E,)
@@ -608,9 +690,16 @@ class FastKernel(KernelFields):
         if ll.shape[0] == 2:  # single cells: one log-likelihood ratio per ray, summed into log-odds (a dot: XLA
             # turns a long masked sum into a slow reduce-window)
             log_odds = jnp.dot(mine.astype(ll.dtype), ll[1] - ll[0], precision=jax.lax.Precision.HIGHEST)
-            return log_odds + lv.log_prior[:, 1], outside  # the prior log-odds (configuration 0 has prior 0)
+            log_odds = log_odds + lv.log_prior[:, 1]  # the prior log-odds (configuration 0 has prior 0)
+            if field is not None:  # the structured prior: J (n_wall - n_free)
+                log_odds = log_odds + self._coupling * field[:, 0]
+            return log_odds, outside
         # many configurations: accumulate (A, C) rows over the entries (vectorized over A and C)
-        return jnp.sum(jnp.where(mine.T[:, :, None], ll.T[:, None, :], 0.0), axis=0) + lv.log_prior, outside
+        scores = jnp.sum(jnp.where(mine.T[:, :, None], ll.T[:, None, :], 0.0), axis=0) + lv.log_prior
+        if field is not None:  # J times each configuration's walls' n_wall - n_free (up to a constant per block)
+            scores = scores + self._coupling * jnp.dot(field, self._bits.T.astype(field.dtype),
+                                                       precision=jax.lax.Precision.HIGHEST)
+        return scores, outside
 
     @staticmethod
     def _draw(scores, u):
@@ -637,8 +726,8 @@ class FastKernel(KernelFields):
         width = steps.log_prior.shape[1]
         chunked = self._chunked
         uniforms = jax.random.uniform(key, (num_steps, width), dtype=self._dtype)
-        base, stride = self._zero_word + 1, num_w * entries_per_step + width
-        buffer = jnp.concatenate([state.ray_bits, jnp.zeros(num_steps * stride, jnp.uint32)])
+        base, stride = self._zero_word + 1 + self._walls_words, num_w * entries_per_step + width
+        buffer = self.start_buffer(state.ray_bits, state.walls, num_steps * stride)
         no_block = jnp.zeros((1, self._bits.shape[1]), dtype=bool)
 
         def one_step(carry, xs):
@@ -647,7 +736,7 @@ class FastKernel(KernelFields):
             words = buffer[lv.src]
             if chunked:
                 words = words | self._bits_of_draws(buffer, lv.fix_src, lv.fix_pos)
-            scores, outside = self._level_scores(words, lv)
+            scores, outside = self._level_scores(words, lv, self._neighbour_field(buffer, lv))
             if chunked:
                 scores = scores + jnp.where(lv.carry_in, acc, 0.0)
             choice = self._draw(scores, u)

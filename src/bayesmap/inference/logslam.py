@@ -98,7 +98,8 @@ def with_grid(params, grid: Grid):
     """``params`` (:class:`bayesmap.model.generative.ModelParams`) on another grid, every other value kept."""
     beam = {name: getattr(params, name) for name in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")}
     return make_params(params.prior_wall_prob, params.sensor_noise, params.num_angles, grid,
-                       max_distance=params.max_range, beam_model=params.beam_model, geometry=params.geometry, **beam)
+                       max_distance=params.max_range, beam_model=params.beam_model, geometry=params.geometry,
+                       coupling=params.coupling, neighbourhood=params.neighbourhood, **beam)
 
 
 def _pose_chain(data, likelihood_power: float):

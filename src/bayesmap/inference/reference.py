@@ -11,6 +11,10 @@ obviously right. The fast samplers in :mod:`bayesmap.inference.fast` are tested 
   ``trace.edit`` and keep the flip with probability ``sigmoid(incremental weight)``, which is exactly the Gibbs
   conditional of the flipped value.
 
+With a structured prior (``params.coupling > 0``, :mod:`bayesmap.model.prior`) the scored choice maps hold the
+observed ``"connections"``, so ``assess`` (and the incremental weight of ``edit``) includes the Markov random field's
+neighbour terms: the reference samplers need no change of their own.
+
 Source: Gibbs sampling by enumeration of full conditionals (Geman & Geman 1984; e.g. Bishop, *Pattern
 Recognition and Machine Learning*, sec. 11.3).
 """
@@ -55,7 +59,7 @@ def block_log_weights(walls, block_cells, readings, args):
 
     def score(config):
         candidate = walls.reshape(-1).at[block_cells].set(config).reshape(shape)
-        return full_model.assess(choices(candidate, readings), args)[0]
+        return full_model.assess(choices(candidate, readings, args[1]), args)[0]
 
     return jax.vmap(score)(configs)
 
@@ -127,7 +131,7 @@ def reference_incremental_gibbs(readings, pos, params: ModelParams, beam_angles=
     ny = params.grid.shape[1]
 
     def init(walls):
-        constraints = choices(jnp.asarray(walls, dtype=jnp.float32), readings)
+        constraints = choices(jnp.asarray(walls, dtype=jnp.float32), readings, args[1])
         trace, _ = full_model.importance(jax.random.key(0), constraints, args)
         return TraceState(trace=trace)
 

@@ -10,7 +10,8 @@ Blocks: a k x k block is anchored at every cell ``(i, j)`` with ``i <= nx - k`` 
 overlap and every cell belongs to at least one block ("blocks at every offset"); a 1 x 1 block is single-site
 Gibbs. ``k`` is clipped to the grid's shape.
 
-Parallel execution (used by the fast samplers only):
+Parallel execution (used by the fast samplers only; with the structured prior of :mod:`bayesmap.model.prior`,
+blocks with cells that share an edge conflict too, ``neighbours`` below):
 
 * :func:`dependency_levels` groups a sequence of block updates into levels. Two blocks *conflict* if they share
   a cell or a ray passes through both; the conditional of a block depends only on the cells of the rays through
@@ -109,13 +110,24 @@ def _pad_levels(level_of_block: np.ndarray, num_blocks: int) -> np.ndarray:
     return out
 
 
-def dependency_levels(blocks: np.ndarray, table) -> np.ndarray:
+def _near(cells: np.ndarray, neighbours) -> np.ndarray:
+    """``cells`` and, with ``neighbours`` ``(N, 4)`` (the structured prior's), their 4-neighbours inside the grid."""
+    if neighbours is None:
+        return cells
+    near = neighbours[cells].reshape(-1)
+    return np.concatenate([cells, near[near >= 0]])
+
+
+def dependency_levels(blocks: np.ndarray, table, neighbours=None) -> np.ndarray:
     """Group the sequential block updates ``blocks`` ``(NB, B)`` into levels of mutually non-conflicting blocks
     that preserve the order of every conflicting pair (see the module docstring).
 
     Args:
         blocks: ``(NB, B)`` flat cell indices, in sweep order.
         table: the scene's :class:`~bayesmap.geometry.raytable.RayTable`.
+        neighbours: ``(N, 4)`` flat indices of each cell's 4-neighbours (``-1`` outside the grid,
+            :func:`bayesmap.model.prior.neighbour_indices`) for the structured prior: blocks with neighbouring
+            cells conflict too (each one's conditional reads the other's cells); None (the independent prior): not.
 
     Returns:
         ``(num_levels, width)`` int32 block indices; padding ``NB`` (no block). Within a level, blocks keep their
@@ -127,23 +139,24 @@ def dependency_levels(blocks: np.ndarray, table) -> np.ndarray:
     level = np.empty(len(blocks), dtype=np.int64)
     for b, cells in enumerate(blocks):
         rays = np.concatenate([rays_of[c] for c in cells])
-        lv = max(int(cell_last[cells].max()), int(ray_last[rays].max()) if len(rays) else -1) + 1
+        lv = max(int(cell_last[_near(cells, neighbours)].max()), int(ray_last[rays].max()) if len(rays) else -1) + 1
         level[b] = lv
         cell_last[cells] = lv
         ray_last[rays] = lv
     return _pad_levels(level, len(blocks))
 
 
-def chromatic_levels(blocks: np.ndarray, table) -> np.ndarray:
+def chromatic_levels(blocks: np.ndarray, table, neighbours=None) -> np.ndarray:
     """Greedy colouring of the block conflict graph (visiting blocks in the given order); returns the colour
-    classes as ``(num_colours, width)`` int32 block indices, padding ``NB``. See the module docstring."""
+    classes as ``(num_colours, width)`` int32 block indices, padding ``NB``. See the module docstring;
+    ``neighbours`` as in :func:`dependency_levels`."""
     rays_of = cell_rays(table)
     ray_colours: list[set] = [set() for _ in range(table.num_rays)]
     cell_colours: list[set] = [set() for _ in range(table.num_cells)]
     colour = np.empty(len(blocks), dtype=np.int64)
     for b, cells in enumerate(blocks):
         rays = np.unique(np.concatenate([rays_of[c] for c in cells]))
-        used = set().union(*(cell_colours[c] for c in cells), *(ray_colours[r] for r in rays))
+        used = set().union(*(cell_colours[c] for c in _near(cells, neighbours)), *(ray_colours[r] for r in rays))
         c = 0
         while c in used:
             c += 1

@@ -1,7 +1,9 @@
 """The tutorial's generative model in GenJAX: the source of truth for every sampler.
 
 * prior: each cell is a wall with probability ``prior_wall_prob``, independently (``genjax.flip`` repeated over
-  the grid) at address ``"walls"``;
+  the grid) at address ``"walls"``; with a coupling ``J > 0`` (``params.coupling``, ``params.neighbourhood`` 4) the
+  structured prior of :mod:`bayesmap.model.prior`, a 4-neighbour Markov random field, through the observed
+  auxiliary address ``"connections"`` (after ``"readings"``; :func:`choices` sets it to all 1), exactly;
 * sensor model: each beam's range reading given the exact distance to the first wall (``genjax`` distribution
   vmapped over beams) at address ``"readings"``. ``params.beam_model`` picks it (:mod:`bayesmap.model.sensor`):
   ``"normal"`` (default) is the tutorial's ``Normal(exact distance, sensor_noise)`` (``genjax.normal``, unchanged);
@@ -43,7 +45,7 @@ from genjax import Pytree
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import angles, first_hit_chords, first_hit_distances
-from bayesmap.model import motion, sensor
+from bayesmap.model import motion, prior, sensor
 
 
 @Pytree.dataclass
@@ -68,6 +70,12 @@ class ModelParams(Pytree):
         geometry: ``"entry"`` (the tutorial's: a wall cell's reading is expected where the beam enters it) or
             ``"chord"`` (the hit averaged over the beam's chord through the cell), static: see
             :mod:`bayesmap.model.sensor`.
+        coupling: the structured prior's ``J`` >= 0, nats per pair of 4-neighbours that agree (dynamic; see
+            :mod:`bayesmap.model.prior`); default 0, the tutorial's independent prior.
+        neighbourhood: 0 (independent cells: the model has no ``"connections"`` address) or 4 (the Markov random
+            field on pairs of cells sharing an edge), static; :func:`make_params` sets 4 when ``coupling > 0``. With
+            4, ``prior_wall_prob`` is the conditional wall probability of a cell with as many wall as free
+            neighbours, not the marginal (:mod:`bayesmap.model.prior`).
     """
 
     prior_wall_prob: float = 0.5
@@ -82,6 +90,14 @@ class ModelParams(Pytree):
     z_rand: float = sensor.BEAM_DEFAULTS["z_rand"]
     lambda_short: float = sensor.BEAM_DEFAULTS["lambda_short"]
     geometry: str = Pytree.static(default="entry")
+    coupling: float = prior.DEFAULT_COUPLING
+    neighbourhood: int = Pytree.static(default=0)
+
+    @property
+    def structured(self) -> bool:
+        """True when the prior is the Markov random field (``neighbourhood > 0``): the model has a
+        ``"connections"`` address and every sampler's conditional a neighbour term."""
+        return self.neighbourhood > 0
 
     @property
     def max_range(self) -> float:
@@ -134,19 +150,24 @@ def make_params(
     z_rand: float = sensor.BEAM_DEFAULTS["z_rand"],
     lambda_short: float = sensor.BEAM_DEFAULTS["lambda_short"],
     geometry: str = "entry",
+    coupling: float = prior.DEFAULT_COUPLING,
+    neighbourhood: int | None = None,
 ) -> ModelParams:
     """Build :class:`ModelParams` after checking every value.
 
     The first five arguments keep their positions; the sensor model's are keyword-only: ``beam_model``
     (``"normal"`` or ``"beam"``), the mixture weights ``z_hit, z_short, z_max, z_rand`` and ``lambda_short`` (1/m),
     see :mod:`bayesmap.model.sensor` (checked for either model), and the wall ``geometry`` (``"entry"`` or
-    ``"chord"``).
+    ``"chord"``); the structured prior's ``coupling`` ``J`` (nats per agreeing pair of 4-neighbours,
+    :mod:`bayesmap.model.prior`) and ``neighbourhood`` (default: 4 if ``coupling > 0``, else 0, the tutorial's
+    independent prior and model).
 
     Raises:
         BayesmapError: if ``prior_wall_prob`` is not in (0, 1), ``sensor_noise`` is not finite and > 0,
             ``num_angles`` is not an integer >= 1, ``max_distance`` is not finite and > 0, ``beam_model`` is
-            unknown, ``geometry`` is unknown, or the mixture parameters are bad
-            (:func:`bayesmap.model.sensor.check_sensor_params`); the message names the bad value.
+            unknown, ``geometry`` is unknown, the mixture parameters are bad
+            (:func:`bayesmap.model.sensor.check_sensor_params`), the coupling is not in ``[0, MAX_COUPLING]`` or the
+            neighbourhood not 0 or 4 (0 with a coupling > 0); the message names the bad value.
     """
     p = float(prior_wall_prob)
     if not (0.0 < p < 1.0):
@@ -160,6 +181,10 @@ def make_params(
         raise BayesmapError(f"max_distance must be a finite number > 0 (meters), got {max_distance!r}")
     weights = sensor.check_sensor_params(beam_model, z_hit, z_short, z_max, z_rand, lambda_short)
     sensor.check_geometry(geometry)
+    coupling = prior.check_coupling(coupling)
+    neighbourhood = (4 if coupling > 0 else 0) if neighbourhood is None else prior.check_neighbourhood(neighbourhood)
+    if coupling > 0 and neighbourhood == 0:
+        raise BayesmapError(f"a coupling of {coupling!r} needs neighbourhood 4, got neighbourhood 0")
     return ModelParams(
         prior_wall_prob=p,
         sensor_noise=noise,
@@ -169,6 +194,8 @@ def make_params(
         beam_model=beam_model,
         geometry=geometry,
         **dict(zip(("z_hit", "z_short", "z_max", "z_rand", "lambda_short"), weights)),
+        coupling=coupling,
+        neighbourhood=neighbourhood,
     )
 
 
@@ -207,6 +234,8 @@ def full_model(pos, params: ModelParams, beam_angles):
     """
     walls = walls_prior(params.grid.shape)(params.prior_wall_prob) @ "walls"
     readings = sensor_model(pos, walls, params, beam_angles) @ "readings"
+    if params.structured:  # the structured prior's observed connections (bayesmap.model.prior); last: the keys of
+        prior.connections(walls, params.coupling) @ "connections"  # "walls" and "readings" stay the same
     return walls, readings
 
 
@@ -228,6 +257,8 @@ def multi_scan_model(poses, params: ModelParams, beam_angles):
     """
     walls = walls_prior(params.grid.shape)(params.prior_wall_prob) @ "walls"
     readings = scan_sensor_model(poses, walls, params, beam_angles) @ "readings"
+    if params.structured:  # as in full_model
+        prior.connections(walls, params.coupling) @ "connections"
     return walls, readings
 
 
@@ -264,7 +295,7 @@ def scan_args(poses, params: ModelParams, beam_angles) -> tuple:
 
 @jax.jit
 def _assess_scans(walls, readings, args):
-    return multi_scan_model.assess(choices(walls, readings), args)[0]
+    return multi_scan_model.assess(choices(walls, readings, args[1]), args)[0]
 
 
 def log_joint_scans(walls, readings, poses, params: ModelParams, beam_angles):
@@ -340,14 +371,20 @@ def model_args(pos, params: ModelParams, beam_angles=None) -> tuple:
     return (jnp.asarray(pos, dtype=jnp.result_type(float)), params, jnp.asarray(beam_angles))
 
 
-def choices(walls, readings):
-    """The choice map ``{"walls": walls, "readings": readings}``."""
-    return C["walls"].set(jnp.asarray(walls)) | C["readings"].set(jnp.asarray(readings))
+def choices(walls, readings, params: ModelParams | None = None):
+    """The choice map ``{"walls": walls, "readings": readings}``; with ``params`` of a structured prior
+    (``params.structured``) also the observed ``"connections"``, all 1
+    (:func:`bayesmap.model.prior.observed_connections`), so that ``assess`` scores the Markov random field's
+    unnormalized prior."""
+    chm = C["walls"].set(jnp.asarray(walls)) | C["readings"].set(jnp.asarray(readings))
+    if params is not None and params.structured:
+        chm = chm | C["connections"].set(prior.observed_connections(jnp.shape(walls)))
+    return chm
 
 
 @jax.jit
 def _assess(walls, readings, args):
-    return full_model.assess(choices(walls, readings), args)[0]
+    return full_model.assess(choices(walls, readings, args[1]), args)[0]
 
 
 def log_joint(walls, readings, pos, params: ModelParams, beam_angles=None):
@@ -422,6 +459,8 @@ def slam_model(first_pose, odometry_increments, odometry_covs, params: ModelPara
     poses = jnp.concatenate([first_pose[None], later], axis=0)
     walls = walls_prior(params.grid.shape)(params.prior_wall_prob) @ "walls"
     readings = scan_sensor_model(poses[:, :2], walls, params, poses[:, 2:3] + sensor_angles) @ "readings"
+    if params.structured:  # as in full_model
+        prior.connections(walls, params.coupling) @ "connections"
     return poses, walls, readings
 
 
@@ -452,15 +491,16 @@ def slam_args(first_pose, odometry_increments, odometry_covs, params: ModelParam
             jnp.asarray(covs, dtype=dtype), params, jnp.asarray(sensor_angles, dtype=dtype))
 
 
-def slam_choices(poses, walls, readings):
+def slam_choices(poses, walls, readings, params: ModelParams | None = None):
     """The choice map of :data:`slam_model`: ``{"poses": poses[1:], "walls": walls, "readings": readings}`` from the
-    whole path ``poses`` ``(S, 3)`` (its first pose is the model's argument, not a choice)."""
-    return C["poses"].set(jnp.asarray(poses)[1:]) | choices(walls, readings)
+    whole path ``poses`` ``(S, 3)`` (its first pose is the model's argument, not a choice); with ``params`` of a
+    structured prior also the observed ``"connections"`` (:func:`choices`)."""
+    return C["poses"].set(jnp.asarray(poses)[1:]) | choices(walls, readings, params)
 
 
 @jax.jit
 def _assess_slam(poses, walls, readings, args):
-    return slam_model.assess(slam_choices(poses, walls, readings), args)[0]
+    return slam_model.assess(slam_choices(poses, walls, readings, args[3]), args)[0]
 
 
 def log_joint_slam(poses, walls, readings, odometry_increments, odometry_covs, params: ModelParams, sensor_angles):

@@ -1,5 +1,6 @@
 """Map figures: the true map with a scan (:func:`plot_map`), and the posterior wall probability, optionally with its
-standard deviation and the robot's path (:func:`plot_posterior`, :func:`plot_posterior_path`).
+standard deviation and the robot's path (:func:`plot_posterior`, :func:`plot_posterior_path`), and maps drawn from a
+prior side by side (:func:`plot_prior_samples`).
 
 Every function returns a :class:`matplotlib.figure.Figure` (Agg canvas, never ``pyplot``); render it with
 :func:`bayesmap.viz.common.figure_bytes` or save it with :func:`bayesmap.viz.common.save_figure`. The grid
@@ -44,7 +45,7 @@ from bayesmap.viz.common import (
     setup_map_axes,
 )
 
-__all__ = ["plot_map", "plot_posterior", "plot_posterior_path"]
+__all__ = ["plot_map", "plot_posterior", "plot_posterior_path", "plot_prior_samples"]
 
 RAY_COLOR = "#1f78b4"
 READING_COLOR = "#1f78b4"
@@ -402,4 +403,42 @@ def plot_posterior_path(grid, posterior, path, *, title=None, std=False) -> Figu
     for ax in fig.axes[: 2 if std else 1]:  # the map panels (the colour bars come after them)
         ax.plot(points[:, 0], points[:, 1], color=PATH_COLOR, lw=0.6, alpha=0.7, label="sensor path",
                 gid="sensor_path")
+    return fig
+
+
+def plot_prior_samples(grid, samples, titles=None, *, suptitle=None) -> Figure:
+    """Maps drawn from a prior side by side, one panel each, walls drawn as on :func:`plot_map` (gid ``"walls"`` in
+    every panel).
+
+    Args:
+        grid: the :class:`~bayesmap.geometry.grid.Grid`.
+        samples: ``(N, nx, ny)`` maps (cells > 0.5 are walls), ``1 <= N <= 8``; for example from
+            :func:`bayesmap.model.prior.sample_prior`.
+        titles: ``N`` panel titles; default "sample k: f walls" with the fraction ``f`` of wall cells.
+        suptitle: a title over the panels, or None.
+
+    Returns:
+        The Figure.
+
+    Raises:
+        BayesmapError: on samples that are not ``(N, nx, ny)`` with ``1 <= N <= 8``, a non-finite value, or a number
+            of titles other than ``N``.
+    """
+    grid = check_grid(grid)
+    arr = np.asarray(samples)
+    if arr.ndim != 3 or not 1 <= arr.shape[0] <= 8:
+        raise BayesmapError(f"samples must have shape (N, nx, ny) with 1 <= N <= 8, got {arr.shape}")
+    maps = [check_cells(m, grid, f"samples[{k}]") for k, m in enumerate(arr)]
+    if titles is None:
+        titles = [f"sample {k}: {float(np.mean(m > 0.5)):.2f} walls" for k, m in enumerate(maps)]
+    if len(titles) != len(maps):
+        raise BayesmapError(f"{len(maps)} samples need {len(maps)} titles, got {len(titles)}")
+    width, height = _figsize(grid, 1, colorbar=False)
+    fig = new_figure((min(len(maps) * (width - 0.4) * 0.75 + 0.4, 18.0), height * 0.75))
+    for k, (walls, title) in enumerate(zip(maps, titles)):
+        ax = fig.add_subplot(1, len(maps), k + 1)
+        setup_map_axes(ax, grid, title)
+        draw_walls(ax, walls, grid)
+    if suptitle:
+        fig.suptitle(suptitle)
     return fig
