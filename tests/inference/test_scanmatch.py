@@ -38,18 +38,17 @@ def room_scans(num_poses=12, seed=0):
 
 
 def test_correlative_path_recovers_the_true_path():
-    """Matching every scan against the field of the scans before it recovers the true path to 3 cm and 0.01 rad
-    (the last search level resolves 3 mm; exact readings; the 0.05 m cells of the field and the nearest-cell lookup
-    limit it to about half a cell, 2.5 cm, plus the search's 3 mm), where the odometry is off by
-    decimeters: a matcher that ignores the field or
-    searches the wrong frame stays on the odometry."""
+    """Matching every scan against the field of the scans before it recovers the true path to 3 cm and 0.02 rad,
+    where the odometry is off by decimeters. Tolerances: the field lives on 0.05 m cells, so a match is good to about
+    half a cell (2.5 cm) plus the last search step (3 mm); over walls 1.5-4 m away that half cell is up to 0.017 rad
+    of heading. A matcher that ignores the field or searches in the wrong frame stays on the odometry."""
     grid, truth, odometry, beams, readings = room_scans()
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
     data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov))
     path = correlative_path(odometry[0], data, grid)
     assert np.abs(odometry - truth)[:, :2].max() > 0.1
     assert np.abs(path - truth)[:, :2].max() < 0.03
-    assert np.abs(path - truth)[:, 2].max() < 0.01
+    assert np.abs(path - truth)[:, 2].max() < 0.02
 
 
 def test_correlative_path_checks_shapes():
