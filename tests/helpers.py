@@ -169,3 +169,24 @@ def exact_slam_marginals(params, inc, cov, candidates, angles, y):
     prob = np.exp(logp - logp.max())
     prob /= prob.sum()
     return prob.sum(axis=(1, 2)), prob.sum(axis=(0, 2)), np.tensordot(prob.sum(axis=(0, 1)), maps, axes=1)
+
+
+def assess_cell_differences(grid, params, angles, y):
+    """A jitted ``brute(walls) -> (nx, ny)``: for every cell, the multi-scan model's ``assess`` (scans at
+    :data:`POSES`, beam angles ``angles``, readings ``y``) with the cell set to 1 minus with it set to 0, the exact
+    conditional log-odds the fast paths must reproduce."""
+    args = scan_args(POSES, params, angles)
+    readings = jnp.asarray(y)
+
+    @jax.jit
+    def brute(walls):
+        flat = walls.reshape(-1)
+
+        def diff(c):
+            on = multi_scan_model.assess(choices(flat.at[c].set(1.0).reshape(grid.shape), readings), args)[0]
+            off = multi_scan_model.assess(choices(flat.at[c].set(0.0).reshape(grid.shape), readings), args)[0]
+            return on - off
+
+        return jax.vmap(diff)(jnp.arange(flat.size)).reshape(grid.shape)
+
+    return brute

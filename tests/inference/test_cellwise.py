@@ -13,8 +13,8 @@ from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.inference import cellwise
 from bayesmap.inference.cellwise import NO_WALL, CellwiseGibbs, width_groups
 from bayesmap.inference.chains import run_chain, run_chains
-from bayesmap.model.generative import choices, make_params, multi_scan_model, prior_log_odds, scan_args
-from helpers import POSES, beam_enumeration_scene, scenes
+from bayesmap.model.generative import make_params, prior_log_odds
+from helpers import assess_cell_differences, beam_enumeration_scene, scenes
 
 
 @pytest.mark.parametrize("beam_model,likelihood_power", [("normal", 1.0), ("beam", 1.0), ("beam", 0.3)])
@@ -29,19 +29,7 @@ def test_conditionals_match_the_multi_scan_model(beam_model, likelihood_power):
     with enable_x64():
         grid, params, angles, _, y, table = scenes(beam_model, 7)
         sampler = CellwiseGibbs(table, y.reshape(-1), params, likelihood_power=likelihood_power)
-        args = scan_args(POSES, params, angles)
-        readings = jnp.asarray(y)
-
-        @jax.jit
-        def brute(walls):
-            flat = walls.reshape(-1)
-
-            def diff(c):
-                on = multi_scan_model.assess(choices(flat.at[c].set(1.0).reshape(grid.shape), readings), args)[0]
-                off = multi_scan_model.assess(choices(flat.at[c].set(0.0).reshape(grid.shape), readings), args)[0]
-                return on - off
-
-            return jax.vmap(diff)(jnp.arange(flat.size)).reshape(grid.shape)
+        brute = assess_cell_differences(grid, params, angles, y)
 
         rng = np.random.default_rng(3)
         for density in (0.15, 0.35, 0.6):

@@ -283,6 +283,19 @@ def test_lattice_mh_fixed_lattice_matches_the_exact_conditional():
             assert np.all(np.abs(freq.mean(0) - exact[d]) < 5 * se + 3e-3), (d, freq.mean(0), exact[d], se)
 
 
+def conditional_moments(data, odometry, walls):
+    """Mean and standard deviation ``(3,)`` of pose 1's exact conditional by quadrature on a 49^3 grid of step 0.025
+    (m, m, rad) over +-0.6 around the odometry."""
+    g = np.arange(-24, 25) * 0.025
+    pts = odometry[1] + np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+    logp = np.concatenate([np.asarray(pose_log_conditional(1, c, odometry, walls, data))
+                           for c in np.array_split(pts, 8)])
+    w = np.exp(logp - logp.max())
+    w /= w.sum()
+    mean = w @ pts
+    return mean, np.sqrt(w @ (pts - mean) ** 2)
+
+
 def test_lattice_mh_jittered_matches_the_continuous_conditional():
     """jitter = 0.5 (continuous poses): the chain's mean and standard deviation of pose 1 in x, y and theta against
     the exact conditional's, by quadrature on a 49^3 grid of step 0.025 (m, m, rad) over +-0.6 around the odometry
@@ -292,14 +305,7 @@ def test_lattice_mh_jittered_matches_the_continuous_conditional():
     (their sampling error and the burn-in)."""
     with enable_x64():
         data, odometry, walls = lattice_problem()
-        g = np.arange(-24, 25) * 0.025
-        pts = odometry[1] + np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
-        logp = np.concatenate([np.asarray(pose_log_conditional(1, c, odometry, walls, data))
-                               for c in np.array_split(pts, 8)])
-        w = np.exp(logp - logp.max())
-        w /= w.sum()
-        mean = w @ pts
-        sd = np.sqrt(w @ (pts - mean) ** 2)
+        mean, sd = conditional_moments(data, odometry, walls)
         kernel = lattice_pose_mh(data, 0.1, 0.1, half_width=1, jitter=0.5)
         poses = run_pose_chains(kernel, odometry, walls, 400, 200, 50)
         per_chain = poses.mean(axis=1)
@@ -317,14 +323,7 @@ def test_random_walk_mh_matches_the_continuous_conditional():
     the mean by several standard deviations of the conditional."""
     with enable_x64():
         data, odometry, walls = lattice_problem()
-        g = np.arange(-24, 25) * 0.025
-        pts = odometry[1] + np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
-        logp = np.concatenate([np.asarray(pose_log_conditional(1, c, odometry, walls, data))
-                               for c in np.array_split(pts, 8)])
-        w = np.exp(logp - logp.max())
-        w /= w.sum()
-        mean = w @ pts
-        sd = np.sqrt(w @ (pts - mean) ** 2)
+        mean, sd = conditional_moments(data, odometry, walls)
         kernel = random_walk_pose_mh(data, (0.1, 0.1, 0.1))
         poses = run_pose_chains(kernel, odometry, walls, 400, 500, 100)
         per_chain = poses.mean(axis=1)

@@ -32,7 +32,7 @@ from bayesmap.model.generative import (
     prior_log_odds,
     scan_args,
 )
-from helpers import POSES, random_scene, scenes
+from helpers import POSES, assess_cell_differences, random_scene, scenes
 
 SIGMA, MAX = 0.05, 8.0
 BEAM = (SIGMA, 0.8, 0.05, 0.05, 0.1, 0.1, MAX)
@@ -189,24 +189,6 @@ def test_model_chords_equal_the_tables():
         assert np.all(table.pair_exits - table.pair_dists <= math.sqrt(2) * grid.resolution * (1 + 1e-5))
 
 
-def _brute_cell_differences(grid, params, angles, y):
-    args = scan_args(POSES, params, angles)
-    readings = jnp.asarray(y)
-
-    @jax.jit
-    def brute(walls):
-        flat = walls.reshape(-1)
-
-        def diff(c):
-            on = multi_scan_model.assess(choices(flat.at[c].set(1.0).reshape(grid.shape), readings), args)[0]
-            off = multi_scan_model.assess(choices(flat.at[c].set(0.0).reshape(grid.shape), readings), args)[0]
-            return on - off
-
-        return jax.vmap(diff)(jnp.arange(flat.size)).reshape(grid.shape)
-
-    return brute
-
-
 @pytest.mark.parametrize("beam_model,likelihood_power", [("normal", 1.0), ("beam", 1.0), ("beam", 0.3)])
 def test_cellwise_conditionals_match_the_model_in_the_chord_geometry(beam_model, likelihood_power):
     """As tests/inference/test_cellwise.py::test_conditionals_match_the_multi_scan_model, in the chord geometry:
@@ -218,7 +200,7 @@ def test_cellwise_conditionals_match_the_model_in_the_chord_geometry(beam_model,
         sampler = CellwiseGibbs(table, y.reshape(-1), params, likelihood_power=likelihood_power)
         entry = CellwiseGibbs(table, y.reshape(-1), make_params(0.3, 0.4, 10, grid, 6.0, beam_model=beam_model),
                               likelihood_power=likelihood_power)
-        brute = _brute_cell_differences(grid, params, angles, y)
+        brute = assess_cell_differences(grid, params, angles, y)
         rng = np.random.default_rng(3)
         logit = prior_log_odds(params.prior_wall_prob)
         for density in (0.15, 0.35, 0.6):
