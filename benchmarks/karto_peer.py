@@ -38,8 +38,10 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from bayesmap import scenes
 from bayesmap.errors import BayesmapError
-from bayesmap.evaluation.trajectory import absolute_trajectory_error
+from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage
+from bayesmap.inference.logslam import run_log_slam
 from bayesmap.io.carmen import beam_offsets, read_carmen
 from bayesmap.io.rosbag import compose_poses, invert_pose
 from bayesmap.io.tum import read_tum
@@ -210,10 +212,6 @@ def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
     defaults, in this process, the same code as ``bayesmap slam --log``). ``extra`` gets the 95 % ellipse coverage
     of the truth and the posterior's median position standard deviation. Runtime: the whole run, compilation
     included."""
-    from bayesmap import scenes
-    from bayesmap.evaluation.trajectory import ellipse_coverage
-    from bayesmap.inference.logslam import run_log_slam
-
     slam_problem = scenes.log_slam_problem(read_carmen(problem.log_path))
     result = run_log_slam(slam_problem, seed=problem.seed)
     extra["coverage"] = ellipse_coverage(result.mean_path, result.pose_cov, problem.truth)

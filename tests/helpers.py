@@ -190,3 +190,36 @@ def assess_cell_differences(grid, params, angles, y):
         return jax.vmap(diff)(jnp.arange(flat.size)).reshape(grid.shape)
 
     return brute
+
+
+def assess_block_log_joints(grid, params, angles, y, blocks, configs):
+    """A jitted ``brute(walls) -> (NB, C)``: the multi-scan model's ``assess`` (scans at :data:`POSES`) with each
+    block of ``blocks`` ``(NB, B)`` (flat cell indices) set to each configuration of ``configs`` ``(C, B)``."""
+    args = scan_args(POSES, params, angles)
+    readings = jnp.asarray(y)
+
+    @jax.jit
+    def brute(walls):
+        flat = walls.reshape(-1)
+
+        def one(cells, config):
+            return multi_scan_model.assess(choices(flat.at[cells].set(config).reshape(grid.shape), readings),
+                                           args)[0]
+
+        per_block = jax.vmap(lambda cells: jax.vmap(lambda c: one(cells, c))(jnp.asarray(configs, flat.dtype)))
+        return per_block(jnp.asarray(blocks))
+
+    return brute
+
+
+def replay_one_at_a_time(log_odds, shape, walls, u, order, probs):
+    """Replay a sweep cell by cell: for each flat cell of ``order``, its wall probability from ``log_odds(walls)``
+    at the current map, then the draw ``u[c] < p``. ``walls`` ``(nx * ny,)`` float32 and ``probs`` are updated in
+    place; returns how many cells changed."""
+    changed = 0
+    for c in order:
+        probs[c] = np.asarray(jax.nn.sigmoid(log_odds(walls.reshape(shape)))).reshape(-1)[c]
+        new = np.float32(u[c] < probs[c])
+        changed += int(new != walls[c])
+        walls[c] = new
+    return changed

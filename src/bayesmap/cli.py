@@ -5,7 +5,6 @@ User errors (bad files, values, folders) print one line ``error: ...`` on stderr
 
 from __future__ import annotations
 
-import inspect
 import io
 import json
 import math
@@ -24,7 +23,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.heldout import evaluate_log, evaluate_truth
 from bayesmap.evaluation.trajectory import score_trajectory
 from bayesmap.inference.driver import run_inference, run_logodds
-from bayesmap.inference.logslam import run_log_slam
+from bayesmap.inference.logslam import BURN_IN_ROUNDS, ROUNDS, run_log_slam
 from bayesmap.inference.registry import SAMPLERS
 from bayesmap.inference.slam import run_slam
 from bayesmap.inference.traces import chain_traces
@@ -899,8 +898,7 @@ TUTORIAL_SLAM_SWEEPS = 60
 """``bayesmap slam``'s sweeps on the tutorial scene (a third burn-in); on a log the runner's default."""
 TUTORIAL_SLAM_POSES = 8
 """Poses on the tutorial scene's loop (``--num-poses``)."""
-LOG_SLAM_DEFAULTS = {{"rounds": "sweeps"}.get(name, name): p.default
-                     for name, p in inspect.signature(run_log_slam).parameters.items() if name in ("rounds", "burn_in")}
+LOG_SLAM_DEFAULTS = {"sweeps": ROUNDS, "burn_in": BURN_IN_ROUNDS}
 """``run_log_slam``'s own rounds and burn-in rounds: ``bayesmap slam --log`` without --sweeps and --burn-in runs them
 (on a log, one "sweep" of the joint chain is a round: map sweeps given the poses, then pose sweeps given the map)."""
 

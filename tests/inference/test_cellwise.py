@@ -14,7 +14,7 @@ from bayesmap.inference import cellwise
 from bayesmap.inference.cellwise import NO_WALL, CellwiseGibbs, width_groups
 from bayesmap.inference.chains import run_chain, run_chains
 from bayesmap.model.generative import make_params, prior_log_odds
-from helpers import assess_cell_differences, beam_enumeration_scene, scenes
+from helpers import assess_cell_differences, beam_enumeration_scene, replay_one_at_a_time, scenes
 
 
 @pytest.mark.parametrize("beam_model,likelihood_power", [("normal", 1.0), ("beam", 1.0), ("beam", 0.3)])
@@ -121,11 +121,7 @@ def test_sweep_is_the_one_cell_at_a_time_sweep(speculative, monkeypatch):
         state, info = step(key, state)
         u = np.asarray(jax.random.uniform(key, walls.shape))
         probs = np.full(walls.shape, prior, np.float32)
-        for c in order:
-            probs[c] = np.asarray(jax.nn.sigmoid(log_odds(walls.reshape(grid.shape)))).reshape(-1)[c]
-            new = np.float32(u[c] < probs[c])
-            changed += int(new != walls[c])
-            walls[c] = new
+        changed += replay_one_at_a_time(log_odds, grid.shape, walls, u, order, probs)
         walls[free] = u[free] < prior
         np.testing.assert_array_equal(np.asarray(state.walls).reshape(-1), walls)
         np.testing.assert_allclose(np.asarray(info.wall_prob).reshape(-1), probs, rtol=1e-6, atol=1e-7)

@@ -41,7 +41,7 @@ from bayesmap.model.prior import (
     neighbour_indices,
     sample_prior,
 )
-from helpers import POSES, run_cli, scenes
+from helpers import POSES, replay_one_at_a_time, run_cli, scenes
 
 COUPLING = 0.8
 
@@ -345,11 +345,7 @@ def test_cellwise_sweep_is_the_one_cell_at_a_time_sweep():
         state, info = step(key, state)
         u = np.asarray(jax.random.uniform(key, walls.shape))
         probs = np.zeros(walls.shape)
-        for c in order:
-            probs[c] = np.asarray(jax.nn.sigmoid(log_odds(walls.reshape(grid.shape)))).reshape(-1)[c]
-            new = np.float32(u[c] < probs[c])
-            changed += int(new != walls[c])
-            walls[c] = new
+        changed += replay_one_at_a_time(log_odds, grid.shape, walls, u, order, probs)
         np.testing.assert_array_equal(np.asarray(state.walls).reshape(-1), walls)
         np.testing.assert_allclose(np.asarray(info.wall_prob).reshape(-1), probs, rtol=1e-5, atol=1e-6)
         np.testing.assert_array_equal(np.asarray(state.ray_walls), np.asarray(sampler.ray_walls(state.walls)))

@@ -25,14 +25,11 @@ from bayesmap.inference.fast import FastGibbs
 from bayesmap.inference.schedules import block_configurations
 from bayesmap.model import sensor
 from bayesmap.model.generative import (
-    choices,
     log_joint_scans,
     make_params,
-    multi_scan_model,
     prior_log_odds,
-    scan_args,
 )
-from helpers import POSES, assess_cell_differences, random_scene, scenes
+from helpers import POSES, assess_block_log_joints, assess_cell_differences, random_scene, scenes
 
 SIGMA, MAX = 0.05, 8.0
 BEAM = (SIGMA, 0.8, 0.05, 0.05, 0.1, 0.1, MAX)
@@ -219,20 +216,9 @@ def test_block_samplers_match_the_model_in_the_chord_geometry(beam_model, block_
     with enable_x64():
         grid, params, angles, _, y, table = scenes(beam_model, 7, geometry="chord")
         fast = FastGibbs(table, y.reshape(-1), params, block_size=block_size)
-        args = scan_args(POSES, params, angles)
-        readings = jnp.asarray(y)
         configs = block_configurations(fast.blocks.shape[1])
 
-        @jax.jit
-        def brute(walls):
-            flat = walls.reshape(-1)
-
-            def one(cells, config):
-                return multi_scan_model.assess(choices(flat.at[cells].set(config).reshape(grid.shape), readings),
-                                               args)[0]
-
-            per_block = jax.vmap(lambda cells: jax.vmap(lambda c: one(cells, c))(jnp.asarray(configs, flat.dtype)))
-            return per_block(jnp.asarray(fast.blocks))
+        brute = assess_block_log_joints(grid, params, angles, y, fast.blocks, configs)  # (NB, C)
 
         rng = np.random.default_rng(3)
         for density in (0.15, 0.35, 0.6):

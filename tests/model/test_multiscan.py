@@ -27,7 +27,7 @@ from bayesmap.model.generative import (
     reading_log_likelihood,
     scan_args,
 )
-from helpers import POSES, beam_enumeration_scene, scenes, sweeps_keep_ray_bits
+from helpers import POSES, assess_block_log_joints, beam_enumeration_scene, scenes, sweeps_keep_ray_bits
 
 
 @pytest.mark.parametrize("beam_model", ["normal", "beam"])
@@ -91,20 +91,9 @@ def test_fast_conditionals_match_the_multi_scan_model(beam_model, block_size):
     with enable_x64():
         grid, params, angles, _, y, table = scenes(beam_model, 7)
         fast = FastGibbs(table, y.reshape(-1), params, block_size=block_size)
-        args = scan_args(POSES, params, angles)
-        readings = jnp.asarray(y)
         configs = block_configurations(fast.blocks.shape[1])  # (C, B)
 
-        @jax.jit
-        def brute(walls):  # (NB, C) log joint of every block configuration
-            flat = walls.reshape(-1)
-
-            def one(cells, config):
-                return multi_scan_model.assess(choices(flat.at[cells].set(config).reshape(grid.shape), readings),
-                                               args)[0]
-
-            per_block = jax.vmap(lambda cells: jax.vmap(lambda c: one(cells, c))(jnp.asarray(configs, flat.dtype)))
-            return per_block(jnp.asarray(fast.blocks))
+        brute = assess_block_log_joints(grid, params, angles, y, fast.blocks, configs)  # (NB, C)
 
         rng = np.random.default_rng(3)
         is_max = y.reshape(-1) == params.max_range

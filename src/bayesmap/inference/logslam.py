@@ -51,6 +51,9 @@ shifts)."""
 MAP_MARGIN = 2.0
 """Meters around the matched path's endpoints for the final grid (room for the chain's pose moves)."""
 
+FRONT_END_EXTRA_MARGIN = 5.0
+"""Meters the front end's grid adds to :data:`MAP_MARGIN` around the odometry's endpoints."""
+
 ROUNDS = 3
 """Default rounds of the joint chain (each: the walls given the poses, then the poses given the walls)."""
 
@@ -75,22 +78,19 @@ def scan_data(problem) -> ScanData:
                     np.asarray(covs))
 
 
-def fitted_grid(problem, path, resolution: float) -> Grid:
-    """The grid covering the returned beams' endpoints and the sensor positions at ``path`` ``(S, 3)`` plus
-    :data:`MAP_MARGIN` meters."""
-    data = scan_data(problem)
+def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MARGIN) -> Grid:
+    """The grid covering the returned beams' endpoints (:func:`scan_data`) and the sensor positions at ``path``
+    ``(S, 3)`` plus ``margin`` meters."""
     ends = np.asarray(scan_endpoints(jnp.asarray(path), data.sensor_angles, data.readings))
-    return Grid.covering(np.vstack([ends[data.returned], path[:, :2]]), resolution=resolution, margin=MAP_MARGIN)
+    return Grid.covering(np.vstack([ends[data.returned], path[:, :2]]), resolution=resolution, margin=margin)
 
 
-def front_end(problem) -> np.ndarray:
+def front_end(problem, data: ScanData) -> np.ndarray:
     """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad): correlative scan matching on a grid of
-    :data:`FRONT_END_RESOLUTION` meters covering the odometry's endpoints plus the problem's margin."""
-    data = scan_data(problem)
+    :data:`FRONT_END_RESOLUTION` meters covering the odometry's endpoints plus :data:`MAP_MARGIN` and
+    :data:`FRONT_END_EXTRA_MARGIN` meters (the odometry's map is distorted by its drift)."""
     odometry = np.asarray(problem.odometry, np.float64)
-    grid = fitted_grid(problem, odometry, FRONT_END_RESOLUTION)
-    grid = Grid.covering(np.asarray(grid.cell_centers()).reshape(-1, 2)[[0, -1]], resolution=FRONT_END_RESOLUTION,
-                         margin=5.0)
+    grid = fitted_grid(data, odometry, FRONT_END_RESOLUTION, MAP_MARGIN + FRONT_END_EXTRA_MARGIN)
     return correlative_path(odometry[0], data, grid)
 
 
@@ -127,12 +127,6 @@ def _map_round(key, problem, params, poses, walls, sweeps: int):
     return jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs)
 
 
-def start_path(problem) -> tuple[np.ndarray, int]:
-    """The joint chain's start: the front end's path after loop closure (:func:`front_end`,
-    :func:`bayesmap.inference.posegraph.close_loops`); returns ``(path (S, 3), number of loop edges)``."""
-    return close_loops(front_end(problem), scan_data(problem))
-
-
 def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, seed: int = 0, progress: bool = False,
                  map_sweeps: int = MAP_SWEEPS, pose_sweeps: int = POSE_SWEEPS) -> SlamResult:
     """Infer the path and the map of a real log (:func:`bayesmap.scenes.log_slam_problem`) with the pipeline of the
@@ -160,15 +154,15 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     start = time.perf_counter()
     with tqdm(total=2 + 2 * rounds, unit="stage", delay=1.0, disable=not progress, leave=False) as bar:
         bar.set_description("front end")
-        path = front_end(problem)
+        scans = scan_data(problem)
+        path = front_end(problem, scans)
         bar.update()
         bar.set_description("loop closure")
-        path, loops = close_loops(path, scan_data(problem))
+        path, loops = close_loops(path, scans)
         bar.update()
-        grid = fitted_grid(problem, path, problem.params.grid.resolution)
+        grid = fitted_grid(scans, path, problem.params.grid.resolution)
         params = with_grid(problem.params, grid)
-        increments, covs = odometry_controls(problem.odometry, problem.motion)
-        data = slam_data(increments, covs, problem.sensor_angles, problem.readings, params)
+        data = slam_data(scans.increments, scans.covs, problem.sensor_angles, problem.readings, params)
         pose_chain = _pose_chain(data, problem.likelihood_power)
         walls = jnp.zeros(grid.shape, jnp.float32)
         poses = jnp.asarray(path, data.increments.dtype)

@@ -328,13 +328,10 @@ def random_walk_pose_mh(data: SlamData, step_std=RANDOM_WALK_STD, likelihood_pow
         BayesmapError: on a bad step or likelihood power (the message names it).
     """
     eta = check_likelihood_power(likelihood_power)
-    try:
-        values = [float(v) for v in np.asarray(step_std, dtype=object).reshape(-1)]
-    except (TypeError, ValueError):
-        values = []
-    if len(values) != 3 or not all(math.isfinite(v) and v > 0 for v in values):
+    values = np.asarray(step_std, dtype=object).reshape(-1)
+    if len(values) != 3:
         raise BayesmapError(f"step_std must be three finite numbers > 0 (x m, y m, theta rad), got {step_std!r}")
-    scale = jnp.asarray(values, dtype=data.increments.dtype)
+    scale = jnp.asarray([_positive("step_std", v) for v in values], dtype=data.increments.dtype)
 
     def update(key, t, poses, walls):
         k_prop, k_acc = jax.random.split(key)

@@ -98,8 +98,9 @@ def add_scan(field, grid: Grid, pose, sensor_angles, readings, returned, sigma: 
     centers lie within ``radius`` meters of each endpoint, ``d`` the distance from the endpoint itself (not its
     cell: no half-cell bias). Endpoints outside the grid are skipped. Jittable."""
     offsets = _field_stencil(grid.resolution, radius)
-    coords = grid.to_cell_coords(scan_endpoints(pose, sensor_angles, readings)).reshape(-1, 2)
-    cells, inside = _cells(grid, scan_endpoints(pose, sensor_angles, readings))
+    ends = scan_endpoints(pose, sensor_angles, readings)
+    coords = grid.to_cell_coords(ends).reshape(-1, 2)
+    cells, inside = _cells(grid, ends)
     cells, ok = cells.reshape(-1, 2), (returned & inside).reshape(-1)
     target = cells[:, None, :] + offsets[None, :, :]
     d2 = jnp.sum((target - coords[:, None, :]) ** 2, axis=-1) * grid.resolution**2  # from the endpoint itself
