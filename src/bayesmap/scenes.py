@@ -667,6 +667,9 @@ class SlamProblem:
         source: a description for summaries.
         max_range_mask: ``(S, K)`` bool, True for max-range readings (no return), or None (none are).
         timestamps: ``(S,)`` float64 scan timestamps, seconds, or None (simulated scenes).
+        range_offset: meters the model's ``readings`` are short of what the sensor read (returned beams only; the
+            range offset of :func:`log_problem`, 0 for simulated scenes): the geometry of the scans themselves,
+            used by scan matching, is ``readings + range_offset``.
     """
 
     params: ModelParams
@@ -680,6 +683,7 @@ class SlamProblem:
     source: str = ""
     max_range_mask: np.ndarray | None = None
     timestamps: np.ndarray | None = None
+    range_offset: float = 0.0
 
     @property
     def num_scans(self) -> int:
@@ -829,4 +833,4 @@ def log_slam_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall
                        odometry=np.asarray(problem.poses, np.float64), sensor_angles=obs.beam_angles,
                        readings=problem.model_readings, likelihood_power=problem.likelihood_power,
                        source=problem.source, max_range_mask=mask,
-                       timestamps=np.asarray(log.timestamps, np.float64)[scans])
+                       timestamps=np.asarray(log.timestamps, np.float64)[scans], range_offset=problem.range_offset)

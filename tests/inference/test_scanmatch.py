@@ -37,18 +37,36 @@ def room_scans(num_poses=12, seed=0):
     return grid, truth, odometry, np.tile(beams, (num_poses, 1)), readings
 
 
-def test_correlative_path_recovers_the_true_path():
-    """Matching every scan against the field of the scans before it recovers the true path to 3 cm and 0.02 rad,
+@pytest.mark.parametrize("window", [None, 10.0])
+def test_correlative_path_recovers_the_true_path(window):
+    """Matching every scan against the field of the scans before it (all of them, or those of the last 10 m of
+    travel) recovers the true path to 3 cm and 0.02 rad,
     where the odometry is off by decimeters. Tolerances: the field lives on 0.05 m cells, so a match is good to about
     half a cell (2.5 cm) plus the last search step (3 mm); over walls 1.5-4 m away that half cell is up to 0.017 rad
-    of heading. A matcher that ignores the field or searches in the wrong frame stays on the odometry."""
+    of heading. A matcher that ignores the field, searches in the wrong frame or masks out its local map stays on the
+    odometry."""
     grid, truth, odometry, beams, readings = room_scans()
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
     data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov))
-    path = correlative_path(odometry[0], data, grid)
+    path = correlative_path(odometry[0], data, grid, window=window)
     assert np.abs(odometry - truth)[:, :2].max() > 0.1
     assert np.abs(path - truth)[:, :2].max() < 0.03
     assert np.abs(path - truth)[:, 2].max() < 0.02
+
+
+def test_a_window_shorter_than_every_step_leaves_the_odometry():
+    """With a local map of the last 1 micrometer of travel, no earlier scan is in any match's window, so each scan is
+    placed at the motion model's mode, the odometry's prediction, up to the finest lattice step per scan (3 mm and
+    0.8 mrad: the prior's curvature at that scale is below the float32 rounding of the scan's score), so the path
+    stays a decimeter off the truth where the 10 m window recovers it to 3 cm: the window does exclude the scans
+    beyond it."""
+    grid, truth, odometry, beams, readings = room_scans()
+    inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
+    data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov))
+    path = correlative_path(odometry[0], data, grid, window=1e-6)
+    steps = np.arange(len(path))[:, None] * np.array([0.003, 0.003, 0.0008]) + 1e-5
+    assert np.all(np.abs(path - odometry) <= steps)
+    assert np.abs(path - truth)[:, :2].max() > 0.1
 
 
 def test_correlative_path_checks_shapes():

@@ -69,11 +69,14 @@ POSE_SWEEPS = 8
 
 def scan_data(problem) -> ScanData:
     """The :class:`~bayesmap.inference.scanmatch.ScanData` of a :class:`bayesmap.scenes.SlamProblem` (odometry
-    controls under the problem's motion model; max-range beams marked as not returned)."""
+    controls under the problem's motion model; max-range beams marked as not returned). The readings are what the
+    sensor read: the model's readings plus the problem's ``range_offset``, so that scan matching aligns the scans'
+    true endpoints (the offset belongs to the map's cell geometry; subtracted, it shrinks every scan towards its pose
+    and biases each match along the direction of travel: 0.6 % of the distance on ACES)."""
     increments, covs = odometry_controls(problem.odometry, problem.motion)
     mask = problem.max_range_mask if problem.max_range_mask is not None else np.zeros(problem.readings.shape, bool)
     returned = ~np.asarray(mask, bool)
-    readings = np.where(returned, problem.readings, 0.0)
+    readings = np.where(returned, problem.readings + problem.range_offset, 0.0)
     return ScanData(np.asarray(problem.sensor_angles), readings, returned, np.asarray(increments),
                     np.asarray(covs))
 

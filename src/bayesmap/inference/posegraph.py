@@ -76,6 +76,15 @@ the loss only bounds what a gross false match can do."""
 ROUNDS = 3
 """Rounds of loop detection and optimization."""
 
+LOOP_GATE = 5.0
+"""Standard deviations: after the robust optimization, a loop edge whose whitened residual norm exceeds this is
+dropped and the graph optimized again without it (a false match: a corridor matched a metre along its axis fits
+no consistent path). Five sigma of a 3-dimensional residual is far out (chi-square with 3 degrees of freedom
+exceeds 25 with probability 1e-5), so true loops are kept."""
+
+MAX_EVALUATIONS = 200
+"""Most residual evaluations of one optimization (``least_squares``'s ``max_nfev``)."""
+
 
 
 class Edges(NamedTuple):
@@ -171,18 +180,24 @@ def concat_edges(*edges: Edges) -> Edges:
     return Edges(*(np.concatenate(parts) for parts in zip(*edges)))
 
 
-def optimize_pose_graph(path, edges: Edges) -> np.ndarray:
-    """The path ``(S, 3)`` float64 minimizing the robust edge cost (module docstring), pose 0 fixed at ``path[0]``,
-    started at ``path``."""
+def edge_residuals(path, edges: Edges) -> np.ndarray:
+    """``(E, 3)`` whitened residuals ``(relative(x_i, x_j) - z_ij) / std`` of ``edges`` at ``path`` ``(S, 3)``
+    (the angle difference wrapped to ``[-pi, pi)`` first)."""
+    path = np.asarray(path, np.float64)
+    e = relative(path[edges.i], path[edges.j]) - edges.z
+    e[:, 2] = wrap_angle(e[:, 2])
+    return e / edges.std
+
+
+def optimize_pose_graph(path, edges: Edges, scale: float = CAUCHY_SCALE) -> np.ndarray:
+    """The path ``(S, 3)`` float64 minimizing the robust edge cost (module docstring) with the Cauchy loss at
+    ``scale`` standard deviations, pose 0 fixed at ``path[0]``, started at ``path``."""
     path = np.asarray(path, np.float64)
     n = len(path)
     i, j = edges.i, edges.j
 
     def residuals(x):
-        poses = np.concatenate([path[:1], x.reshape(n - 1, 3)])
-        e = relative(poses[i], poses[j]) - edges.z
-        e[:, 2] = wrap_angle(e[:, 2])
-        return (e / edges.std).reshape(-1)
+        return edge_residuals(np.concatenate([path[:1], x.reshape(n - 1, 3)]), edges).reshape(-1)
 
     rows = np.repeat(np.arange(len(i) * 3), 6)
     cols = np.stack([3 * (i - 1)[:, None] + np.arange(3), 3 * (j - 1)[:, None] + np.arange(3)], axis=1)
@@ -192,24 +207,30 @@ def optimize_pose_graph(path, edges: Edges) -> np.ndarray:
                                        shape=(3 * len(i), 3 * (n - 1))).tocsr()
     sparsity.data[:] = 1
     fit = scipy.optimize.least_squares(residuals, path[1:].reshape(-1), jac_sparsity=sparsity, loss="cauchy",
-                                       f_scale=CAUCHY_SCALE, x_scale=1.0, method="trf", max_nfev=50)
+                                       f_scale=scale, x_scale=1.0, method="trf", max_nfev=MAX_EVALUATIONS)
     return np.concatenate([path[:1], fit.x.reshape(n - 1, 3)])
 
 
 def close_loops(path, data: ScanData, rounds: int = ROUNDS) -> tuple[np.ndarray, int]:
     """Alternate loop detection and pose-graph optimization ``rounds`` times from the front end's ``path``.
 
+    After each robust optimization, every loop edge whose whitened residual exceeds :data:`LOOP_GATE` is dropped
+    and the graph optimized again without it.
+
     Returns:
-        ``(path (S, 3) float64, number of loop edges of the last round)``.
+        ``(path (S, 3) float64, number of loop edges kept in the last round)``.
     """
     path = np.asarray(path, np.float64)
     sequential = sequential_edges(path)
     count = 0
     for _ in range(rounds):
         loops = loop_edges(path, data)
-        count = len(loops.i)
-        if count == 0:
+        if len(loops.i) == 0:
             break
         path = optimize_pose_graph(path, concat_edges(sequential, loops))
+        keep = np.linalg.norm(edge_residuals(path, loops), axis=1) <= LOOP_GATE
+        loops = Edges(*(a[keep] for a in loops))
+        count = len(loops.i)
+        if not keep.all():
+            path = optimize_pose_graph(path, concat_edges(sequential, loops))
     return path, count
-
