@@ -1,8 +1,8 @@
 """Correlative scan matching: a starting path for SLAM on real logs (the front end of a SLAM system).
 
 Each scan is matched, in order, against a likelihood field built from the endpoints of the scans before it at their
-matched poses, those taken within the last :data:`LOCAL_MAP_DISTANCE` meters of travel (Olson 2009, "Real-time correlative scan matching", ICRA; the likelihood field of Thrun, Burgard &
-Fox, *Probabilistic Robotics*, sec. 6.4):
+matched poses, those taken within the last :data:`LOCAL_MAP_DISTANCE` meters of travel (Olson 2009, "Real-time
+correlative scan matching", ICRA; the likelihood field of Thrun, Burgard & Fox, *Probabilistic Robotics*, sec. 6.4):
 
 * the field value of a cell is ``max over endpoint cells c' of exp(-|c - c'|^2 / (2 sigma^2))`` over the endpoints
   within a radius (``sigma`` and the radius: :data:`FIELDS`, meters), updated by a scatter-max after each
