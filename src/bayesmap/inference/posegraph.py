@@ -211,11 +211,24 @@ def optimize_pose_graph(path, edges: Edges, scale: float = CAUCHY_SCALE) -> np.n
     return np.concatenate([path[:1], fit.x.reshape(n - 1, 3)])
 
 
-def close_loops(path, data: ScanData, rounds: int = ROUNDS) -> tuple[np.ndarray, int]:
-    """Alternate loop detection and pose-graph optimization ``rounds`` times from the front end's ``path``.
+def optimize_with_loop_gate(path, sequential: Edges, loops: Edges) -> tuple[np.ndarray, Edges]:
+    """Optimize the graph of ``sequential`` and ``loops`` from ``path`` ``(S, 3)`` (:func:`optimize_pose_graph`),
+    then drop every loop edge whose whitened residual norm exceeds :data:`LOOP_GATE` and optimize again without them.
 
-    After each robust optimization, every loop edge whose whitened residual exceeds :data:`LOOP_GATE` is dropped
-    and the graph optimized again without it.
+    Returns:
+        ``(path (S, 3) float64, the loop edges kept)``.
+    """
+    path = optimize_pose_graph(path, concat_edges(sequential, loops))
+    keep = np.linalg.norm(edge_residuals(path, loops), axis=1) <= LOOP_GATE
+    if keep.all():
+        return path, loops
+    loops = Edges(*(a[keep] for a in loops))
+    return optimize_pose_graph(path, concat_edges(sequential, loops)), loops
+
+
+def close_loops(path, data: ScanData, rounds: int = ROUNDS) -> tuple[np.ndarray, int]:
+    """Alternate loop detection (:func:`loop_edges`) and gated pose-graph optimization
+    (:func:`optimize_with_loop_gate`) ``rounds`` times from the front end's ``path``.
 
     Returns:
         ``(path (S, 3) float64, number of loop edges kept in the last round)``.
@@ -227,10 +240,6 @@ def close_loops(path, data: ScanData, rounds: int = ROUNDS) -> tuple[np.ndarray,
         loops = loop_edges(path, data)
         if len(loops.i) == 0:
             break
-        path = optimize_pose_graph(path, concat_edges(sequential, loops))
-        keep = np.linalg.norm(edge_residuals(path, loops), axis=1) <= LOOP_GATE
-        loops = Edges(*(a[keep] for a in loops))
+        path, loops = optimize_with_loop_gate(path, sequential, loops)
         count = len(loops.i)
-        if not keep.all():
-            path = optimize_pose_graph(path, concat_edges(sequential, loops))
     return path, count
