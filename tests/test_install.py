@@ -7,8 +7,9 @@ a fresh clone in CI, on every run), and reinstalling it here took 2 minutes. The
 instead gets a site-packages of symlinks to every package the project's environment has installed (the lock's),
 leaving out the editable bayesmap (its `__editable__` .pth, which points at the source tree, and its dist-info), and
 the test checks that `bayesmap` cannot be imported there before the wheel is installed. So the wheel, not the source
-tree, is what runs, and `pip check` sees the wheel's requirements against the lock's versions. About 40 s on the
-2-core machine (the wheel build, two pip runs and the demo's 100 sweeps).
+tree, is what runs, and `pip check` sees the wheel's requirements against the lock's versions. About 26 s on the
+2-core machine (the wheel build, two pip runs and the demo's 100 sweeps). This is also the suite's test of `bayesmap
+demo` end to end (its summary, posterior.png and report.html).
 
 Not covered: installing requirements.lock into an empty venv (that is `make install`); `pip install .` with its build
 isolation resolving the newest versions of the dependencies (checked by hand: 80 s, then `bayesmap demo` gave the
@@ -79,7 +80,8 @@ def test_the_wheel_installs_next_to_the_locks_packages_and_runs_the_demo(tmp_pat
     work.mkdir()
     bayesmap = venv / "bin" / "bayesmap"  # the wheel's console script
     out = _run([bayesmap, "demo", "--out", work / "out", "--sweeps", "100"], cwd=work, timeout=600)
-    assert "1 of 217 visible cells wrong" in out
+    assert "2x2 block Gibbs" in out and "1 of 217 visible cells wrong" in out
+    assert (work / "out" / "posterior.png").read_bytes()[:4] == b"\x89PNG"
     assert (work / "out" / "report.html").stat().st_size > 10_000
     assert "convert" in _run([bayesmap, "--help"], cwd=work, timeout=120)
     # the installed package is the wheel's (in the venv, with its data file), not the source tree's
