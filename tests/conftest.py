@@ -1,8 +1,26 @@
-"""Shared fixtures: the tutorial scene with the tutorial's readings (key 0)."""
+"""Shared fixtures: the tutorial scene with the tutorial's readings (key 0); and the xdist_group marks made to work
+again under pytest 9.2 (below)."""
 
 import pytest
 
 from helpers import SHARED_DATA
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config, items):
+    """``--dist loadgroup`` sends the tests of one ``xdist_group`` to one worker by the ``@group`` suffix xdist adds
+    to their node ids; pytest-xdist 3.8 writes it to ``item._nodeid``, which pytest 9.2's structured node ids no
+    longer read, so the marks were silently ignored and every worker that ran a test of a group set up the group's
+    module fixtures again (pytest-dev/pytest-xdist#1386). Add the suffix to the structured id instead, on xdist
+    workers with loadgroup only, and only where xdist's own suffix is missing (a fixed xdist makes this a no-op)."""
+    if not getattr(config.option, "loadgroup", False):
+        return
+    for item in items:
+        names = sorted({str(mark.args[0] if mark.args else mark.kwargs.get("name", "default"))
+                        for mark in item.iter_markers("xdist_group")})
+        suffix = "@" + "_".join(names)
+        if names and not item.nodeid.endswith(suffix) and hasattr(item, "_id"):
+            item._id = type(item._id).parse(item.nodeid + suffix)  # parse keeps the string as given
 
 
 @pytest.fixture(scope="session")

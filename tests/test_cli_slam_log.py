@@ -9,14 +9,16 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from bayesmap.inference.logslam import POSE_SWEEPS
 from bayesmap.io.carmen import read_carmen
 from bayesmap.io.rosbag import read_bag
 from bayesmap.io.tum import read_tum, tum_stamps, write_tum
 from helpers import SHARED_DATA, run_cli, run_main
 
-SLICE = ("--scans", "0:25", "--resolution", "0.2", "--sweeps", "4", "--seed", "3")
-"""25 scans of ACES at 0.2 m cells, 4 sweeps: a slice whose timestamps increase strictly (ACES's do), so
-trajectory.tum carries them."""
+SLICE = ("--scans", "0:25", "--resolution", "0.2", "--sweeps", "3", "--seed", "3")
+"""25 scans of ACES at 0.2 m cells, 3 sweeps (the burn-in a third: 1): a slice whose timestamps increase strictly
+(ACES's do), so trajectory.tum carries them. Each sweep's map round compiles its own cellwise sweep (the ray table
+changes with the poses), about 10 s, so the runs are kept to the fewest sweeps that still drop a burn-in."""
 
 
 @pytest.fixture(scope="module")
@@ -25,6 +27,11 @@ def aces_odom():
     if not path.exists():
         pytest.skip("shared data not present")
     return path
+
+
+ONE_RUN = pytest.mark.xdist_group("slam_log_run")
+"""The tests that read :func:`log_run`'s folder: on one xdist worker (``--dist loadgroup``), so the module-scoped run
+happens once, not once per worker."""
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +43,7 @@ def log_run(aces_odom, tmp_path_factory):
     return out
 
 
+@ONE_RUN
 def test_slam_log_writes_every_output(log_run, aces_odom):
     names = {"trajectory.tum", "trajectory_samples.npy", "pose_cov.npy", "posterior.npy", "posterior.png",
              "summary.json", "report.html", "map.pgm", "map.yaml", "posterior.npz", "probability.png",
@@ -47,11 +55,12 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert np.array_equal(stamps, tum_stamps(log.timestamps)[:25]) and np.array_equal(stamps, log.timestamps[:25])
     samples = np.load(log_run / "trajectory_samples.npy")
     cov = np.load(log_run / "pose_cov.npy")
-    assert samples.ndim == 3 and samples.shape[1:] == (25, 3) and cov.shape == (25, 3, 3)
+    assert samples.shape == ((3 - 1) * POSE_SWEEPS, 25, 3) and cov.shape == (25, 3, 3)  # the rounds after burn-in
     assert np.allclose(poses[:, :2], samples[:, :, :2].mean(axis=0), atol=1e-5)  # the TUM file's 6 decimals
     assert np.allclose(poses[0], log.poses[0], atol=1e-5)  # the first pose anchors the frame: the odometry's
     summary = json.loads((log_run / "summary.json").read_text())
-    assert summary["num_scans"] == 25 and summary["settings"]["sweeps"] == 4 and summary["settings"]["seed"] == 3
+    settings = summary["settings"]
+    assert summary["num_scans"] == 25 and settings["sweeps"] == 3 and settings["burn_in"] == 1 and settings["seed"] == 3
     assert summary["pose_samples"] == len(samples) and 0 <= summary["acceptance_rate"] <= 1
     posterior = np.load(log_run / "posterior.npy")
     assert list(posterior.shape) == summary["grid"]["shape"] and summary["grid"]["resolution"] == 0.2
@@ -64,6 +73,7 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert "data:image/png;base64," in (log_run / "report.html").read_text()
 
 
+@ONE_RUN
 def test_slam_bag_gives_the_logs_trajectory(log_run, aces_odom, tmp_path, monkeypatch, capsys):
     """The slice written as a ROS 1 bag by `bayesmap convert` maps to the log's path (same seed): the bag keeps
     ranges and poses exactly and beam angles to 2e-7 rad (float32)."""
@@ -80,6 +90,7 @@ def test_slam_bag_gives_the_logs_trajectory(log_run, aces_odom, tmp_path, monkey
     assert np.abs(np.angle(np.exp(1j * (poses[:, 2] - log_poses[:, 2])))).max() < 1e-3  # radians
 
 
+@ONE_RUN
 def test_evaluate_runs_slam_on_the_log(log_run, aces_odom, tmp_path, monkeypatch, capsys):
     """Without --run, evaluate runs SLAM on the log's slice itself: the same path as `slam --log` with the same
     options and seed (so the same scores as --run on that folder); the truth has one pose per scan of the whole log,

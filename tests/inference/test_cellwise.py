@@ -191,13 +191,15 @@ def test_rao_blackwellized_marginals_match_exact_enumeration():
 
 def test_wall_prob_of_the_last_cell_is_its_conditional_given_the_final_map():
     """The last cell a sweep updates is drawn given the final map of the sweep: its recorded probability equals the
-    sigmoid of :meth:`CellwiseKernel.cell_log_odds` on that map (float32 rounding)."""
+    sigmoid of :meth:`CellwiseKernel.cell_log_odds` on that map (float32 rounding). Both jitted once (as the chains
+    run them; un-jitted, each sweep re-traced its loops: 2 s a sweep)."""
     grid, params, angles, _, y, table = scenes("beam", 7)
     sampler = CellwiseGibbs(table, y.reshape(-1), params)
     last = int(sampler.kernel._lanes[-1].cells[-1])
     state = sampler.init(jnp.zeros(grid.shape))
+    step, cell_log_odds = jax.jit(sampler.step), jax.jit(sampler.cell_log_odds)
     for k in range(5):
-        state, info = sampler.step(jax.random.key(k), state)
-        cond = np.asarray(jax.nn.sigmoid(sampler.cell_log_odds(state.walls))).reshape(-1)
+        state, info = step(jax.random.key(k), state)
+        cond = np.asarray(jax.nn.sigmoid(cell_log_odds(state.walls))).reshape(-1)
         prob = np.asarray(info.wall_prob).reshape(-1)
         np.testing.assert_allclose(prob[last], cond[last], rtol=1e-5, atol=1e-6)
