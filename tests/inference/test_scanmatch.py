@@ -97,20 +97,25 @@ def square_loop():
     return np.concatenate([xy, heading[:, None]], axis=1)
 
 
+def drifted_square_loop():
+    """:func:`square_loop` (the truth), its sequential edges with a 0.15 rad heading error added at step 3, and the
+    path those edges compose to (it ends over 0.5 m off)."""
+    truth = square_loop()
+    seq = posegraph.sequential_edges(truth)
+    z = seq.z.copy()
+    z[3, 2] += 0.15
+    drifted = [truth[0]]
+    for inc in z:
+        drifted.append(np.asarray(compose(jnp.asarray(drifted[-1]), jnp.asarray(inc))))
+    return truth, seq._replace(z=z), np.asarray(drifted)
+
+
 def test_pose_graph_closes_a_loop():
     """A square loop whose sequential edges carry a 0.15 rad heading error at one step (the path ends over 0.5 m off):
     with one correct loop edge (last -> first) the optimized path is within 0.25 m of the truth everywhere (the
     heading error is spread over the loop's edges), and
     without it the error stays: the loop edge, not the optimizer, makes the difference."""
-    truth = square_loop()
-    seq = posegraph.sequential_edges(truth)
-    z = seq.z.copy()
-    z[3, 2] += 0.15
-    seq = seq._replace(z=z)
-    drifted = [truth[0]]
-    for inc in z:
-        drifted.append(np.asarray(compose(jnp.asarray(drifted[-1]), jnp.asarray(inc))))
-    drifted = np.asarray(drifted)
+    truth, seq, drifted = drifted_square_loop()
     assert np.hypot(*(drifted - truth)[:, :2].T).max() > 0.5
     loop = posegraph.Edges(np.array([0]), np.array([15]), posegraph.relative(truth[:1], truth[15:]),
                            np.array([[0.01, 0.01, 0.005]]))
@@ -126,15 +131,7 @@ def test_the_loop_gate_drops_a_false_loop_match():
     edges' a few) and drops only it, and the re-solved path is the solution of the graph without it (to 1 mm). The
     false edge matters: the robust solve that keeps it is twice as far from the truth on average (0.14 m against
     0.07 m, deterministic; the bound is 0.6 of it)."""
-    truth = square_loop()
-    seq = posegraph.sequential_edges(truth)
-    z = seq.z.copy()
-    z[3, 2] += 0.15
-    seq = seq._replace(z=z)
-    drifted = [truth[0]]
-    for inc in z:
-        drifted.append(np.asarray(compose(jnp.asarray(drifted[-1]), jnp.asarray(inc))))
-    drifted = np.asarray(drifted)
+    truth, seq, drifted = drifted_square_loop()
     i, j = np.array([0, 1, 0, 4]), np.array([15, 15, 14, 12])
     measured = posegraph.relative(truth[i], truth[j])
     measured[3, 0] += 1.0
