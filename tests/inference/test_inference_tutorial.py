@@ -11,6 +11,10 @@ from bayesmap.inference.registry import make_sampler
 
 REFERENCE = ["reference-raster", "reference-incremental", "reference-outward", "reference-block"]
 FAST = ["raster", "outward", "chromatic", "block", "chromatic-block"]
+REFERENCE_BLOCK_SWEEPS = 16
+"""Sweeps of the tutorial's own 2x2 block sampler (16 assess calls per block, 0.6 s a sweep, 30 times the fast
+block's): its chain is right from sweep 7 on at both priors, so the mean over sweeps 8-16 is the converged one
+(1 wrong visible cell at both priors with key 0; the fast samplers keep their 30 and 40 sweeps)."""
 
 
 def wrong_after(problem, sampler, sweeps, seed=0):
@@ -32,7 +36,7 @@ def test_importance_sampling_collapses(tutorial):
 
 @pytest.mark.parametrize("sampler", REFERENCE + FAST)
 def test_every_gibbs_variant_converges_at_prior_half(tutorial, sampler):
-    wrong, _ = wrong_after(tutorial, sampler, 30)
+    wrong, _ = wrong_after(tutorial, sampler, REFERENCE_BLOCK_SWEEPS if sampler == "reference-block" else 30)
     assert wrong <= 2
 
 
@@ -44,8 +48,8 @@ def test_single_site_gibbs_is_stuck_at_low_prior(tutorial_low_prior, sampler):
 
 @pytest.mark.parametrize("sampler", ["reference-block", "block"])
 def test_block_gibbs_recovers_at_low_prior(tutorial_low_prior, sampler):
-    # the tutorial's block chain is right from sweep 7 on; 40 sweeps keep the reference affordable
-    wrong, _ = wrong_after(tutorial_low_prior, sampler, 40)
+    # the tutorial's block chain is right from sweep 7 on
+    wrong, _ = wrong_after(tutorial_low_prior, sampler, REFERENCE_BLOCK_SWEEPS if sampler == "reference-block" else 40)
     assert wrong <= 2
 
 

@@ -20,6 +20,10 @@ OFFSET = (0.3, -0.1, 0.2)  # an off-center laser, rotated 0.2 rad
 # mapping settings: coarse cells and few sweeps, so each run is quick
 MAPPING = ["--resolution", "0.5", "--sweeps", "6", "--seed", "3"]
 
+# the module's tests share its bags and the log's posterior (module fixtures, ~10 s each): on one xdist worker
+# (--dist loadgroup), so each is made once, not once per worker
+pytestmark = pytest.mark.xdist_group("rosbag")
+
 
 def _slice(log: CarmenLog, n: int) -> CarmenLog:
     return CarmenLog(path=log.path, ranges=log.ranges[:n], poses=log.poses[:n], angles=log.angles[:n],

@@ -54,7 +54,8 @@ def test_simulate_readings_are_normal_around_the_exact_distances():
     walls = tutorial_map()
     params = make_params(sensor_noise=0.3)
     keys = jax.random.split(jax.random.key(7), 400)
-    draws = np.stack([np.asarray(simulate_readings(k, walls, [10, 10], params)) for k in keys[:200]])
+    # 200 draws, one per key, vmapped and jitted (200 un-jitted calls took 11 s; the same draws to float32 rounding)
+    draws = np.asarray(jax.jit(jax.vmap(lambda k: simulate_readings(k, walls, [10, 10], params)))(keys[:200]))
     exact = np.asarray(sensor_distances(walls, [10, 10], angles(100)))
     z = (draws.mean(0) - exact) / (0.3 / np.sqrt(200))
     assert np.abs(z).max() < 4.5  # 100 standard normals: |z| > 4.5 has probability < 1e-3
