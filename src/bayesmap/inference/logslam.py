@@ -51,8 +51,6 @@ shifts)."""
 MAP_MARGIN = 2.0
 """Meters around the matched path's endpoints for the final grid (room for the chain's pose moves)."""
 
-FRONT_END_EXTRA_MARGIN = 5.0
-"""Meters the front end's grid adds to :data:`MAP_MARGIN` around the odometry's endpoints."""
 
 ROUNDS = 3
 """Default rounds of the joint chain (each: the walls given the poses, then the poses given the walls)."""
@@ -89,12 +87,11 @@ def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MAR
 
 
 def front_end(problem, data: ScanData) -> np.ndarray:
-    """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad): correlative scan matching on a grid of
-    :data:`FRONT_END_RESOLUTION` meters covering the odometry's endpoints plus :data:`MAP_MARGIN` and
-    :data:`FRONT_END_EXTRA_MARGIN` meters (the odometry's map is distorted by its drift)."""
+    """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad): correlative scan matching from the first
+    odometry pose on fields of :data:`FRONT_END_RESOLUTION` meters that follow the robot
+    (:data:`bayesmap.inference.scanmatch.MATCH_GRID_HALF_WIDTH`)."""
     odometry = np.asarray(problem.odometry, np.float64)
-    grid = fitted_grid(data, odometry, FRONT_END_RESOLUTION, MAP_MARGIN + FRONT_END_EXTRA_MARGIN)
-    return correlative_path(odometry[0], data, grid)
+    return correlative_path(odometry[0], data, FRONT_END_RESOLUTION)
 
 
 def with_grid(params, grid: Grid):

@@ -15,8 +15,10 @@ correlative scan matching", ICRA; the likelihood field of Thrun, Burgard & Fox, 
   centered on the previous level's best.
 
 Every cell also keeps the path length of the last scan that reached it, and a match sees only the cells reached
-within the window: the local map of a running buffer of scans (Karto's design). The path drifts slowly;
-:mod:`bayesmap.inference.posegraph` closes the loops, and :func:`correlative_path` is only a start for the joint
+within the window: the local map of a running buffer of scans (Karto's design). The fields cover a square of
+:data:`MATCH_GRID_HALF_WIDTH` around the robot and follow it: when the robot nears their edge they are rebuilt around
+it from the local map's scans, so the grid never depends on where the odometry says the robot went. The path drifts
+slowly; :mod:`bayesmap.inference.posegraph` closes the loops, and :func:`correlative_path` is only a start for the joint
 chain, which does not depend on it for its target.
 
 Everything is one jitted ``lax.fori_loop`` over the scans (shapes fixed by the grid and the scan size).
@@ -66,6 +68,17 @@ closure then treats as a measured step; the local map leaves the loops to :mod:`
 Measured on the three shared logs (seed-0 odometry, start path after loop closure, ATE): Intel 0.157 -> 0.119 m,
 ACES 0.299 -> 0.115 m, CSAIL 0.098 -> 0.241 m (sum 0.554 -> 0.475 m, worst 0.299 -> 0.241 m). Not tuned: 10 m is
 the peer's default, the only value tried."""
+
+
+MATCH_GRID_HALF_WIDTH = 30.0
+"""Meters: the front end's likelihood fields live on a square grid of +-30 m that follows the robot (recentred on the
+predicted pose, by whole cells, whenever that pose is more than a quarter of the half width from the grid's center),
+so the robot always has at least 22.5 m of grid on every side, more than the local map's 10 m of travel and most
+beams of an indoor laser. A grid fitted to the odometry's extent instead (the earlier design) does not contain the true
+path wherever the odometry drifted away from it: on CSAIL with the seed-1 odometry the path left that grid at scan 155,
+every later scan slid along the grid's edge, and the ATE was 9.6 m. The fields of a 0.05 m grid of this size take
+23 MB. When the grid moves, its fields are rebuilt from the local map's scans at their matched poses (those within
+:data:`LOCAL_MAP_DISTANCE` of travel), so they are those of a grid covering everything, restricted to the window."""
 
 
 class ScanData(NamedTuple):
@@ -203,31 +216,43 @@ def hit_fraction(fields: tuple, grid: Grid, pose, sensor_angles, readings, retur
     return jnp.sum(returned & (value > 0.5)) / jnp.maximum(jnp.sum(returned), 1)
 
 
-def correlative_path(first_pose, data: ScanData, grid: Grid, levels=MATCH_LEVELS,
-                     window: float | None = LOCAL_MAP_DISTANCE) -> np.ndarray:
+def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH_LEVELS,
+                     window: float | None = LOCAL_MAP_DISTANCE,
+                     half_width: float = MATCH_GRID_HALF_WIDTH) -> np.ndarray:
     """Sequential correlative scan matching of every scan against the field of the scans before it.
 
     Args:
         first_pose: ``(3,)`` the fixed first pose (x m, y m, theta rad).
         data: the scans and odometry (:class:`ScanData`).
-        grid: the field's grid; it must be large enough for the whole path (endpoints outside are ignored).
+        resolution: the fields' cell size, meters.
         levels: the coarse-to-fine search (:data:`MATCH_LEVELS`).
         window: meters of path length (:data:`LOCAL_MAP_DISTANCE`): match each scan only against the scans
             within this distance travelled before it (by the odometry); None: against every scan before it.
+        half_width: meters (:data:`MATCH_GRID_HALF_WIDTH`): the fields cover +-``half_width`` around a center that
+            follows the robot; endpoints outside are ignored.
 
     Returns:
         ``(S, 3)`` float64 path, row 0 ``first_pose``.
 
     Raises:
-        BayesmapError: if the shapes disagree.
+        BayesmapError: if the shapes disagree, or ``resolution`` or ``half_width`` is not a finite number > 0 or the
+            grid would have fewer than 8 cells a side.
     """
     s, k = data.readings.shape
     if data.sensor_angles.shape != (s, k) or data.returned.shape != (s, k) or data.increments.shape != (s - 1, 3):
         raise BayesmapError(f"scan data shapes disagree: readings {data.readings.shape}, angles "
                             f"{data.sensor_angles.shape}, returned {data.returned.shape}, increments "
                             f"{data.increments.shape}")
+    if not (math.isfinite(float(half_width)) and half_width > 0):
+        raise BayesmapError(f"half_width must be a finite number of meters > 0, got {half_width!r}")
+    n = int(math.ceil(2 * half_width / resolution))  # Grid checks the resolution
+    if n < 8:
+        raise BayesmapError(f"half_width {half_width!r} m is under 4 cells of {resolution!r} m")
+    grid = Grid(shape=(n, n), resolution=resolution, origin=(0.0, 0.0))
     steps = lattices(levels)
     dtype = jnp.result_type(float)
+    first_pose = np.asarray(first_pose, np.float64)
+    base = first_pose[:2] - n * resolution / 2  # world position of the window's corner when its offset is 0
 
     travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.asarray(data.increments, np.float64)[:, :2].T))])
     span = np.inf if window is None else float(window)
@@ -240,25 +265,47 @@ def correlative_path(first_pose, data: ScanData, grid: Grid, levels=MATCH_LEVELS
 
     @jax.jit
     def run(first, d: ScanData):
-        fields = add_to_fields(empty_fields(grid), grid, first, d.sensor_angles[0], d.readings[0], d.returned[0])
-        stamps = stamp(jnp.full(grid.shape, -jnp.inf, dtype), first, 0, d)
+        def local(pose, offset):
+            """A world pose in the window's frame (the window's corner at ``base + offset * resolution``)."""
+            return pose - jnp.concatenate([jnp.asarray(base, dtype) + offset * resolution, jnp.zeros(1, dtype)])
+
+        def rebuild(path, t, offset):
+            """The fields and stamps of the window at ``offset`` from the scans ``< t`` of the local map at their
+            matched poses: the fields of the whole map restricted to the window, nothing lost at its edges."""
+            def add(u, carry):
+                fields, stamps = carry
+                pose = local(path[u], offset)
+                fields = add_to_fields(fields, grid, pose, d.sensor_angles[u], d.readings[u], d.returned[u])
+                return fields, stamp(stamps, pose, u, d)
+
+            start = jnp.searchsorted(d.travelled, d.travelled[t] - span, side="left")
+            return jax.lax.fori_loop(start, t, add, (empty_fields(grid), jnp.full(grid.shape, -jnp.inf, dtype)))
+
         path = jnp.zeros((s, 3), dtype).at[0].set(first)
+        offset = jnp.zeros(2, jnp.int32)
+        fields, stamps = rebuild(path, 1, offset)
 
         def body(t, carry):
-            path, fields, stamps = carry
+            path, fields, stamps, offset = carry
             prev = path[t - 1]
+            predicted = compose(prev, d.increments[t - 1])
+            cells = jnp.round(local(predicted, offset)[:2] / resolution - n / 2).astype(jnp.int32)
+            far = jnp.max(jnp.abs(cells)) * resolution > half_width / 4
+            offset = jnp.where(far, offset + cells, offset)
+            fields, stamps = jax.lax.cond(far, lambda: rebuild(path, t, offset), lambda: (fields, stamps))
 
             def log_prior(cands):
-                return motion_logpdf(prev, cands, d.increments[t - 1], d.covs[t - 1])
+                return motion_logpdf(local(prev, offset), cands, d.increments[t - 1], d.covs[t - 1])
 
             recent = stamps >= d.travelled[t] - span
-            local = tuple(jnp.where(recent, field, 0.0) for field in fields)
-            best, _ = search(local, grid, compose(prev, d.increments[t - 1]), d.sensor_angles[t], d.readings[t],
+            masked = tuple(jnp.where(recent, field, 0.0) for field in fields)
+            best, _ = search(masked, grid, local(predicted, offset), d.sensor_angles[t], d.readings[t],
                              d.returned[t], steps, log_prior)
             fields = add_to_fields(fields, grid, best, d.sensor_angles[t], d.readings[t], d.returned[t])
-            return path.at[t].set(best), fields, stamp(stamps, best, t, d)
+            world = best - local(jnp.zeros(3, dtype), offset)
+            return path.at[t].set(world), fields, stamp(stamps, best, t, d), offset
 
-        return jax.lax.fori_loop(1, s, body, (path, fields, stamps))[0]
+        return jax.lax.fori_loop(1, s, body, (path, fields, stamps, offset))[0]
 
     arrays = ScanData(*(jnp.asarray(a, dtype=bool if a.dtype == bool else dtype) for a in map(np.asarray, data)))
     arrays = _Scans(*arrays, travelled=jnp.asarray(travelled, dtype))
