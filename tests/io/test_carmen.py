@@ -542,3 +542,22 @@ def test_csail_param_line_does_not_set_the_max_range(intel_log):
     assert "PARAM robot_front_laser_max 50 " in gzip.open(path, "rt").read()
     log = read_carmen(path)
     assert log.max_range == 81.91 and log.is_max_range.sum() == 3907
+
+
+def test_with_poses_turns_the_beams_with_the_heading():
+    """A log moved to other poses keeps each beam's range and its angle relative to the heading: the endpoints are
+    those of the old scan moved rigidly with the pose (to 1e-9 m), and a pose array of the wrong shape is refused."""
+    ranges = np.array([[1.0, 2.0, 3.0], [2.0, 2.5, 1.5]])
+    poses = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 0.5]])
+    offsets = np.array([-1.0, 0.0, 1.0])
+    log = CarmenLog("x", ranges, poses, poses[:, 2:3] + offsets, np.arange(2.0), 10.0, ranges >= 10.0)
+    new = np.array([[2.0, -1.0, 1.0], [0.0, 3.0, -2.0]])
+    moved = log.with_poses(new)
+    assert np.array_equal(moved.ranges, log.ranges)
+    for i in range(2):
+        turn = new[i, 2] - poses[i, 2]
+        rot = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+        expected = (log.endpoints(i) - poses[i, :2]) @ rot.T + new[i, :2]
+        assert np.allclose(moved.endpoints(i), expected, atol=1e-9)
+    with pytest.raises(BayesmapError, match=r"poses must be \(2, 3\)"):
+        log.with_poses(new[:1])

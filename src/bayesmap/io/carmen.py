@@ -223,6 +223,21 @@ class CarmenLog:
             f"max_range_beams={int(self.is_max_range.sum())})"
         )
 
+    def with_poses(self, poses) -> "CarmenLog":
+        """The same scans at other poses ``(S, 3)`` (x m, y m, theta rad): each beam keeps its angle relative to the
+        heading, so its world angle turns with the pose.
+
+        Raises:
+            BayesmapError: if ``poses`` is not ``(S, 3)`` finite.
+        """
+        poses = np.asarray(poses, dtype=np.float64)
+        if poses.shape != self.poses.shape or not np.all(np.isfinite(poses)):
+            raise BayesmapError(f"poses must be {self.poses.shape} finite (x m, y m, theta rad), got shape "
+                                f"{poses.shape}")
+        angles = self.angles - self.poses[:, 2:3] + poses[:, 2:3]
+        return CarmenLog(path=self.path, ranges=self.ranges, poses=poses, angles=angles, timestamps=self.timestamps,
+                         max_range=self.max_range, is_max_range=self.is_max_range)
+
     def check_index(self, index: int) -> int:
         """``index`` as an int, checked: ``0 <= index < len(self)``.
 

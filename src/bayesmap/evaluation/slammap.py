@@ -1,0 +1,98 @@
+"""The map of a SLAM run scored on held-out beams at their true poses, beside the map made at the true poses.
+
+Protocol (issue 15's map-quality target):
+
+1. Every ``every``-th scan is held out (:func:`bayesmap.evaluation.heldout.heldout_split`); SLAM
+   (:func:`bayesmap.inference.logslam.run_log_slam`) maps the other scans from their odometry alone.
+2. The SLAM map lives in the frame of its own path, which is anchored at the first odometry pose. The rigid 2-D
+   alignment of that path onto the true poses of the same scans (:func:`bayesmap.evaluation.trajectory.align_rigid_2d`,
+   the one the ATE uses) carries the held-out scans' true poses into the map's frame: ``p = R^T (g - t)``,
+   ``theta = theta_g - angle(R)``.
+3. The reference map is made with the true poses of the same mapped scans
+   (:func:`bayesmap.inference.driver.run_inference`, the cellwise sampler, as ``bayesmap evaluate --log`` does on a
+   corrected log).
+4. Both maps are scored on the held-out beams at their true poses with the occupancy AUC and the predictive NLL of
+   :func:`bayesmap.evaluation.heldout.score_maps`, each map as independent wall probabilities (the SLAM run keeps
+   its posterior marginals, not map samples, so the reference is scored the same way).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from bayesmap.errors import BayesmapError
+from bayesmap.evaluation.heldout import heldout_split, score_maps
+from bayesmap.evaluation.trajectory import absolute_trajectory_error, align_rigid_2d
+from bayesmap.inference.driver import run_inference
+from bayesmap.inference.logslam import run_log_slam
+from bayesmap.scenes import RESOLUTION, log_problem, log_slam_problem
+
+REFERENCE_SWEEPS = 100
+"""Cellwise sweeps of the map made at the true poses (half burn-in): ``bayesmap evaluate --log``'s default."""
+
+
+def frame_of(estimate, truth, poses) -> np.ndarray:
+    """``poses`` ``(M, 3)`` of the truth's frame carried into the frame of ``estimate``: the inverse of the rigid 2-D
+    alignment of ``estimate`` ``(S, 3)`` onto ``truth`` ``(S, 3)`` (:func:`align_rigid_2d`). Meters and radians.
+
+    Raises:
+        BayesmapError: as :func:`align_rigid_2d`.
+    """
+    rot, t = align_rigid_2d(np.asarray(estimate, np.float64)[:, :2], np.asarray(truth, np.float64)[:, :2])
+    poses = np.asarray(poses, np.float64)
+    xy = (poses[:, :2] - t) @ rot
+    theta = poses[:, 2] - math.atan2(rot[1, 0], rot[0, 0])
+    return np.column_stack([xy, np.arctan2(np.sin(theta), np.cos(theta))])
+
+
+def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTION, seed: int = 0,
+                      reference_sweeps: int = REFERENCE_SWEEPS, **slam_options) -> dict:
+    """Held-out map quality of SLAM beside the map made at the true poses (the protocol of the module docstring).
+
+    Args:
+        log: a :class:`bayesmap.io.carmen.CarmenLog` whose poses are odometry (S scans).
+        truth: ``(S, 3)`` true poses of its scans (x m, y m, theta rad).
+        every: hold out every ``every``-th scan.
+        resolution: meters per cell of both maps.
+        seed: the random seed of both runs.
+        reference_sweeps: cellwise sweeps of the reference map.
+        slam_options: keywords of :func:`bayesmap.inference.logslam.run_log_slam` (rounds, sweeps).
+
+    Returns:
+        ``{"slam": {"auc", "nll", ...}, "true_poses": {...}, "setup": {...}}`` (JSON-serializable); ``setup`` has the
+        SLAM path's ATE on the mapped scans and both runtimes.
+
+    Raises:
+        BayesmapError: if ``truth`` is not ``(S, 3)`` finite, and on bad arguments (see :func:`heldout_split`,
+            :func:`bayesmap.scenes.log_problem`).
+    """
+    truth = np.asarray(truth, np.float64)
+    if truth.shape != (len(log), 3) or not np.all(np.isfinite(truth)):
+        raise BayesmapError(f"truth must be ({len(log)}, 3) finite poses, one per scan of the log, got shape "
+                            f"{truth.shape}")
+    train, test = heldout_split(len(log), every)
+    start = time.perf_counter()
+    slam = run_log_slam(log_slam_problem(log, train, resolution=resolution), seed=seed, **slam_options)
+    slam_s = time.perf_counter() - start
+    poses = truth.copy()
+    poses[test] = frame_of(slam.mean_path, truth[train], truth[test])
+    slam_test = log_problem(log.with_poses(poses), test, resolution=resolution, grid=slam.grid)
+    scores = score_maps(slam_test, {"slam": (slam.posterior, None)})
+
+    true_log = log.with_poses(truth)
+    grid = log_problem(true_log, resolution=resolution).grid  # covers the held-out scans too
+    start = time.perf_counter()
+    reference = run_inference(log_problem(true_log, train, resolution=resolution, grid=grid), "cellwise",
+                              reference_sweeps, seed=seed, progress=False)
+    reference_s = time.perf_counter() - start
+    scores.update(score_maps(log_problem(true_log, test, resolution=resolution, grid=grid),
+                             {"true_poses": (reference.posterior, None)}))
+    scores["setup"] = {"log": str(log.path), "scans": len(log), "train_scans": len(train), "test_scans": len(test),
+                       "every": int(every), "resolution": float(resolution),
+                       "slam_ate_m": absolute_trajectory_error(slam.mean_path, truth[train])["rmse_m"],
+                       "slam_runtime_s": round(slam_s, 3), "reference_runtime_s": round(reference_s, 3),
+                       "reference_sweeps": int(reference_sweeps)}
+    return scores
