@@ -5,8 +5,8 @@ Protocol (issue 15's map-quality target):
 1. Every ``every``-th scan is held out (:func:`bayesmap.evaluation.heldout.heldout_split`); SLAM
    (:func:`bayesmap.inference.logslam.run_log_slam`) maps the other scans from their odometry alone.
 2. The SLAM map lives in the frame of its own path, which is anchored at the first odometry pose. The rigid 2-D
-   alignment of that path onto the true poses of the same scans (:func:`bayesmap.evaluation.trajectory.align_rigid_2d`,
-   the one the ATE uses) carries the held-out scans' true poses into the map's frame: ``p = R^T (g - t)``,
+   alignment of that path onto the true poses of the same scans (:func:`bayesmap.evaluation.trajectory.frame_of`, the
+   inverse of the ATE's) carries the held-out scans' true poses into the map's frame: ``p = R^T (g - t)``,
    ``theta = theta_g - angle(R)``.
 3. The reference map is made with the true poses of the same mapped scans
    (:func:`bayesmap.inference.driver.run_inference`, the cellwise sampler, as ``bayesmap evaluate --log`` does on a
@@ -18,34 +18,19 @@ Protocol (issue 15's map-quality target):
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.heldout import heldout_split, score_maps
-from bayesmap.evaluation.trajectory import absolute_trajectory_error, align_rigid_2d
+from bayesmap.evaluation.trajectory import absolute_trajectory_error, frame_of
 from bayesmap.inference.driver import run_inference
 from bayesmap.inference.logslam import run_log_slam
 from bayesmap.scenes import RESOLUTION, log_problem, log_slam_problem
 
 REFERENCE_SWEEPS = 100
 """Cellwise sweeps of the map made at the true poses (half burn-in): ``bayesmap evaluate --log``'s default."""
-
-
-def frame_of(estimate, truth, poses) -> np.ndarray:
-    """``poses`` ``(M, 3)`` of the truth's frame carried into the frame of ``estimate``: the inverse of the rigid 2-D
-    alignment of ``estimate`` ``(S, 3)`` onto ``truth`` ``(S, 3)`` (:func:`align_rigid_2d`). Meters and radians.
-
-    Raises:
-        BayesmapError: as :func:`align_rigid_2d`.
-    """
-    rot, t = align_rigid_2d(np.asarray(estimate, np.float64)[:, :2], np.asarray(truth, np.float64)[:, :2])
-    poses = np.asarray(poses, np.float64)
-    xy = (poses[:, :2] - t) @ rot
-    theta = poses[:, 2] - math.atan2(rot[1, 0], rot[0, 0])
-    return np.column_stack([xy, np.arctan2(np.sin(theta), np.cos(theta))])
 
 
 def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTION, seed: int = 0,

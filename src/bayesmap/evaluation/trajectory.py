@@ -9,6 +9,8 @@ scan, estimate and truth in the same scan order (``(S, 3)`` float arrays).
 * :func:`relative_pose_error` (RPE): the error of the relative motion between scans ``i`` and ``i + delta``
   (Sturm et al. 2012, Section VI-A; Kümmerle et al. 2009, "On measuring the accuracy of SLAM algorithms",
   Autonomous Robots 27(4)); it needs no alignment.
+* :func:`frame_of`: true poses carried into the estimate's frame by the inverse of that alignment (where the truth
+  lands on a SLAM map).
 * :func:`ellipse_coverage`: how often the truth lies inside the estimate's confidence ellipse: a calibration check
   of a posterior's pose covariance.
 
@@ -76,6 +78,20 @@ def align_rigid_2d(estimate, truth) -> tuple[np.ndarray, np.ndarray]:
     c, s = math.cos(angle), math.sin(angle)
     rot = np.array([[c, -s], [s, c]])
     return rot, mg - rot @ me
+
+
+def frame_of(estimate, truth, poses) -> np.ndarray:
+    """``poses`` ``(M, 3)`` of the truth's frame carried into the frame of ``estimate``: the inverse of the rigid 2-D
+    alignment of ``estimate`` ``(S, 3)`` onto ``truth`` ``(S, 3)`` (:func:`align_rigid_2d`): positions ``R^T (p - t)``,
+    headings minus the alignment's angle, wrapped to ``[-pi, pi)``. Meters and radians.
+
+    Raises:
+        BayesmapError: as :func:`align_rigid_2d`.
+    """
+    rot, t = align_rigid_2d(np.asarray(estimate, np.float64)[:, :2], np.asarray(truth, np.float64)[:, :2])
+    poses = np.asarray(poses, np.float64)
+    theta = wrap_angle(poses[:, 2] - math.atan2(rot[1, 0], rot[0, 0]))
+    return np.column_stack([(poses[:, :2] - t) @ rot, theta])  # rows R^T (p - t)
 
 
 def absolute_trajectory_error(estimate, truth) -> dict[str, float]:
@@ -223,8 +239,7 @@ def ellipse_coverage(estimate, pose_cov, truth, level: float = 0.95) -> float:
     e, g = _check_poses(estimate, truth, 3)
     level = _check_level(level)
     cov = _check_covariances(pose_cov, len(e))
-    rot, t = align_rigid_2d(e[:, :2], g[:, :2])
-    truth_in_estimate_frame = (g[:, :2] - t) @ rot  # rows R^T (g - t)
+    truth_in_estimate_frame = frame_of(e, g, g)[:, :2]
     r2 = -2.0 * math.log1p(-level)
     return float(np.mean(_mahalanobis_sq(truth_in_estimate_frame - e[:, :2], cov) <= r2))
 

@@ -51,7 +51,6 @@ shifts)."""
 MAP_MARGIN = 2.0
 """Meters around the matched path's endpoints for the final grid (room for the chain's pose moves)."""
 
-
 ROUNDS = 3
 """Default rounds of the joint chain (each: the walls given the poses, then the poses given the walls)."""
 

@@ -245,9 +245,10 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
         raise BayesmapError(f"scan data shapes disagree: readings {data.readings.shape}, angles "
                             f"{data.sensor_angles.shape}, returned {data.returned.shape}, increments "
                             f"{data.increments.shape}")
-    if not (math.isfinite(float(half_width)) and half_width > 0):
-        raise BayesmapError(f"half_width must be a finite number of meters > 0, got {half_width!r}")
-    n = int(math.ceil(2 * half_width / resolution))  # Grid checks the resolution
+    for name, value in (("resolution", resolution), ("half_width", half_width)):
+        if not (math.isfinite(float(value)) and value > 0):
+            raise BayesmapError(f"{name} must be a finite number of meters > 0, got {value!r}")
+    n = int(math.ceil(2 * half_width / resolution))
     if n < 8:
         raise BayesmapError(f"half_width {half_width!r} m is under 4 cells of {resolution!r} m")
     grid = Grid(shape=(n, n), resolution=resolution, origin=(0.0, 0.0))
