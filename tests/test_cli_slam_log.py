@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bayesmap.inference.logslam import POSE_SWEEPS
+from bayesmap.inference.logslam import GRAPH_COV_SCALE, POSE_SWEEPS
+from bayesmap.inference.posegraph import SEQUENTIAL_STD
 from bayesmap.io.carmen import read_carmen
 from bayesmap.io.rosbag import read_bag
 from bayesmap.io.tum import read_tum, tum_stamps, write_tum
@@ -62,6 +63,11 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     settings = summary["settings"]
     assert summary["num_scans"] == 25 and settings["sweeps"] == 3 and settings["burn_in"] == 1 and settings["seed"] == 3
     assert summary["pose_samples"] == len(samples) and 0 <= summary["acceptance_rate"] <= 1
+    # the pose graph's spread is in the covariances: 25 scans close no loop (LOOP_GAP), so the graph is a chain of
+    # sequential edges and pose k's (x, y) block has trace at least 2 k SEQUENTIAL_STD[0]^2 (heading errors add)
+    assert settings["graph_cov_scale"] == GRAPH_COV_SCALE and settings["loop_edges"] == 0
+    k = np.arange(25)
+    assert np.all(cov[:, 0, 0] + cov[:, 1, 1] >= GRAPH_COV_SCALE**2 * 2 * k * SEQUENTIAL_STD[0] ** 2 - 1e-12)
     posterior = np.load(log_run / "posterior.npy")
     assert list(posterior.shape) == summary["grid"]["shape"] and summary["grid"]["resolution"] == 0.2
     assert posterior.min() >= 0 and posterior.max() <= 1

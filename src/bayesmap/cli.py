@@ -23,7 +23,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.heldout import evaluate_log, evaluate_truth
 from bayesmap.evaluation.trajectory import score_trajectory
 from bayesmap.inference.driver import run_inference, run_logodds
-from bayesmap.inference.logslam import BURN_IN_ROUNDS, ROUNDS, run_log_slam
+from bayesmap.inference.logslam import BURN_IN_ROUNDS, GRAPH_COV_SCALE, ROUNDS, run_log_slam
 from bayesmap.inference.registry import SAMPLERS
 from bayesmap.inference.slam import run_slam
 from bayesmap.inference.traces import chain_traces
@@ -988,7 +988,8 @@ def _log_slam(carmen, path: Path, scans: Optional[str], resolution: Optional[flo
                 "sensor_noise": float(p.sensor_noise), "beam_model": p.beam_model,
                 "likelihood_power": float(problem.likelihood_power), "max_range_m": float(p.max_range),
                 "motion": {name: float(getattr(problem.motion, name))
-                           for name in ("a1", "a2", "a3", "a4", "floor_xy", "floor_theta")}}
+                           for name in ("a1", "a2", "a3", "a4", "floor_xy", "floor_theta")},
+                "graph_cov_scale": GRAPH_COV_SCALE, "loop_edges": result.loop_edges}
     return problem, result, chosen, settings
 
 

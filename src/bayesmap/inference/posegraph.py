@@ -13,8 +13,13 @@ consistent start for the joint chain (graph SLAM: Lu & Milios 1997, "Globally co
   bounded amount), by ``scipy.optimize.least_squares`` (trust-region reflective, sparse Jacobian).
 * Detection and optimization alternate :data:`ROUNDS` times: each round's path finds the loops the previous one's
   drift hid.
+* **Uncertainty.** The graph is also the Laplace approximation of the path's posterior with the map marginalized
+  (Lu & Milios 1997; *Probabilistic Robotics* sec. 11.4): the whitened edge Jacobian ``J`` gives the information
+  ``H = J^T J`` of the poses after the first, :func:`marginal_covariances` its inverse's ``3 x 3`` diagonal blocks
+  and :func:`sample_deviations` draws ``N(0, H^-1)`` by perturb-and-solve (``H d = J^T eps``, ``eps ~ N(0, I)``;
+  Papandreou & Yuille 2010), both by a sparse LU of ``H`` (docs/slam.md).
 
-This is a start for the joint chain only; the chain's target does not depend on it.
+The optimized path is a start for the joint chain only; the chain's target does not depend on it.
 """
 
 from __future__ import annotations
@@ -26,7 +31,9 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
 import scipy.sparse
+import scipy.sparse.linalg
 
+from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.inference.scanmatch import ScanData, add_to_fields, empty_fields, hit_fraction, lattices, search
 from bayesmap.model.motion import wrap_angle
@@ -85,6 +92,8 @@ exceeds 25 with probability 1e-5), so true loops are kept."""
 MAX_EVALUATIONS = 200
 """Most residual evaluations of one optimization (``least_squares``'s ``max_nfev``)."""
 
+SOLVE_COLUMNS = 384
+"""Right-hand sides per sparse solve in :func:`marginal_covariances` (bounds its memory to ``3 S x 384``)."""
 
 
 class Edges(NamedTuple):
@@ -226,20 +235,118 @@ def optimize_with_loop_gate(path, sequential: Edges, loops: Edges) -> tuple[np.n
     return optimize_pose_graph(path, concat_edges(sequential, loops)), loops
 
 
-def close_loops(path, data: ScanData, rounds: int = ROUNDS) -> tuple[np.ndarray, int]:
+def close_loops(path, data: ScanData, rounds: int = ROUNDS) -> tuple[np.ndarray, Edges]:
     """Alternate loop detection (:func:`loop_edges`) and gated pose-graph optimization
     (:func:`optimize_with_loop_gate`) ``rounds`` times from the front end's ``path``.
 
     Returns:
-        ``(path (S, 3) float64, number of loop edges kept in the last round)``.
+        ``(path (S, 3) float64, the graph's edges)``: the sequential edges of the front end's ``path``
+        (:func:`sequential_edges`) followed by the loop edges kept in the last round.
     """
     path = np.asarray(path, np.float64)
     sequential = sequential_edges(path)
-    count = 0
+    kept = Edges(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
     for _ in range(rounds):
         loops = loop_edges(path, data)
         if len(loops.i) == 0:
             break
-        path, loops = optimize_with_loop_gate(path, sequential, loops)
-        count = len(loops.i)
-    return path, count
+        path, kept = optimize_with_loop_gate(path, sequential, loops)
+    return path, concat_edges(sequential, kept)
+
+
+def edge_jacobians(path, edges: Edges) -> tuple[np.ndarray, np.ndarray]:
+    """The whitened residuals' Jacobians ``(E, 3, 3)`` float64 with respect to the edges' first and second poses,
+    ``(d r_e / d x_i, d r_e / d x_j)``, at ``path`` ``(S, 3)`` (:func:`edge_residuals`). For ``relative(a, b) =
+    (R(a_theta)^T (b_xy - a_xy), b_theta - a_theta)`` the derivative in ``a_theta`` of the position part is
+    ``(rel_y, -rel_x)`` (docs/slam.md)."""
+    path = np.asarray(path, np.float64)
+    a = path[edges.i]
+    rel = relative(a, path[edges.j])
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    rotation_t = np.stack([np.stack([c, s], -1), np.stack([-s, c], -1)], axis=1)  # (E, 2, 2): R^T
+    first, second = np.zeros((len(a), 3, 3)), np.zeros((len(a), 3, 3))
+    second[:, :2, :2], first[:, :2, :2] = rotation_t, -rotation_t
+    first[:, 0, 2], first[:, 1, 2] = rel[:, 1], -rel[:, 0]
+    first[:, 2, 2], second[:, 2, 2] = -1.0, 1.0
+    weight = 1.0 / np.asarray(edges.std, np.float64)[:, :, None]
+    return first * weight, second * weight
+
+
+def _whitened_jacobian(path, edges: Edges) -> scipy.sparse.csc_matrix:
+    """The sparse ``(3 E, 3 (S - 1))`` whitened Jacobian in the poses after the first (pose 0 is fixed)."""
+    count = len(np.asarray(path))
+    first, second = edge_jacobians(path, edges)
+    i, j = np.asarray(edges.i), np.asarray(edges.j)
+    rows = np.broadcast_to(3 * np.arange(len(i))[:, None, None] + np.arange(3)[None, :, None], (len(i), 3, 3))
+    parts = []
+    for node, block in ((i, first), (j, second)):
+        cols = np.broadcast_to(3 * (node - 1)[:, None, None] + np.arange(3)[None, None, :], (len(i), 3, 3))
+        keep = cols >= 0
+        parts.append((block[keep], rows[keep], cols[keep]))
+    data, r, c = (np.concatenate(v) for v in zip(*parts))
+    return scipy.sparse.coo_matrix((data, (r, c)), shape=(3 * len(i), 3 * (count - 1))).tocsc()
+
+
+def _check_graph(path, edges: Edges) -> np.ndarray:
+    path = np.asarray(path, np.float64)
+    if path.ndim != 2 or path.shape[1] != 3 or len(path) < 2:
+        raise BayesmapError(f"path must have shape (S, 3) with S >= 2, got {path.shape}")
+    std = np.asarray(edges.std, np.float64)
+    if std.size and not (np.isfinite(std).all() and (std > 0).all()):
+        raise BayesmapError(f"edge standard deviations must be positive and finite, got minimum {std.min()!r}")
+    touched = np.zeros(len(path), bool)
+    touched[np.asarray(edges.i)], touched[np.asarray(edges.j)] = True, True
+    if not touched[1:].all():
+        raise BayesmapError(f"pose {int(np.flatnonzero(~touched[1:])[0]) + 1} has no edge: its covariance is "
+                            "unbounded")
+    return path
+
+
+def _information_lu(path, edges: Edges):
+    jacobian = _whitened_jacobian(path, edges)
+    return jacobian, scipy.sparse.linalg.splu((jacobian.T @ jacobian).tocsc())
+
+
+def marginal_covariances(path, edges: Edges) -> np.ndarray:
+    """The Laplace approximation's pose covariances: the ``3 x 3`` diagonal blocks of ``H^-1`` (module docstring).
+
+    Args:
+        path: ``(S, 3)`` poses (x m, y m, theta rad) to linearize at, ``S >= 2``; pose 0 is held fixed.
+        edges: the graph (every pose after the first on at least one edge; the graph connected).
+
+    Returns:
+        ``(S, 3, 3)`` float64 covariances (m^2, m rad, rad^2), zeros for pose 0.
+
+    Raises:
+        BayesmapError: on a bad ``path`` shape, a non-positive edge standard deviation or a pose without edges.
+    """
+    path = _check_graph(path, edges)
+    _, lu = _information_lu(path, edges)
+    size = 3 * (len(path) - 1)
+    cov = np.zeros((len(path), 3, 3))
+    for start in range(0, size, SOLVE_COLUMNS):
+        stop = min(start + SOLVE_COLUMNS, size)
+        rhs = np.zeros((size, stop - start))
+        rhs[np.arange(start, stop), np.arange(stop - start)] = 1.0
+        cols = lu.solve(rhs)  # columns start..stop of H^-1
+        nodes = np.arange(start // 3, stop // 3)  # SOLVE_COLUMNS is a multiple of 3: whole poses per chunk
+        k = np.arange(3)
+        cov[nodes + 1] = cols[(3 * nodes)[:, None, None] + k[None, :, None], (3 * nodes - start)[:, None, None] + k]
+    return cov
+
+
+def sample_deviations(seed: int, path, edges: Edges, num: int) -> np.ndarray:
+    """``num`` draws ``(num, S, 3)`` float64 of ``N(0, H^-1)`` (module docstring), pose 0's deviation zero: the
+    graph's correlated uncertainty of the whole path at ``path`` ``(S, 3)``, by perturb-and-solve with
+    ``numpy.random.default_rng(seed)``.
+
+    Raises:
+        BayesmapError: as :func:`marginal_covariances`, or if ``num < 1``.
+    """
+    if isinstance(num, bool) or not isinstance(num, (int, np.integer)) or num < 1:
+        raise BayesmapError(f"num must be a positive integer, got {num!r}")
+    path = _check_graph(path, edges)
+    jacobian, lu = _information_lu(path, edges)
+    eps = np.random.default_rng(seed).standard_normal((jacobian.shape[0], int(num)))
+    draws = lu.solve(np.asarray(jacobian.T @ eps))
+    return np.concatenate([np.zeros((int(num), 1, 3)), draws.T.reshape(int(num), len(path) - 1, 3)], axis=1)

@@ -189,6 +189,8 @@ class SlamResult(NamedTuple):
         last_walls: ``(nx, ny)`` float32, the last chain's last map sample.
         grid: the grid of ``posterior`` (a real log's is fitted to the inferred path), or None: the problem's.
         loop_edges: loop edges of the start path's pose graph (real logs), or None.
+        graph_cov: ``(S, 3, 3)`` float64 the pose graph's Laplace covariances at unit scale (real logs;
+            :func:`bayesmap.inference.logslam.graph_uncertainty`), or None.
     """
 
     pose_samples: np.ndarray
@@ -200,6 +202,7 @@ class SlamResult(NamedTuple):
     last_walls: np.ndarray
     grid: object = None
     loop_edges: int | None = None
+    graph_cov: np.ndarray | None = None
 
 
 def check_counts(sweeps, burn_in, chains) -> tuple[int, int, int]:

@@ -1,0 +1,122 @@
+"""The pose graph's Laplace uncertainty (issue 15): marginal covariances against a dense inverse of a numerically
+differentiated information matrix and against the closed form of a chain of edges; perturb-and-solve draws against
+those covariances within Monte Carlo error; and the log pipeline's combination of the chain's and the graph's
+spread."""
+
+import numpy as np
+import pytest
+
+from bayesmap.errors import BayesmapError
+from bayesmap.inference.logslam import graph_uncertainty
+from bayesmap.inference.posegraph import (
+    Edges,
+    edge_jacobians,
+    edge_residuals,
+    marginal_covariances,
+    relative,
+    sample_deviations,
+)
+from bayesmap.inference.slam import pose_summary
+
+
+def _graph(seed=0, count=9):
+    """A wandering path of ``count`` poses, its sequential edges plus two loop edges, measured with noise, each edge
+    with its own standard deviations."""
+    rng = np.random.default_rng(seed)
+    steps = np.column_stack([rng.uniform(0.3, 1.0, count - 1), rng.normal(0, 0.2, count - 1),
+                             rng.normal(0, 0.5, count - 1)])
+    path = np.zeros((count, 3))
+    for t, (dx, dy, dth) in enumerate(steps, start=1):
+        c, s = np.cos(path[t - 1, 2]), np.sin(path[t - 1, 2])
+        path[t] = path[t - 1] + [c * dx - s * dy, s * dx + c * dy, dth]
+    i = np.concatenate([np.arange(count - 1), [0, 2]])
+    j = np.concatenate([np.arange(1, count), [count - 1, count - 2]])
+    z = relative(path[i], path[j]) + rng.normal(0, 0.02, (len(i), 3))
+    std = rng.uniform(0.02, 0.1, (len(i), 3))
+    return path, Edges(i, j, z, std)
+
+
+def test_marginal_covariances_are_the_inverse_of_the_numerical_information():
+    path, edges = _graph()
+    count = len(path)
+
+    def residuals(x):
+        return edge_residuals(np.concatenate([path[:1], x.reshape(count - 1, 3)]), edges).reshape(-1)
+
+    x0, h = path[1:].reshape(-1), 1e-6
+    jac = np.column_stack([(residuals(x0 + h * e) - residuals(x0 - h * e)) / (2 * h) for e in np.eye(len(x0))])
+    dense = np.linalg.inv(jac.T @ jac)
+    cov = marginal_covariances(path, edges)
+    assert np.all(cov[0] == 0.0)
+    for k in range(1, count):  # central differences: relative error ~1e-9; 1e-6 leaves room for the inverse
+        np.testing.assert_allclose(cov[k], dense[3 * k - 3:3 * k, 3 * k - 3:3 * k], rtol=1e-6, atol=1e-12)
+    first, second = edge_jacobians(path, edges)  # the analytic blocks are the numerical Jacobian's
+    e = 3  # an edge between poses 3 and 4
+    np.testing.assert_allclose(first[e], jac[3 * e:3 * e + 3, 3 * 2:3 * 3], atol=1e-6)
+    np.testing.assert_allclose(second[e], jac[3 * e:3 * e + 3, 3 * 3:3 * 4], atol=1e-6)
+
+
+def test_a_straight_chain_adds_the_edges_variances():
+    """Poses 1 m apart along x, heading 0: the x error of pose k is the sum of k edges' x errors (a heading error
+    moves it in y only, to first order), so Var(x_k) = k sx^2 and Var(theta_k) = k st^2, exactly."""
+    count, sx, sy, st = 7, 0.03, 0.05, 0.01
+    path = np.column_stack([np.arange(count, dtype=float), np.zeros(count), np.zeros(count)])
+    i, j = np.arange(count - 1), np.arange(1, count)
+    edges = Edges(i, j, relative(path[i], path[j]), np.tile([sx, sy, st], (count - 1, 1)))
+    cov = marginal_covariances(path, edges)
+    k = np.arange(count)
+    np.testing.assert_allclose(cov[:, 0, 0], k * sx**2, rtol=1e-9)
+    np.testing.assert_allclose(cov[:, 2, 2], k * st**2, rtol=1e-9)
+    # y: each edge's own sy^2, plus edge m's heading error swinging the n - m metres after it
+    expected_y = k * sy**2 + np.array([sum((n - m) ** 2 for m in range(1, n + 1)) for n in k]) * st**2
+    np.testing.assert_allclose(cov[:, 1, 1], expected_y, rtol=1e-9)
+
+
+def test_perturb_and_solve_draws_have_the_marginal_covariances():
+    """4000 draws: a variance estimate's relative standard error is sqrt(2 / 4000) = 2.2 %; allow 5 of them (11 %)
+    per pose and component, and the mean within 5 standard errors of zero."""
+    path, edges = _graph(seed=1)
+    num = 4000
+    draws = sample_deviations(3, path, edges, num)
+    assert draws.shape == (num, len(path), 3) and np.all(draws[:, 0] == 0.0)
+    cov = marginal_covariances(path, edges)
+    var = cov[1:, [0, 1, 2], [0, 1, 2]]
+    emp = (draws[:, 1:] ** 2).mean(axis=0)
+    np.testing.assert_allclose(emp / var, 1.0, atol=5 * np.sqrt(2 / num))
+    assert np.all(np.abs(draws[:, 1:].mean(axis=0)) <= 5 * np.sqrt(var / num))
+    np.testing.assert_array_equal(sample_deviations(3, path, edges, 5), sample_deviations(3, path, edges, 5))
+
+
+def test_graph_errors_name_the_value():
+    path, edges = _graph()
+    with pytest.raises(BayesmapError, match="pose 4 has no edge"):
+        keep = (edges.i != 4) & (edges.j != 4)
+        marginal_covariances(path, Edges(*(a[keep] for a in edges)))
+    with pytest.raises(BayesmapError, match="positive and finite"):
+        marginal_covariances(path, edges._replace(std=np.where(np.arange(len(edges.i))[:, None] == 2, 0.0, edges.std)))
+    with pytest.raises(BayesmapError, match="num must be a positive integer, got 0"):
+        sample_deviations(0, path, edges, 0)
+    with pytest.raises(BayesmapError, match=r"path must have shape \(S, 3\)"):
+        marginal_covariances(path[:, :2], edges)
+
+
+def test_reported_uncertainty_is_the_chains_plus_the_graphs():
+    """graph_uncertainty keeps the chain's mean path (antithetic deviations), adds scale^2 times the graph's
+    covariance to the chain's, and its samples spread as that sum: 2000 samples are 1000 antithetic pairs, so a
+    variance estimate's relative standard error is sqrt(2 / 1000) = 4.5 %; allow 4 of them."""
+    path, edges = _graph(seed=2)
+    rng = np.random.default_rng(0)
+    chain = path + rng.normal(0, 0.001, (2000, len(path), 3))
+    chain[:, 0] = path[0]
+    mean, cov, samples, graph_cov = graph_uncertainty(5, chain, edges, scale=0.5)
+    chain_mean, chain_cov = pose_summary(chain)
+    np.testing.assert_allclose(mean, chain_mean, atol=1e-12)
+    np.testing.assert_allclose(pose_summary(samples)[0][:, :2], chain_mean[:, :2], atol=1e-9)
+    np.testing.assert_allclose(graph_cov, marginal_covariances(chain_mean, edges), rtol=1e-12)
+    np.testing.assert_allclose(cov, chain_cov + 0.25 * graph_cov, rtol=1e-12)
+    emp = pose_summary(samples)[1][1:, [0, 1, 2], [0, 1, 2]]
+    np.testing.assert_allclose(emp / cov[1:, [0, 1, 2], [0, 1, 2]], 1.0, atol=4 * np.sqrt(2 / 1000))
+    zero = graph_uncertainty(5, chain, edges, scale=0.0)
+    np.testing.assert_allclose(zero[1], chain_cov, rtol=1e-12)
+    with pytest.raises(BayesmapError, match="scale must be a finite number >= 0, got -1"):
+        graph_uncertainty(5, chain, edges, scale=-1)
