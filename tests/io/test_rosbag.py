@@ -245,7 +245,7 @@ def test_evaluate_takes_a_bag_as_it_takes_the_log(tmp_path, bags, monkeypatch, c
     scores = []
     for source in (["--log", INTEL, "--scans", f"0:{SCANS}"], ["--bag", bags["ros2"]]):
         out = tmp_path / f"scores{len(scores)}.json"
-        code, _, err = run_cli(monkeypatch, capsys, "evaluate", *source, "--resolution", "0.5", "--sweeps", "6",
+        code, _, err = run_cli(monkeypatch, capsys, "evaluate", *source, "--resolution", "0.5", "--sweeps", "2",
                                "--every", "5", "--json", out)
         assert code == 0, err
         scores.append(json.loads(out.read_text()))
