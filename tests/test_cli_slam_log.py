@@ -66,7 +66,7 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert summary["pose_samples"] == len(samples) and 0 <= summary["acceptance_rate"] <= 1
     # the pose graph's spread is in the covariances: 25 scans close no loop (LOOP_GAP), so the graph is a chain of
     # sequential edges and pose k's (x, y) block has trace at least 2 k SEQUENTIAL_STD[0]^2 (heading errors add)
-    assert settings["graph_cov_scale"] == GRAPH_COV_SCALE and settings["loop_edges"] == 0
+    assert settings["graph_cov_scale"] == GRAPH_COV_SCALE and summary["loop_edges"] == 0
     k = np.arange(25)
     assert np.all(cov[:, 0, 0] + cov[:, 1, 1] >= GRAPH_COV_SCALE**2 * 2 * k * SEQUENTIAL_STD[0] ** 2 - 1e-12)
     posterior = np.load(log_run / "posterior.npy")

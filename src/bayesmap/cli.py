@@ -989,7 +989,7 @@ def _log_slam(carmen, path: Path, scans: Optional[str], resolution: Optional[flo
                 "likelihood_power": float(problem.likelihood_power), "max_range_m": float(p.max_range),
                 "motion": {name: float(getattr(problem.motion, name))
                            for name in ("a1", "a2", "a3", "a4", "floor_xy", "floor_theta")},
-                "graph_cov_scale": GRAPH_COV_SCALE, "loop_edges": result.loop_edges}
+                "graph_cov_scale": GRAPH_COV_SCALE}
     return problem, result, chosen, settings
 
 
@@ -1073,6 +1073,7 @@ def slam(
             "num_beams": int(problem.readings.shape[1]),
             "pose_samples": int(len(result.pose_samples)),
             "acceptance_rate": result.acceptance_rate,
+            "loop_edges": result.loop_edges,
             "grid": _grid_summary(grid),
             "trajectory_stamps": ("the scans' timestamps, seconds" if np.array_equal(all_stamps, carmen.timestamps)
                                   else "scan indices of the log (its timestamps do not increase strictly)"),
