@@ -94,6 +94,9 @@ def test_graph_errors_name_the_value():
         marginal_covariances(path, Edges(*(a[keep] for a in edges)))
     with pytest.raises(BayesmapError, match="positive and finite"):
         marginal_covariances(path, edges._replace(std=np.where(np.arange(len(edges.i))[:, None] == 2, 0.0, edges.std)))
+    pieces = Edges(np.array([0, 2, 3]), np.array([1, 3, 4]), np.zeros((3, 3)), np.full((3, 3), 0.1))
+    with pytest.raises(BayesmapError, match="does not tie every pose to pose 0"):
+        marginal_covariances(path[:5], pieces)  # poses 2-4 float free of 0 and 1
     with pytest.raises(BayesmapError, match="num must be a positive integer, got 0"):
         sample_deviations(0, path, edges, 0)
     with pytest.raises(BayesmapError, match=r"path must have shape \(S, 3\)"):

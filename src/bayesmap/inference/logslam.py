@@ -145,14 +145,22 @@ def _map_round(key, problem, params, poses, walls, sweeps: int):
 
 
 def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_SCALE):
-    """Stage 5 of the module docstring: the chain's pose samples ``(N, S, 3)`` with the pose graph's uncertainty.
+    """Stage 5 of the module docstring: the chain's pose samples with the pose graph's uncertainty (the graph's
+    Laplace approximation, Lu & Milios 1997; antithetic pairs, Hammersley & Morton 1956; docs/slam.md).
+
+    Args:
+        seed: seed of the graph's draws (``numpy.random.default_rng``).
+        chain_samples: ``(N, S, 3)`` pose samples of the joint chain (x m, y m, theta rad), ``N >= 1``.
+        edges: the pose graph (:func:`bayesmap.inference.posegraph.close_loops`), every pose after the first on an
+            edge.
+        scale: the factor on the graph's standard deviations, ``>= 0`` (:data:`GRAPH_COV_SCALE`).
 
     Returns:
         ``(mean (S, 3), cov (S, 3, 3), samples (N, S, 3), graph_cov (S, 3, 3))`` float64: the chain's mean path
         (:func:`bayesmap.inference.slam.pose_summary`), the chain's covariance plus ``scale ** 2`` times the graph's
         (:func:`bayesmap.inference.posegraph.marginal_covariances` at the mean path), each chain sample plus
-        ``scale`` times a graph deviation (``ceil(N / 2)`` draws and their negatives), and the graph's covariance at
-        unit scale.
+        ``scale`` times a graph deviation (``ceil(N / 2)`` draws and their negatives, so for even ``N`` the samples'
+        mean position is the chain's; a single sample gets none), and the graph's covariance at unit scale.
 
     Raises:
         BayesmapError: on a negative or non-finite ``scale``, or a graph that leaves a pose without edges.

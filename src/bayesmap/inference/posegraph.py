@@ -207,18 +207,11 @@ def optimize_pose_graph(path, edges: Edges, scale: float = CAUCHY_SCALE) -> np.n
     ``scale`` standard deviations, pose 0 fixed at ``path[0]``, started at ``path``."""
     path = np.asarray(path, np.float64)
     n = len(path)
-    i, j = edges.i, edges.j
 
     def residuals(x):
         return edge_residuals(np.concatenate([path[:1], x.reshape(n - 1, 3)]), edges).reshape(-1)
 
-    rows = np.repeat(np.arange(len(i) * 3), 6)
-    cols = np.stack([3 * (i - 1)[:, None] + np.arange(3), 3 * (j - 1)[:, None] + np.arange(3)], axis=1)
-    cols = np.repeat(cols.reshape(len(i), 1, 6), 3, axis=1).reshape(-1)
-    keep = cols >= 0  # node 0 is fixed: no column
-    sparsity = scipy.sparse.coo_matrix((np.ones(keep.sum()), (rows[keep], cols[keep])),
-                                       shape=(3 * len(i), 3 * (n - 1))).tocsr()
-    sparsity.data[:] = 1
+    sparsity = _edge_matrix(np.ones((len(edges.i), 3, 6)), edges, n).tocsr()
     fit = scipy.optimize.least_squares(residuals, path[1:].reshape(-1), jac_sparsity=sparsity, loss="cauchy",
                                        f_scale=scale, x_scale=1.0, method="trf", max_nfev=MAX_EVALUATIONS)
     return np.concatenate([path[:1], fit.x.reshape(n - 1, 3)])
@@ -276,19 +269,23 @@ def edge_jacobians(path, edges: Edges) -> tuple[np.ndarray, np.ndarray]:
     return first * weight, second * weight
 
 
+def _edge_matrix(blocks, edges: Edges, count: int) -> scipy.sparse.coo_matrix:
+    """The sparse ``(3 E, 3 (count - 1))`` matrix whose rows ``3 e .. 3 e + 2`` hold edge ``e``'s ``(3, 6)`` block
+    ``blocks[e]`` (derivatives in pose ``i``, then in pose ``j``) in the columns of those poses; pose 0 is fixed, so
+    its columns are dropped."""
+    i, j = np.asarray(edges.i), np.asarray(edges.j)
+    rows = np.broadcast_to(3 * np.arange(len(i))[:, None, None] + np.arange(3)[None, :, None], (len(i), 3, 6))
+    node_cols = np.concatenate([3 * (i - 1)[:, None] + np.arange(3), 3 * (j - 1)[:, None] + np.arange(3)], axis=1)
+    cols = np.broadcast_to(node_cols[:, None, :], (len(i), 3, 6))
+    keep = cols >= 0
+    return scipy.sparse.coo_matrix((np.asarray(blocks)[keep], (rows[keep], cols[keep])),
+                                   shape=(3 * len(i), 3 * (count - 1)))
+
+
 def _whitened_jacobian(path, edges: Edges) -> scipy.sparse.csc_matrix:
     """The sparse ``(3 E, 3 (S - 1))`` whitened Jacobian in the poses after the first (pose 0 is fixed)."""
-    count = len(np.asarray(path))
     first, second = edge_jacobians(path, edges)
-    i, j = np.asarray(edges.i), np.asarray(edges.j)
-    rows = np.broadcast_to(3 * np.arange(len(i))[:, None, None] + np.arange(3)[None, :, None], (len(i), 3, 3))
-    parts = []
-    for node, block in ((i, first), (j, second)):
-        cols = np.broadcast_to(3 * (node - 1)[:, None, None] + np.arange(3)[None, None, :], (len(i), 3, 3))
-        keep = cols >= 0
-        parts.append((block[keep], rows[keep], cols[keep]))
-    data, r, c = (np.concatenate(v) for v in zip(*parts))
-    return scipy.sparse.coo_matrix((data, (r, c)), shape=(3 * len(i), 3 * (count - 1))).tocsc()
+    return _edge_matrix(np.concatenate([first, second], axis=2), edges, len(np.asarray(path))).tocsc()
 
 
 def _check_graph(path, edges: Edges) -> np.ndarray:
@@ -308,7 +305,11 @@ def _check_graph(path, edges: Edges) -> np.ndarray:
 
 def _information_lu(path, edges: Edges):
     jacobian = _whitened_jacobian(path, edges)
-    return jacobian, scipy.sparse.linalg.splu((jacobian.T @ jacobian).tocsc())
+    try:
+        return jacobian, scipy.sparse.linalg.splu((jacobian.T @ jacobian).tocsc())
+    except RuntimeError as err:  # SuperLU: "Factor is exactly singular"
+        raise BayesmapError("the pose graph does not tie every pose to pose 0 (its information matrix is "
+                            f"singular: {err})") from None
 
 
 def marginal_covariances(path, edges: Edges) -> np.ndarray:
@@ -322,7 +323,8 @@ def marginal_covariances(path, edges: Edges) -> np.ndarray:
         ``(S, 3, 3)`` float64 covariances (m^2, m rad, rad^2), zeros for pose 0.
 
     Raises:
-        BayesmapError: on a bad ``path`` shape, a non-positive edge standard deviation or a pose without edges.
+        BayesmapError: on a bad ``path`` shape, a non-positive edge standard deviation, a pose without edges or a
+            graph in pieces (some poses not tied to pose 0).
     """
     path = _check_graph(path, edges)
     _, lu = _information_lu(path, edges)
