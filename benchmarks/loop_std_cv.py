@@ -2,9 +2,10 @@
 the path after loop closure (the chain's start).
 
 For each log (intel, aces, csail) and odometry noise seed, the script makes the SLAM problem with
-``shared/tools/noisy_odometry.py``, runs the front end once (``logslam.front_end``), then ``posegraph.close_loops``
-with ``LOOP_STD`` times each factor of ``--factors``, and scores each path's ATE against the truth. For each log held
-out, the factor with the smallest mean ATE on the other two logs is scored on it.
+``shared/tools/noisy_odometry.py`` (``benchmarks/seeded_logs.py``), runs the front end once
+(``logslam.front_end``), then ``posegraph.close_loops`` with ``LOOP_STD`` times each factor of ``--factors``, and
+scores each path's ATE against the truth. For each log held out, the factor with the smallest mean ATE on the other
+two logs is scored on it.
 
 Usage: PYTHONPATH=src python benchmarks/loop_std_cv.py [--seeds 0-1] [--factors 0.5,1,2,4] [--logs intel,aces,csail]
 """
@@ -12,36 +13,23 @@ Usage: PYTHONPATH=src python benchmarks/loop_std_cv.py [--seeds 0-1] [--factors 
 from __future__ import annotations
 
 import argparse
-import subprocess
-import sys
-import tempfile
-from pathlib import Path
 
 import numpy as np
+from karto_peer import parse_seeds
+from seeded_logs import seeded_log
 
 from bayesmap import scenes
 from bayesmap.evaluation.trajectory import absolute_trajectory_error
 from bayesmap.inference import posegraph
 from bayesmap.inference.logslam import front_end, scan_data
-from bayesmap.io.carmen import read_carmen
-from bayesmap.io.tum import read_tum
 
-ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared"
-NOISY_ODOMETRY = SHARED / "tools" / "noisy_odometry.py"
 BASE = (0.05, 0.05, 0.02)
 """The factors multiply these (x m, y m, theta rad)."""
 
 
 def ates(name: str, seed: int, factors: list[float]) -> list[float]:
     """The ATE (m) after loop closure of one log and seed, per factor."""
-    with tempfile.TemporaryDirectory() as tmp:
-        prefix = Path(tmp) / f"{name}-odom"
-        corrected = SHARED / "data" / "carmen" / f"{name}-corrected.log.gz"
-        subprocess.run([sys.executable, str(NOISY_ODOMETRY), str(corrected), str(prefix), "--seed", str(seed)],
-                       check=True, capture_output=True)
-        log = read_carmen(f"{prefix}.log.gz")
-        _, truth = read_tum(f"{prefix}.truth.tum")
+    log, truth = seeded_log(name, seed)
     problem = scenes.log_slam_problem(log)
     data = scan_data(problem)
     start = front_end(problem, data)
@@ -64,8 +52,7 @@ def main(argv=None) -> int:
     parser.add_argument("--factors", default="1,2,4")
     parser.add_argument("--logs", default="intel,aces,csail")
     args = parser.parse_args(argv)
-    low, _, high = args.seeds.partition("-")
-    seeds = list(range(int(low), int(high or low) + 1))
+    seeds = parse_seeds(args.seeds)
     factors = [float(v) for v in args.factors.split(",")]
     logs = args.logs.split(",")
     table = {name: np.array([ates(name, s, factors) for s in seeds]) for name in logs}  # (seeds, factors)

@@ -2,7 +2,7 @@
 bayesmap's reported path uncertainty (``bayesmap.inference.logslam``, stage 5).
 
 For each log (intel, aces, csail) and each odometry noise seed, the script makes the SLAM problem with
-``shared/tools/noisy_odometry.py`` (as ``benchmarks/karto_peer.py`` does), runs ``run_log_slam`` at its defaults and
+``shared/tools/noisy_odometry.py`` (``benchmarks/seeded_logs.py``), runs ``run_log_slam`` at its defaults and
 keeps, per scan, the mean path, the chain's covariance, the graph's covariance at unit scale and the true pose
 (``--cache DIR`` keeps them in ``DIR/LOG-sSEED.npz``, so a second call only refits). Then, for each log held out,
 it fits the factor ``k`` on the other logs: the ``k`` whose 95 % ellipses (covariance ``chain + k^2 graph``) hold the
@@ -17,44 +17,25 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
+from karto_peer import parse_seeds
+from seeded_logs import seeded_log
 
 from bayesmap import scenes
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage
 from bayesmap.inference.logslam import GRAPH_COV_SCALE, run_log_slam
-from bayesmap.io.carmen import read_carmen
-from bayesmap.io.tum import read_tum
 
-ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared"
-NOISY_ODOMETRY = SHARED / "tools" / "noisy_odometry.py"
 LEVEL = 0.95
-
-
-def parse_seeds(text: str) -> list[int]:
-    """``"0-4"`` or ``"0,2,3"`` as a list of ints."""
-    if "-" in text:
-        low, high = text.split("-")
-        return list(range(int(low), int(high) + 1))
-    return [int(v) for v in text.split(",")]
 
 
 def run_one(name: str, seed: int, cache: Path) -> dict:
     """The cached arrays of one run (made on first use)."""
     out = cache / f"{name}-s{seed}.npz"
     if not out.exists():
-        with tempfile.TemporaryDirectory() as tmp:
-            prefix = Path(tmp) / f"{name}-odom"
-            corrected = SHARED / "data" / "carmen" / f"{name}-corrected.log.gz"
-            subprocess.run([sys.executable, str(NOISY_ODOMETRY), str(corrected), str(prefix), "--seed", str(seed)],
-                           check=True, capture_output=True)
-            log = read_carmen(f"{prefix}.log.gz")
-            _, truth = read_tum(f"{prefix}.truth.tum")
+        log, truth = seeded_log(name, seed)
         result = run_log_slam(scenes.log_slam_problem(log), progress=True)
         chain_cov = result.pose_cov - GRAPH_COV_SCALE**2 * result.graph_cov
         np.savez(out, mean=result.mean_path, chain_cov=chain_cov, graph_cov=result.graph_cov, truth=truth,
