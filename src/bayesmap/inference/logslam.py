@@ -163,7 +163,8 @@ def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_
         mean position is the chain's; a single sample gets none), and the graph's covariance at unit scale.
 
     Raises:
-        BayesmapError: on a negative or non-finite ``scale``, or a graph that leaves a pose without edges.
+        BayesmapError: on a negative or non-finite ``scale``, or a graph that leaves a pose without edges or is in
+            pieces (:func:`bayesmap.inference.posegraph.marginal_covariances`).
     """
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale < 0:
         raise BayesmapError(f"scale must be a finite number >= 0, got {scale!r}")
