@@ -89,9 +89,35 @@ def test_log_defaults_come_from_the_scene_defaults(small_log):
     pb = log_problem(log, resolution=0.2)
     assert (pb.params.prior_wall_prob == pytest.approx(scenes.LOG_PRIOR)
             and pb.params.beam_model == scenes.LOG_BEAM_MODEL)
-    assert pb.params.sensor_noise == pytest.approx(0.1)  # half a 0.2 m cell
-    assert pb.range_offset == scenes.default_range_offset(0.2) == 0.2
-    assert scenes.real_sensor_noise(0.2) == 0.1 and scenes.SENSOR_NOISE_CELLS == 0.5
+    # issue 16: every map default of a log is in meters (or a probability), the same at every resolution
+    for res in (0.1, 0.2):
+        pb = log_problem(log, resolution=res)
+        assert pb.params.sensor_noise == pytest.approx(scenes.LOG_SENSOR_NOISE)
+        assert pb.range_offset == 0.0 and pb.params.geometry == scenes.LOG_GEOMETRY == "chord"
+        assert pb.likelihood_power == pytest.approx(scenes.LOG_LIKELIHOOD_POWER)
+        assert pb.params.coupling == pytest.approx(scenes.log_coupling(res)) == pytest.approx(
+            math.log(scenes.LOG_RUN_LENGTH / res - 1) if scenes.LOG_RUN_LENGTH >= 2 * res else 0.0)
+        assert pb.extra["coupling"] == pytest.approx(pb.params.coupling)
+    assert log_problem(log, resolution=0.2, coupling=0.0).params.coupling == 0.0
+    # runs shorter than two cells are the independent prior's; a bad resolution is named
+    assert scenes.log_coupling(0.2, run_length=0.3) == 0.0 and scenes.log_coupling(0.1, run_length=0.0) == 0.0
+    with pytest.raises(BayesmapError, match="resolution"):
+        scenes.log_coupling(0.0)
+
+
+def test_slam_problem_keeps_the_slam_map_model(small_log):
+    """``bayesmap slam --log`` keeps the map model its defaults were cross-validated with (entry geometry, 0.1 m
+    offset, 0.05 m noise, power 0.1, independent prior), whatever the map defaults of logs are."""
+    from bayesmap import scenes
+    from bayesmap.io.carmen import read_carmen
+
+    log = read_carmen(small_log)
+    slam = scenes.log_slam_problem(log, resolution=0.2)
+    assert slam.params.geometry == "entry" and slam.range_offset == pytest.approx(0.1)
+    assert slam.params.sensor_noise == pytest.approx(0.05) and slam.likelihood_power == pytest.approx(0.1)
+    assert slam.params.coupling == 0.0
+    given = scenes.log_slam_problem(log, resolution=0.2, range_offset=0.0, likelihood_power=1.0, sensor_noise=0.02)
+    assert given.range_offset == 0.0 and given.likelihood_power == 1.0 and given.params.sensor_noise == 0.02
 
 
 def test_with_poses_moves_the_rays_and_keeps_the_observations():
@@ -159,24 +185,23 @@ def test_range_offset_shifts_only_returned_readings_the_model_scores(small_log):
     from bayesmap.io.carmen import read_carmen
 
     log = read_carmen(small_log)
-    pb = log_problem(log, resolution=0.2)
-    assert pb.range_offset == 0.2 and pb.extra["range_offset"] == 0.2  # one cell by default
+    pb = log_problem(log, resolution=0.2, range_offset=0.2, geometry="entry")
+    assert pb.range_offset == 0.2 and pb.extra["range_offset"] == 0.2
     raw, model, is_max = pb.ray_readings, pb.model_ray_readings, pb.ray_max_range
     assert is_max.any() and (~is_max).any()
     np.testing.assert_array_equal(model[is_max], raw[is_max])  # max-range readings keep the max range
     np.testing.assert_allclose(model[~is_max], np.maximum(raw[~is_max] - 0.2, 0.0))
     # the model's log joint scores the shifted readings; the figures and log-odds keep the measured ones
     walls = np.zeros(pb.grid.shape)
-    unshifted = log_problem(log, resolution=0.2, range_offset=0.0)
+    unshifted = log_problem(log, resolution=0.2, geometry="entry")  # no offset by default
     assert unshifted.range_offset == 0.0 and np.array_equal(unshifted.model_ray_readings, raw)
     assert pb.table_log_joint(walls) != unshifted.table_log_joint(walls)
     np.testing.assert_array_equal(run_logodds(pb).posterior, run_logodds(unshifted).posterior)
     for bad in (-0.1, float("nan"), 1e6):
         with pytest.raises(BayesmapError, match="range_offset"):
             log_problem(log, resolution=0.2, range_offset=bad)
-    # the chord geometry models where in the cell the surface lies: no offset by default
-    chord = log_problem(log, resolution=0.2, geometry="chord")
-    assert pb.params.geometry == "entry"  # the log default (scenes.LOG_GEOMETRY)
+    # the chord geometry models where in the cell the surface lies: the log default, with no offset
+    chord = log_problem(log, resolution=0.2)
     assert chord.params.geometry == "chord" and chord.range_offset == 0.0 and chord.extra["geometry"] == "chord"
     with pytest.raises(BayesmapError, match="'inside'"):
         log_problem(log, resolution=0.2, geometry="inside")

@@ -357,9 +357,10 @@ POWER_HELP = ("--log: power eta in (0, 1] of the likelihood, sampling p(walls) p
               "(a power posterior for beams that are not independent evidence; 1 is the plain posterior; "
               f"default {scenes.LOG_LIKELIHOOD_POWER} for logs)")
 COUPLING_HELP = ("the structured prior's coupling J >= 0, nats per pair of neighbouring cells that agree (a "
-                 "4-neighbour Markov random field, bayesmap.model.prior); default 0, independent cells (the tutorial's "
-                 "prior); with J > 0 --prior-wall-prob is a cell's wall probability given as many wall as free "
-                 "neighbours")
+                 "4-neighbour Markov random field, bayesmap.model.prior); default for several scans of a log: mean "
+                 f"runs of {scenes.LOG_RUN_LENGTH:g} m (see --run-length), elsewhere 0, independent cells (the "
+                 "tutorial's prior); with J > 0 --prior-wall-prob is a cell's wall probability given as many wall as "
+                 "free neighbours")
 RUN_LENGTH_HELP = ("the structured prior's coupling from a mean run length of equal cells, meters: "
                    "J = log(L / resolution - 1) (bayesmap.model.prior.coupling_for_run_length); instead of --coupling")
 BEAM_WEIGHTS_HELP = ("beam model: mixture weights HIT,SHORT,MAX,RAND summing to 1 (default 0.8,0.05,0.05,0.1, "
@@ -372,15 +373,16 @@ MAX_RANGE_HELP = ("--log: the laser's max range, meters; readings at or above it
 METHOD_HELP = "gibbs (the posterior, with --sampler) or logodds (classic log-odds mapping, no posterior)"
 BEAM_MODEL_HELP = ("sensor model: normal (the tutorial's; default for maps) or beam (robust mixture, "
                    "Probabilistic Robotics 6.3; default for logs)")
-RANGE_OFFSET_HELP = ("meters the model subtracts from each returned reading of a log (default one cell with "
-                     "--geometry entry: a wall cell's reading is expected where the beam enters it, a real surface "
-                     "lies inside it; 0 with --geometry chord)")
+RANGE_OFFSET_HELP = ("meters the model subtracts from each returned reading of a log (default 0; with --geometry "
+                     "entry a wall cell's reading is expected where the beam enters it, while a real surface lies "
+                     "inside it)")
 GEOMETRY_HELP = (f"--log: where a wall cell's reading is expected: entry (the tutorial's, where the beam enters the "
                  f"cell) or chord (anywhere on the beam's chord through the cell); default {scenes.LOG_GEOMETRY}")
 PRIOR_HELP = (f"prior probability that a cell is a wall (default {scenes.TUTORIAL_PRIOR}, the tutorial's; "
               f"{scenes.LOG_PRIOR} for several scans of a log)")
 SENSOR_NOISE_HELP = (f"standard deviation of a reading, meters (default {scenes.TUTORIAL_SENSOR_NOISE}, "
-                     "the tutorial's; for --log half a cell)")
+                     f"the tutorial's; for --log {scenes.LOG_SENSOR_NOISE:g}, for --scan N "
+                     f"{scenes.SCAN_SENSOR_NOISE:g})")
 POS_HELP = "sensor position X Y (simulated readings), in cells of the map: a free cell; default the map's center"
 CHAINS_HELP = "independent chains run at once; 2 or more add split R-hat and effective sample size per cell"
 REPORT_HELP = "also write report.html: settings, metrics, all figures and the chain's animation, offline"
@@ -392,7 +394,8 @@ EVALUATE_SCANS_HELP = ("scans of --log to use: a range such as 10:20, a stride s
 EVALUATE_MAX_RANGE_HELP = ("max range, meters: --truth, of the simulated sensor "
                            f"(default {scenes.SIMULATED_MAX_RANGE:g}); "
                            "--log, of the laser (default inferred from the log)")
-EVALUATE_SENSOR_NOISE_HELP = "standard deviation of a reading, meters (default half a cell)"
+EVALUATE_SENSOR_NOISE_HELP = (f"standard deviation of a reading, meters (default {scenes.LOG_SENSOR_NOISE:g} for "
+                              f"--log, {scenes.SIMULATED_SENSOR_NOISE:g} for --truth)")
 EVALUATE_SWEEPS = 100
 """``evaluate``'s Gibbs sweeps of a map (half burn-in); with --truth-trajectory a SLAM run's (``bayesmap slam``'s)."""
 EVALUATE_SWEEPS_HELP = (f"Gibbs sweeps (default {EVALUATE_SWEEPS}, half burn-in); with --truth-trajectory the "
@@ -401,8 +404,7 @@ TRUTH_TRAJECTORY_HELP = ("a true trajectory (TUM: t x y z qx qy qz qw) of --log'
                          "raw odometry against it (ATE, RPE over 1 and 10 scans, 95 % ellipse coverage)")
 RUN_HELP = ("with --truth-trajectory: score this bayesmap slam output folder (trajectory.tum, pose_cov.npy) instead "
             "of running SLAM on --log")
-EVALUATE_RANGE_OFFSET_HELP = ("--log: meters the model subtracts from each returned reading (default one cell "
-                              "with --geometry entry, 0 with chord)")
+EVALUATE_RANGE_OFFSET_HELP = "--log: meters the model subtracts from each returned reading (default 0)"
 
 
 BAG_HELP = ("a ROS bag (a ROS 1 .bag file, or a ROS 2 bag folder: .db3 or .mcap): its LaserScans, with poses from "
@@ -415,9 +417,10 @@ LASER_OFFSET_HELP = ("the laser's mounting X Y THETA (m, m, rad) on base_link, w
                      "poses are the log's composed with its inverse")
 
 
-def _coupling(coupling: Optional[float], run_length: Optional[float], resolution: float) -> float:
+def _coupling(coupling: Optional[float], run_length: Optional[float], resolution: float) -> Optional[float]:
     """The structured prior's coupling from ``--coupling`` or ``--run-length`` (meters, at ``resolution`` meters per
-    cell); 0 when neither is given.
+    cell); None when neither is given (the scene's default: :func:`bayesmap.scenes.log_coupling` for several scans
+    of a log, 0 elsewhere).
 
     Raises:
         BayesmapError: when both are given, or on a bad value (named).
@@ -426,7 +429,7 @@ def _coupling(coupling: Optional[float], run_length: Optional[float], resolution
         raise BayesmapError("give either --coupling or --run-length, not both")
     if run_length is not None:
         return coupling_for_run_length(run_length, resolution)
-    return check_coupling(prior.DEFAULT_COUPLING if coupling is None else coupling)
+    return None if coupling is None else check_coupling(coupling)
 
 
 def _sampler_option(default: Optional[str], note: str = ""):
@@ -536,13 +539,13 @@ def infer(
 
 
 def _log_scene(carmen, path: Path, scan, scans, resolution, prior_wall_prob, sensor_noise, beam_model, range_offset,
-               likelihood_power, sensor_params, geometry=None, coupling=prior.DEFAULT_COUPLING):
+               likelihood_power, sensor_params, geometry=None, coupling=None):
     """``(problem, title)`` of ``infer --log/--bag``: one scan (``--scan N``, the single-scan model and the tutorial's
     defaults) or several (``--scans``, the log defaults of :mod:`bayesmap.scenes`)."""
     if scan is not None and scans is not None:
         raise BayesmapError("give either --scan N or --scans SPEC, not both")
-    noise = scenes.real_sensor_noise(resolution) if sensor_noise is None else sensor_noise
     if scan is not None:
+        noise = scenes.SCAN_SENSOR_NOISE if sensor_noise is None else sensor_noise
         if range_offset is not None or likelihood_power is not None:
             raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), "
                                 "not to --scan N")
@@ -552,19 +555,20 @@ def _log_scene(carmen, path: Path, scan, scans, resolution, prior_wall_prob, sen
         problem = scan_problem(carmen, scan, resolution=resolution,
                                prior_wall_prob=scenes.TUTORIAL_PRIOR if prior_wall_prob is None else prior_wall_prob,
                                sensor_noise=noise, beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL,
-                               sensor_params=sensor_params, coupling=coupling)
+                               sensor_params=sensor_params,
+                               coupling=prior.DEFAULT_COUPLING if coupling is None else coupling)
         return problem, f"{path.name} scan {scan}"
     chosen = parse_scans(scans, len(carmen))
     problem = log_problem(carmen, chosen, resolution=resolution,
                           prior_wall_prob=scenes.LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
-                          sensor_noise=noise, beam_model=beam_model or scenes.LOG_BEAM_MODEL,
+                          sensor_noise=sensor_noise, beam_model=beam_model or scenes.LOG_BEAM_MODEL,
                           range_offset=range_offset, sensor_params=sensor_params, likelihood_power=likelihood_power,
                           geometry=scenes.LOG_GEOMETRY if geometry is None else geometry, coupling=coupling)
     return problem, f"{path.name}, {len(chosen)} scans"
 
 
 def _map_scene(map_file, pos, seed, prior_wall_prob, sensor_noise, num_angles, beam_model, sensor_params,
-               coupling=prior.DEFAULT_COUPLING):
+               coupling=None):
     """The problem of ``infer --map`` (or the tutorial map): readings simulated from the sensor at ``pos`` (default
     the map's center, the tutorial's ``GRID_SIZE // 2``), which must be a free cell."""
     walls = load_map(map_file) if map_file is not None else tutorial_map()
@@ -576,7 +580,7 @@ def _map_scene(map_file, pos, seed, prior_wall_prob, sensor_noise, num_angles, b
                             sensor_noise=scenes.TUTORIAL_SENSOR_NOISE if sensor_noise is None else sensor_noise,
                             num_angles=num_angles, source=str(map_file) if map_file else "tutorial map",
                             beam_model=beam_model or scenes.TUTORIAL_BEAM_MODEL, sensor_params=sensor_params,
-                            coupling=coupling)
+                            coupling=prior.DEFAULT_COUPLING if coupling is None else coupling)
 
 
 def _read_log(log: Optional[Path], bag: Optional[Path], scan_topic: str, odom_topic: str, tf: bool,

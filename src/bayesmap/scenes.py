@@ -58,7 +58,7 @@ from bayesmap.model.generative import (
     simulate_scan_readings,
 )
 from bayesmap.model.motion import MotionParams, wrap_angle
-from bayesmap.model.prior import DEFAULT_COUPLING, disagreeing_pairs
+from bayesmap.model.prior import DEFAULT_COUPLING, coupling_for_run_length, disagreeing_pairs
 
 # ---------------------------------------------------------------------------------------------------------------
 # Scene defaults: every default of a scene, in one place
@@ -96,40 +96,70 @@ MAX_RANGE_MARGIN = 1.0
 """When a log has no max-range readings (``CarmenLog.max_range`` is infinite), the model's max distance is the
 longest selected reading plus this many meters."""
 
-SENSOR_NOISE_CELLS = 0.5
-"""Default ``sensor_noise`` of real data, in cells (:func:`real_sensor_noise`): with the tutorial's 0.2 m on 0.1 m
-cells the evidence of one beam spreads over four cells."""
-
 LOG_PRIOR = 0.1
 """Default prior wall probability for maps from many scans (logs, floor plans): indoor floor plans have about a tenth
 of their cells occupied, and with 0.5 the robust beam model explains a long beam's reading as a sensor failure rather
 than as free space (the prior odds of "no wall in 100 cells" are 2^-100 against a likelihood ratio of at most 9)."""
 
-LOG_GEOMETRY = "entry"
-"""Wall geometry of real scans of a log (``ModelParams.geometry``): ``"entry"``, the tutorial's (a wall cell's reading
-is expected where the beam enters the cell), with a range offset of :data:`RANGE_OFFSET_CELLS`. The ``"chord"``
-geometry (the hit averaged over the beam's chord through the cell, :mod:`bayesmap.model.sensor`) needs no offset
-and predicts the held-out readings better on Intel, ACES and CSAIL at 0.05, 0.1 and 0.2 m (lower NLL in 9 of 9),
-but ranks the cells where held-out beams end worse (lower occupancy AUC in 9 of 9; README, held-out table), so it
-is not the default: ``--geometry chord``."""
+# The map defaults of a log (issue 16): every one a property of the sensor or the world, none a count of cells,
+# chosen by leave-one-log-out cross-validation over Intel, ACES and CSAIL at 0.1 and 0.2 m (benchmarks/map_cv.py;
+# the protocol and the table are in the README, "Map defaults by cross-validation").
 
-RANGE_OFFSET_CELLS = 1.0
-"""Default range offset of a log in the entry geometry, in cells (:attr:`Problem.range_offset`;
-:func:`default_range_offset`). The tutorial's geometry puts a wall cell's expected reading where the beam enters
-the cell; a real surface is read somewhere inside it, and beams from other poses cross the cells along it. Chosen
-on validation scans that are never test scans (Intel, every other scan; within the scans ``bayesmap evaluate`` maps
-with, those with index 4 mod 10 held out, mapped from the rest; cellwise, 60 sweeps): held-out occupancy AUC 0.929
-with half a cell, 0.952 with one cell (log-odds mapping: 0.947). The chord geometry models where in the cell the
-surface lies: its default offset is 0."""
+LOG_GEOMETRY = "chord"
+"""Wall geometry of real scans of a log (``ModelParams.geometry``): ``"chord"``, the surface anywhere on the beam's
+chord through the first wall cell, the sensor's hit averaged over it (:mod:`bayesmap.model.sensor`). It needs no
+range offset at any resolution: a log's default offset is 0. The tutorial's ``"entry"`` geometry (the reading
+expected where the beam enters the cell) ranks cells worse without an offset (README, geometry table) and stays the
+tutorial's and the SLAM pose sweep's (:data:`SLAM_GEOMETRY`).
+
+The cross-validation (``benchmarks/map_cv.py``): every other scan of each log, every 10th of those held out, maps at
+0.1 and 0.2 m; for each log held out, the setting with the largest mean held-out AUC margin over log-odds mapping on
+the other two logs, among those whose predictive NLL is below log-odds' on both. Searched: power 0.01-0.3, run
+length 0-4 m, noise 0.05 and 0.1 m, ``z_rand`` 0.1 and 0.3. Chosen on all three logs: power 0.1, 2 m, 0.1 m, 0.1
+(mean AUC margin +0.020; 0.003 below log-odds on CSAIL at 0.2 m)."""
+
+LOG_SENSOR_NOISE = 0.1
+"""Default ``sensor_noise`` of a log's map, meters: the hit component's standard deviation (a property of the laser
+and of the poses' residual error, not of the cells). Cross-validated (:data:`LOG_GEOMETRY`'s note)."""
+
+SCAN_SENSOR_NOISE = 0.05
+"""Default ``sensor_noise`` of the map of one real scan (``infer --log FILE --scan N``, the tutorial's single-scan
+model), meters: what half a cell gave at the default 0.1 m before every default became a length in meters. One scan
+has no held-out beams to cross-validate it on."""
 
 LOG_LIKELIHOOD_POWER = 0.1
-"""Default likelihood power ``eta`` of a log (:attr:`Problem.likelihood_power`). The model treats every beam as
+"""Default likelihood power ``eta`` of a log's map (:attr:`Problem.likelihood_power`). The model treats every beam as
 independent evidence given the map; the beams of a log are not (a scan's beams share its pose error, neighbouring
 beams and consecutive scans see the same surface through the same errors), so the plain posterior is overconfident
 about which cell of a surface is the wall. Raising the likelihood to ``eta < 1`` counts each beam as a fraction of
-one (a power posterior; :func:`bayesmap.model.generative.check_likelihood_power`). Chosen on the validation scans of
-:data:`RANGE_OFFSET_CELLS` (one-cell offset): held-out occupancy AUC 0.952 / 0.965 / 0.967 and predictive NLL
--0.263 / -0.307 nats at ``eta`` = 1 / 0.3 / 0.1 (log-odds mapping: 0.947 and 2.79)."""
+one (a power posterior; :func:`bayesmap.model.generative.check_likelihood_power`). Cross-validated
+(:data:`LOG_GEOMETRY`'s note)."""
+
+LOG_RUN_LENGTH = 2.0
+"""Default mean run length of the structured prior of a log's map, meters (:func:`log_coupling`;
+:func:`bayesmap.model.prior.coupling_for_run_length`): the coupling whose runs of equal cells along a row are this
+long on average, at any resolution; 0 would be the independent prior. Cross-validated (:data:`LOG_GEOMETRY`'s
+note)."""
+
+# The SLAM pipeline's map model (issue 15): bayesmap slam --log samples poses with the dense first-hit sweep, which
+# supports only the entry geometry, so its map model keeps the settings its defaults were cross-validated with.
+
+SLAM_GEOMETRY = "entry"
+"""Wall geometry of ``bayesmap slam --log`` (:func:`log_slam_problem`): the pose sweep
+(:mod:`bayesmap.inference.poses`) supports only the tutorial's entry geometry."""
+
+SLAM_RANGE_OFFSET = 0.1
+"""Range offset of ``bayesmap slam --log``, meters (:func:`slam_map_settings`): with the entry geometry a wall cell's
+reading is expected where the beam enters the cell while a real surface lies inside it; one cell of 0.1 m was chosen
+on Intel validation scans (held-out AUC 0.929 with half a cell, 0.952 with one; log-odds 0.947). The chord geometry
+of maps (:data:`LOG_GEOMETRY`) needs none."""
+
+SLAM_SENSOR_NOISE = 0.05
+"""``sensor_noise`` of ``bayesmap slam --log``, meters (:func:`slam_map_settings`)."""
+
+SLAM_LIKELIHOOD_POWER = 0.1
+"""Likelihood power of ``bayesmap slam --log`` (maps and poses; :func:`slam_map_settings`): the value its front end,
+motion noise, loop edges and path uncertainty were cross-validated with (README, SLAM section)."""
 
 SIMULATED_NUM_POSES = 30
 """Simulated scans of a floor plan (:func:`bayesmap.evaluation.heldout.evaluate_truth`): number of poses."""
@@ -143,18 +173,31 @@ SIMULATED_MAX_RANGE = 20.0
 SIMULATED_CLEARANCE = 0.5
 """Simulated scans of a floor plan: meters of known free space around every pose."""
 
-
-def real_sensor_noise(resolution: float) -> float:
-    """The default ``sensor_noise`` of real data on cells of ``resolution`` meters: :data:`SENSOR_NOISE_CELLS` cells,
-    in meters."""
-    return SENSOR_NOISE_CELLS * resolution
+SIMULATED_SENSOR_NOISE = 0.05
+"""Simulated scans of a floor plan: the sensor's noise (the hit's standard deviation), meters; the model's too."""
 
 
-def default_range_offset(resolution: float, geometry: str = LOG_GEOMETRY) -> float:
-    """The default range offset of a log on cells of ``resolution`` meters, in meters: :data:`RANGE_OFFSET_CELLS`
-    cells in the ``"entry"`` geometry, 0 in the ``"chord"`` geometry (which models where in the cell the surface
-    lies)."""
-    return 0.0 if geometry == "chord" else RANGE_OFFSET_CELLS * resolution
+def log_coupling(resolution: float, run_length: float = LOG_RUN_LENGTH) -> float:
+    """The default coupling ``J`` (nats) of a log's map on cells of ``resolution`` meters: the structured prior whose
+    mean run length is ``run_length`` meters (:func:`bayesmap.model.prior.coupling_for_run_length`); 0 (the
+    independent prior, runs of two cells) where ``run_length`` is 0 or shorter than two cells.
+
+    Raises:
+        BayesmapError: if ``resolution`` is not finite and > 0.
+    """
+    if not (math.isfinite(resolution) and resolution > 0):
+        raise BayesmapError(f"resolution must be a finite number > 0 (meters), got {resolution!r}")
+    if not run_length or run_length < 2 * resolution:
+        return 0.0
+    return coupling_for_run_length(run_length, resolution)
+
+
+def slam_map_settings() -> dict:
+    """The map model of ``bayesmap slam --log``, as keywords of :func:`log_problem`: :data:`SLAM_GEOMETRY`,
+    :data:`SLAM_RANGE_OFFSET`, :data:`SLAM_SENSOR_NOISE`, :data:`SLAM_LIKELIHOOD_POWER` and the independent prior."""
+    return {"geometry": SLAM_GEOMETRY, "range_offset": SLAM_RANGE_OFFSET,
+            "sensor_noise": SLAM_SENSOR_NOISE, "likelihood_power": SLAM_LIKELIHOOD_POWER,
+            "coupling": 0.0}
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -225,10 +268,9 @@ class Problem:
         source: a description for summaries.
         extra: more JSON-serializable facts for the summary.
         range_offset: meters subtracted from every returned (not max-range) reading before the model sees it
-            (:attr:`model_readings`); 0 for simulated data. For real data the tutorial's geometry expects a reading at
-            the face where the beam enters the wall cell, while a real surface lies inside the cell (default for logs
-            in the entry geometry: :data:`RANGE_OFFSET_CELLS` cells; in the chord geometry none,
-            :func:`default_range_offset`).
+            (:attr:`model_readings`); 0 by default. The tutorial's entry geometry expects a reading at the face where
+            the beam enters the wall cell, while a real surface lies inside the cell; ``bayesmap slam --log`` (entry
+            geometry) uses :data:`SLAM_RANGE_OFFSET`, a log's map (chord geometry) none.
         likelihood_power: ``eta`` in (0, 1]: the samplers target ``p(walls) p(readings | walls) ** eta``
             (:func:`bayesmap.model.generative.check_likelihood_power`); 1 (the posterior) except for logs
             (:data:`LOG_LIKELIHOOD_POWER`). The reference samplers support only 1.
@@ -556,8 +598,8 @@ def scan_problem(log, index: int, resolution: float = RESOLUTION, prior_wall_pro
                  coupling: float = DEFAULT_COUPLING) -> Problem:
     """The area around one real scan at its pose (a single-scan problem).
 
-    ``sensor_noise`` should be about half a cell for real data: with the tutorial's 0.2 m on 0.1 m cells the
-    evidence of one beam spreads over four cells (the CLI's default for logs is :func:`real_sensor_noise`).
+    ``sensor_noise`` should be a few centimeters for a laser: with the tutorial's 0.2 m on 0.1 m cells the
+    evidence of one beam spreads over four cells (the CLI's default for one scan is :data:`SCAN_SENSOR_NOISE`).
 
     The grid (``resolution`` meters per cell) covers the sensor and the endpoints of all beams that returned
     (not max-range), plus ``margin`` meters. Max-range handling: the model's max distance is the log's max range
@@ -586,7 +628,7 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
                 sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL, margin: float = MARGIN,
                 grid: Grid | None = None, range_offset: float | None = None,
                 sensor_params: dict | None = None, likelihood_power: float | None = None,
-                geometry: str = LOG_GEOMETRY, coupling: float = DEFAULT_COUPLING) -> Problem:
+                geometry: str = LOG_GEOMETRY, coupling: float | None = None) -> Problem:
     """Many scans of a real log at their poses: one map from all of them.
 
     The grid (``resolution`` meters per cell) covers the sensor positions and the endpoints of all beams that
@@ -599,18 +641,19 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
         scans: scan indices (``(S,)`` ints); default all.
         resolution: meters per cell.
         prior_wall_prob: prior probability of a wall.
-        sensor_noise: the hit component's standard deviation, meters; default :func:`real_sensor_noise` (half a cell).
+        sensor_noise: the hit component's standard deviation, meters; default :data:`LOG_SENSOR_NOISE`.
         beam_model: ``"beam"`` (the robust mixture, default for real data) or ``"normal"``.
         margin: meters added around the data.
         grid: use this grid instead (e.g. one covering held-out scans too); its resolution wins.
         range_offset: meters the model subtracts from each returned reading (:attr:`Problem.range_offset`);
-            default :func:`default_range_offset` (one cell in the entry geometry, none in the chord geometry).
+            default 0.
         sensor_params: the beam mixture's ``z_hit``, ``z_short``, ``z_max``, ``z_rand``, ``lambda_short`` (keywords of
             :func:`bayesmap.model.generative.make_params`); default :data:`bayesmap.model.sensor.BEAM_DEFAULTS`.
         likelihood_power: :attr:`Problem.likelihood_power`; default :data:`LOG_LIKELIHOOD_POWER`.
-        geometry: the wall geometry, ``"entry"`` (the tutorial's; default, :data:`LOG_GEOMETRY`) or ``"chord"``.
+        geometry: the wall geometry, ``"chord"`` (default, :data:`LOG_GEOMETRY`) or ``"entry"`` (the tutorial's).
         coupling: the structured prior's ``J`` (nats per agreeing pair of 4-neighbours,
-            :mod:`bayesmap.model.prior`); default 0, the independent prior.
+            :mod:`bayesmap.model.prior`); default :func:`log_coupling` at the grid's resolution (mean runs of
+            :data:`LOG_RUN_LENGTH` meters); 0 is the independent prior.
 
     Raises:
         BayesmapError: on bad parameters or scan indices, or a sensor position outside ``grid``.
@@ -619,19 +662,20 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
     chosen = _log_scans(log, scans, resolution, margin, grid)
     obs, grid = chosen.observations, chosen.grid
     resolution = grid.resolution
-    noise = real_sensor_noise(resolution) if sensor_noise is None else sensor_noise
+    noise = LOG_SENSOR_NOISE if sensor_noise is None else sensor_noise
+    coupling = log_coupling(resolution) if coupling is None else coupling
     params = make_params(prior_wall_prob, noise, obs.num_beams, grid, max_distance=obs.max_range,
                          beam_model=beam_model, geometry=geometry, **(sensor_params or {}), coupling=coupling)
     label = (f"{log.path} scans {scans[0]}..{scans[-1]} ({len(scans)})" if len(scans) > 1
              else f"{log.path} scan {scans[0]}")
-    offset = default_range_offset(resolution, geometry) if range_offset is None else float(range_offset)
+    offset = 0.0 if range_offset is None else float(range_offset)
     if not (math.isfinite(offset) and 0 <= offset < obs.max_range):
         raise BayesmapError(f"range_offset must be between 0 and the max range {obs.max_range:g} m, "
                             f"got {range_offset!r}")
     eta = check_likelihood_power(LOG_LIKELIHOOD_POWER if likelihood_power is None else likelihood_power)
     return Problem(params=params, observations=obs, poses=chosen.poses, world_angles=chosen.world_angles,
                    source=label, extra={"max_range": obs.max_range, "scans": len(scans), "range_offset": offset,
-                                         "geometry": geometry},
+                                         "geometry": geometry, "coupling": float(coupling)},
                    range_offset=offset, likelihood_power=eta)
 
 
@@ -807,9 +851,11 @@ def log_slam_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall
                      likelihood_power: float | None = None, motion=None) -> SlamProblem:
     """A SLAM problem from a log whose pose fields hold odometry (a raw log, or a bag read with its odometry).
 
-    The sensor model and its defaults are :func:`log_problem`'s (beam mixture, half-cell noise, the range offset and
-    likelihood power of logs); the readings are the model's readings (max-range readings at exactly the max range,
-    returned readings minus the range offset). The grid covers the odometry's beam endpoints plus
+    The sensor model is :func:`log_problem`'s beam mixture with the SLAM pipeline's map settings
+    (:func:`slam_map_settings`: entry geometry, range offset :data:`SLAM_RANGE_OFFSET`, sensor noise
+    :data:`SLAM_SENSOR_NOISE`, power :data:`SLAM_LIKELIHOOD_POWER`, the independent prior); the readings
+    are the model's readings (max-range readings at exactly the max range, returned readings minus the range
+    offset). The grid covers the odometry's beam endpoints plus
     :data:`SLAM_LOG_MARGIN` meters; the runner refits it to the inferred path. The arguments not listed below are
     :func:`log_problem`'s.
 
@@ -824,9 +870,11 @@ def log_slam_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall
     scans = np.arange(len(log)) if scans is None else np.asarray(scans, dtype=np.int64).reshape(-1)
     if len(scans) < 2:
         raise BayesmapError(f"SLAM needs at least two scans, got {len(scans)}")
+    settings = slam_map_settings()
+    given = {"sensor_noise": sensor_noise, "range_offset": range_offset, "likelihood_power": likelihood_power}
+    settings.update({k: v for k, v in given.items() if v is not None})
     problem = log_problem(log, scans, resolution=resolution, prior_wall_prob=prior_wall_prob,
-                          sensor_noise=sensor_noise, beam_model=beam_model, margin=SLAM_LOG_MARGIN,
-                          range_offset=range_offset, sensor_params=sensor_params, likelihood_power=likelihood_power)
+                          beam_model=beam_model, margin=SLAM_LOG_MARGIN, sensor_params=sensor_params, **settings)
     obs = problem.observations
     mask = obs.max_range_mask if obs.max_range_mask is not None else np.zeros(obs.readings.shape, bool)
     return SlamProblem(params=problem.params, motion=MotionParams() if motion is None else motion,

@@ -18,7 +18,11 @@ def test_evaluate_log_writes_the_table(small_log, tmp_path, monkeypatch, capsys)
     for method in ("bayesmap", "logodds"):
         assert 0.5 < scores[method]["auc"] <= 1.0 and np.isfinite(scores[method]["nll"])
     assert scores["setup"]["test_scans"] == 3 and scores["setup"]["train_scans"] == 9
-    assert scores["setup"]["prior_wall_prob"] == 0.1 and scores["setup"]["sensor_noise"] == 0.1  # the log defaults
+    # the log defaults, in meters whatever the resolution
+    from bayesmap import scenes
+    assert scores["setup"]["prior_wall_prob"] == scenes.LOG_PRIOR
+    assert scores["setup"]["sensor_noise"] == scenes.LOG_SENSOR_NOISE and scores["setup"]["range_offset"] == 0.0
+    assert scores["setup"]["geometry"] == "chord" and scores["setup"]["coupling"] == scenes.log_coupling(0.2)
     assert "bayesmap" in out and "logodds" in out and "auc" in out
     code, out, err = run_cli(monkeypatch, capsys, "evaluate", "--log", small_log, "--json", tmp_path / "scores.json")
     assert code == 2 and "already exists" in err
@@ -36,7 +40,7 @@ def test_evaluate_truth_on_a_floor_plan(tmp_path, monkeypatch, capsys):
     assert code in (0, None), err
     scores = json.loads((tmp_path / "s.json").read_text())
     assert scores["setup"]["cells_scored"] > 500
-    assert scores["setup"]["sensor_noise"] == 0.05  # half a 0.1 m cell
+    assert scores["setup"]["sensor_noise"] == 0.05  # the simulated sensor's (scenes.SIMULATED_SENSOR_NOISE)
     for method in ("bayesmap", "logodds"):
         assert set(scores[method]) >= {"accuracy", "auc", "brier", "cells"}
     # four viewpoints in a small room: the posterior gets nearly every seen cell right

@@ -42,10 +42,10 @@ from bayesmap.scenes import (
     SIMULATED_MAX_RANGE,
     SIMULATED_NUM_ANGLES,
     SIMULATED_NUM_POSES,
+    SIMULATED_SENSOR_NOISE,
     Observations,
     Problem,
     log_problem,
-    real_sensor_noise,
 )
 
 
@@ -254,13 +254,13 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
                  sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL, progress: bool = True,
                  range_offset: float | None = None, sensor_params: dict | None = None,
                  likelihood_power: float | None = None, geometry: str = LOG_GEOMETRY,
-                 coupling: float = DEFAULT_COUPLING) -> dict:
+                 coupling: float | None = None) -> dict:
     """Held-out evaluation on a log: hold out every ``every``-th of the chosen scans, map the rest with bayesmap
     (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
-    held-out beams (see the module docstring). ``sensor_noise`` (default half a cell), ``range_offset``,
-    ``sensor_params``, ``likelihood_power``, ``geometry`` and ``coupling`` (the structured prior's): see
-    :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses the measured ranges); the other defaults are
-    the scene defaults of :mod:`bayesmap.scenes`.
+    held-out beams (see the module docstring). ``sensor_noise``, ``range_offset``, ``sensor_params``,
+    ``likelihood_power``, ``geometry`` and ``coupling`` (the structured prior's; None: the log default at
+    ``resolution``): see :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses the measured ranges); the
+    other defaults are the scene defaults of :mod:`bayesmap.scenes`.
 
     Returns:
         ``{"bayesmap": {...}, "logodds": {...}, "setup": {...}}`` (JSON-serializable).
@@ -327,7 +327,7 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
                    sampler: str = "cellwise", sweeps: int = 100, seed: int = 0, sensor_noise: float | None = None,
                    beam_model: str = LOG_BEAM_MODEL, prior_wall_prob: float = LOG_PRIOR,
                    clearance: float = SIMULATED_CLEARANCE, sensor_params: dict | None = None,
-                   coupling: float = DEFAULT_COUPLING) -> dict:
+                   coupling: float | None = None) -> dict:
     """Map synthetic scans of a known floor plan and score the maps against it.
 
     ``num_poses`` positions are drawn (seed ``seed``) uniformly among the known-free cells at least ``clearance``
@@ -339,8 +339,9 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
 
     Args:
         path: the floor plan, a ROS map (``.yaml``, or a bare ``.pgm`` with ``resolution`` meters per pixel).
-        sensor_noise: meters; default :func:`bayesmap.scenes.real_sensor_noise` (half a cell).
-        coupling: the structured prior's ``J`` (:mod:`bayesmap.model.prior`); default 0. The other defaults
+        sensor_noise: meters, the simulated sensor's and the model's; default
+            :data:`bayesmap.scenes.SIMULATED_SENSOR_NOISE`.
+        coupling: the structured prior's ``J`` (:mod:`bayesmap.model.prior`); None: 0. The other defaults
             are the scene defaults of :mod:`bayesmap.scenes`.
 
     Returns:
@@ -378,7 +379,8 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
     headings = rng.uniform(0, 2 * np.pi, size=num_poses)
     poses = np.column_stack([positions, headings])
     relative = np.broadcast_to(np.linspace(0, 2 * np.pi, num_angles, endpoint=False), (num_poses, num_angles))
-    noise = real_sensor_noise(grid.resolution) if sensor_noise is None else sensor_noise
+    noise = SIMULATED_SENSOR_NOISE if sensor_noise is None else sensor_noise
+    coupling = DEFAULT_COUPLING if coupling is None else coupling
     params = make_params(prior_wall_prob, noise, num_angles, grid, max_distance=max_range, beam_model=beam_model,
                          **(sensor_params or {}), coupling=coupling)
     world = poses[:, 2:3] + relative  # (the world-frame angles the Problem derives from the poses)

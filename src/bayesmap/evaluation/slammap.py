@@ -10,7 +10,8 @@ Protocol (issue 15's map-quality target):
    ``theta = theta_g - angle(R)``.
 3. The reference map is made with the true poses of the same mapped scans
    (:func:`bayesmap.inference.driver.run_inference`, the cellwise sampler, as ``bayesmap evaluate --log`` does on a
-   corrected log).
+   corrected log), with the SLAM pipeline's map model (:func:`bayesmap.scenes.slam_map_settings`), so the two maps
+   differ only in their poses.
 4. Both maps are scored on the held-out beams at their true poses with the occupancy AUC and the predictive NLL of
    :func:`bayesmap.evaluation.heldout.score_maps`, each map as independent wall probabilities (the SLAM run keeps
    its posterior marginals, not map samples, so the reference is scored the same way).
@@ -27,7 +28,7 @@ from bayesmap.evaluation.heldout import heldout_split, score_maps
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, frame_of
 from bayesmap.inference.driver import run_inference
 from bayesmap.inference.logslam import run_log_slam
-from bayesmap.scenes import RESOLUTION, log_problem, log_slam_problem
+from bayesmap.scenes import RESOLUTION, log_problem, log_slam_problem, slam_map_settings
 
 REFERENCE_SWEEPS = 100
 """Cellwise sweeps of the map made at the true poses (half burn-in): ``bayesmap evaluate --log``'s default."""
@@ -64,16 +65,17 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
     slam_s = time.perf_counter() - start
     poses = truth.copy()
     poses[test] = frame_of(slam.mean_path, truth[train], truth[test])
-    slam_test = log_problem(log.with_poses(poses), test, resolution=resolution, grid=slam.grid)
+    same = slam_map_settings()  # both maps and the scoring: the SLAM pipeline's map model
+    slam_test = log_problem(log.with_poses(poses), test, resolution=resolution, grid=slam.grid, **same)
     scores = score_maps(slam_test, {"slam": (slam.posterior, None)})
 
     true_log = log.with_poses(truth)
     grid = log_problem(true_log, resolution=resolution).grid  # covers the held-out scans too
     start = time.perf_counter()
-    reference = run_inference(log_problem(true_log, train, resolution=resolution, grid=grid), "cellwise",
+    reference = run_inference(log_problem(true_log, train, resolution=resolution, grid=grid, **same), "cellwise",
                               reference_sweeps, seed=seed, progress=False)
     reference_s = time.perf_counter() - start
-    scores.update(score_maps(log_problem(true_log, test, resolution=resolution, grid=grid),
+    scores.update(score_maps(log_problem(true_log, test, resolution=resolution, grid=grid, **same),
                              {"true_poses": (reference.posterior, None)}))
     scores["setup"] = {"log": str(log.path), "scans": len(log), "train_scans": len(train), "test_scans": len(test),
                        "every": int(every), "resolution": float(resolution),

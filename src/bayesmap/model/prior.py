@@ -30,7 +30,9 @@ meters with :func:`coupling_for_run_length`: in a chain of cells (one row of the
 differ with probability ``1 / (1 + e^J)``, so runs of equal cells are geometric with mean ``1 + e^J`` cells;
 ``J = log(L / resolution - 1)`` makes that mean ``L`` meters at any resolution. The coupling then *depends on the
 resolution* (finer cells need a stronger coupling for the same run in meters): the rule is stated in meters, never
-as a count of cells. No default ``L`` is chosen here; a leave-one-log-out protocol will pick it.
+as a count of cells. The maps of logs default to ``L =`` :data:`bayesmap.scenes.LOG_RUN_LENGTH` meters
+(:func:`bayesmap.scenes.log_coupling`), chosen by leave-one-log-out cross-validation (README); every other scene
+keeps ``J = 0``.
 
 **In the GenJAX model, exactly.** The MRF's normalizing constant is intractable, so the model does not sample the
 MRF directly. It keeps the independent prior at ``"walls"`` and adds an *observed* auxiliary choice at
