@@ -103,7 +103,7 @@ than as free space (the prior odds of "no wall in 100 cells" are 2^-100 against 
 
 # The map defaults of a log (issue 16): every one a property of the sensor or the world, none a count of cells,
 # chosen by leave-one-log-out cross-validation over Intel, ACES and CSAIL at 0.1 and 0.2 m (benchmarks/map_cv.py;
-# the protocol and the table are in the README, "Map defaults by cross-validation").
+# the protocol and the table are in the README, "Map defaults of logs, by cross-validation").
 
 LOG_GEOMETRY = "chord"
 """Wall geometry of real scans of a log (``ModelParams.geometry``): ``"chord"``, the surface anywhere on the beam's
@@ -114,9 +114,9 @@ tutorial's and the SLAM pose sweep's (:data:`SLAM_GEOMETRY`).
 
 The cross-validation (``benchmarks/map_cv.py``): every other scan of each log, every 10th of those held out, maps at
 0.1 and 0.2 m; for each log held out, the setting with the largest mean held-out AUC margin over log-odds mapping on
-the other two logs, among those whose predictive NLL is below log-odds' on both. Searched: power 0.01-0.3, run
-length 0-4 m, noise 0.05 and 0.1 m, ``z_rand`` 0.1 and 0.3. Chosen on all three logs: power 0.1, 2 m, 0.1 m, 0.1
-(mean AUC margin +0.020; 0.003 below log-odds on CSAIL at 0.2 m)."""
+the other two logs, among those whose predictive NLL is below log-odds' on both logs at both resolutions.
+Searched: power 0.01-0.3, run length 0-4 m, noise 0.05 and 0.1 m, ``z_rand`` 0.1 and 0.3. Chosen on all three
+logs: power 0.1, 2 m, 0.1 m, 0.1 (mean AUC margin +0.020; 0.003 below log-odds on CSAIL at 0.2 m)."""
 
 LOG_SENSOR_NOISE = 0.1
 """Default ``sensor_noise`` of a log's map, meters: the hit component's standard deviation (a property of the laser
