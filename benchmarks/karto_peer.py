@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Callable, NamedTuple
 
 import numpy as np
+from seeded_logs import CORRECTED_LOGS, NOISY_ODOMETRY, write_seeded_log
 
 from bayesmap import scenes
 from bayesmap.errors import BayesmapError
@@ -44,12 +45,8 @@ from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_co
 from bayesmap.inference.logslam import run_log_slam
 from bayesmap.io.carmen import beam_offsets, read_carmen
 from bayesmap.io.rosbag import compose_poses, invert_pose
-from bayesmap.io.tum import read_tum
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = ROOT.parent / "shared"  # the project's data lives at ../shared/data (shared/data/README.md)
-CORRECTED_LOGS = {name: SHARED / "data" / "carmen" / f"{name}-corrected.log.gz" for name in ("intel", "aces", "csail")}
-NOISY_ODOMETRY = SHARED / "tools" / "noisy_odometry.py"
 KARTO_VENV = ROOT / "benchmarks" / ".venv-karto"
 KARTO_RUNNER = ROOT / "benchmarks" / "karto_runner.py"
 KARTO_PACKAGES = ("yag-slam", "opencv-python-headless")  # yag-slam 0.3.0 imports cv2 without declaring it
@@ -114,14 +111,7 @@ def make_problem(name: str, seed: int, folder: Path, spacing: str = "bayesmap") 
         BayesmapError: noisy_odometry.py failed, or its outputs do not agree on the number of scans.
     """
     prefix = folder / f"{name}-s{seed}"
-    cmd = [sys.executable, str(NOISY_ODOMETRY), str(CORRECTED_LOGS[name]), str(prefix), "--seed", str(seed)]
-    done = subprocess.run(cmd, capture_output=True, text=True)
-    if done.returncode != 0:
-        raise BayesmapError(f"noisy_odometry.py failed for log {name!r} seed {seed}: {done.stderr.strip()[-500:]}")
-    log = read_carmen(f"{prefix}.log.gz")
-    truth = read_tum(f"{prefix}.truth.tum")[1]
-    if len(truth) != len(log):
-        raise BayesmapError(f"{prefix}: {len(log)} scans but {len(truth)} true poses")
+    log, truth = write_seeded_log(name, seed, prefix)
     return Problem(name, seed, np.asarray(log.ranges), scan_beam_angles(log.ranges.shape[1], spacing), log.max_range,
                    np.asarray(log.poses), truth, Path(f"{prefix}.log.gz"))
 

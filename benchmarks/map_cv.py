@@ -31,13 +31,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from seeded_logs import CORRECTED_LOGS
 
 from bayesmap.evaluation.heldout import evaluate_log
 from bayesmap.io.carmen import read_carmen
 from bayesmap.model.prior import coupling_for_run_length
 from bayesmap.model.sensor import BEAM_DEFAULTS
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "carmen"
 KEYS = ("log", "resolution", "power", "run_length", "noise", "z_rand", "step", "sweeps")
 
 
@@ -118,7 +118,7 @@ def main(argv=None) -> int:
                            step=args.step, sweeps=args.sweeps)
             if key(setting) in done:
                 continue
-            log = log or read_carmen(DATA / f"{name}-corrected.log.gz")
+            log = log or read_carmen(CORRECTED_LOGS[name])
             row = run_one(log, setting)
             rows.append(row)
             done.add(key(row))

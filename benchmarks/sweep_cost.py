@@ -18,18 +18,16 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import jax
 import numpy as np
+from seeded_logs import CORRECTED_LOGS
 
 from bayesmap import scenes
 from bayesmap.inference.chains import compile_chain
 from bayesmap.inference.driver import run_logodds
 from bayesmap.inference.registry import make_sampler
 from bayesmap.io.carmen import read_carmen
-
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "carmen"
 
 SETTINGS = {
     "entry": dict(geometry="entry", range_offset=0.1, likelihood_power=0.1, coupling=0.0),
@@ -60,7 +58,7 @@ def main(argv=None) -> int:
     parser.add_argument("--sweeps", type=int, default=20)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args(argv)
-    log = read_carmen(DATA / f"{args.log}-corrected.log.gz")
+    log = read_carmen(CORRECTED_LOGS[args.log])
     print("| setting | coupling J | seconds per sweep | ratio to entry |\n|---|---|---|---|")
     base = None
     for name, kwargs in SETTINGS.items():

@@ -140,9 +140,9 @@ def test_likelihood_power_in_the_summary_and_refused_by_reference_samplers(small
     from bayesmap.io.carmen import read_carmen
     from bayesmap.scenes import LOG_LIKELIHOOD_POWER, log_problem
 
-    pb = log_problem(read_carmen(small_log), resolution=0.2, likelihood_power=0.1)
+    log = read_carmen(small_log)
     with pytest.raises(BayesmapError, match=r"likelihood power 0\.1\)"):
-        make_sampler(pb, "reference-raster")
-    summary = run_inference(log_problem(read_carmen(small_log), resolution=0.2), "cellwise", 4, progress=False).summary
+        make_sampler(log_problem(log, resolution=0.2, likelihood_power=0.1), "reference-raster")
+    summary = run_inference(log_problem(log, resolution=0.2), "cellwise", 4, progress=False).summary
     assert summary["likelihood_power"] == LOG_LIKELIHOOD_POWER
     assert summary["posterior_estimate"] == "rao-blackwellized"
