@@ -9,13 +9,15 @@ from bayesmap.io.tum import read_tum
 from helpers import run_cli
 
 
+@pytest.mark.xdist_group("tutorial_slam")
 def test_slam_writes_all_outputs(tmp_path, monkeypatch, capsys):
-    """A short run (5 poses, 6 sweeps) writes every output, consistent with each other, whole, and refuses to
-    overwrite them without --force."""
+    """A short run (5 poses, 12 sweeps, 4 burn-in: the joint chain of tests/inference/test_slam.py's tutorial_slam,
+    compiled once on their shared xdist worker) writes every output, consistent with each other, whole, and refuses
+    to overwrite them without --force."""
     out = tmp_path / "run"
     out.mkdir()
     (out / "notes.txt").write_text("mine")
-    code, stdout, err = run_cli(monkeypatch, capsys, "slam", "--num-poses", 5, "--sweeps", 6, "--burn-in", 2,
+    code, stdout, err = run_cli(monkeypatch, capsys, "slam", "--num-poses", 5, "--sweeps", 12, "--burn-in", 4,
                                 "--out", out, "--report")
     assert code == 0, err
     assert "ATE" in stdout and "odometry" in stdout
@@ -26,12 +28,12 @@ def test_slam_writes_all_outputs(tmp_path, monkeypatch, capsys):
     assert np.array_equal(stamps, np.arange(5)) and poses.shape == (5, 3)
     samples = np.load(out / "trajectory_samples.npy")
     cov = np.load(out / "pose_cov.npy")
-    assert samples.shape == (4, 5, 3) and cov.shape == (5, 3, 3)
+    assert samples.shape == (8, 5, 3) and cov.shape == (5, 3, 3)
     assert np.allclose(poses[:, :2], samples[:, :, :2].mean(axis=0), atol=1e-5)
     posterior = np.load(out / "posterior.npy")
     assert posterior.shape == (21, 21) and posterior.min() >= 0 and posterior.max() <= 1
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["settings"]["sweeps"] == 6 and summary["settings"]["num_poses"] == 5
+    assert summary["settings"]["sweeps"] == 12 and summary["settings"]["num_poses"] == 5
     assert summary["posterior"]["ate_rmse_m"] < summary["odometry"]["ate_rmse_m"]
     assert 0 <= summary["posterior"]["coverage"] <= 1 and summary["odometry"]["coverage"] is None
     assert (out / "posterior.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -63,6 +63,7 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     summary = json.loads((log_run / "summary.json").read_text())
     settings = summary["settings"]
     assert summary["num_scans"] == 25 and settings["sweeps"] == 2 and settings["burn_in"] == 0 and settings["seed"] == 3
+    assert settings["geometry"] == "chord" and settings["range_offset_m"] == 0.0  # no offset in any default
     assert summary["pose_samples"] == len(samples) and 0 <= summary["acceptance_rate"] <= 1
     # the pose graph's spread is in the covariances: 25 scans close no loop (LOOP_GAP), so the graph is a chain of
     # sequential edges and pose k's (x, y) block has trace at least 2 k SEQUENTIAL_STD[0]^2 (heading errors add)

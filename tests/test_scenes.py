@@ -106,18 +106,18 @@ def test_log_defaults_come_from_the_scene_defaults(small_log):
 
 
 def test_slam_problem_keeps_the_slam_map_model(small_log):
-    """``bayesmap slam --log`` keeps the map model its defaults were cross-validated with (entry geometry, 0.1 m
-    offset, 0.05 m noise, power 0.1, independent prior), whatever the map defaults of logs are."""
+    """``bayesmap slam --log`` keeps the map model its defaults were cross-validated with (0.05 m noise, power 0.1,
+    independent prior), whatever the map defaults of logs are, in the chord geometry with no range offset."""
     from bayesmap import scenes
     from bayesmap.io.carmen import read_carmen
 
     log = read_carmen(small_log)
     slam = scenes.log_slam_problem(log, resolution=0.2)
-    assert slam.params.geometry == "entry" and slam.range_offset == pytest.approx(0.1)
+    assert slam.params.geometry == "chord" and slam.range_offset == 0.0
     assert slam.params.sensor_noise == pytest.approx(0.05) and slam.likelihood_power == pytest.approx(0.1)
     assert slam.params.coupling == 0.0
-    given = scenes.log_slam_problem(log, resolution=0.2, range_offset=0.0, likelihood_power=1.0, sensor_noise=0.02)
-    assert given.range_offset == 0.0 and given.likelihood_power == 1.0 and given.params.sensor_noise == 0.02
+    given = scenes.log_slam_problem(log, resolution=0.2, range_offset=0.1, likelihood_power=1.0, sensor_noise=0.02)
+    assert given.range_offset == 0.1 and given.likelihood_power == 1.0 and given.params.sensor_noise == 0.02
 
 
 def test_with_poses_moves_the_rays_and_keeps_the_observations():

@@ -989,7 +989,8 @@ def _log_slam(carmen, path: Path, scans: Optional[str], resolution: Optional[flo
     p = problem.params
     settings = {"scans": scans if scans is not None else "all", "resolution": resolution, "sweeps": sweeps,
                 "burn_in": burn_in, "seed": seed, "prior_wall_prob": float(p.prior_wall_prob),
-                "sensor_noise": float(p.sensor_noise), "beam_model": p.beam_model,
+                "sensor_noise": float(p.sensor_noise), "beam_model": p.beam_model, "geometry": p.geometry,
+                "range_offset_m": float(problem.range_offset),
                 "likelihood_power": float(problem.likelihood_power), "max_range_m": float(p.max_range),
                 "motion": {name: float(getattr(problem.motion, name))
                            for name in ("a1", "a2", "a3", "a4", "floor_xy", "floor_theta")},

@@ -110,7 +110,7 @@ LOG_GEOMETRY = "chord"
 chord through the first wall cell, the sensor's hit averaged over it (:mod:`bayesmap.model.sensor`). It needs no
 range offset at any resolution: a log's default offset is 0. The tutorial's ``"entry"`` geometry (the reading
 expected where the beam enters the cell) ranks cells worse without an offset (README, geometry table) and stays the
-tutorial's and the SLAM pose sweep's (:data:`SLAM_GEOMETRY`).
+tutorial's. ``bayesmap slam --log`` uses the chord geometry too (:data:`SLAM_GEOMETRY`).
 
 The cross-validation (``benchmarks/map_cv.py``): every other scan of each log, every 10th of those held out, maps at
 0.1 and 0.2 m; for each log held out, the setting with the largest mean held-out AUC margin over log-odds mapping on
@@ -141,18 +141,15 @@ LOG_RUN_LENGTH = 2.0
 long on average, at any resolution; 0 would be the independent prior. Cross-validated (:data:`LOG_GEOMETRY`'s
 note)."""
 
-# The SLAM pipeline's map model (issue 15): bayesmap slam --log samples poses with the dense first-hit sweep, which
-# supports only the entry geometry, so its map model keeps the settings its defaults were cross-validated with.
+# The SLAM pipeline's map model (issue 15): the settings its defaults were cross-validated with, in the chord
+# geometry with no range offset since its pose moves cast chords (issue 16; README, "Real logs and bags").
 
-SLAM_GEOMETRY = "entry"
-"""Wall geometry of ``bayesmap slam --log`` (:func:`log_slam_problem`): the pose sweep
-(:mod:`bayesmap.inference.poses`) supports only the tutorial's entry geometry."""
-
-SLAM_RANGE_OFFSET = 0.1
-"""Range offset of ``bayesmap slam --log``, meters (:func:`slam_map_settings`): with the entry geometry a wall cell's
-reading is expected where the beam enters the cell while a real surface lies inside it; one cell of 0.1 m was chosen
-on Intel validation scans (held-out AUC 0.929 with half a cell, 0.952 with one; log-odds 0.947). The chord geometry
-of maps (:data:`LOG_GEOMETRY`) needs none."""
+SLAM_GEOMETRY = "chord"
+"""Wall geometry of ``bayesmap slam --log`` (:func:`log_slam_problem`), maps and pose moves alike (the pose moves cast
+each beam's first wall cell and its chord by grid traversal, :func:`bayesmap.geometry.raycast.march_first_chord`):
+the chord geometry with no range offset. It replaced the entry geometry with a 0.1 m offset (one cell chosen on Intel
+validation scans) at equal ATE: 0.069 / 0.093 / 0.098 m against 0.069 / 0.094 / 0.100 m on Intel / ACES / CSAIL,
+odometry seed 0 (README, "Real logs and bags")."""
 
 SLAM_SENSOR_NOISE = 0.05
 """``sensor_noise`` of ``bayesmap slam --log``, meters (:func:`slam_map_settings`)."""
@@ -193,11 +190,10 @@ def log_coupling(resolution: float, run_length: float = LOG_RUN_LENGTH) -> float
 
 
 def slam_map_settings() -> dict:
-    """The map model of ``bayesmap slam --log``, as keywords of :func:`log_problem`: :data:`SLAM_GEOMETRY`,
-    :data:`SLAM_RANGE_OFFSET`, :data:`SLAM_SENSOR_NOISE`, :data:`SLAM_LIKELIHOOD_POWER` and the independent prior."""
-    return {"geometry": SLAM_GEOMETRY, "range_offset": SLAM_RANGE_OFFSET,
-            "sensor_noise": SLAM_SENSOR_NOISE, "likelihood_power": SLAM_LIKELIHOOD_POWER,
-            "coupling": 0.0}
+    """The map model of ``bayesmap slam --log``, as keywords of :func:`log_problem`: :data:`SLAM_GEOMETRY` with no
+    range offset, :data:`SLAM_SENSOR_NOISE`, :data:`SLAM_LIKELIHOOD_POWER` and the independent prior."""
+    return {"geometry": SLAM_GEOMETRY, "range_offset": 0.0, "sensor_noise": SLAM_SENSOR_NOISE,
+            "likelihood_power": SLAM_LIKELIHOOD_POWER, "coupling": 0.0}
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -269,8 +265,8 @@ class Problem:
         extra: more JSON-serializable facts for the summary.
         range_offset: meters subtracted from every returned (not max-range) reading before the model sees it
             (:attr:`model_readings`); 0 by default. The tutorial's entry geometry expects a reading at the face where
-            the beam enters the wall cell, while a real surface lies inside the cell; ``bayesmap slam --log`` (entry
-            geometry) uses :data:`SLAM_RANGE_OFFSET`, a log's map (chord geometry) none.
+            the beam enters the wall cell, while a real surface lies inside the cell; no default uses one (the
+            chord geometry of logs needs none).
         likelihood_power: ``eta`` in (0, 1]: the samplers target ``p(walls) p(readings | walls) ** eta``
             (:func:`bayesmap.model.generative.check_likelihood_power`); 1 (the posterior) except for logs
             (:data:`LOG_LIKELIHOOD_POWER`). The reference samplers support only 1.
@@ -852,8 +848,8 @@ def log_slam_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall
     """A SLAM problem from a log whose pose fields hold odometry (a raw log, or a bag read with its odometry).
 
     The sensor model is :func:`log_problem`'s beam mixture with the SLAM pipeline's map settings
-    (:func:`slam_map_settings`: entry geometry, range offset :data:`SLAM_RANGE_OFFSET`, sensor noise
-    :data:`SLAM_SENSOR_NOISE`, power :data:`SLAM_LIKELIHOOD_POWER`, the independent prior); the readings
+    (:func:`slam_map_settings`: chord geometry, no range offset, sensor noise :data:`SLAM_SENSOR_NOISE`, power
+    :data:`SLAM_LIKELIHOOD_POWER`, the independent prior); the readings
     are the model's readings (max-range readings at exactly the max range, returned readings minus the range
     offset). The grid covers the odometry's beam endpoints plus
     :data:`SLAM_LOG_MARGIN` meters; the runner refits it to the inferred path. The arguments not listed below are

@@ -7,7 +7,14 @@ import pytest
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.geometry.raycast import angles, first_hit_distances, march_first_hit, sensor_distances
+from bayesmap.geometry.raycast import (
+    angles,
+    first_hit_chords,
+    first_hit_distances,
+    march_first_chord,
+    march_first_hit,
+    sensor_distances,
+)
 from bayesmap.geometry.raytable import build_ray_table, check_readings, visible_cells
 from bayesmap.io.ascii import tutorial_map
 from helpers import random_scene
@@ -152,12 +159,14 @@ def test_march_first_hit_equals_the_all_cells_ray_cast(seed):
     angles plus the eight axis and diagonal directions, a max distance shorter or longer than the grid: equal to
     1e-5 relative (the same float32 edge arithmetic; only a ray within rounding of a grid vertex may differ, and
     random angles do not hit one). A traversal that starts in the wrong cell, steps on the wrong axis or ignores a
-    sensor outside the grid misses walls by whole cells."""
+    sensor outside the grid misses walls by whole cells. march_first_chord: its entries are march_first_hit's and
+    its chords first_hit_chords' (the same cell, the same exit arithmetic), to the same tolerance."""
     rng = np.random.default_rng(seed)
     nx, ny = (int(v) for v in rng.integers(3, 30, 2))
     grid = Grid(shape=(nx, ny), resolution=float([1.0, 0.1, 0.05, 0.1][seed]),
                 origin=tuple(float(v) for v in rng.normal(size=2)))
     max_distance = float([5.0, 1000.0][seed % 2]) * grid.resolution
+    longest = 0.0
     for _ in range(8):
         walls = (rng.random((nx, ny)) < rng.choice([0.02, 0.1, 0.3])).astype(np.float32)
         pos = np.asarray(grid.origin) + rng.uniform(-0.5, 1.5, 2) * np.array([nx, ny]) * grid.resolution
@@ -167,3 +176,11 @@ def test_march_first_hit_equals_the_all_cells_ray_cast(seed):
         got = np.asarray(march_first_hit(jnp.asarray(walls), jnp.asarray(pos), jnp.asarray(beams), grid,
                                          max_distance))
         np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+        # the chord of the first wall cell (entry and exit): the same cell, so the same exit arithmetic
+        chords = np.asarray(march_first_chord(jnp.asarray(walls), jnp.asarray(pos), jnp.asarray(beams), grid,
+                                              max_distance))
+        np.testing.assert_array_equal(chords[:, 0], got)
+        np.testing.assert_allclose(chords, first_hit_chords(jnp.asarray(walls), jnp.asarray(pos), jnp.asarray(beams),
+                                                            grid, max_distance), rtol=1e-5, atol=1e-6)
+        longest = max(longest, float(np.max(chords[:, 1] - chords[:, 0])))
+    assert longest > 0.1 * grid.resolution  # real chords, not entry = exit

@@ -1,5 +1,7 @@
 """Pose conditionals and pose kernels (bayesmap.inference.poses) against the SLAM model's assess and enumeration."""
 
+import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -30,7 +32,7 @@ from bayesmap.model.generative import (
 from helpers import exact_slam_marginals, random_scene
 
 
-def random_slam_scene(seed, beam_model="normal", num_scans=4):
+def random_slam_scene(seed, beam_model="normal", num_scans=4, geometry="entry"):
     """A random small grid and map (conftest.random_scene), a path of ``num_scans`` poses near its position,
     odometry near the path, readings simulated at the path (some set to the max range)."""
     rng = np.random.default_rng(seed)
@@ -48,7 +50,8 @@ def random_slam_scene(seed, beam_model="normal", num_scans=4):
                                           path[:, 2:3] + sensor_angles), np.float64)
     y = np.maximum(y, 0.0)
     y[rng.random(y.shape) < 0.2] = params.max_range
-    return params, path, walls, inc, cov, sensor_angles, y, step
+    # the readings are simulated in the entry geometry whatever ``geometry`` (any readings are data to condition on)
+    return dataclasses.replace(params, geometry=geometry), path, walls, inc, cov, sensor_angles, y, step
 
 
 @pytest.mark.parametrize("beam_model", ["normal", "beam"])
@@ -58,19 +61,35 @@ def test_pose_conditional_equals_assess_differences(beam_model, seed):
     pose equals assess(path with pose_t = candidate) - assess(path). Float64, 1e-6 absolute on differences of log
     densities of size ~10-1000 (both sides are the same float64 arithmetic up to summation order, ~1e-12; a
     missing factor, a wrong frame or a wrong angle convention changes them by far more than 1e-6)."""
+    check_pose_conditional_against_assess(seed, beam_model, "entry")
+
+
+def test_pose_conditional_equals_assess_differences_in_the_chord_geometry():
+    """As above in the chord geometry (the pose moves cast the first wall cell's entry and exit by grid traversal,
+    the model's assess takes them from the all-cells ray cast), beam model, the metric scene of seed 1, 1e-6. The
+    entry geometry's conditional differs from the chord's by more than 0.1 somewhere: the test can fail."""
+    check_pose_conditional_against_assess(1, "beam", "chord")
+
+
+def check_pose_conditional_against_assess(seed, beam_model, geometry):
     with enable_x64():
-        params, path, walls, inc, cov, angles, y, step = random_slam_scene(seed, beam_model)
+        params, path, walls, inc, cov, angles, y, step = random_slam_scene(seed, beam_model, geometry=geometry)
         data = slam_data(inc, cov, angles, y, params)
+        entry_data = slam_data(inc, cov, angles, y, dataclasses.replace(params, geometry="entry"))
         assess = jax.jit(lambda p: slam_model.assess(slam_choices(p, walls, y),
                                                      slam_args(path[0], inc, cov, params, angles))[0])
         rng = np.random.default_rng(50 + seed)
+        entry_gap = 0.0
         for t in range(1, len(path)):
-            cands = path[t] + rng.normal(0, [step, step, 0.3], (6, 3))
-            got = np.asarray(pose_log_conditional(t, np.concatenate([path[t:t + 1], cands]), path, walls, data))
-            want = np.array([float(assess(jnp.asarray(path).at[t].set(c))) for c in cands])
+            cands = np.concatenate([path[t:t + 1], path[t] + rng.normal(0, [step, step, 0.3], (6, 3))])
+            got = np.asarray(pose_log_conditional(t, cands, path, walls, data))
+            want = np.array([float(assess(jnp.asarray(path).at[t].set(c))) for c in cands[1:]])
             base = float(assess(jnp.asarray(path)))
             assert np.all(np.isfinite(want))
             np.testing.assert_allclose(got[1:] - got[0], want - base, atol=1e-6, rtol=0)
+            entry = np.asarray(pose_log_conditional(t, cands, path, walls, entry_data))
+            entry_gap = max(entry_gap, np.abs((entry[1:] - entry[0]) - (got[1:] - got[0])).max())
+        assert geometry == "entry" or entry_gap > 0.1
 
 
 @pytest.mark.parametrize("seed", range(2))
@@ -285,6 +304,14 @@ def test_lattice_mh_fixed_lattice_matches_the_exact_conditional():
             assert np.all(np.abs(freq.mean(0) - exact[d]) < 5 * se + 3e-3), (d, freq.mean(0), exact[d], se)
 
 
+@functools.cache
+def lattice_moments():
+    """:func:`conditional_moments` of :func:`lattice_problem` (in float64), computed once per process: the two
+    continuous tests below share it (one xdist group)."""
+    with enable_x64():
+        return conditional_moments(*lattice_problem())
+
+
 def conditional_moments(data, odometry, walls):
     """Mean and standard deviation ``(3,)`` of pose 1's exact conditional by quadrature on a 49^3 grid of step 0.025
     (m, m, rad) over +-0.6 around the odometry."""
@@ -298,6 +325,7 @@ def conditional_moments(data, odometry, walls):
     return mean, np.sqrt(w @ (pts - mean) ** 2)
 
 
+@pytest.mark.xdist_group("continuous_pose")
 def test_lattice_mh_jittered_matches_the_continuous_conditional():
     """jitter = 0.5 (continuous poses): the chain's mean and standard deviation of pose 1 in x, y and theta against
     the exact conditional's, by quadrature on a 49^3 grid of step 0.025 (m, m, rad) over +-0.6 around the odometry
@@ -308,7 +336,7 @@ def test_lattice_mh_jittered_matches_the_continuous_conditional():
     measured within 3 % with keys 3 to 6)."""
     with enable_x64():
         data, odometry, walls = lattice_problem()
-        mean, sd = conditional_moments(data, odometry, walls)
+        mean, sd = lattice_moments()
         kernel = lattice_pose_mh(data, 0.1, 0.1, half_width=1, jitter=0.5)
         poses = run_pose_chains(kernel, odometry, walls, 400, 40, 10)
         per_chain = poses.mean(axis=1)
@@ -318,6 +346,7 @@ def test_lattice_mh_jittered_matches_the_continuous_conditional():
         assert len(np.unique(poses[:, -1, 0])) > 300  # continuous: the chains do not share a lattice
 
 
+@pytest.mark.xdist_group("continuous_pose")
 def test_random_walk_mh_matches_the_continuous_conditional():
     """Random-walk Metropolis (steps 0.1 m, 0.1 m, 0.1 rad) on the same problem and with the same quadrature and
     tolerances as the jittered lattice test above: 400 independent chains x 75 kept sweeps after 25 of burn-in (a
@@ -328,7 +357,7 @@ def test_random_walk_mh_matches_the_continuous_conditional():
     rad)."""
     with enable_x64():
         data, odometry, walls = lattice_problem()
-        mean, sd = conditional_moments(data, odometry, walls)
+        mean, sd = lattice_moments()
         kernel = random_walk_pose_mh(data, (0.1, 0.1, 0.1))
         poses = run_pose_chains(kernel, odometry, walls, 400, 100, 25)
         per_chain = poses.mean(axis=1)

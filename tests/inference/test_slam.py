@@ -9,6 +9,7 @@ import pytest
 from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.trajectory import absolute_trajectory_error
 from bayesmap.geometry.grid import Grid
+from bayesmap.inference.chains import compiled_chain_count
 from bayesmap.inference.poses import discrete_pose_gibbs, slam_data
 from bayesmap.inference.slam import pose_summary, run_slam, slam_kernel
 from bayesmap.model import motion
@@ -74,10 +75,13 @@ def test_joint_kernel_matches_enumeration():
 
 @pytest.fixture(scope="module")
 def tutorial_slam():
+    """5 poses, 12 sweeps (4 burn-in), seed 0: the run of tests/test_cli_slam.py::test_slam_writes_all_outputs, on
+    the same xdist worker (group "tutorial_slam"), which then reuses this compiled chain."""
     problem = slam_tutorial_problem(seed=0, num_poses=5)
     return problem, run_slam(problem, sweeps=12, burn_in=4, seed=0)
 
 
+@pytest.mark.xdist_group("tutorial_slam")
 def test_posterior_path_beats_odometry_on_the_tutorial(tutorial_slam):
     """Seed 0, 5 poses around the room: the posterior mean path is closer to the true path than the odometry (ATE
     after rigid alignment), by a factor of 2, and the map is right where seen."""
@@ -92,6 +96,18 @@ def test_posterior_path_beats_odometry_on_the_tutorial(tutorial_slam):
     assert result.posterior.shape == problem.truth.shape
     assert np.mean((result.posterior > 0.5) != (problem.truth > 0)) < 0.1
     assert 0 <= result.acceptance_rate <= 1 and result.runtime_s > 0
+
+
+@pytest.mark.xdist_group("tutorial_slam")
+def test_a_problem_of_the_same_shapes_reuses_the_compiled_joint_chain(tutorial_slam):
+    """The joint kernel is a pytree of module functions and arrays, not closures: another scene of the same shapes
+    (other odometry and readings) runs on the compiled chain of tutorial_slam's (none is compiled anew), and
+    its own numbers come out (not the first problem's)."""
+    problem, result = tutorial_slam
+    before = compiled_chain_count()
+    other = run_slam(slam_tutorial_problem(seed=1, num_poses=5), sweeps=12, burn_in=4, seed=1)
+    assert compiled_chain_count() == before
+    assert not np.allclose(other.mean_path, result.mean_path)
 
 
 def test_pose_summary_uses_the_circular_mean():

@@ -1,11 +1,13 @@
 """report.html: one self-contained offline file; it opens in headless Chromium with the network blocked."""
 
+import contextlib
+import io
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+
+from helpers import run_main
 
 CHROMIUM = Path("/usr/bin/chromium")
 ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
@@ -16,15 +18,14 @@ pytestmark = pytest.mark.xdist_group("report")
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    """``bayesmap infer --report`` on a small room (2 chains, 20 sweeps)."""
+    """``bayesmap infer --report`` on a small room (2 chains, 20 sweeps), in-process."""
     out = tmp_path_factory.mktemp("report")
     (out / "room.txt").write_text("XXXXXXXX\nX......X\nX..XX..X\nX......X\nXXXXXXXX\n")
-    run = subprocess.run([sys.executable, "-m", "bayesmap.cli", "infer", "--map", str(out / "room.txt"),
-                          "--pos", "1", "2", "--sweeps", "20", "--chains", "2", "--report",
-                          "--out", str(out / "run")],
-                         capture_output=True, text=True, timeout=300)
-    assert run.returncode == 0, run.stderr
-    assert "report.html" in run.stdout
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = run_main("infer", "--map", out / "room.txt", "--pos", 1, 2, "--sweeps", 20, "--chains", 2, "--report",
+                        "--out", out / "run")
+    assert code == 0 and "report.html" in printed.getvalue()
     return out / "run" / "report.html"
 
 

@@ -175,8 +175,9 @@ def sensor_distances(walls, pos, beam_angles, grid: Grid | None = None, max_dist
 
 
 def _march_one(is_wall, p, u, shape, max_cells):
-    """Distance in cells from ``p`` along ``u`` to the first wall cell of ``is_wall`` ``(nx, ny)`` bool, by grid
-    traversal, capped at ``max_cells``; see :func:`march_first_hit`."""
+    """Entry and exit distance ``(2,)`` in cells from ``p`` along ``u`` of the first wall cell of ``is_wall``
+    ``(nx, ny)`` bool, by grid traversal, capped at ``max_cells`` (both ``max_cells`` if no wall is reached); see
+    :func:`march_first_hit` and :func:`march_first_chord`."""
     big = jnp.asarray(jnp.inf, p.dtype)
     n = jnp.asarray(shape, jnp.int32)
     with_u = jnp.abs(u) > PARALLEL_TOL
@@ -211,7 +212,9 @@ def _march_one(is_wall, p, u, shape, max_cells):
                 jnp.where(wall, entry, t_max[axis]), wall)
 
     c, _, _, hit = jax.lax.while_loop(cond, body, (cell, t_max, jnp.zeros((), p.dtype), jnp.bool_(False)))
-    return jnp.where(hit, jnp.minimum(cell_hit_distance(p, u, c), max_cells), max_cells)
+    entry = jnp.where(hit, jnp.minimum(cell_hit_distance(p, u, c), max_cells), max_cells)
+    exit_ = jnp.clip(cell_exit_distance(p, u, c.astype(p.dtype)), entry, max_cells)
+    return jnp.stack([entry, jnp.where(hit, exit_, max_cells)])
 
 
 @partial(jax.jit, static_argnames=("grid", "max_distance"))
@@ -233,6 +236,27 @@ def march_first_hit(walls, pos, beam_angles, grid: Grid, max_distance: float):
     Returns:
         ``(K,)`` distances in meters, JAX's default float dtype, at most ``max_distance``. Never raises.
     """
+    return _march(walls, pos, beam_angles, grid, max_distance)[:, 0]
+
+
+@partial(jax.jit, static_argnames=("grid", "max_distance"))
+def march_first_chord(walls, pos, beam_angles, grid: Grid, max_distance: float):
+    """:func:`first_hit_chords` by the grid traversal of :func:`march_first_hit`: the entry and exit distance of each
+    beam's first wall cell (the chord geometry, :mod:`bayesmap.model.sensor`), the exit by
+    :func:`cell_exit_distance` as there. Equal to :func:`first_hit_chords` except for a ray that passes a grid vertex
+    to within rounding (as :func:`march_first_hit`; tests compare them on random maps).
+
+    The arguments are those of :func:`march_first_hit`.
+
+    Returns:
+        ``(K, 2)`` entry and exit distances in meters, JAX's default float dtype, ``entry <= exit <= max_distance``;
+        column 0 equals :func:`march_first_hit`. Never raises.
+    """
+    return _march(walls, pos, beam_angles, grid, max_distance)
+
+
+def _march(walls, pos, beam_angles, grid: Grid, max_distance: float):
+    """``(K, 2)`` entry and exit distances, meters, of :func:`_march_one` for every beam."""
     p = grid.to_cell_coords(jnp.asarray(pos, jnp.result_type(float)))
     is_wall = jnp.asarray(walls) > 0
     max_cells = max_distance / grid.resolution

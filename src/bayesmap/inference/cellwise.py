@@ -436,6 +436,11 @@ def _ray_walls(kernel: CellwiseKernel, walls):
     return kernel.ray_walls(walls)
 
 
+@jax.jit
+def _cell_log_odds(kernel: CellwiseKernel, walls):
+    return kernel.cell_log_odds(walls)
+
+
 class CellwiseGibbs(KernelSampler):
     """Single-site Gibbs for large problems (whole logs): see the module docstring.
 
@@ -498,8 +503,8 @@ class CellwiseGibbs(KernelSampler):
         return self.kernel.ray_walls(walls)
 
     def cell_log_odds(self, walls) -> jax.Array:
-        """See :meth:`CellwiseKernel.cell_log_odds`."""
-        return self.kernel.cell_log_odds(walls)
+        """See :meth:`CellwiseKernel.cell_log_odds` (compiled: kernels of the same static metadata share it)."""
+        return _cell_log_odds(self.kernel, jnp.asarray(walls))
 
 
 def cellwise_gibbs(table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0) -> SamplingAlgorithm:

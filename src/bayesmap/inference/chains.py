@@ -91,12 +91,41 @@ def _run_many_jit(keys, initial_states, arrays, static, num_sweeps: int):
     return jax.vmap(lambda k, s: _chain(k, s, algorithm, num_sweeps))(keys, initial_states)
 
 
+@partial(jax.jit, static_argnames=("static", "num_sweeps", "record", "num_chains"))
+def _run_recorded_jit(key, initial_state, arrays, static, num_sweeps: int, record, num_chains):
+    algorithm = _join(arrays, static)
+
+    def one(k):
+        return scan_chain(k, initial_state, algorithm, num_sweeps, record)[1]
+
+    return one(key) if num_chains is None else jax.vmap(one)(jax.random.split(key, num_chains))
+
+
+def run_recorded_chains(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, record,
+                        num_chains: int | None = None):
+    """Run a chain of ``num_sweeps`` steps of any kernel (:func:`scan_chain`) and return what ``record(state, info)``
+    keeps per step; with ``num_chains``, that many independent chains from the same state (``key`` split into
+    ``num_chains`` keys, ``vmap``). Compiled once per static part of ``algorithm``, shape of the state, ``record``
+    (a module-level function, compared by identity), ``num_sweeps`` and ``num_chains``: an algorithm whose ``init``
+    and ``step`` are pytrees (``jax.tree_util.Partial`` of module functions and arrays, as the pose and joint kernels
+    are) reuses the compiled chain when only its arrays' values change; an algorithm of closures compiles anew.
+
+    Returns:
+        ``record``'s pytree, each leaf with a leading ``(num_sweeps,)`` axis (``(num_chains, num_sweeps)`` with
+        ``num_chains``).
+    """
+    arrays, static = _split(algorithm)
+    return _run_recorded_jit(key, initial_state, arrays, static, int(num_sweeps), record,
+                             None if num_chains is None else int(num_chains))
+
+
 def compiled_chain_count() -> int:
-    """How many chains are compiled and kept so far (by :func:`run_chain_from`, :func:`run_chains_from` and
-    :func:`compile_chain`): one per distinct static part of a sampler (geometry, schedule, sensor model name), shape
-    of the state, number of sweeps and of chains. Samplers that differ only in array values (readings, prior,
-    noise) share a compiled chain, so running them does not change this count."""
-    return int(_run_jit._cache_size()) + int(_run_many_jit._cache_size())
+    """How many chains are compiled and kept so far (by :func:`run_chain_from`, :func:`run_chains_from`,
+    :func:`compile_chain` and :func:`run_recorded_chains`): one per distinct static part of a sampler (geometry,
+    schedule, sensor model name), shape of the state, number of sweeps and of chains. Samplers that differ only in
+    array values (readings, prior, noise; for the pose and joint kernels also the odometry) share a compiled chain,
+    so running them does not change this count."""
+    return int(_run_jit._cache_size()) + int(_run_many_jit._cache_size()) + int(_run_recorded_jit._cache_size())
 
 
 def run_chain_from(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int) -> ChainResult:

@@ -565,14 +565,18 @@ class FastGibbs(KernelSampler):
             singles = np.arange(len(self.blocks), dtype=np.int32)[:, None]
             most = int(np.bincount(self._entries[0], minlength=len(self.blocks)).max(initial=1))
             self._single = self._pack(singles, max(most, 1), chained=False)[0]
-        ray_bits = self.ray_bits(walls)
-        kernel = self.kernel
-        buffer = kernel.start_buffer(ray_bits, jnp.asarray(walls), 0)
-        scores = jax.vmap(lambda lv: kernel._level_scores(buffer[lv.src], lv, kernel._neighbour_field(buffer, lv))[0])(
-            self._single)[:, 0]
-        if scores.ndim == 1:
-            scores = jnp.stack([jnp.zeros_like(scores), scores], axis=-1)
-        return scores
+        return _block_log_weights(self.kernel, self._single, self.ray_bits(walls), jnp.asarray(walls))
+
+
+@jax.jit
+def _block_log_weights(kernel, single, ray_bits, walls):
+    """:meth:`FastGibbs.block_log_weights`, compiled (kernels of the same static metadata share it)."""
+    buffer = kernel.start_buffer(ray_bits, walls, 0)
+    scores = jax.vmap(lambda lv: kernel._level_scores(buffer[lv.src], lv, kernel._neighbour_field(buffer, lv))[0])(
+        single)[:, 0]
+    if scores.ndim == 1:
+        scores = jnp.stack([jnp.zeros_like(scores), scores], axis=-1)
+    return scores
 
 
 @jax.tree_util.register_pytree_node_class

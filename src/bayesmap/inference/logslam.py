@@ -46,7 +46,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.inference.cellwise import cellwise_gibbs
-from bayesmap.inference.chains import run_chain, scan_chain
+from bayesmap.inference.chains import run_chain, run_recorded_chains
 from bayesmap.inference.posegraph import close_loops, marginal_covariances, sample_deviations
 from bayesmap.inference.poses import PoseState, random_walk_pose_mh, slam_data
 from bayesmap.inference.scanmatch import ScanData, correlative_path, scan_endpoints
@@ -119,18 +119,9 @@ def with_grid(params, grid: Grid):
                        coupling=params.coupling, neighbourhood=params.neighbourhood, **beam)
 
 
-def _pose_chain(data, likelihood_power: float):
-    """A jitted ``run(key, poses, walls, num_sweeps) -> (poses (num_sweeps, S, 3), accepted (num_sweeps, S - 1))``
-    of :func:`bayesmap.inference.poses.random_walk_pose_mh` sweeps given the walls."""
-    kernel = random_walk_pose_mh(data, likelihood_power=likelihood_power)
-
-    def record(state, info):
-        return state.poses, info.accepted
-
-    def run(key, poses, walls, num_sweeps):
-        return scan_chain(key, PoseState(poses=poses, walls=walls), kernel, num_sweeps, record)[1]
-
-    return jax.jit(run, static_argnums=3)
+def _pose_record(state, info):
+    """What a pose chain of :func:`run_log_slam` keeps per sweep: the poses and the acceptances."""
+    return state.poses, info.accepted
 
 
 def _map_round(key, problem, params, poses, walls, sweeps: int):
@@ -217,7 +208,7 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         grid = fitted_grid(scans, path, problem.params.grid.resolution)
         params = with_grid(problem.params, grid)
         data = slam_data(scans.increments, scans.covs, problem.sensor_angles, problem.readings, params)
-        pose_chain = _pose_chain(data, problem.likelihood_power)
+        pose_kernel = random_walk_pose_mh(data, likelihood_power=problem.likelihood_power)
         walls = jnp.zeros(grid.shape, jnp.float32)
         poses = jnp.asarray(path, data.increments.dtype)
         keys = jax.random.split(jax.random.key(seed), 2 * rounds)
@@ -228,7 +219,8 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
                                            map_sweeps)
             bar.update()
             bar.set_description(f"round {r + 1}/{rounds}: poses")
-            pose_samples, acc = pose_chain(keys[2 * r + 1], poses, walls, pose_sweeps)
+            pose_samples, acc = run_recorded_chains(keys[2 * r + 1], PoseState(poses=poses, walls=walls),
+                                                    pose_kernel, pose_sweeps, _pose_record)
             poses = pose_samples[-1]
             bar.update()
             if r >= burn_in:

@@ -30,11 +30,12 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.tree_util import Partial
 
 from bayesmap.errors import BayesmapError
-from bayesmap.geometry.raycast import march_first_hit
+from bayesmap.geometry.raycast import march_first_chord, march_first_hit
 from bayesmap.inference.base import SamplingAlgorithm
-from bayesmap.model.generative import ModelParams, check_entry_geometry, check_likelihood_power, reading_log_likelihood
+from bayesmap.model.generative import ModelParams, check_likelihood_power, reading_log_likelihood
 from bayesmap.model.motion import motion_logpdf
 
 
@@ -62,9 +63,9 @@ def slam_data(odometry_increments, odometry_covs, sensor_angles, readings, param
     Raises:
         BayesmapError: if ``sensor_angles`` is not ``(S, K)`` with ``S >= 2`` (there is no pose to infer with one
             scan), ``readings`` not ``(S, K)``, the increments not ``(S - 1, 3)``, the covariances not
-            ``(S - 1, 3, 3)``, a value is not finite, or ``params.geometry`` is not ``"entry"``.
+            ``(S - 1, 3, 3)``, or a value is not finite. Either wall geometry (``params.geometry``) is supported by
+            the pose moves; the dense map sweep of :mod:`bayesmap.inference.slam` supports only ``"entry"``.
     """
-    check_entry_geometry(params, "the pose moves")
     dtype = jnp.result_type(float)
     arrays = [np.asarray(a, dtype=np.float64) for a in (odometry_increments, odometry_covs, sensor_angles, readings)]
     increments, covs, angles, y = arrays
@@ -93,13 +94,18 @@ def scan_log_likelihood(walls, poses, sensor_angles, readings, params: ModelPara
     Returns:
         ``(M,)`` float: ``sum_k log p(readings_k | exact distance at the pose)``, the exact ray cast by grid
         traversal (:func:`bayesmap.geometry.raycast.march_first_hit`, the numbers of
-        :func:`~bayesmap.geometry.raycast.first_hit_distances`) at world-frame angles ``theta + sensor_angles`` and
+        :func:`~bayesmap.geometry.raycast.first_hit_distances`; in the ``"chord"`` geometry the first wall cell's entry
+        and exit, :func:`~bayesmap.geometry.raycast.march_first_chord`, the numbers of
+        :func:`~bayesmap.geometry.raycast.first_hit_chords`) at world-frame angles ``theta + sensor_angles`` and
         :func:`bayesmap.model.generative.reading_log_likelihood`: the arithmetic of the model's ``assess``. Never
         raises.
     """
     walls = jnp.asarray(walls)
 
     def one(pose):
+        if params.geometry == "chord":
+            chord = march_first_chord(walls, pose[:2], pose[2] + sensor_angles, params.grid, params.max_range)
+            return jnp.sum(reading_log_likelihood(readings, chord[:, 0], params, chord[:, 1]))
         d = march_first_hit(walls, pose[:2], pose[2] + sensor_angles, params.grid, params.max_range)
         return jnp.sum(reading_log_likelihood(readings, d, params))
 
@@ -140,7 +146,11 @@ def pose_log_conditional(t: int, candidates, poses, walls, data: SlamData, likel
     if int(t) != t or not 1 <= int(t) < poses.shape[0]:
         raise BayesmapError(f"t must be an integer in 1..{poses.shape[0] - 1} (pose 0 is fixed), got {t!r}")
     eta = check_likelihood_power(likelihood_power)
-    return _log_conditional(int(t), jnp.asarray(candidates, dtype=poses.dtype), poses, walls, data, eta)
+    return _log_conditional_jit(int(t), jnp.asarray(candidates, dtype=poses.dtype), poses, jnp.asarray(walls), data,
+                                eta)
+
+
+_log_conditional_jit = jax.jit(_log_conditional)
 
 
 class PoseState(NamedTuple):
@@ -163,6 +173,17 @@ class PoseInfo(NamedTuple):
 def _init(poses, walls) -> PoseState:
     poses = jnp.asarray(poses, dtype=jnp.result_type(float))
     return PoseState(poses=poses, walls=jnp.asarray(walls, dtype=jnp.float32))
+
+
+def _algorithm(update) -> SamplingAlgorithm:
+    """A pose kernel from its per-pose ``update`` (a ``jax.tree_util.Partial`` of a module function and the kernel's
+    arrays): ``init`` and ``step`` are pytrees of module functions and arrays, so a compiled chain takes the arrays
+    as arguments and is reused by every kernel of the same shapes (:mod:`bayesmap.inference.chains`)."""
+    return SamplingAlgorithm(init=Partial(_init), step=Partial(_sweep_step, update))
+
+
+def _sweep_step(update, key, state: PoseState):
+    return _sweep(key, state, update)
 
 
 def _sweep(key, state: PoseState, update):
@@ -206,15 +227,14 @@ def discrete_pose_gibbs(data: SlamData, candidates, likelihood_power: float = 1.
     if cands.ndim != 3 or cands.shape[0] != s or cands.shape[1] < 1 or cands.shape[2] != 3:
         raise BayesmapError(f"candidates must have shape (S, C, 3) = ({s}, C, 3), got {tuple(cands.shape)}")
 
-    def update(key, t, poses, walls):
-        logw = _log_conditional(t, cands[t], poses, walls, data, eta)
-        j = jax.random.categorical(key, logw)
-        return cands[t, j], jnp.bool_(True), logw[j]
+    return _algorithm(Partial(_discrete_update, cands, data, eta))
 
-    def step(key, state: PoseState):
-        return _sweep(key, state, update)
 
-    return SamplingAlgorithm(init=_init, step=step)
+def _discrete_update(cands, data, eta, key, t, poses, walls):
+    """:func:`discrete_pose_gibbs`'s draw of pose ``t`` (``_sweep``'s ``update``)."""
+    logw = _log_conditional(t, cands[t], poses, walls, data, eta)
+    j = jax.random.categorical(key, logw)
+    return cands[t, j], jnp.bool_(True), logw[j]
 
 
 def lattice_offsets(h_xy: float, h_theta: float, half_width: int = 2):
@@ -275,7 +295,6 @@ def lattice_pose_mh(data: SlamData, h_xy: float, h_theta: float, half_width: int
     """
     eta = check_likelihood_power(likelihood_power)
     unit = lattice_offsets(1.0, 1.0, half_width)
-    center = unit.shape[0] // 2  # the zero offset: the current pose
     try:
         jitter_value = float(jitter)
     except (TypeError, ValueError):
@@ -285,22 +304,22 @@ def lattice_pose_mh(data: SlamData, h_xy: float, h_theta: float, half_width: int
     h_xy, h_theta = _positive("h_xy", h_xy), _positive("h_theta", h_theta)
     steps = jnp.asarray([h_xy, h_xy, h_theta], dtype=unit.dtype)
 
-    def update(key, t, poses, walls):
-        k_h, k_pick, k_acc = jax.random.split(key, 3)
-        offsets = unit * steps * jax.random.uniform(k_h, (3,), steps.dtype, 1 - jitter_value, 1 + jitter_value)
-        x = poses[t]
-        logw = _log_conditional(t, x + offsets, poses, walls, data, eta)
-        j = jax.random.categorical(k_pick, logw)
-        proposal = x + offsets[j]
-        logw_back = _log_conditional(t, proposal + offsets, poses, walls, data, eta)
-        log_ratio = jax.nn.logsumexp(logw) - jax.nn.logsumexp(logw_back)
-        accept = jnp.log(jax.random.uniform(k_acc, (), steps.dtype)) < log_ratio
-        return jnp.where(accept, proposal, x), accept, jnp.where(accept, logw[j], logw[center])
+    return _algorithm(Partial(_lattice_update, unit, steps, jitter_value, data, eta))
 
-    def step(key, state: PoseState):
-        return _sweep(key, state, update)
 
-    return SamplingAlgorithm(init=_init, step=step)
+def _lattice_update(unit, steps, jitter, data, eta, key, t, poses, walls):
+    """:func:`lattice_pose_mh`'s move of pose ``t`` (``_sweep``'s ``update``)."""
+    center = unit.shape[0] // 2  # the zero offset: the current pose
+    k_h, k_pick, k_acc = jax.random.split(key, 3)
+    offsets = unit * steps * jax.random.uniform(k_h, (3,), steps.dtype, 1 - jitter, 1 + jitter)
+    x = poses[t]
+    logw = _log_conditional(t, x + offsets, poses, walls, data, eta)
+    j = jax.random.categorical(k_pick, logw)
+    proposal = x + offsets[j]
+    logw_back = _log_conditional(t, proposal + offsets, poses, walls, data, eta)
+    log_ratio = jax.nn.logsumexp(logw) - jax.nn.logsumexp(logw_back)
+    accept = jnp.log(jax.random.uniform(k_acc, (), steps.dtype)) < log_ratio
+    return jnp.where(accept, proposal, x), accept, jnp.where(accept, logw[j], logw[center])
 
 
 RANDOM_WALK_STD = (0.01, 0.01, 0.003)
@@ -333,15 +352,14 @@ def random_walk_pose_mh(data: SlamData, step_std=RANDOM_WALK_STD, likelihood_pow
         raise BayesmapError(f"step_std must be three finite numbers > 0 (x m, y m, theta rad), got {step_std!r}")
     scale = jnp.asarray([_positive("step_std", v) for v in values], dtype=data.increments.dtype)
 
-    def update(key, t, poses, walls):
-        k_prop, k_acc = jax.random.split(key)
-        x = poses[t]
-        proposal = x + scale * jax.random.normal(k_prop, (3,), scale.dtype)
-        logc = _log_conditional(t, jnp.stack([x, proposal]), poses, walls, data, eta)
-        accept = jnp.log(jax.random.uniform(k_acc, (), scale.dtype)) < logc[1] - logc[0]
-        return jnp.where(accept, proposal, x), accept, jnp.where(accept, logc[1], logc[0])
+    return _algorithm(Partial(_random_walk_update, scale, data, eta))
 
-    def step(key, state: PoseState):
-        return _sweep(key, state, update)
 
-    return SamplingAlgorithm(init=_init, step=step)
+def _random_walk_update(scale, data, eta, key, t, poses, walls):
+    """:func:`random_walk_pose_mh`'s move of pose ``t`` (``_sweep``'s ``update``)."""
+    k_prop, k_acc = jax.random.split(key)
+    x = poses[t]
+    proposal = x + scale * jax.random.normal(k_prop, (3,), scale.dtype)
+    logc = _log_conditional(t, jnp.stack([x, proposal]), poses, walls, data, eta)
+    accept = jnp.log(jax.random.uniform(k_acc, (), scale.dtype)) < logc[1] - logc[0]
+    return jnp.where(accept, proposal, x), accept, jnp.where(accept, logc[1], logc[0])

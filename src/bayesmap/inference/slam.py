@@ -30,10 +30,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.tree_util import Partial
 
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.base import SamplingAlgorithm
-from bayesmap.inference.chains import scan_chain
+from bayesmap.inference.chains import run_recorded_chains
 from bayesmap.inference.dense import dense_readings, dense_state, dense_sweep
 from bayesmap.inference.poses import (
     PoseState,
@@ -105,30 +106,30 @@ def slam_kernel(data: SlamData, pose_kernel: SamplingAlgorithm, likelihood_power
     prior_lo = prior_log_odds(params.prior_wall_prob)
     angles, y = dense_readings(data.sensor_angles, data.readings, params)
 
-    def init(poses, walls):
-        return SlamState(poses=jnp.asarray(poses, dtype=jnp.result_type(float)),
-                         walls=(jnp.asarray(walls) > 0).astype(jnp.float32))
+    # pytrees of module functions and arrays (not closures): a compiled chain takes the arrays as arguments, so runs
+    # of the same shapes share it (run_slam_chains)
+    return SamplingAlgorithm(init=Partial(_joint_init),
+                             step=Partial(_joint_step, pose_kernel.step, angles, y, params, eta, prior_lo))
 
-    def step(key, state: SlamState):
-        k_pose, k_map = jax.random.split(key)
-        pose_state, pose_info = pose_kernel.step(k_pose, PoseState(poses=state.poses, walls=state.walls))
-        map_state = dense_state(state.walls, pose_state.poses, angles, params)
-        map_state, map_info = dense_sweep(k_map, map_state, y, params, eta, prior_lo)
-        return (SlamState(poses=pose_state.poses, walls=map_state.walls),
-                SlamInfo(accepted=pose_info.accepted, wall_prob=map_info.wall_prob))
 
-    return SamplingAlgorithm(init=init, step=step)
+def _joint_init(poses, walls) -> SlamState:
+    return SlamState(poses=jnp.asarray(poses, dtype=jnp.result_type(float)),
+                     walls=(jnp.asarray(walls) > 0).astype(jnp.float32))
+
+
+def _joint_step(pose_step, angles, y, params, eta, prior_lo, key, state: SlamState):
+    """:func:`slam_kernel`'s step: the poses given the walls, then a dense map sweep given the new poses."""
+    k_pose, k_map = jax.random.split(key)
+    pose_state, pose_info = pose_step(k_pose, PoseState(poses=state.poses, walls=state.walls))
+    map_state = dense_state(state.walls, pose_state.poses, angles, params)
+    map_state, map_info = dense_sweep(k_map, map_state, y, params, eta, prior_lo)
+    return (SlamState(poses=pose_state.poses, walls=map_state.walls),
+            SlamInfo(accepted=pose_info.accepted, wall_prob=map_info.wall_prob))
 
 
 def _joint_record(state: SlamState, info: SlamInfo):
     """What a joint chain keeps per sweep: the poses, walls, acceptances and wall probabilities."""
     return state.poses, state.walls, info.accepted, info.wall_prob
-
-
-def _chain(key, state: SlamState, algorithm: SamplingAlgorithm, num_sweeps: int):
-    """``num_sweeps`` joint steps (:func:`bayesmap.inference.chains.scan_chain`): per sweep the poses, walls,
-    acceptances and wall probabilities."""
-    return scan_chain(key, state, algorithm, num_sweeps, _joint_record)[1]
 
 
 def run_slam_chains(key, algorithm: SamplingAlgorithm, initial: SlamState, num_sweeps: int, num_chains: int = 1):
@@ -138,9 +139,7 @@ def run_slam_chains(key, algorithm: SamplingAlgorithm, initial: SlamState, num_s
         ``(poses (C, T, S, 3), walls (C, T, nx, ny), accepted (C, T, S - 1), wall_prob (C, T, nx, ny))`` as JAX
         arrays, ``C = num_chains``, ``T = num_sweeps``.
     """
-    keys = jax.random.split(key, num_chains)
-    run = jax.jit(jax.vmap(lambda k: _chain(k, initial, algorithm, num_sweeps)))
-    return run(keys)
+    return run_recorded_chains(key, initial, algorithm, num_sweeps, _joint_record, num_chains)
 
 
 def circular_mean(theta, axis=0):
@@ -274,18 +273,17 @@ def initial_map(key, poses, data: SlamData, likelihood_power: float = 1.0) -> ja
     eta = check_likelihood_power(likelihood_power)
     params = data.params
     angles, y = dense_readings(data.sensor_angles, data.readings, params)
-    prior_lo = prior_log_odds(params.prior_wall_prob)
+    return _initial_map(key, jnp.asarray(poses), angles, y, params, eta, prior_log_odds(params.prior_wall_prob))
 
-    @jax.jit
-    def run(k):
-        state = dense_state(jnp.zeros(params.grid.shape), poses, angles, params)
 
-        def body(st, kk):
-            return dense_sweep(kk, st, y, params, eta, prior_lo)[0], None
+@jax.jit
+def _initial_map(key, poses, angles, y, params, eta, prior_lo):
+    state = dense_state(jnp.zeros(params.grid.shape), poses, angles, params)
 
-        return jax.lax.scan(body, state, jax.random.split(k, MAP_INIT_SWEEPS))[0].walls
+    def body(st, k):
+        return dense_sweep(k, st, y, params, eta, prior_lo)[0], None
 
-    return run(key)
+    return jax.lax.scan(body, state, jax.random.split(key, MAP_INIT_SWEEPS))[0].walls
 
 
 def endpoint_map(poses, data: SlamData, used) -> jax.Array:
@@ -328,22 +326,23 @@ def scan_matching_path(first_pose, data: SlamData, likelihood_power: float = 1.0
                          params.max_distance, beam_model="beam")
     res = params.grid.resolution
     levels = [lattice_offsets(h * res, ht, w) for h, ht, w in MATCH_LEVELS]
-
-    def match(path, t, used, center):
-        prev = path[t - 1]
-        walls = endpoint_map(path, data, used)
-        best = center
-        for offsets in levels:
-            cands = best + offsets
-            score = motion_logpdf(prev, cands, data.increments[t - 1], data.covs[t - 1]) + eta * scan_log_likelihood(
-                walls, cands, data.sensor_angles[t], data.readings[t], robust)
-            best = cands[jnp.argmax(score)]
-        return path.at[t].set(best)
-
-    match = jax.jit(match)
     s = data.readings.shape[0]
     path = jnp.zeros((s, 3), data.increments.dtype).at[0].set(jnp.asarray(first_pose, data.increments.dtype))
     scans = jnp.arange(s)
     for t in range(1, s):
-        path = match(path, t, scans < t, compose(path[t - 1], data.increments[t - 1]))
+        path = _match(path, t, scans < t, compose(path[t - 1], data.increments[t - 1]), data, levels, eta, robust)
     return np.asarray(path, np.float64)
+
+
+@jax.jit
+def _match(path, t, used, center, data, levels, eta, robust):
+    """One step of :func:`scan_matching_path`: pose ``t`` by the coarse-to-fine search around ``center``."""
+    prev = path[t - 1]
+    walls = endpoint_map(path, data, used)
+    best = center
+    for offsets in levels:
+        cands = best + offsets
+        score = motion_logpdf(prev, cands, data.increments[t - 1], data.covs[t - 1]) + eta * scan_log_likelihood(
+            walls, cands, data.sensor_angles[t], data.readings[t], robust)
+        best = cands[jnp.argmax(score)]
+    return path.at[t].set(best)

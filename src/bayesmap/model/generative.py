@@ -354,7 +354,7 @@ def reading_log_likelihood(readings, distances, params: ModelParams, exit_distan
 
 def check_entry_geometry(params: ModelParams, what: str) -> None:
     """Refuse the chord geometry where only the tutorial's entry geometry is implemented (``what`` names the caller:
-    the dense SLAM sweep and the pose moves compute only entry distances).
+    the dense map sweep of the tutorial-scale SLAM chain computes only entry distances).
 
     Raises:
         BayesmapError: if ``params.geometry`` is not ``"entry"``, naming it and ``what``.
