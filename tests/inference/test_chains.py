@@ -50,7 +50,7 @@ def test_tutorial_chains_agree(tutorial):
 def test_cli_chains_write_diagnostics(tmp_path, monkeypatch, capsys):
     from helpers import run_cli
 
-    code, out, err = run_cli(monkeypatch, capsys, "infer", "--sweeps", 12, "--chains", 3, "--sampler", "outward",
+    code, out, err = run_cli(monkeypatch, capsys, "infer", "--sweeps", 10, "--chains", 3, "--sampler", "outward",
                              "--out", tmp_path / "out")
     assert code in (0, None), err
     with np.load(tmp_path / "out" / "diagnostics.npz") as diag:

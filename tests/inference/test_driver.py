@@ -113,12 +113,12 @@ def test_cellwise_chains_run_one_after_another_with_the_keys_of_chains_at_once(m
 
     pb = room_scans("beam")
     seen = []
-    one_by_one = run_inference(pb, "cellwise", 12, chains=2, progress=False,
+    one_by_one = run_inference(pb, "cellwise", 20, chains=2, progress=False,  # two chunks of 10 sweeps
                                on_progress=lambda d, t: seen.append((d, t)))
-    assert one_by_one.samples.shape == (2, 12, 12, 9)
-    assert seen[-1] == (24, 24)
+    assert one_by_one.samples.shape == (2, 20, 12, 9)
+    assert seen == [(10, 40), (20, 40), (30, 40), (40, 40)]
     monkeypatch.setattr(driver, "SEQUENTIAL_CHAINS", ())
-    at_once = run_inference(pb, "cellwise", 12, chains=2, progress=False)
+    at_once = run_inference(pb, "cellwise", 20, chains=2, progress=False)
     np.testing.assert_array_equal(one_by_one.samples, at_once.samples)
     assert not np.array_equal(one_by_one.samples[0], one_by_one.samples[1])
 

@@ -198,3 +198,28 @@ def test_loop_candidates_respect_gap_and_radius():
     assert len(pairs) > 0
     assert np.all(pairs[:, 1] - pairs[:, 0] >= posegraph.LOOP_GAP)
     assert np.all(np.abs(x[pairs[:, 0]] - x[pairs[:, 1]]) < posegraph.LOOP_RADIUS)
+
+
+def test_a_second_run_of_the_same_shapes_compiles_nothing(caplog):
+    """The front end's loop and the loop matcher are compiled once per shape and setting, not once per call (a second
+    SLAM run of a log in one process, the app's or a test's, reuses them): matching other readings of the same shapes
+    logs no compilation at all, and gives another path (the readings do reach the compiled code). Before, both were
+    jits of closures made per call, and the second run compiled them again."""
+    import logging
+
+    import jax
+
+    grid, truth, odometry, beams, readings = room_scans(num_poses=8)
+    inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
+
+    def run(ranges):
+        data = ScanData(beams, ranges, ranges < 19.9, np.asarray(inc), np.asarray(cov))
+        path = correlative_path(odometry[0], data, grid.resolution, half_width=6.0)
+        return path, posegraph.match_loops(path, data, np.array([[0, 4], [1, 6]]))
+
+    first, _ = run(readings)
+    with jax.log_compiles(True), caplog.at_level(logging.WARNING):
+        caplog.clear()
+        second, _ = run(readings * 1.01)
+    assert not [r.getMessage() for r in caplog.records if "Compiling" in r.getMessage()]
+    assert not np.array_equal(first, second)

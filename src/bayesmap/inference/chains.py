@@ -75,30 +75,25 @@ def _map_record(state, info):
     return state.walls > 0, info.wall_prob
 
 
-def _chain(key, initial_state, algorithm, num_sweeps: int):
-    final, (samples, wall_probs) = scan_chain(key, initial_state, algorithm, num_sweeps, _map_record)
-    return samples, final, wall_probs
-
-
-@partial(jax.jit, static_argnames=("static", "num_sweeps"))
-def _run_jit(key, initial_state, arrays, static, num_sweeps: int):
-    return _chain(key, initial_state, _join(arrays, static), num_sweeps)
-
-
-@partial(jax.jit, static_argnames=("static", "num_sweeps"))
-def _run_many_jit(keys, initial_states, arrays, static, num_sweeps: int):
-    algorithm = _join(arrays, static)
-    return jax.vmap(lambda k, s: _chain(k, s, algorithm, num_sweeps))(keys, initial_states)
-
-
-@partial(jax.jit, static_argnames=("static", "num_sweeps", "record", "num_chains"))
-def _run_recorded_jit(key, initial_state, arrays, static, num_sweeps: int, record, num_chains):
+@partial(jax.jit, static_argnames=("static", "num_sweeps", "record", "batch"))
+def _run_jit(key, initial_state, arrays, static, num_sweeps: int, record, batch):
+    """The one compiled chain of this module: :func:`scan_chain` of the algorithm ``_join(arrays, static)``.
+    ``batch`` None: one chain; ``"keys"``: one chain per key of ``key`` ``(C,)`` from the shared ``initial_state``;
+    ``"states"``: one per key and per state (``initial_state`` batched on a leading ``(C,)`` axis). Returns
+    ``(final_state, records)`` (batched likewise)."""
     algorithm = _join(arrays, static)
 
-    def one(k):
-        return scan_chain(k, initial_state, algorithm, num_sweeps, record)[1]
+    def one(k, state):
+        return scan_chain(k, state, algorithm, num_sweeps, record)
 
-    return one(key) if num_chains is None else jax.vmap(one)(jax.random.split(key, num_chains))
+    if batch is None:
+        return one(key, initial_state)
+    return jax.vmap(one, in_axes=(0, 0 if batch == "states" else None))(key, initial_state)
+
+
+def _map_chain(arrays, static, key, initial_state, num_sweeps: int, batch) -> ChainResult:
+    final, (samples, wall_probs) = _run_jit(key, initial_state, arrays, static, int(num_sweeps), _map_record, batch)
+    return ChainResult(samples, final, wall_probs)
 
 
 def run_recorded_chains(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, record,
@@ -115,17 +110,19 @@ def run_recorded_chains(key, initial_state, algorithm: SamplingAlgorithm, num_sw
         ``num_chains``).
     """
     arrays, static = _split(algorithm)
-    return _run_recorded_jit(key, initial_state, arrays, static, int(num_sweeps), record,
-                             None if num_chains is None else int(num_chains))
+    if num_chains is None:
+        return _run_jit(key, initial_state, arrays, static, int(num_sweeps), record, None)[1]
+    keys = jax.random.split(key, int(num_chains))
+    return _run_jit(keys, initial_state, arrays, static, int(num_sweeps), record, "keys")[1]
 
 
 def compiled_chain_count() -> int:
     """How many chains are compiled and kept so far (by :func:`run_chain_from`, :func:`run_chains_from`,
     :func:`compile_chain` and :func:`run_recorded_chains`): one per distinct static part of a sampler (geometry,
-    schedule, sensor model name), shape of the state, number of sweeps and of chains. Samplers that differ only in
-    array values (readings, prior, noise; for the pose and joint kernels also the odometry) share a compiled chain,
-    so running them does not change this count."""
-    return int(_run_jit._cache_size()) + int(_run_many_jit._cache_size()) + int(_run_recorded_jit._cache_size())
+    schedule, sensor model name), shape of the state, record function, number of sweeps and of chains. Samplers that
+    differ only in array values (readings, prior, noise; for the pose and joint kernels also the odometry) share a
+    compiled chain, so running them does not change this count."""
+    return int(_run_jit._cache_size())
 
 
 def run_chain_from(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int) -> ChainResult:
@@ -143,7 +140,7 @@ def run_chain_from(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps:
         ``(num_sweeps, nx, ny)`` float32 or None.
     """
     arrays, static = _split(algorithm)
-    return ChainResult(*_run_jit(key, initial_state, arrays, static, int(num_sweeps)))
+    return _map_chain(arrays, static, key, initial_state, num_sweeps, None)
 
 
 def compile_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, num_chains: int | None = None):
@@ -153,9 +150,14 @@ def compile_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: 
     timing compilation apart from running, or to compile on another thread: JAX keeps the executable, so that the
     first :func:`run_chain_from` (:func:`run_chains_from`) with such arguments does not compile again."""
     arrays, static = _split(algorithm)
-    fn = _run_jit if num_chains is None else _run_many_jit
-    compiled = fn.lower(key, initial_state, arrays, static, int(num_sweeps)).compile()
-    return lambda k, s: compiled(k, s, arrays)
+    batch = None if num_chains is None else "states"
+    compiled = _run_jit.lower(key, initial_state, arrays, static, int(num_sweeps), _map_record, batch).compile()
+
+    def run(k, s):
+        final, (samples, wall_probs) = compiled(k, s, arrays)
+        return samples, final, wall_probs
+
+    return run
 
 
 def run_chain(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int) -> ChainResult:
@@ -185,7 +187,7 @@ def run_chains_from(keys, initial_states, algorithm: SamplingAlgorithm, num_swee
     """``C`` chains at once (``vmap``) from their states: ``keys`` ``(C,)``, states batched on a leading ``(C,)``
     axis; as :func:`run_chain_from` with a leading ``(C,)`` axis on every output."""
     arrays, static = _split(algorithm)
-    return ChainResult(*_run_many_jit(keys, initial_states, arrays, static, int(num_sweeps)))
+    return _map_chain(arrays, static, keys, initial_states, num_sweeps, "states")
 
 
 def run_chains(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int, num_chains: int) -> ChainResult:

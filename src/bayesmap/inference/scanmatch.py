@@ -26,6 +26,7 @@ Everything is one jitted ``lax.fori_loop`` over the scans (shapes fixed by the g
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -256,62 +257,72 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     dtype = jnp.result_type(float)
     first_pose = np.asarray(first_pose, np.float64)
     base = first_pose[:2] - n * resolution / 2  # world position of the window's corner when its offset is 0
-
     travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.asarray(data.increments, np.float64)[:, :2].T))])
     span = np.inf if window is None else float(window)
+    arrays = ScanData(*(jnp.asarray(a, dtype=bool if a.dtype == bool else dtype) for a in map(np.asarray, data)))
+    arrays = _Scans(*arrays, travelled=jnp.asarray(travelled, dtype))
+    path = _correlative_run(jnp.asarray(first_pose, dtype), arrays, jnp.asarray(base, dtype), jnp.asarray(span, dtype),
+                            tuple(offsets for offsets, _ in steps), grid, tuple(f for _, f in steps), float(half_width))
+    return np.asarray(path, np.float64)
 
-    def stamp(stamps, pose, t, d):
+
+@functools.partial(jax.jit, static_argnames=("grid", "field_index", "half_width"))
+def _correlative_run(first, d, base, span, offsets, grid: Grid, field_index: tuple, half_width: float):
+    """The jitted loop of :func:`correlative_path` (module level, so that another run with the same shapes and
+    settings reuses the compiled code): the path ``(S, 3)`` in world coordinates. ``offsets`` and ``field_index``
+    are the levels of :func:`lattices`; ``base`` the world position of the window's corner at offset 0."""
+    s = d.readings.shape[0]
+    n = grid.shape[0]
+    resolution = grid.resolution
+    dtype = first.dtype
+    steps = list(zip(offsets, field_index))
+
+    def stamp(stamps, pose, t):
         """Scatter-max the path length of scan ``t`` into the cells its endpoints' fine field reaches."""
         marks = add_scan(jnp.zeros_like(stamps), grid, pose, d.sensor_angles[t], d.readings[t], d.returned[t],
                          *FIELDS[-1])
         return jnp.where(marks > 0, jnp.maximum(stamps, d.travelled[t]), stamps)
 
-    @jax.jit
-    def run(first, d: ScanData):
-        def local(pose, offset):
-            """A world pose in the window's frame (the window's corner at ``base + offset * resolution``)."""
-            return pose - jnp.concatenate([jnp.asarray(base, dtype) + offset * resolution, jnp.zeros(1, dtype)])
+    def local(pose, offset):
+        """A world pose in the window's frame (the window's corner at ``base + offset * resolution``)."""
+        return pose - jnp.concatenate([base + offset * resolution, jnp.zeros(1, dtype)])
 
-        def rebuild(path, t, offset):
-            """The fields and stamps of the window at ``offset`` from every scan ``< t`` at its matched pose: those
-            of a grid covering everything, restricted to the window (the stamps mask all but the local map)."""
-            def add(u, carry):
-                fields, stamps = carry
-                pose = local(path[u], offset)
-                fields = add_to_fields(fields, grid, pose, d.sensor_angles[u], d.readings[u], d.returned[u])
-                return fields, stamp(stamps, pose, u, d)
+    def rebuild(path, t, offset):
+        """The fields and stamps of the window at ``offset`` from every scan ``< t`` at its matched pose: those
+        of a grid covering everything, restricted to the window (the stamps mask all but the local map)."""
+        def add(u, carry):
+            fields, stamps = carry
+            pose = local(path[u], offset)
+            fields = add_to_fields(fields, grid, pose, d.sensor_angles[u], d.readings[u], d.returned[u])
+            return fields, stamp(stamps, pose, u)
 
-            return jax.lax.fori_loop(0, t, add, (empty_fields(grid), jnp.full(grid.shape, -jnp.inf, dtype)))
+        return jax.lax.fori_loop(0, t, add, (empty_fields(grid), jnp.full(grid.shape, -jnp.inf, dtype)))
 
-        path = jnp.zeros((s, 3), dtype).at[0].set(first)
-        offset = jnp.zeros(2, jnp.int32)
-        fields, stamps = rebuild(path, 1, offset)
+    path = jnp.zeros((s, 3), dtype).at[0].set(first)
+    offset = jnp.zeros(2, jnp.int32)
+    fields, stamps = rebuild(path, 1, offset)
 
-        def body(t, carry):
-            path, fields, stamps, offset = carry
-            prev = path[t - 1]
-            predicted = compose(prev, d.increments[t - 1])
-            cells = jnp.round(local(predicted, offset)[:2] / resolution - n / 2).astype(jnp.int32)
-            far = jnp.max(jnp.abs(cells)) * resolution > half_width / 4
-            offset = jnp.where(far, offset + cells, offset)
-            fields, stamps = jax.lax.cond(far, lambda: rebuild(path, t, offset), lambda: (fields, stamps))
+    def body(t, carry):
+        path, fields, stamps, offset = carry
+        prev = path[t - 1]
+        predicted = compose(prev, d.increments[t - 1])
+        cells = jnp.round(local(predicted, offset)[:2] / resolution - n / 2).astype(jnp.int32)
+        far = jnp.max(jnp.abs(cells)) * resolution > half_width / 4
+        offset = jnp.where(far, offset + cells, offset)
+        fields, stamps = jax.lax.cond(far, lambda: rebuild(path, t, offset), lambda: (fields, stamps))
 
-            def log_prior(cands):
-                return motion_logpdf(local(prev, offset), cands, d.increments[t - 1], d.covs[t - 1])
+        def log_prior(cands):
+            return motion_logpdf(local(prev, offset), cands, d.increments[t - 1], d.covs[t - 1])
 
-            recent = stamps >= d.travelled[t] - span
-            masked = tuple(jnp.where(recent, field, 0.0) for field in fields)
-            best, _ = search(masked, grid, local(predicted, offset), d.sensor_angles[t], d.readings[t],
-                             d.returned[t], steps, log_prior)
-            fields = add_to_fields(fields, grid, best, d.sensor_angles[t], d.readings[t], d.returned[t])
-            world = best - local(jnp.zeros(3, dtype), offset)
-            return path.at[t].set(world), fields, stamp(stamps, best, t, d), offset
+        recent = stamps >= d.travelled[t] - span
+        masked = tuple(jnp.where(recent, field, 0.0) for field in fields)
+        best, _ = search(masked, grid, local(predicted, offset), d.sensor_angles[t], d.readings[t],
+                         d.returned[t], steps, log_prior)
+        fields = add_to_fields(fields, grid, best, d.sensor_angles[t], d.readings[t], d.returned[t])
+        world = best - local(jnp.zeros(3, dtype), offset)
+        return path.at[t].set(world), fields, stamp(stamps, best, t), offset
 
-        return jax.lax.fori_loop(1, s, body, (path, fields, stamps, offset))[0]
-
-    arrays = ScanData(*(jnp.asarray(a, dtype=bool if a.dtype == bool else dtype) for a in map(np.asarray, data)))
-    arrays = _Scans(*arrays, travelled=jnp.asarray(travelled, dtype))
-    return np.asarray(run(jnp.asarray(first_pose, dtype), arrays), np.float64)
+    return jax.lax.fori_loop(1, s, body, (path, fields, stamps, offset))[0]
 
 
 class _Scans(NamedTuple):
