@@ -71,6 +71,8 @@ def test_usage_errors_are_one_line_exit_2(monkeypatch, capsys, argv, what):
     assert code == 2, (what, code, err)
     assert len(lines) == 1 and lines[0].startswith("error: "), (what, err)
     assert "Traceback" not in err and out == ""
+    if what.endswith("wrong type"):  # the offending value is named, as typed
+        assert "'abc" in err, (what, err)
 
 
 def test_help_is_exit_0_and_has_no_emoji(monkeypatch, capsys):

@@ -1122,6 +1122,21 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
+def _given_value(argv: list[str], param) -> Optional[str]:
+    """The value(s) the user gave the option ``param`` (a click parameter) in ``argv``, as typed, the last time it
+    appears (click keeps the last); None if it is not there (a positional argument, say)."""
+    names = [*getattr(param, "opts", []), *getattr(param, "secondary_opts", [])]
+    nargs = max(1, int(getattr(param, "nargs", 1) or 1))
+    given = None
+    for i, token in enumerate(argv):
+        for name in names:
+            if token == name and i + 1 < len(argv):
+                given = " ".join(argv[i + 1:i + 1 + nargs])
+            elif token.startswith(name + "="):
+                given = token[len(name) + 1:]
+    return given
+
+
 def main(argv: Optional[list[str]] = None) -> None:
     """Entry point of ``bayesmap``: run the typer app on ``argv`` (default ``sys.argv[1:]``).
 
@@ -1148,6 +1163,10 @@ def main(argv: Optional[list[str]] = None) -> None:
             err.show()
             sys.exit(2)
         message = err.format_message() if hasattr(err, "format_message") else str(err)
+        param = getattr(err, "param", None)
+        given = None if param is None else _given_value(sys.argv[1:] if argv is None else list(argv), param)
+        if given is not None and "got " not in message:  # name the offending value (click's conversion does not)
+            message = f"{message.rstrip('.')}, got {given!r}"
         context = getattr(err, "ctx", None)
         hint = f" (see '{context.command_path} --help')" if context is not None else ""
         typer.echo(f"error: {_one_line(message)}{hint}", err=True)
