@@ -3,9 +3,12 @@
 
 from __future__ import annotations
 
+import argparse
+import json
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -48,3 +51,52 @@ def seeded_log(name: str, seed: int) -> tuple[CarmenLog, np.ndarray]:
     """
     with tempfile.TemporaryDirectory() as tmp:
         return write_seeded_log(name, seed, Path(tmp) / f"{name}-odom")
+
+
+def add_log_seed_options(parser: argparse.ArgumentParser) -> None:
+    """The options every per-(log, seed) benchmark takes: ``--seeds`` (default 0), ``--logs`` (default all of
+    :data:`CORRECTED_LOGS`) and ``--json`` (a file for every run's figures)."""
+    parser.add_argument("--seeds", default="0", help="odometry noise seeds, e.g. 0-4 or 0,3 (default 0)")
+    parser.add_argument("--logs", default=",".join(CORRECTED_LOGS),
+                        help=f"comma-separated subset of {','.join(CORRECTED_LOGS)}")
+    parser.add_argument("--json", type=Path, default=None, help="write every run's figures here")
+
+
+def chosen_logs(parser: argparse.ArgumentParser, text: str) -> list[str]:
+    """The log names of a ``--logs`` value; an unknown name is a usage error of ``parser`` (exit code 2)."""
+    logs = [name.strip() for name in text.split(",") if name.strip()]
+    unknown = sorted(set(logs) - set(CORRECTED_LOGS))
+    if unknown or not logs:
+        parser.error(f"unknown or no log(s) {', '.join(unknown)}; choose from {', '.join(CORRECTED_LOGS)}")
+    return logs
+
+
+def run_table(logs: list[str], seeds: list[int], score: Callable[[CarmenLog, np.ndarray], dict],
+              row: Callable[[str, int, dict], str], json_path: Path | None = None) -> list[dict]:
+    """For every log of ``logs`` and seed of ``seeds``: the problem (:func:`seeded_log`), ``score(log, truth)`` (a
+    dict of figures) and its markdown row ``row(name, seed, figures)`` printed at once; the records ``{"log", "seed",
+    **figures}`` are returned and, with ``json_path``, written there (indented JSON)."""
+    records = []
+    for name in logs:
+        for seed in seeds:
+            figures = score(*seeded_log(name, seed))
+            print(row(name, seed, figures), flush=True)
+            records.append({"log": name, "seed": seed, **figures})
+    if json_path is not None:
+        json_path.write_text(json.dumps(records, indent=2) + "\n")
+    return records
+
+
+def table_main(argv: list[str] | None, description: str, header: str, add_options: Callable, score_of: Callable,
+               row: Callable[[str, int, dict], str], parse_seeds: Callable[[str], list[int]]) -> int:
+    """The ``main`` of a per-(log, seed) table benchmark: the options of :func:`add_log_seed_options` plus
+    ``add_options(parser)``, then ``header`` (the markdown table's first two lines) and :func:`run_table` with
+    ``score_of(args)`` (a ``score(log, truth)``) and ``row``. Returns the exit code 0."""
+    parser = argparse.ArgumentParser(description=description)
+    add_log_seed_options(parser)
+    add_options(parser)
+    args = parser.parse_args(argv)
+    logs = chosen_logs(parser, args.logs)
+    print(header)
+    run_table(logs, parse_seeds(args.seeds), score_of(args), row, args.json)
+    return 0

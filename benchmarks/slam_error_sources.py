@@ -1,8 +1,9 @@
 """Where a real-log SLAM path's error comes from: the front end, the loop edges or the graph (docs/slam.md).
 
-For each log and odometry seed (the problem made as ``karto_peer.py`` makes it), the script runs bayesmap's start
-(:func:`bayesmap.inference.logslam.front_end`, then :func:`bayesmap.inference.posegraph.close_loops`) and prints one
-row of ATEs (meters, after the best rigid 2-D alignment):
+For each log and odometry seed (``seeded_logs.seeded_log``: the real scans, odometry from ``noisy_odometry.py``), the
+script runs bayesmap's start (:func:`bayesmap.inference.logslam.front_end`, then
+:func:`bayesmap.inference.posegraph.close_loops`) and prints one row of ATEs (meters, after the best rigid 2-D
+alignment):
 
 * ``front end`` and ``loop closure``: the two stages as bayesmap runs them (the joint chain after them moves the ATE
   by a few millimeters on the runs measured, docs/slam.md);
@@ -18,22 +19,19 @@ Usage: PYTHONPATH=src python benchmarks/slam_error_sources.py [--logs csail] [--
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from karto_peer import CORRECTED_LOGS, make_problem, parse_seeds  # noqa: E402
+from karto_peer import parse_seeds  # noqa: E402
+from seeded_logs import table_main  # noqa: E402
 
 from bayesmap import scenes  # noqa: E402
 from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E402
 from bayesmap.inference import logslam, posegraph  # noqa: E402
-from bayesmap.io.carmen import read_carmen  # noqa: E402
 from bayesmap.model.motion import wrap_angle  # noqa: E402
 
 
@@ -68,35 +66,23 @@ def error_sources(log, truth, slip: float) -> dict:
     }
 
 
+def table_row(name: str, seed: int, row: dict) -> str:
+    """The markdown row of one run's :func:`error_sources`."""
+    median = ("-" if row["loop_edge_median_error"] is None
+              else ", ".join(f"{v:.3f}" for v in row["loop_edge_median_error"]))
+    return (f"| {name} | {seed} | {row['front_end_ate_m']:.3f} | {row['loop_closure_ate_m']:.3f} | "
+            f"{row['true_loops_ate_m']:.3f} | {row['true_steps_ate_m']:.3f} | {row['loop_edges']} | {median} | "
+            f"{row['slips']} / {row['steps']} |")
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", default="0", help="odometry noise seeds, e.g. 0-4 or 0,3 (default 0)")
-    parser.add_argument("--logs", default="intel,aces,csail", help="comma-separated subset of intel,aces,csail")
-    parser.add_argument("--slip", type=float, default=0.15, help="meters: a step off by more is a slip (0.15)")
-    parser.add_argument("--json", type=Path, default=None, help="write every run's figures here")
-    args = parser.parse_args(argv)
-    logs = [name.strip() for name in args.logs.split(",") if name.strip()]
-    unknown = sorted(set(logs) - set(CORRECTED_LOGS))
-    if unknown:
-        parser.error(f"unknown log(s) {', '.join(unknown)}; choose from {', '.join(CORRECTED_LOGS)}")
-    records = []
-    print("| log | seed | front end | loop closure | true loops | true steps | loop edges | loop edge median error "
-          "(m, m, rad) | slips / steps |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    with tempfile.TemporaryDirectory() as folder:
-        for name in logs:
-            for seed in parse_seeds(args.seeds):
-                problem = make_problem(name, seed, Path(folder))
-                row = error_sources(read_carmen(problem.log_path), problem.truth, args.slip)
-                median = ("-" if row["loop_edge_median_error"] is None
-                          else ", ".join(f"{v:.3f}" for v in row["loop_edge_median_error"]))
-                print(f"| {name} | {seed} | {row['front_end_ate_m']:.3f} | {row['loop_closure_ate_m']:.3f} | "
-                      f"{row['true_loops_ate_m']:.3f} | {row['true_steps_ate_m']:.3f} | {row['loop_edges']} | "
-                      f"{median} | {row['slips']} / {row['steps']} |", flush=True)
-                records.append({"log": name, "seed": seed, **row})
-    if args.json is not None:
-        args.json.write_text(json.dumps(records, indent=2) + "\n")
-    return 0
+    return table_main(
+        argv, __doc__.splitlines()[0],
+        "| log | seed | front end | loop closure | true loops | true steps | loop edges | loop edge median error "
+        "(m, m, rad) | slips / steps |\n|---|---|---|---|---|---|---|---|---|",
+        lambda parser: parser.add_argument("--slip", type=float, default=0.15,
+                                           help="meters: a step off by more is a slip (0.15)"),
+        lambda args: lambda log, truth: error_sources(log, truth, args.slip), table_row, parse_seeds)
 
 
 if __name__ == "__main__":

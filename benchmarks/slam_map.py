@@ -12,47 +12,32 @@ Usage: PYTHONPATH=src python benchmarks/slam_map.py [--seeds 0] [--logs intel,ac
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
-import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from karto_peer import CORRECTED_LOGS, make_problem, parse_seeds  # noqa: E402
+from karto_peer import parse_seeds  # noqa: E402
+from seeded_logs import table_main  # noqa: E402
 
 from bayesmap.evaluation.slammap import evaluate_slam_map  # noqa: E402
-from bayesmap.io.carmen import read_carmen  # noqa: E402
+
+
+def table_row(name: str, seed: int, scores: dict) -> str:
+    """The markdown row of one run's :func:`bayesmap.evaluation.slammap.evaluate_slam_map` scores."""
+    slam, ref = scores["slam"], scores["true_poses"]
+    return (f"| {name} | {seed} | {scores['setup']['slam_ate_m']:.3f} | {slam['auc']:.4f} | {ref['auc']:.4f} | "
+            f"{ref['auc'] - slam['auc']:+.4f} | {slam['nll']:.3f} | {ref['nll']:.3f} |")
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", default="0", help="odometry noise seeds, e.g. 0-4 or 0,3 (default 0)")
-    parser.add_argument("--logs", default="intel,aces,csail", help="comma-separated subset of intel,aces,csail")
-    parser.add_argument("--resolution", type=float, default=0.1, help="meters per cell (default 0.1)")
-    parser.add_argument("--json", type=Path, default=None, help="write every run's figures here")
-    args = parser.parse_args(argv)
-    logs = [name.strip() for name in args.logs.split(",") if name.strip()]
-    unknown = sorted(set(logs) - set(CORRECTED_LOGS))
-    if unknown:
-        parser.error(f"unknown log(s) {', '.join(unknown)}; choose from {', '.join(CORRECTED_LOGS)}")
-    records = []
-    print("| log | seed | SLAM ATE m | SLAM map AUC | true-pose map AUC | AUC gap | SLAM map NLL | true-pose map NLL |")
-    print("|---|---|---|---|---|---|---|---|")
-    with tempfile.TemporaryDirectory() as folder:
-        for name in logs:
-            for seed in parse_seeds(args.seeds):
-                problem = make_problem(name, seed, Path(folder))
-                scores = evaluate_slam_map(read_carmen(problem.log_path), problem.truth, resolution=args.resolution)
-                slam, ref = scores["slam"], scores["true_poses"]
-                print(f"| {name} | {seed} | {scores['setup']['slam_ate_m']:.3f} | {slam['auc']:.4f} | "
-                      f"{ref['auc']:.4f} | {ref['auc'] - slam['auc']:+.4f} | {slam['nll']:.3f} | {ref['nll']:.3f} |",
-                      flush=True)
-                records.append({"log": name, "seed": seed, **scores})
-    if args.json is not None:
-        args.json.write_text(json.dumps(records, indent=2) + "\n")
-    return 0
+    return table_main(
+        argv, __doc__.splitlines()[0],
+        "| log | seed | SLAM ATE m | SLAM map AUC | true-pose map AUC | AUC gap | SLAM map NLL | true-pose map NLL |\n"
+        "|---|---|---|---|---|---|---|---|",
+        lambda parser: parser.add_argument("--resolution", type=float, default=0.1, help="meters per cell (0.1)"),
+        lambda args: lambda log, truth: evaluate_slam_map(log, truth, resolution=args.resolution), table_row,
+        parse_seeds)
 
 
 if __name__ == "__main__":
