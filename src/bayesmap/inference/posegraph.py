@@ -36,7 +36,15 @@ import scipy.sparse.linalg
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.inference.scanmatch import ScanData, add_to_fields, empty_fields, hit_fraction, lattices, search
+from bayesmap.inference.scanmatch import (
+    Lattices,
+    ScanData,
+    add_to_fields,
+    empty_fields,
+    hit_fraction,
+    lattices,
+    search,
+)
 from bayesmap.model.motion import wrap_angle
 
 LOOP_GAP = 30
@@ -160,26 +168,22 @@ def match_loops(path, data: ScanData, pairs) -> tuple[np.ndarray, np.ndarray]:
     offsets = np.arange(-LOOP_NEIGHBOURS, LOOP_NEIGHBOURS + 1, LOCAL_MAP_STEP)
     angles, readings, returned = (jnp.asarray(np.asarray(a)) for a in (data.sensor_angles, data.readings,
                                                                        data.returned))
-    levels = tuple(lattice for lattice, _ in steps)
-    field_index = tuple(f for _, f in steps)
     poses, quality = np.zeros((len(pairs), 3)), np.zeros(len(pairs))
     for k, (s, t) in enumerate(np.asarray(pairs)):
         shift = np.array([path[s, 0], path[s, 1], 0.0])  # local frame: scan s's position at the origin
         neighbours = np.clip(s + offsets, 0, s_count - 1)
         best, q = _match_one(jnp.asarray(neighbours), t, jnp.asarray(path[neighbours] - shift),
-                             jnp.asarray(path[t] - shift), angles, readings, returned, levels, grid, field_index)
+                             jnp.asarray(path[t] - shift), angles, readings, returned, steps, grid)
         poses[k], quality[k] = np.asarray(best, np.float64) + shift, float(q)
     return poses, quality
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "field_index"))
-def _match_one(neighbours, t, local_poses, center, angles, readings, returned, levels, grid: Grid,
-               field_index: tuple):
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _match_one(neighbours, t, local_poses, center, angles, readings, returned, steps: Lattices, grid: Grid):
     """One loop match of :func:`match_loops` (module level, so that every run with these shapes shares one compiled
     search): scan ``t`` searched from ``center`` against the fields of the scans ``neighbours`` at ``local_poses``."""
     fields = add_to_fields(empty_fields(grid), grid, local_poses, angles[neighbours], readings[neighbours],
                            returned[neighbours])
-    steps = list(zip(levels, field_index))
     best, _ = search(fields, grid, center, angles[t], readings[t], returned[t], steps)
     return best, hit_fraction(fields, grid, best, angles[t], readings[t], returned[t])
 

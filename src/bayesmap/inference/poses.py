@@ -179,14 +179,10 @@ def _algorithm(update) -> SamplingAlgorithm:
     """A pose kernel from its per-pose ``update`` (a ``jax.tree_util.Partial`` of a module function and the kernel's
     arrays): ``init`` and ``step`` are pytrees of module functions and arrays, so a compiled chain takes the arrays
     as arguments and is reused by every kernel of the same shapes (:mod:`bayesmap.inference.chains`)."""
-    return SamplingAlgorithm(init=Partial(_init), step=Partial(_sweep_step, update))
+    return SamplingAlgorithm(init=Partial(_init), step=Partial(_sweep, update))
 
 
-def _sweep_step(update, key, state: PoseState):
-    return _sweep(key, state, update)
-
-
-def _sweep(key, state: PoseState, update):
+def _sweep(update, key, state: PoseState):
     """Apply ``update(key, t, poses, walls) -> (pose, accepted, log_conditional)`` to ``t = 1..S-1`` in order."""
     num_steps = state.poses.shape[0] - 1
     keys = jax.random.split(key, num_steps)

@@ -184,12 +184,33 @@ def add_to_fields(fields: tuple, grid: Grid, pose, sensor_angles, readings, retu
                  for field, (sigma, radius) in zip(fields, FIELDS))
 
 
-def lattices(levels) -> list:
+@jax.tree_util.register_pytree_node_class
+class Lattices:
+    """The search levels of :func:`search`: per level the candidate offsets ``(M, 3)`` (pytree leaves) and the index
+    of the field it scores against (static), so a jitted function takes them as one argument and compiles once per
+    set of field indices and lattice shapes. Iterating gives ``(offsets, field index)`` per level."""
+
+    def __init__(self, offsets: tuple, fields: tuple):
+        self.offsets, self.fields = tuple(offsets), tuple(fields)
+
+    def __iter__(self):
+        return iter(zip(self.offsets, self.fields))
+
+    def tree_flatten(self):
+        return self.offsets, self.fields
+
+    @classmethod
+    def tree_unflatten(cls, fields, offsets):
+        return cls(offsets, fields)
+
+
+def lattices(levels) -> Lattices:
     """The candidate offsets ``(M, 3)`` and field index of every search level (see :data:`MATCH_LEVELS`)."""
-    return [(_lattice(h, ht, w, wt), f) for h, ht, w, wt, f in levels]
+    return Lattices([_lattice(h, ht, w, wt) for h, ht, w, wt, _ in levels], [f for *_, f in levels])
 
 
-def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned, levels: list, log_prior=None):
+def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned, levels: Lattices,
+           log_prior=None):
     """The coarse-to-fine search: at each level score ``center + offsets`` (:func:`field_scores` plus
     ``log_prior(candidates)`` if given) and recenter on the best; the fine field (index 0) is interpolated, the broad
     one looked up at the nearest cell. Jittable.
@@ -262,20 +283,19 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     arrays = ScanData(*(jnp.asarray(a, dtype=bool if a.dtype == bool else dtype) for a in map(np.asarray, data)))
     arrays = _Scans(*arrays, travelled=jnp.asarray(travelled, dtype))
     path = _correlative_run(jnp.asarray(first_pose, dtype), arrays, jnp.asarray(base, dtype), jnp.asarray(span, dtype),
-                            tuple(offsets for offsets, _ in steps), grid, tuple(f for _, f in steps), float(half_width))
+                            steps, grid, float(half_width))
     return np.asarray(path, np.float64)
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "field_index", "half_width"))
-def _correlative_run(first, d, base, span, offsets, grid: Grid, field_index: tuple, half_width: float):
+@functools.partial(jax.jit, static_argnames=("grid", "half_width"))
+def _correlative_run(first, d, base, span, steps: Lattices, grid: Grid, half_width: float):
     """The jitted loop of :func:`correlative_path` (module level, so that another run with the same shapes and
-    settings reuses the compiled code): the path ``(S, 3)`` in world coordinates. ``offsets`` and ``field_index``
-    are the levels of :func:`lattices`; ``base`` the world position of the window's corner at offset 0."""
+    settings reuses the compiled code): the path ``(S, 3)`` in world coordinates. ``steps`` are the search levels
+    (:func:`lattices`); ``base`` the world position of the window's corner at offset 0."""
     s = d.readings.shape[0]
     n = grid.shape[0]
     resolution = grid.resolution
     dtype = first.dtype
-    steps = list(zip(offsets, field_index))
 
     def stamp(stamps, pose, t):
         """Scatter-max the path length of scan ``t`` into the cells its endpoints' fine field reaches."""
