@@ -16,7 +16,14 @@ Karto's result varies several-fold with the odometry seed, so one seed says litt
 
 Usage: PYTHONPATH=src python benchmarks/karto_peer.py [--seeds 0-4] [--logs intel,aces,csail]
                                                     [--methods karto,bayesmap] [--beam-spacing bayesmap]
-                                                    [--json FILE]
+                                                    [--json FILE] [--cache DIR]
+
+``--cache DIR`` keeps every (log, seed)'s record as ``DIR/LOG-sSEED.json`` the moment it is done, and a later call
+with the same folder loads it instead of running the methods again (delete a file to rerun it): a long grid can be
+split between processes (``--logs``) or stopped and resumed, and one last call with every log prints the whole
+table. bayesmap's run also leaves ``DIR/LOG-sSEED.npz``, the arrays ``pose_cov_cv.py --cache DIR`` reads (mean path,
+the chain's and the unit-scale graph's covariances, the truth), so that the coverage factor can be refitted on the
+same runs.
 
 Runtime is each method's own measurement in seconds: for Karto the time spent in ``GraphSlam.process_scan`` over
 all scans (the Karto venv's interpreter start-up, imports and file exchange, about 0.5 s per run, are excluded;
@@ -42,7 +49,7 @@ from seeded_logs import CORRECTED_LOGS, NOISY_ODOMETRY, write_seeded_log
 from bayesmap import scenes
 from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage
-from bayesmap.inference.logslam import run_log_slam
+from bayesmap.inference.logslam import GRAPH_COV_SCALE, run_log_slam
 from bayesmap.io.carmen import beam_offsets, read_carmen
 from bayesmap.io.rosbag import compose_poses, invert_pose
 
@@ -206,8 +213,13 @@ def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
     result = run_log_slam(slam_problem, seed=problem.seed)
     extra["coverage"] = ellipse_coverage(result.mean_path, result.pose_cov, problem.truth)
     extra["position_sd_median_m"] = float(np.median(np.sqrt(result.pose_cov[:, 0, 0] + result.pose_cov[:, 1, 1])))
+    extra[ARRAYS] = {"mean": result.mean_path, "chain_cov": result.pose_cov - GRAPH_COV_SCALE**2 * result.graph_cov,
+                     "graph_cov": result.graph_cov, "truth": problem.truth, "runtime_s": result.runtime_s}
     return result.mean_path, result.runtime_s
 
+
+ARRAYS = "arrays"
+"""The key under which a method may leave arrays in its ``extra`` (not part of the record; saved with ``--cache``)."""
 
 Method = Callable[[Problem, dict], tuple[np.ndarray, float]]
 METHODS: dict[str, Method] = {"karto": run_karto, "bayesmap": run_bayesmap}
@@ -229,8 +241,9 @@ def parse_seeds(text: str) -> list[int]:
     return sorted(set(seeds))
 
 
-def run_one(problem: Problem, methods: list[str]) -> dict:
-    """Scores of raw odometry and every method on one problem (method errors become an "unavailable" note)."""
+def run_one(problem: Problem, methods: list[str], cache: Path | None = None) -> dict:
+    """Scores of raw odometry and every method on one problem (method errors become an "unavailable" note); with
+    ``cache``, a method's arrays (``extra[ARRAYS]``) are saved as ``cache/LOG-sSEED.npz``."""
     record: dict = {"log": problem.name, "seed": problem.seed, "scans": len(problem.truth),
                     "odometry": {"ate_m": absolute_trajectory_error(problem.odometry, problem.truth)["rmse_m"]}}
     for name in methods:
@@ -240,6 +253,9 @@ def run_one(problem: Problem, methods: list[str]) -> dict:
         except MethodUnavailable as exc:
             record[name] = {"unavailable": str(exc)}
             continue
+        arrays = extra.pop(ARRAYS, None)
+        if arrays is not None and cache is not None:
+            np.savez(cache / f"{problem.name}-s{problem.seed}.npz", **arrays)
         ate = absolute_trajectory_error(poses, problem.truth)["rmse_m"]
         record[name] = {"ate_m": ate, "runtime_s": runtime, **extra}
     return record
@@ -289,6 +305,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--beam-spacing", choices=BEAM_SPACINGS, default="bayesmap",
                         help="beam angles given to every method: bayesmap's rule (default) or pi/(n-1) for all n")
     parser.add_argument("--json", type=Path, default=None, help="write every run's figures and the summary here")
+    parser.add_argument("--cache", type=Path, default=None,
+                        help="keep each run's record (and bayesmap's arrays) here; reuse the records found")
     args = parser.parse_args(argv)
     try:
         args.seeds = parse_seeds(args.seeds)
@@ -309,12 +327,22 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         print(f"shared data not found: {', '.join(missing)}", file=sys.stderr)
         return 2
+    if args.cache is not None:
+        args.cache.mkdir(parents=True, exist_ok=True)
     records = []
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="karto-peer-") as tmp:
         for log in args.logs:
             for seed in args.seeds:
-                record = run_one(make_problem(log, seed, Path(tmp), args.beam_spacing), args.methods)
+                saved = None if args.cache is None else args.cache / f"{log}-s{seed}.json"
+                if saved is not None and saved.exists():
+                    record = json.loads(saved.read_text())
+                else:
+                    record = run_one(make_problem(log, seed, Path(tmp), args.beam_spacing), args.methods, args.cache)
+                    if saved is not None:  # whole or not at all: a stopped run leaves no partial record
+                        partial = saved.with_suffix(".json.part")
+                        partial.write_text(json.dumps(record, indent=1) + "\n")
+                        partial.replace(saved)
                 records.append(record)
                 figures = ", ".join(f"{k} {v['ate_m']:.2f} m" for k, v in record.items()
                                     if isinstance(v, dict) and "ate_m" in v)

@@ -111,6 +111,31 @@ def test_a_window_shorter_than_every_step_leaves_the_odometry():
     assert np.abs(path - truth)[:, :2].max() > 0.1
 
 
+def test_the_likelihood_power_weighs_the_scan_against_the_motion_model():
+    """The match maximizes ``p S + L`` (``S`` the scan's field score, ``L`` the motion model's log-density): the same
+    argmax as ``S + L'`` with every motion covariance multiplied by ``p`` (``L' = L / p + const``), so the two paths
+    agree up to one step of the finest lattice per scan (3 mm, 0.8 mrad: float32 rounding can break a near-tie the
+    other way, and a later match starts from the earlier one). The power matters: at 1e-6 the scan's pull is far below
+    the prior's curvature even over the last lattice step (about 0.001 nats of motion density per step of heading, a
+    few nats of scan score, against a million) and the path is the odometry's prediction (as with an empty window,
+    test above), a decimeter off the truth; at 1 the path differs from the one at 0.1."""
+    grid, truth, odometry, beams, readings = room_scans()
+    inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
+
+    def path(power, scale=1.0):
+        data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov) * scale)
+        return correlative_path(odometry[0], data, grid.resolution, half_width=6.0, likelihood_power=power)
+
+    steps = np.arange(len(truth))[:, None] * np.array([0.003, 0.003, 0.0008]) + 1e-5
+    assert np.all(np.abs(path(0.1) - path(1.0, scale=0.1)) <= steps)
+    assert np.all(np.abs(path(1e-6) - odometry) <= steps)
+    assert np.abs(path(1e-6) - truth)[:, :2].max() > 0.1
+    assert not np.array_equal(path(1.0), path(0.1))
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(BayesmapError, match="likelihood_power"):
+            path(bad)
+
+
 def test_correlative_path_checks_shapes():
     grid, truth, odometry, beams, readings = room_scans(num_poses=3)
     inc, cov = odometry_controls(odometry)

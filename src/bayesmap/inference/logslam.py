@@ -4,7 +4,8 @@ The target is the SLAM model's posterior ``p(poses, walls | readings, odometry)`
 (:data:`bayesmap.model.generative.slam_model`, the readings' likelihood tempered by the problem's power as for
 mapping at known poses). :func:`run_log_slam` finds a start, then runs a blocked Gibbs chain on it:
 
-1. **Front end**: sequential correlative scan matching (:func:`bayesmap.inference.scanmatch.correlative_path`).
+1. **Front end**: sequential correlative scan matching (:func:`bayesmap.inference.scanmatch.correlative_path`), the
+   scans' field scores at the problem's likelihood power against the motion model (:func:`front_end`).
 2. **Back end**: loop closure and pose-graph optimization (:func:`bayesmap.inference.posegraph.close_loops`).
    Stages 1 and 2 only choose where the chain starts; they do not enter its target.
 3. **The grid**: fitted to the beam endpoints at that path, plus :data:`MAP_MARGIN` meters.
@@ -106,9 +107,12 @@ def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MAR
 def front_end(problem, data: ScanData) -> np.ndarray:
     """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad): correlative scan matching from the first
     odometry pose on fields of :data:`FRONT_END_RESOLUTION` meters that follow the robot
-    (:data:`bayesmap.inference.scanmatch.MATCH_GRID_HALF_WIDTH`)."""
+    (:data:`bayesmap.inference.scanmatch.MATCH_GRID_HALF_WIDTH`), each scan's field score raised to the problem's
+    likelihood power against the motion model, as the target tempers the readings (docs/slam.md: at power 1 the
+    scans' correlated beams outweigh the odometry along corridors, where the front end slipped; chosen by
+    leave-one-log-out cross-validation, ``benchmarks/front_end_power_cv.py``)."""
     odometry = np.asarray(problem.odometry, np.float64)
-    return correlative_path(odometry[0], data, FRONT_END_RESOLUTION)
+    return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, likelihood_power=problem.likelihood_power)
 
 
 def with_grid(params, grid: Grid):

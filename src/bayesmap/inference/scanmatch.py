@@ -8,9 +8,11 @@ correlative scan matching", ICRA; the likelihood field of Thrun, Burgard & Fox, 
   within a radius (``sigma`` and the radius: :data:`FIELDS`, meters), updated by a scatter-max after each
   scan;
 * a candidate pose's score is the odometry motion model's log-density from the previous estimate plus
-  ``sum_k log(z_hit field(endpoint_k) + z_floor)`` over the scan's returned beams (``z_floor`` =
+  ``p sum_k log(z_hit field(endpoint_k) + z_floor)`` over the scan's returned beams (``z_floor`` =
   :data:`FIELD_FLOOR`: an endpoint in unmapped space costs a bounded amount, so unexplored areas and people do
-  not pull the match);
+  not pull the match; ``p`` the likelihood power, 1 in Olson's score: below 1 the scan's hundreds of correlated
+  beams count as fewer, and the odometry decides along directions where the field is nearly flat, a corridor's
+  axis);
 * the candidates form a coarse-to-fine lattice around the odometry's prediction (:data:`MATCH_LEVELS`), each level
   centered on the previous level's best.
 
@@ -36,6 +38,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
+from bayesmap.model.generative import check_likelihood_power
 from bayesmap.model.motion import compose, motion_logpdf
 
 FIELDS = ((0.05, 0.15), (0.2, 0.5))
@@ -242,7 +245,8 @@ def hit_fraction(fields: tuple, grid: Grid, pose, sensor_angles, readings, retur
 
 def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH_LEVELS,
                      window: float | None = LOCAL_MAP_DISTANCE,
-                     half_width: float = MATCH_GRID_HALF_WIDTH) -> np.ndarray:
+                     half_width: float = MATCH_GRID_HALF_WIDTH,
+                     likelihood_power: float = 1.0) -> np.ndarray:
     """Sequential correlative scan matching of every scan against the field of the scans before it.
 
     Args:
@@ -254,13 +258,16 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
             within this distance travelled before it (by the odometry); None: against every scan before it.
         half_width: meters (:data:`MATCH_GRID_HALF_WIDTH`): the fields cover +-``half_width`` around a center that
             follows the robot; endpoints outside are ignored.
+        likelihood_power: ``p`` in (0, 1]: each candidate's score is ``p`` times the field score plus the motion
+            model's log-density (1: every beam counts fully, Olson 2009's score; :func:`bayesmap.inference.logslam.
+            front_end` passes the target's power, as the SLAM model tempers its readings).
 
     Returns:
         ``(S, 3)`` float64 path, row 0 ``first_pose``.
 
     Raises:
-        BayesmapError: if the shapes disagree, or ``resolution`` or ``half_width`` is not a finite number > 0 or the
-            grid would have fewer than 8 cells a side.
+        BayesmapError: if the shapes disagree, ``resolution`` or ``half_width`` is not a finite number > 0 or the
+            grid would have fewer than 8 cells a side, or ``likelihood_power`` is not in (0, 1].
     """
     s, k = data.readings.shape
     if data.sensor_angles.shape != (s, k) or data.returned.shape != (s, k) or data.increments.shape != (s - 1, 3):
@@ -270,6 +277,7 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     for name, value in (("resolution", resolution), ("half_width", half_width)):
         if not (math.isfinite(float(value)) and value > 0):
             raise BayesmapError(f"{name} must be a finite number of meters > 0, got {value!r}")
+    power = check_likelihood_power(likelihood_power)
     n = int(math.ceil(2 * half_width / resolution))
     if n < 8:
         raise BayesmapError(f"half_width {half_width!r} m is under 4 cells of {resolution!r} m")
@@ -283,15 +291,16 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     arrays = ScanData(*(jnp.asarray(a, dtype=bool if a.dtype == bool else dtype) for a in map(np.asarray, data)))
     arrays = _Scans(*arrays, travelled=jnp.asarray(travelled, dtype))
     path = _correlative_run(jnp.asarray(first_pose, dtype), arrays, jnp.asarray(base, dtype), jnp.asarray(span, dtype),
-                            steps, grid, float(half_width))
+                            jnp.asarray(1.0 / power, dtype), steps, grid, float(half_width))
     return np.asarray(path, np.float64)
 
 
 @functools.partial(jax.jit, static_argnames=("grid", "half_width"))
-def _correlative_run(first, d, base, span, steps: Lattices, grid: Grid, half_width: float):
+def _correlative_run(first, d, base, span, prior_weight, steps: Lattices, grid: Grid, half_width: float):
     """The jitted loop of :func:`correlative_path` (module level, so that another run with the same shapes and
     settings reuses the compiled code): the path ``(S, 3)`` in world coordinates. ``steps`` are the search levels
-    (:func:`lattices`); ``base`` the world position of the window's corner at offset 0."""
+    (:func:`lattices`); ``base`` the world position of the window's corner at offset 0; ``prior_weight`` the inverse
+    of the likelihood power (scaling the motion term instead of the field score leaves the argmax the same)."""
     s = d.readings.shape[0]
     n = grid.shape[0]
     resolution = grid.resolution
@@ -332,7 +341,7 @@ def _correlative_run(first, d, base, span, steps: Lattices, grid: Grid, half_wid
         fields, stamps = jax.lax.cond(far, lambda: rebuild(path, t, offset), lambda: (fields, stamps))
 
         def log_prior(cands):
-            return motion_logpdf(local(prev, offset), cands, d.increments[t - 1], d.covs[t - 1])
+            return prior_weight * motion_logpdf(local(prev, offset), cands, d.increments[t - 1], d.covs[t - 1])
 
         recent = stamps >= d.travelled[t] - span
         masked = tuple(jnp.where(recent, field, 0.0) for field in fields)
