@@ -136,6 +136,23 @@ def test_the_likelihood_power_weighs_the_scan_against_the_motion_model():
             path(bad)
 
 
+def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch):
+    """run_log_slam's front end scores scans at the problem's own likelihood power (the power its target gives the
+    readings; docs/slam.md), from the first odometry pose, on fields of FRONT_END_RESOLUTION: the call it makes."""
+    from types import SimpleNamespace
+
+    from bayesmap.inference import logslam
+
+    calls = []
+    monkeypatch.setattr(logslam, "correlative_path",
+                        lambda first, data, resolution, **options: calls.append((first, data, resolution, options)))
+    problem = SimpleNamespace(odometry=np.array([[1.0, 2.0, 0.3], [1.5, 2.0, 0.3]]), likelihood_power=0.25)
+    logslam.front_end(problem, "scans")
+    (first, data, resolution, options), = calls
+    assert np.array_equal(first, [1.0, 2.0, 0.3]) and data == "scans"
+    assert resolution == logslam.FRONT_END_RESOLUTION and options == {"likelihood_power": 0.25}
+
+
 def test_correlative_path_checks_shapes():
     grid, truth, odometry, beams, readings = room_scans(num_poses=3)
     inc, cov = odometry_controls(odometry)
