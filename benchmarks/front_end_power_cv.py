@@ -35,28 +35,23 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from karto_peer import parse_seeds  # noqa: E402
 from seeded_logs import add_log_seed_options, chosen_logs, seeded_log  # noqa: E402
+from slam_error_sources import count_slips  # noqa: E402
 
 from bayesmap import scenes  # noqa: E402
 from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E402
 from bayesmap.inference import logslam, posegraph  # noqa: E402
-from bayesmap.inference.scanmatch import correlative_path  # noqa: E402
-
-SLIP = 0.15
-"""Meters: a sequential step of the front end off the true relative pose by more is a slip."""
 
 
 def start_path(log, truth, power: float) -> dict:
-    """One run's figures: the start path of ``run_log_slam`` with the front end at ``power``."""
+    """One run's figures: the start path of ``run_log_slam`` (:func:`bayesmap.inference.logslam.front_end`, then
+    loop closure) for the log's SLAM problem at likelihood power ``power``, which only the front end reads here."""
     began = time.perf_counter()
-    problem = scenes.log_slam_problem(log)
+    problem = scenes.log_slam_problem(log, likelihood_power=power)
     scans = logslam.scan_data(problem)
-    front = correlative_path(np.asarray(problem.odometry)[0], scans, logslam.FRONT_END_RESOLUTION,
-                             likelihood_power=power)
+    front = logslam.front_end(problem, scans)
     closed, edges = posegraph.close_loops(front, scans)
-    step_error = posegraph.relative(front[:-1], front[1:]) - posegraph.relative(truth[:-1], truth[1:])
     return {"power": power, "front_end_ate_m": absolute_trajectory_error(front, truth)["rmse_m"],
-            "start_ate_m": absolute_trajectory_error(closed, truth)["rmse_m"],
-            "slips": int(np.sum(np.hypot(step_error[:, 0], step_error[:, 1]) > SLIP)),
+            "start_ate_m": absolute_trajectory_error(closed, truth)["rmse_m"], "slips": count_slips(front, truth),
             "loop_edges": int(len(edges.i) - (len(front) - 1)), "seconds": time.perf_counter() - began}
 
 
@@ -85,7 +80,7 @@ def leave_one_log_out(records: list[dict], powers: list[float]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_log_seed_options(parser)
+    add_log_seed_options(parser, json_option=False)  # the runs are in --records
     parser.add_argument("--powers", default="1,0.3,0.1,0.03", help="comma-separated powers in (0, 1]")
     parser.add_argument("--records", type=Path, required=True, help="JSON lines file of the runs (appended to)")
     args = parser.parse_args(argv)

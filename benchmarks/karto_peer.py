@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Callable, NamedTuple
 
 import numpy as np
-from seeded_logs import CORRECTED_LOGS, NOISY_ODOMETRY, write_seeded_log
+from seeded_logs import CORRECTED_LOGS, NOISY_ODOMETRY, run_file, slam_run_arrays, write_seeded_log
 
 from bayesmap import scenes
 from bayesmap.errors import BayesmapError
@@ -213,8 +213,7 @@ def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
     result = run_log_slam(slam_problem, seed=problem.seed)
     extra["coverage"] = ellipse_coverage(result.mean_path, result.pose_cov, problem.truth)
     extra["position_sd_median_m"] = float(np.median(np.sqrt(result.pose_cov[:, 0, 0] + result.pose_cov[:, 1, 1])))
-    extra[ARRAYS] = {"mean": result.mean_path, "chain_cov": result.pose_cov - GRAPH_COV_SCALE**2 * result.graph_cov,
-                     "graph_cov": result.graph_cov, "truth": problem.truth, "runtime_s": result.runtime_s}
+    extra[ARRAYS] = slam_run_arrays(result, problem.truth, GRAPH_COV_SCALE)
     return result.mean_path, result.runtime_s
 
 
@@ -255,7 +254,7 @@ def run_one(problem: Problem, methods: list[str], cache: Path | None = None) -> 
             continue
         arrays = extra.pop(ARRAYS, None)
         if arrays is not None and cache is not None:
-            np.savez(cache / f"{problem.name}-s{problem.seed}.npz", **arrays)
+            np.savez(run_file(cache, problem.name, problem.seed, "npz"), **arrays)
         ate = absolute_trajectory_error(poses, problem.truth)["rmse_m"]
         record[name] = {"ate_m": ate, "runtime_s": runtime, **extra}
     return record
@@ -334,7 +333,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="karto-peer-") as tmp:
         for log in args.logs:
             for seed in args.seeds:
-                saved = None if args.cache is None else args.cache / f"{log}-s{seed}.json"
+                saved = None if args.cache is None else run_file(args.cache, log, seed, "json")
                 if saved is not None and saved.exists():
                     record = json.loads(saved.read_text())
                 else:

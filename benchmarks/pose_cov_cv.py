@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 from karto_peer import parse_seeds
-from seeded_logs import seeded_log
+from seeded_logs import run_file, seeded_log, slam_run_arrays
 
 from bayesmap import scenes
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage
@@ -33,12 +33,11 @@ LEVEL = 0.95
 
 def run_one(name: str, seed: int, cache: Path) -> dict:
     """The cached arrays of one run (made on first use)."""
-    out = cache / f"{name}-s{seed}.npz"
+    out = run_file(cache, name, seed, "npz")
     if not out.exists():
         log, truth = seeded_log(name, seed)
         result = run_log_slam(scenes.log_slam_problem(log), progress=True, graph_scale=0.0)  # pose_cov: the chain's
-        np.savez(out, mean=result.mean_path, chain_cov=result.pose_cov, graph_cov=result.graph_cov, truth=truth,
-                 runtime_s=result.runtime_s)
+        np.savez(out, **slam_run_arrays(result, truth, 0.0))
         print(f"{name} seed {seed}: ATE {absolute_trajectory_error(result.mean_path, truth)['rmse_m']:.3f} m, "
               f"{result.runtime_s:.0f} s", flush=True)
     return dict(np.load(out))

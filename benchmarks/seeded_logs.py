@@ -53,13 +53,28 @@ def seeded_log(name: str, seed: int) -> tuple[CarmenLog, np.ndarray]:
         return write_seeded_log(name, seed, Path(tmp) / f"{name}-odom")
 
 
-def add_log_seed_options(parser: argparse.ArgumentParser) -> None:
+def add_log_seed_options(parser: argparse.ArgumentParser, json_option: bool = True) -> None:
     """The options every per-(log, seed) benchmark takes: ``--seeds`` (default 0), ``--logs`` (default all of
-    :data:`CORRECTED_LOGS`) and ``--json`` (a file for every run's figures)."""
+    :data:`CORRECTED_LOGS`) and, with ``json_option``, ``--json`` (a file for every run's figures)."""
     parser.add_argument("--seeds", default="0", help="odometry noise seeds, e.g. 0-4 or 0,3 (default 0)")
     parser.add_argument("--logs", default=",".join(CORRECTED_LOGS),
                         help=f"comma-separated subset of {','.join(CORRECTED_LOGS)}")
-    parser.add_argument("--json", type=Path, default=None, help="write every run's figures here")
+    if json_option:
+        parser.add_argument("--json", type=Path, default=None, help="write every run's figures here")
+
+
+def run_file(cache: Path, name: str, seed: int, suffix: str) -> Path:
+    """Where a benchmark keeps one (log, seed) run in its cache folder: ``cache/NAME-sSEED.SUFFIX`` (``karto_peer.py``
+    writes its records and bayesmap's arrays there, ``pose_cov_cv.py`` reads and writes the arrays)."""
+    return cache / f"{name}-s{seed}.{suffix}"
+
+
+def slam_run_arrays(result, truth: np.ndarray, graph_scale: float) -> dict:
+    """The arrays of one ``run_log_slam`` result that ``pose_cov_cv.py`` refits the graph's scale on: the mean path,
+    the chain's covariance (the reported one less ``graph_scale**2`` times the graph's), the graph's covariance at
+    unit scale, the true poses and the runtime; ``graph_scale`` the scale the run was made with."""
+    return {"mean": result.mean_path, "chain_cov": result.pose_cov - graph_scale**2 * result.graph_cov,
+            "graph_cov": result.graph_cov, "truth": truth, "runtime_s": result.runtime_s}
 
 
 def chosen_logs(parser: argparse.ArgumentParser, text: str) -> list[str]:

@@ -34,6 +34,16 @@ from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E4
 from bayesmap.inference import logslam, posegraph  # noqa: E402
 from bayesmap.model.motion import wrap_angle  # noqa: E402
 
+SLIP = 0.15
+"""Meters: a sequential step of the front end off the true relative pose by more is a slip (``--slip``'s default)."""
+
+
+def count_slips(path, truth, slip: float = SLIP) -> int:
+    """How many consecutive steps of ``path`` ``(S, 3)`` are off the true relative pose (``truth`` ``(S, 3)``) by
+    more than ``slip`` meters of position."""
+    step_error = posegraph.relative(path[:-1], path[1:]) - posegraph.relative(truth[:-1], truth[1:])
+    return int(np.sum(np.hypot(step_error[:, 0], step_error[:, 1]) > slip))
+
 
 def error_sources(log, truth, slip: float) -> dict:
     """The row of the module docstring for one SLAM problem: ``log`` a CARMEN log whose poses are odometry,
@@ -47,7 +57,6 @@ def error_sources(log, truth, slip: float) -> dict:
     loops = posegraph.Edges(*(a[loop] for a in edges))
     true_loops = loops._replace(z=posegraph.relative(truth[loops.i], truth[loops.j]))
     true_steps = sequential._replace(z=posegraph.relative(truth[:-1], truth[1:]))
-    step_error = sequential.z - true_steps.z
     loop_error = loops.z - true_loops.z
     loop_error[:, 2] = wrap_angle(loop_error[:, 2])
 
@@ -61,7 +70,7 @@ def error_sources(log, truth, slip: float) -> dict:
         "true_steps_ate_m": ate(posegraph.optimize_pose_graph(front, posegraph.concat_edges(true_steps, loops))),
         "loop_edges": int(loop.sum()),
         "loop_edge_median_error": np.median(np.abs(loop_error), axis=0).tolist() if loop.any() else None,
-        "slips": int(np.sum(np.hypot(step_error[:, 0], step_error[:, 1]) > slip)),
+        "slips": count_slips(front, truth, slip),  # the sequential edges are the front end's relative poses
         "steps": len(front) - 1,
     }
 
@@ -80,8 +89,8 @@ def main(argv: list[str] | None = None) -> int:
         argv, __doc__.splitlines()[0],
         "| log | seed | front end | loop closure | true loops | true steps | loop edges | loop edge median error "
         "(m, m, rad) | slips / steps |\n|---|---|---|---|---|---|---|---|---|",
-        lambda parser: parser.add_argument("--slip", type=float, default=0.15,
-                                           help="meters: a step off by more is a slip (0.15)"),
+        lambda parser: parser.add_argument("--slip", type=float, default=SLIP,
+                                           help=f"meters: a step off by more is a slip ({SLIP})"),
         lambda args: lambda log, truth: error_sources(log, truth, args.slip), table_row, parse_seeds)
 
 

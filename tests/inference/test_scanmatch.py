@@ -127,10 +127,11 @@ def test_the_likelihood_power_weighs_the_scan_against_the_motion_model():
         return correlative_path(odometry[0], data, grid.resolution, half_width=6.0, likelihood_power=power)
 
     steps = np.arange(len(truth))[:, None] * np.array([0.003, 0.003, 0.0008]) + 1e-5
-    assert np.all(np.abs(path(0.1) - path(1.0, scale=0.1)) <= steps)
-    assert np.all(np.abs(path(1e-6) - odometry) <= steps)
-    assert np.abs(path(1e-6) - truth)[:, :2].max() > 0.1
-    assert not np.array_equal(path(1.0), path(0.1))
+    tempered, tiny = path(0.1), path(1e-6)
+    assert np.all(np.abs(tempered - path(1.0, scale=0.1)) <= steps)
+    assert np.all(np.abs(tiny - odometry) <= steps)
+    assert np.abs(tiny - truth)[:, :2].max() > 0.1
+    assert not np.array_equal(path(1.0), tempered)
     for bad in (0.0, 1.5, float("nan")):
         with pytest.raises(BayesmapError, match="likelihood_power"):
             path(bad)
