@@ -1,6 +1,6 @@
 """Leave-one-log-out cross-validation of the map model's defaults for logs (issue 16): the likelihood power, the
-structured prior's run length, the sensor noise and the beam mixture's random weight, in the chord geometry with no
-range offset, at several resolutions.
+structured prior's run length, the sensor noise, the beam mixture's random weight and the probability that a beam
+passes a wall cell, in the chord geometry with no range offset, at several resolutions.
 
 For each log (intel, aces, csail), resolution and setting of the grid, ``bayesmap.evaluation.heldout.evaluate_log``
 maps every ``--step``-th scan of the log (every 10th of those held out) with bayesmap (cellwise, ``--sweeps``
@@ -14,12 +14,14 @@ target is a margin of at least 0.01 with a lower NLL than log-odds' on every log
 the setting chosen on every log, the defaults' candidate.
 
 Every setting is stated in the world's or the sensor's units, never in cells: the run length in meters
-(``bayesmap.model.prior.coupling_for_run_length``; 0 is the independent prior), the sensor noise in meters, the power
-and the weights as numbers. A run length shorter than two cells of a resolution is skipped at that resolution.
+(``bayesmap.model.prior.coupling_for_run_length``; 0 is the independent prior), the sensor noise in meters, the power,
+the weights and the pass probability as numbers. Cached rows written before the pass probability was a setting
+(no ``pass_prob`` key) are read as ``pass_prob`` 0, the model they were run with. A run length shorter than two cells
+of a resolution is skipped at that resolution.
 
 Usage: PYTHONPATH=src python benchmarks/map_cv.py [--logs intel,aces,csail] [--resolutions 0.1,0.2]
-           [--powers 0.01,0.02,0.05,0.1] [--run-lengths 0,1] [--noises 0.05,0.1] [--z-rands 0.1] [--step 2]
-           [--sweeps 40] [--cache FILE.jsonl] [--json FILE]
+           [--powers 0.01,0.02,0.05,0.1] [--run-lengths 0,1] [--noises 0.05,0.1] [--z-rands 0.1]
+           [--pass-probs 0] [--step 2] [--sweeps 40] [--cache FILE.jsonl] [--json FILE]
 """
 
 from __future__ import annotations
@@ -38,7 +40,9 @@ from bayesmap.io.carmen import read_carmen
 from bayesmap.model.prior import coupling_for_run_length
 from bayesmap.model.sensor import BEAM_DEFAULTS
 
-KEYS = ("log", "resolution", "power", "run_length", "noise", "z_rand", "step", "sweeps")
+KEYS = ("log", "resolution", "power", "run_length", "noise", "z_rand", "pass_prob", "step", "sweeps")
+SETTING = ("power", "run_length", "noise", "z_rand", "pass_prob")
+"""A setting's keys, in the order of the tables."""
 
 
 def floats(text: str) -> list[float]:
@@ -62,7 +66,8 @@ def run_one(log, setting: dict) -> dict:
     start = time.perf_counter()
     out = evaluate_log(log, scans, resolution=res, sweeps=setting["sweeps"], sensor_noise=setting["noise"],
                        geometry="chord", range_offset=0.0, coupling=coupling, likelihood_power=setting["power"],
-                       sensor_params=sensor_params(setting["z_rand"]), progress=False)
+                       sensor_params=sensor_params(setting["z_rand"]), wall_pass_prob=setting["pass_prob"],
+                       progress=False)
     row = dict(setting, coupling=coupling, auc=out["bayesmap"]["auc"], nll=out["bayesmap"]["nll"],
                logodds_auc=out["logodds"]["auc"], logodds_nll=out["logodds"]["nll"],
                seconds=round(time.perf_counter() - start, 1))
@@ -74,8 +79,13 @@ def key(row: dict) -> tuple:
     return tuple(row[k] for k in KEYS)
 
 
+def setting_of(row: dict) -> tuple:
+    """A row's setting (:data:`SETTING`)."""
+    return tuple(row[k] for k in SETTING)
+
+
 def choose(rows: list[dict], logs: list[str]) -> tuple:
-    """The setting (power, run_length, noise, z_rand) with the highest mean AUC margin on ``logs``, every
+    """The setting (:data:`SETTING`) with the highest mean AUC margin on ``logs``, every
     (log, resolution) weighted equally, among those with a lower NLL than log-odds' on each; settings missing a
     (log, resolution) of ``logs`` are not eligible."""
     cells = {(r["log"], r["resolution"]) for r in rows if r["log"] in logs}
@@ -83,7 +93,7 @@ def choose(rows: list[dict], logs: list[str]) -> tuple:
     for r in rows:
         if r["log"] in logs:
             margin = r["auc"] - r["logodds_auc"] if r["nll"] < r["logodds_nll"] else -np.inf
-            by_setting.setdefault((r["power"], r["run_length"], r["noise"], r["z_rand"]), {})[
+            by_setting.setdefault(setting_of(r), {})[
                 (r["log"], r["resolution"])] = margin
     eligible = {s: np.mean(list(m.values())) for s, m in by_setting.items() if set(m) == cells}
     return max(eligible, key=eligible.get)
@@ -97,6 +107,7 @@ def main(argv=None) -> int:
     parser.add_argument("--run-lengths", default="0,1")
     parser.add_argument("--noises", default="0.05,0.1")
     parser.add_argument("--z-rands", default=str(BEAM_DEFAULTS["z_rand"]))
+    parser.add_argument("--pass-probs", default="0")
     parser.add_argument("--step", type=int, default=2)
     parser.add_argument("--sweeps", type=int, default=40)
     parser.add_argument("--cache", type=Path, default=None)
@@ -106,16 +117,17 @@ def main(argv=None) -> int:
     rows = []
     if args.cache and args.cache.exists():
         rows = [json.loads(line) for line in args.cache.read_text().splitlines() if line.strip()]
+        rows = [dict(r, pass_prob=r.get("pass_prob", 0.0)) for r in rows]
     done = {key(r) for r in rows}
     for name in logs:
         log = None
-        for res, power, length, noise, z_rand in itertools.product(
+        for res, power, length, noise, z_rand, pass_prob in itertools.product(
                 floats(args.resolutions), floats(args.powers), floats(args.run_lengths), floats(args.noises),
-                floats(args.z_rands)):
+                floats(args.z_rands), floats(args.pass_probs)):
             if length and length < 2 * res:
                 continue
             setting = dict(log=name, resolution=res, power=power, run_length=length, noise=noise, z_rand=z_rand,
-                           step=args.step, sweeps=args.sweeps)
+                           pass_prob=pass_prob, step=args.step, sweeps=args.sweeps)
             if key(setting) in done:
                 continue
             log = log or read_carmen(CORRECTED_LOGS[name])
@@ -126,9 +138,9 @@ def main(argv=None) -> int:
                 with args.cache.open("a") as f:
                     f.write(json.dumps(row) + "\n")
     rows = [r for r in rows if r["log"] in logs and r["step"] == args.step and r["sweeps"] == args.sweeps]
-    lookup = {(r["log"], r["resolution"], r["power"], r["run_length"], r["noise"], r["z_rand"]): r for r in rows}
+    lookup = {(r["log"], r["resolution"], *setting_of(r)): r for r in rows}
     resolutions = sorted({r["resolution"] for r in rows})
-    print("\n| held out | chosen on the others: power, run length (m), noise (m), z_rand | "
+    print("\n| held out | chosen on the others: power, run length (m), noise (m), z_rand, pass probability | "
           + " | ".join(f"{res:g} m: AUC bayesmap / log-odds, NLL bayesmap / log-odds" for res in resolutions) + " |")
     print("|---|---|" + "---|" * len(resolutions))
     summary = {"folds": {}, "rows": rows}
@@ -144,7 +156,7 @@ def main(argv=None) -> int:
     every = choose(rows, logs)
     summary["chosen_on_every_log"] = every
     print(f"\nChosen on every log: power {every[0]:g}, run length {every[1]:g} m, noise {every[2]:g} m, "
-          f"z_rand {every[3]:g}")
+          f"z_rand {every[3]:g}, pass probability {every[4]:g}")
     if args.json:
         args.json.write_text(json.dumps(summary, indent=1))
     return 0

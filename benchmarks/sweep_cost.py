@@ -9,7 +9,9 @@ excluded, as ``bayesmap bench`` times its samplers). Settings:
 * ``entry``: the tutorial's entry geometry, a 0.1 m range offset, power 0.1, the independent prior (the log
   defaults before issue 16);
 * ``chord``: the chord geometry, no offset, the default power, the independent prior;
-* ``default``: the log defaults of ``bayesmap.scenes`` (chord geometry and the structured prior).
+* ``opaque``: the log defaults with wall cells that stop every beam (``wall_pass_prob`` 0: each ray's first two
+  walls in the rows, as before passable walls);
+* ``default``: the log defaults of ``bayesmap.scenes`` (chord geometry, the structured prior and passable walls).
 
 Usage: PYTHONPATH=src python benchmarks/sweep_cost.py [--log intel] [--resolution 0.1] [--sweeps 20] [--repeats 3]
 """
@@ -30,8 +32,9 @@ from bayesmap.inference.registry import make_sampler
 from bayesmap.io.carmen import read_carmen
 
 SETTINGS = {
-    "entry": dict(geometry="entry", range_offset=0.1, likelihood_power=0.1, coupling=0.0),
-    "chord": dict(coupling=0.0),
+    "entry": dict(geometry="entry", range_offset=0.1, likelihood_power=0.1, coupling=0.0, wall_pass_prob=0.0),
+    "chord": dict(coupling=0.0, wall_pass_prob=0.0),
+    "opaque": dict(wall_pass_prob=0.0),
     "default": {},
 }
 

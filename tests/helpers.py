@@ -48,15 +48,15 @@ def scenes(beam_model, seed, max_distance=6.0, num_beams=10, geometry="entry"):
     return grid, params, angles, truth, y, table
 
 
-def beam_enumeration_scene():
+def beam_enumeration_scene(**model):
     """Two scans on a 3 x 4 grid with the beam model (max range 4 m): 2 poses x 6 beams, readings simulated from a
     3-wall map with two set to exactly the max range and one short (0.3 m). Returns ``(table, readings (2, 6),
     params, exact posterior marginals (3, 4))``, the marginals by enumerating all 4,096 maps with the model's
-    assess."""
+    assess. ``model``: more keywords of ``make_params`` (e.g. ``wall_pass_prob``)."""
     import itertools
 
     grid = Grid((3, 4))
-    params = make_params(0.3, 0.4, 6, grid, 4.0, beam_model="beam")
+    params = make_params(0.3, 0.4, 6, grid, 4.0, beam_model="beam", **model)
     poses = np.array([[0.2, 0.4], [1.8, 2.6]])
     angles = np.stack([np.linspace(0, 2 * np.pi, 6, endpoint=False) + 0.1 * s for s in range(2)])
     truth = np.zeros((3, 4), np.float32)
@@ -72,6 +72,31 @@ def beam_enumeration_scene():
     exact = np.tensordot(w / w.sum(), maps, axes=1)
     table = build_ray_table(grid, np.repeat(poses, 6, axis=0), angles.reshape(-1), params.max_range)
     return table, y, params, exact
+
+
+def sweeps_keep_ray_rows(sampler, table, grid, walls_kept: int, num_sweeps: int) -> int:
+    """Run ``num_sweeps`` sweeps of ``sampler`` (a CellwiseGibbs) from a random half-full map (keys 0, 1, ...),
+    asserting after each that the state's rows equal those recomputed from its map (``sampler.ray_walls``) and that
+    their first ``walls_kept`` columns are the positions of each ray's first walls found in plain numpy; returns how
+    many cells changed in all."""
+    from bayesmap.inference.cellwise import NO_WALL
+
+    step = jax.jit(sampler.step)
+    state = sampler.init(jnp.asarray(np.random.default_rng(0).random(grid.shape) < 0.5, jnp.float32))
+    changed = 0
+    for k in range(num_sweeps):
+        new, _ = step(jax.random.key(k), state)
+        changed += int(jnp.sum(new.walls != state.walls))
+        state = new
+        rows = np.asarray(state.ray_walls)
+        on = np.asarray(state.walls).reshape(-1)[table.pair_cells] > 0
+        want = np.full((table.num_rays, walls_kept), NO_WALL)
+        for r in range(table.num_rays):
+            pos = np.nonzero(on[table.offsets[r]:table.offsets[r + 1]])[0][:walls_kept]
+            want[r, :len(pos)] = pos
+        np.testing.assert_array_equal(rows[:-1, :walls_kept], want)
+        np.testing.assert_allclose(rows, np.asarray(sampler.ray_walls(state.walls)), rtol=0, atol=0)
+    return changed
 
 
 def sweeps_keep_ray_bits(fast, state, num_sweeps: int) -> int:

@@ -143,6 +143,11 @@ def _rosmap_yaml(tmp_path: Path, resolution: str) -> Path:
     (lambda t, log: ["infer", "--log", t / "outlier.log"], r"outlier.log:2: range 9 of 180 is 1e\+26"),
     (lambda t, log: ["infer", "--log", log, "--max-range", "-3"], "--max-range"),
     (lambda t, log: ["infer", "--max-range", "50"], "need --log"),
+    # issue 16: walls a beam can pass: a probability below 1, several scans of a log, a sampler that keeps two walls
+    (lambda t, log: ["infer", "--log", log, "--wall-pass-prob", "1"], "wall_pass_prob must be in \\[0, 1\\)"),
+    (lambda t, log: ["infer", "--wall-pass-prob", "0.2"], "--wall-pass-prob apply to several scans"),
+    (lambda t, log: ["infer", "--log", log, "--wall-pass-prob", "0.2", "--sampler", "raster"],
+     "wall_pass_prob = 0.2; the cellwise sampler supports it"),
     # item 7: --scan and --scans agree on negative indexes; out of range is refused by both alike
     (lambda t, log: ["infer", "--log", log, "--scan", "-6"], "scan -6 is out of range"),
     # item 6: a folder with folders of its own is not swapped as a whole

@@ -378,6 +378,10 @@ RANGE_OFFSET_HELP = ("meters the model subtracts from each returned reading of a
                      "inside it)")
 GEOMETRY_HELP = (f"--log: where a wall cell's reading is expected: entry (the tutorial's, where the beam enters the "
                  f"cell) or chord (anywhere on the beam's chord through the cell); default {scenes.LOG_GEOMETRY}")
+PASS_HELP = ("--log (several scans): the probability that a beam passes through a wall cell it meets (thin or "
+             "partly filled cells; the reading then comes from the ray's next wall), in [0, 1); default "
+             f"{scenes.LOG_WALL_PASS_PROB:g} with the cellwise sampler (the default), 0 with the others, which "
+             "support only 0")
 PRIOR_HELP = (f"prior probability that a cell is a wall (default {scenes.TUTORIAL_PRIOR}, the tutorial's; "
               f"{scenes.LOG_PRIOR} for several scans of a log)")
 SENSOR_NOISE_HELP = (f"standard deviation of a reading, meters (default {scenes.TUTORIAL_SENSOR_NOISE}, "
@@ -476,6 +480,7 @@ def infer(
     beam_model: Optional[str] = typer.Option(None, "--beam-model", help=BEAM_MODEL_HELP),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help=RANGE_OFFSET_HELP),
     geometry: Optional[str] = typer.Option(None, "--geometry", help=GEOMETRY_HELP),
+    wall_pass_prob: Optional[float] = typer.Option(None, "--wall-pass-prob", help=PASS_HELP),
     beam_weights: Optional[str] = typer.Option(None, "--beam-weights", help=BEAM_WEIGHTS_HELP),
     lambda_short: Optional[float] = typer.Option(None, "--lambda-short", help=LAMBDA_SHORT_HELP),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
@@ -519,13 +524,13 @@ def infer(
             raise BayesmapError("give either --map or --log / --bag, not both")
         problem, title = _log_scene(carmen, log if log is not None else bag, scan, scans, resolution, prior_wall_prob,
                                     sensor_noise, beam_model, range_offset, likelihood_power, sensor_params, geometry,
-                                    coupling)
+                                    coupling, wall_pass_prob, sampler)
     else:
         if scan is not None or scans is not None or likelihood_power is not None or max_range is not None:
             raise BayesmapError("--scan, --scans, --likelihood-power and --max-range need --log FILE (or --bag)")
-        if geometry is not None:
-            raise BayesmapError("--geometry applies to several scans of --log FILE (or --bag); maps keep the "
-                                "tutorial's entry geometry")
+        if geometry is not None or wall_pass_prob is not None:
+            raise BayesmapError("--geometry and --wall-pass-prob apply to several scans of --log FILE (or --bag); "
+                                "maps keep the tutorial's entry geometry and walls")
         problem = _map_scene(map_file, pos, seed, prior_wall_prob, sensor_noise, num_angles, beam_model,
                              sensor_params, coupling)
         title = problem.source
@@ -539,9 +544,10 @@ def infer(
 
 
 def _log_scene(carmen, path: Path, scan, scans, resolution, prior_wall_prob, sensor_noise, beam_model, range_offset,
-               likelihood_power, sensor_params, geometry=None, coupling=None):
+               likelihood_power, sensor_params, geometry=None, coupling=None, wall_pass_prob=None, sampler=None):
     """``(problem, title)`` of ``infer --log/--bag``: one scan (``--scan N``, the single-scan model and the tutorial's
-    defaults) or several (``--scans``, the log defaults of :mod:`bayesmap.scenes`)."""
+    defaults) or several (``--scans``, the log defaults of :mod:`bayesmap.scenes`). Walls a beam can pass
+    (``wall_pass_prob`` > 0) need the cellwise sampler, so with another ``sampler`` the default is 0 (opaque walls)."""
     if scan is not None and scans is not None:
         raise BayesmapError("give either --scan N or --scans SPEC, not both")
     if scan is not None:
@@ -549,8 +555,8 @@ def _log_scene(carmen, path: Path, scan, scans, resolution, prior_wall_prob, sen
         if range_offset is not None or likelihood_power is not None:
             raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), "
                                 "not to --scan N")
-        if geometry is not None:
-            raise BayesmapError("--geometry applies to several scans (--scans), not to --scan N")
+        if geometry is not None or wall_pass_prob is not None:
+            raise BayesmapError("--geometry and --wall-pass-prob apply to several scans (--scans), not to --scan N")
         scan = int(parse_scans(str(scan), len(carmen))[0])  # a negative index counts from the end, as in --scans
         problem = scan_problem(carmen, scan, resolution=resolution,
                                prior_wall_prob=scenes.TUTORIAL_PRIOR if prior_wall_prob is None else prior_wall_prob,
@@ -559,11 +565,13 @@ def _log_scene(carmen, path: Path, scan, scans, resolution, prior_wall_prob, sen
                                coupling=prior.DEFAULT_COUPLING if coupling is None else coupling)
         return problem, f"{path.name} scan {scan}"
     chosen = parse_scans(scans, len(carmen))
+    wall_pass_prob = scenes.log_wall_pass_prob(sampler) if wall_pass_prob is None else wall_pass_prob
     problem = log_problem(carmen, chosen, resolution=resolution,
                           prior_wall_prob=scenes.LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
                           sensor_noise=sensor_noise, beam_model=beam_model or scenes.LOG_BEAM_MODEL,
                           range_offset=range_offset, sensor_params=sensor_params, likelihood_power=likelihood_power,
-                          geometry=scenes.LOG_GEOMETRY if geometry is None else geometry, coupling=coupling)
+                          geometry=scenes.LOG_GEOMETRY if geometry is None else geometry, coupling=coupling,
+                          wall_pass_prob=wall_pass_prob)
     return problem, f"{path.name}, {len(chosen)} scans"
 
 
@@ -825,6 +833,7 @@ def evaluate(
                                           help="prior probability that a cell is a wall"),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help=EVALUATE_RANGE_OFFSET_HELP),
     geometry: Optional[str] = typer.Option(None, "--geometry", help=GEOMETRY_HELP),
+    wall_pass_prob: Optional[float] = typer.Option(None, "--wall-pass-prob", help=PASS_HELP),
     likelihood_power: Optional[float] = typer.Option(None, "--likelihood-power", help=POWER_HELP),
     coupling: Optional[float] = typer.Option(None, "--coupling", help=COUPLING_HELP),
     run_length: Optional[float] = typer.Option(None, "--run-length", help=RUN_LENGTH_HELP),
@@ -867,7 +876,8 @@ def evaluate(
         check_problem_size(log_problem(carmen, chosen, resolution=resolution))  # the grid of all chosen scans
         scores = evaluate_log(carmen, chosen, every=every, resolution=resolution,
                               range_offset=range_offset, likelihood_power=likelihood_power,
-                              geometry=scenes.LOG_GEOMETRY if geometry is None else geometry, **mapping)
+                              geometry=scenes.LOG_GEOMETRY if geometry is None else geometry,
+                              wall_pass_prob=wall_pass_prob, **mapping)
         setup = scores["setup"]
         typer.echo(f"{log.name}: mapped {setup['train_scans']} scans, scored the {setup['test_scans']} held out "
                    f"(every {every}-th); grid {setup['grid'][0]} x {setup['grid'][1]} cells of {resolution:g} m; "
@@ -876,8 +886,8 @@ def evaluate(
 
         if likelihood_power is not None or range_offset is not None:
             raise BayesmapError("--likelihood-power and --range-offset apply to --log, not to --truth")
-        if geometry is not None:
-            raise BayesmapError("--geometry applies to --log, not to --truth")
+        if geometry is not None or wall_pass_prob is not None:
+            raise BayesmapError("--geometry and --wall-pass-prob apply to --log, not to --truth")
 
         max_range = scenes.SIMULATED_MAX_RANGE if max_range is None else max_range
         _check_truth_scene(truth, resolution, num_poses, num_angles, max_range)

@@ -53,12 +53,13 @@ from bayesmap.model.generative import (
     log_joint,
     log_joint_scans,
     make_params,
-    reading_log_likelihood,
     simulate_readings,
     simulate_scan_readings,
+    walls_log_likelihood,
 )
 from bayesmap.model.motion import MotionParams, wrap_angle
 from bayesmap.model.prior import DEFAULT_COUPLING, coupling_for_run_length, disagreeing_pairs
+from bayesmap.model.sensor import PASS_WALLS
 
 # ---------------------------------------------------------------------------------------------------------------
 # Scene defaults: every default of a scene, in one place
@@ -115,8 +116,11 @@ tutorial's. ``bayesmap slam --log`` uses the chord geometry too (:data:`SLAM_GEO
 The cross-validation (``benchmarks/map_cv.py``): every other scan of each log, every 10th of those held out, maps at
 0.1 and 0.2 m; for each log held out, the setting with the largest mean held-out AUC margin over log-odds mapping on
 the other two logs, among those whose predictive NLL is below log-odds' on both logs at both resolutions.
-Searched: power 0.01-0.3, run length 0-4 m, noise 0.05 and 0.1 m, ``z_rand`` 0.1 and 0.3. Chosen on all three
-logs: power 0.1, 2 m, 0.1 m, 0.1 (mean AUC margin +0.020; 0.003 below log-odds on CSAIL at 0.2 m)."""
+Searched: power 0.01-0.3, run length 0-4 m, noise 0.05 and 0.1 m, ``z_rand`` 0.1 and 0.3 (2026-11-22), then the
+probability that a beam passes a wall cell, 0.1, 0.3 and 0.5, with run lengths 0, 1 and 2 m at power 0.1 and noise
+0.1 m (2026-11-23). Chosen on all three logs: power 0.1, run length 1 m, noise 0.1 m, ``z_rand`` 0.1, pass
+probability 0.5 (mean AUC margin +0.030, at least +0.016 and an NLL below log-odds' on every log and resolution;
+before passable walls: power 0.1, 2 m, mean margin +0.020, 0.003 below log-odds on CSAIL at 0.2 m)."""
 
 LOG_SENSOR_NOISE = 0.1
 """Default ``sensor_noise`` of a log's map, meters: the hit component's standard deviation (a property of the laser
@@ -135,11 +139,25 @@ about which cell of a surface is the wall. Raising the likelihood to ``eta < 1``
 one (a power posterior; :func:`bayesmap.model.generative.check_likelihood_power`). Cross-validated
 (:data:`LOG_GEOMETRY`'s note)."""
 
-LOG_RUN_LENGTH = 2.0
+LOG_RUN_LENGTH = 1.0
 """Default mean run length of the structured prior of a log's map, meters (:func:`log_coupling`;
 :func:`bayesmap.model.prior.coupling_for_run_length`): the coupling whose runs of equal cells along a row are this
 long on average, at any resolution; 0 would be the independent prior. Cross-validated (:data:`LOG_GEOMETRY`'s
 note)."""
+
+LOG_WALL_PASS_PROB = 0.5
+"""Default probability that a beam passes through a wall cell of a log's map (``ModelParams.wall_pass_prob``; a
+probability of the world, the same at every resolution). Cross-validated (:data:`LOG_GEOMETRY`'s note) over 0.1,
+0.3 and 0.5; 0.5 is the largest value the model is meant for: a reading comes from the ray's first two wall cells
+or from no wall, and at 0.5 the no-wall reading already carries a quarter of the mass (``pi^2``), a third wall's
+share that the two-wall model cannot place (docs/sensor.md)."""
+
+
+def log_wall_pass_prob(sampler: str | None = None) -> float:
+    """The default ``wall_pass_prob`` of a log's map when it is mapped with ``sampler``: :data:`LOG_WALL_PASS_PROB`
+    for the cellwise sampler (``None``: the default sampler of several scans, cellwise), 0 (opaque walls) for every
+    other sampler, since only the cellwise sampler keeps the ray's second wall that a passing beam reaches."""
+    return LOG_WALL_PASS_PROB if sampler in (None, "cellwise") else 0.0
 
 # The SLAM pipeline's map model (issue 15): the settings its defaults were cross-validated with, in the chord
 # geometry with no range offset since its pose moves cast chords (issue 16; README, "Real logs and bags").
@@ -191,9 +209,10 @@ def log_coupling(resolution: float, run_length: float = LOG_RUN_LENGTH) -> float
 
 def slam_map_settings() -> dict:
     """The map model of ``bayesmap slam --log``, as keywords of :func:`log_problem`: :data:`SLAM_GEOMETRY` with no
-    range offset, :data:`SLAM_SENSOR_NOISE`, :data:`SLAM_LIKELIHOOD_POWER` and the independent prior."""
+    range offset, :data:`SLAM_SENSOR_NOISE`, :data:`SLAM_LIKELIHOOD_POWER`, the independent prior and wall cells
+    that stop every beam (its pose moves cast to the first wall only)."""
     return {"geometry": SLAM_GEOMETRY, "range_offset": 0.0, "sensor_noise": SLAM_SENSOR_NOISE,
-            "likelihood_power": SLAM_LIKELIHOOD_POWER, "coupling": 0.0}
+            "likelihood_power": SLAM_LIKELIHOOD_POWER, "coupling": 0.0, "wall_pass_prob": 0.0}
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -489,7 +508,8 @@ class Problem:
 
     def table_log_joint(self, walls) -> float:
         """``log p(walls, readings)`` from the ray-cell table: the prior's log-probability plus, per beam,
-        the sensor model's log-density of its reading at the distance of its first wall (the max distance if none).
+        the sensor model's log-density of its reading given its first wall (the max distance if none; its first two
+        walls when a beam can pass a wall cell, :func:`bayesmap.model.generative.walls_log_likelihood`).
         With a structured prior, the prior's part is :func:`bayesmap.model.prior.log_prior` (``-J`` per differing
         pair of neighbours, as the model's observed connections score). Memory and time grow with the table's pairs,
         not beams x cells."""
@@ -499,12 +519,8 @@ class Problem:
         if self.params.structured:
             prior -= float(self.params.coupling) * int(disagreeing_pairs(walls))
         dtype = jnp.result_type(float)
-        if self.params.geometry == "chord":
-            chords = jnp.asarray(self.table.first_wall_chords(walls), dtype=dtype)
-            d, exits = chords[:, 0], chords[:, 1]
-        else:
-            d, exits = jnp.asarray(self.table.first_wall_distances(walls), dtype=dtype), None
-        ll = reading_log_likelihood(jnp.asarray(self.model_ray_readings), d, self.params, exits)
+        chords = jnp.asarray(self.table.wall_chords(walls, PASS_WALLS if self.params.penetrable else 1), dtype=dtype)
+        ll = walls_log_likelihood(jnp.asarray(self.model_ray_readings), chords, self.params)
         return float(prior + float(jnp.sum(ll)))
 
     @cached_property
@@ -624,7 +640,8 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
                 sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL, margin: float = MARGIN,
                 grid: Grid | None = None, range_offset: float | None = None,
                 sensor_params: dict | None = None, likelihood_power: float | None = None,
-                geometry: str = LOG_GEOMETRY, coupling: float | None = None) -> Problem:
+                geometry: str = LOG_GEOMETRY, coupling: float | None = None,
+                wall_pass_prob: float | None = None) -> Problem:
     """Many scans of a real log at their poses: one map from all of them.
 
     The grid (``resolution`` meters per cell) covers the sensor positions and the endpoints of all beams that
@@ -650,6 +667,8 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
         coupling: the structured prior's ``J`` (nats per agreeing pair of 4-neighbours,
             :mod:`bayesmap.model.prior`); default :func:`log_coupling` at the grid's resolution (mean runs of
             :data:`LOG_RUN_LENGTH` meters); 0 is the independent prior.
+        wall_pass_prob: the probability that a beam passes through a wall cell
+            (:class:`bayesmap.model.generative.ModelParams`); default :data:`LOG_WALL_PASS_PROB`.
 
     Raises:
         BayesmapError: on bad parameters or scan indices, or a sensor position outside ``grid``.
@@ -661,7 +680,8 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
     noise = LOG_SENSOR_NOISE if sensor_noise is None else sensor_noise
     coupling = log_coupling(resolution) if coupling is None else coupling
     params = make_params(prior_wall_prob, noise, obs.num_beams, grid, max_distance=obs.max_range,
-                         beam_model=beam_model, geometry=geometry, **(sensor_params or {}), coupling=coupling)
+                         beam_model=beam_model, geometry=geometry, **(sensor_params or {}), coupling=coupling,
+                         wall_pass_prob=LOG_WALL_PASS_PROB if wall_pass_prob is None else wall_pass_prob)
     label = (f"{log.path} scans {scans[0]}..{scans[-1]} ({len(scans)})" if len(scans) > 1
              else f"{log.path} scan {scans[0]}")
     offset = 0.0 if range_offset is None else float(range_offset)
@@ -671,7 +691,8 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
     eta = check_likelihood_power(LOG_LIKELIHOOD_POWER if likelihood_power is None else likelihood_power)
     return Problem(params=params, observations=obs, poses=chosen.poses, world_angles=chosen.world_angles,
                    source=label, extra={"max_range": obs.max_range, "scans": len(scans), "range_offset": offset,
-                                         "geometry": geometry, "coupling": float(coupling)},
+                                         "geometry": geometry, "coupling": float(coupling),
+                                         "wall_pass_prob": params.wall_pass_prob},
                    range_offset=offset, likelihood_power=eta)
 
 

@@ -11,10 +11,16 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.inference import cellwise
-from bayesmap.inference.cellwise import NO_WALL, CellwiseGibbs, width_groups
+from bayesmap.inference.cellwise import CellwiseGibbs, width_groups
 from bayesmap.inference.chains import run_chain, run_chains
 from bayesmap.model.generative import make_params, prior_log_odds
-from helpers import assess_cell_differences, beam_enumeration_scene, replay_one_at_a_time, scenes
+from helpers import (
+    assess_cell_differences,
+    beam_enumeration_scene,
+    replay_one_at_a_time,
+    scenes,
+    sweeps_keep_ray_rows,
+)
 
 
 @pytest.mark.parametrize("beam_model", ["normal", "beam"])
@@ -69,16 +75,6 @@ def test_lanes_hold_each_cells_pairs_in_ray_order():
     np.testing.assert_array_equal(np.sort(seen), np.flatnonzero(counts))
 
 
-def rows_from_map(table, walls):
-    """Per ray (first position, second position) of walls along it, recomputed in plain numpy."""
-    on = np.asarray(walls).reshape(-1)[table.pair_cells] > 0
-    out = np.full((table.num_rays, 2), NO_WALL)
-    for r in range(table.num_rays):
-        pos = np.nonzero(on[table.offsets[r]:table.offsets[r + 1]])[0][:2]
-        out[r, :len(pos)] = pos
-    return out
-
-
 @pytest.mark.parametrize("beam_model, batch", [("normal", 16), ("beam", 16), ("beam", 1)])
 def test_sweeps_keep_the_ray_rows_consistent(beam_model, batch, monkeypatch):
     """After each sweep, the state's first and second wall of every ray (and their log-likelihoods) equal those
@@ -88,17 +84,7 @@ def test_sweeps_keep_the_ray_rows_consistent(beam_model, batch, monkeypatch):
     monkeypatch.setattr(cellwise, "SEARCH_BATCH", batch)
     grid, params, angles, _, y, table = scenes(beam_model, 11, num_beams=30)
     sampler = CellwiseGibbs(table, y.reshape(-1), params)
-    step = jax.jit(sampler.step)
-    state = sampler.init(jnp.asarray(np.random.default_rng(0).random(grid.shape) < 0.5, jnp.float32))
-    changed = 0
-    for k in range(15):
-        new, _ = step(jax.random.key(k), state)
-        changed += int(jnp.sum(new.walls != state.walls))
-        state = new
-        rows = np.asarray(state.ray_walls)
-        np.testing.assert_array_equal(rows[:-1, :2], rows_from_map(table, state.walls))
-        np.testing.assert_allclose(rows, np.asarray(sampler.ray_walls(state.walls)), rtol=0, atol=0)
-    assert changed > 20
+    assert sweeps_keep_ray_rows(sampler, table, grid, 2, 15) > 20
 
 
 @pytest.mark.parametrize("speculative", [8, 3])

@@ -12,13 +12,19 @@ Held-out beams (a map built without them predicts them):
   (:func:`predictive_log_density_samples`); for a map of independent wall probabilities ``q`` (log-odds mapping),
   ``p(y) = sum_k P(first wall is the k-th cell) p(y | t_k) + P(no wall) p(y | max distance)`` with
   ``P(first wall is the k-th cell) = q_k prod_{j<k} (1 - q_j)`` (:func:`predictive_log_density_independent`).
-  Both use the same sensor model, so the two maps are scored alike.
+  Both use the same sensor model, so the two maps are scored alike. When a beam can pass a wall cell
+  (``wall_pass_prob`` ``pi > 0``), a reading depends on the ray's first two walls
+  (:func:`bayesmap.model.generative.walls_log_likelihood`): with samples, each sample's first two walls
+  (:func:`predictive_log_density_walls`); with independent cells, the probabilities of no wall, of exactly one (at
+  ``k``) and of a first and second wall (:func:`predictive_log_density_independent`, ``pass_prob``).
 
 Against a floor plan: cell-wise accuracy, AUC and Brier score of the wall probabilities over the known cells
 (:func:`truth_scores`).
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -30,9 +36,9 @@ from bayesmap.geometry.raytable import RayTable, build_ray_table, check_readings
 from bayesmap.inference.driver import run_inference, run_logodds
 from bayesmap.inference.logodds import beam_hits_and_misses
 from bayesmap.io.rosmap import read_rosmap
-from bayesmap.model.generative import make_params, reading_log_likelihood
+from bayesmap.model.generative import make_params, reading_log_likelihood, walls_log_likelihood
 from bayesmap.model.prior import DEFAULT_COUPLING
-from bayesmap.model.sensor import beam_sample
+from bayesmap.model.sensor import PASS_WALLS, beam_sample
 from bayesmap.scenes import (
     LOG_BEAM_MODEL,
     LOG_GEOMETRY,
@@ -46,6 +52,7 @@ from bayesmap.scenes import (
     Observations,
     Problem,
     log_problem,
+    log_wall_pass_prob,
 )
 
 
@@ -114,11 +121,7 @@ def predictive_log_density_samples(table: RayTable, readings, samples, logpdf, c
     Raises:
         BayesmapError: on shapes that do not match.
     """
-    y = check_readings(readings, table.num_rays)
-    samples = np.asarray(samples)
-    if samples.ndim != 3 or samples.shape[1:] != table.grid.shape:
-        raise BayesmapError(f"samples must have shape (N, {table.grid.shape[0]}, {table.grid.shape[1]}), "
-                            f"got {samples.shape}")
+    y, samples = _check_samples(table, readings, samples)
     dists = np.append(table.pair_dists.astype(np.float64), table.max_distance)
     exits = np.append(table.pair_exits.astype(np.float64), table.max_distance) if chords else None
 
@@ -127,18 +130,53 @@ def predictive_log_density_samples(table: RayTable, readings, samples, logpdf, c
         args = (dists[first], exits[first]) if chords else (dists[first],)
         return np.asarray(logpdf(y, *args), dtype=np.float64)
 
-    logs = np.stack([one(s) for s in samples])
+    return _log_mean_exp(np.stack([one(s) for s in samples]))
+
+
+def _check_samples(table: RayTable, readings, samples) -> tuple[np.ndarray, np.ndarray]:
+    """``(readings (R,), samples (N, nx, ny))`` checked against ``table``."""
+    y = check_readings(readings, table.num_rays)
+    samples = np.asarray(samples)
+    if samples.ndim != 3 or samples.shape[1:] != table.grid.shape:
+        raise BayesmapError(f"samples must have shape (N, {table.grid.shape[0]}, {table.grid.shape[1]}), "
+                            f"got {samples.shape}")
+    return y, samples
+
+
+def _log_mean_exp(logs: np.ndarray) -> np.ndarray:
+    """``log mean exp`` of ``logs`` ``(N, R)`` over its first axis, without overflow."""
     top = logs.max(axis=0)
     return top + np.log(np.mean(np.exp(logs - top), axis=0))
 
 
+def predictive_log_density_walls(table: RayTable, readings, samples, params) -> np.ndarray:
+    """``(R,)`` log posterior predictive density of each beam's reading, ``log (1/N) sum_n p(y | m_n)``, under the
+    model ``params`` (a :class:`~bayesmap.model.generative.ModelParams`): each sample's first two walls per ray
+    (:meth:`~bayesmap.geometry.raytable.RayTable.wall_chords`) scored by
+    :func:`bayesmap.model.generative.walls_log_likelihood`, for any ``wall_pass_prob``. ``samples`` ``(N, nx, ny)``.
+
+    Raises:
+        BayesmapError: on shapes that do not match.
+    """
+    y, samples = _check_samples(table, readings, samples)
+    dtype = jnp.result_type(float)
+    return _log_mean_exp(np.stack([np.asarray(walls_log_likelihood(jnp.asarray(y, dtype), jnp.asarray(
+        table.wall_chords(s, PASS_WALLS), dtype), params), dtype=np.float64) for s in samples]))
+
+
 def predictive_log_density_independent(table: RayTable, readings, prob, logpdf, chunk: int = 1 << 22,
-                                      chords: bool = False) -> np.ndarray:
+                                      chords: bool = False, pass_prob: float = 0.0) -> np.ndarray:
     """``(R,)`` log predictive density of each beam's reading when cells are walls independently with probability
     ``prob`` ``(nx, ny)``: ``log(sum_k q_k prod_{j<k}(1 - q_j) p(y | t_k) + prod_j (1 - q_j) p(y | max))`` over the
     ray's cells ``k`` in order (see the module docstring). ``logpdf`` and ``chords`` as in
     :func:`predictive_log_density_samples`. Computed in log space over the table's pairs, ``chunk`` rays' pairs at a
     time.
+
+    With ``pass_prob`` ``pi > 0`` (a beam passes a wall cell with probability ``pi``; ``logpdf`` the sensor model at
+    one wall) the reading depends on the first two walls: ``p(y) = (1 - pi) sum_k P(first = k) p(y | t_k) +
+    pi (1 - pi) sum_l P(second = l) p(y | t_l) + (P(none) + pi P(one) + pi^2 P(two or more)) p(y | max)``, with
+    ``P(second = l) = q_l prod_{j<l} (1 - q_j) sum_{k<l} q_k / (1 - q_k)`` and ``P(one) = P(none) sum_k q_k / (1 -
+    q_k)``; there ``q`` is capped at ``1 - 1e-9`` (log-odds maps are clamped far below it).
 
     Raises:
         BayesmapError: on shapes that do not match, or probabilities outside [0, 1].
@@ -149,6 +187,8 @@ def predictive_log_density_independent(table: RayTable, readings, prob, logpdf, 
         raise BayesmapError(f"wall probabilities have shape {q.shape}, the grid is {table.grid.shape}")
     if not np.all((q >= 0) & (q <= 1)):
         raise BayesmapError("wall probabilities must lie in [0, 1]")
+    if pass_prob > 0:
+        return _independent_passable(table, y, q, logpdf, chords, float(pass_prob))
     qp = q.reshape(-1)[table.pair_cells]
     rays = table.pair_rays
     starts, ends = table.offsets[:-1], table.offsets[1:]
@@ -185,6 +225,46 @@ def predictive_log_density_independent(table: RayTable, readings, prob, logpdf, 
         return top + np.log(total)
 
 
+def _independent_passable(table: RayTable, y, q, logpdf, chords: bool, pi: float) -> np.ndarray:
+    """:func:`predictive_log_density_independent` with ``pass_prob`` ``pi > 0`` (its docstring's formula)."""
+    qp = np.minimum(q.reshape(-1)[table.pair_cells], 1.0 - 1e-9)
+    rays = table.pair_rays
+    starts = table.offsets[:-1]
+    log_free = np.log1p(-qp)
+    with np.errstate(divide="ignore"):
+        log_q = np.log(qp)
+    odds = qp / (1.0 - qp)
+
+    def exclusive_sum(values):  # per pair, the sum of values over the earlier pairs of its ray
+        csum = np.cumsum(values)
+        return csum - values - np.where(starts > 0, csum[np.maximum(starts - 1, 0)], 0.0)[rays]
+
+    before_free = exclusive_sum(log_free)  # log prod_{j<k} (1 - q_j)
+    before_odds = exclusive_sum(odds)  # sum_{j<k} q_j / (1 - q_j)
+    pair_args = (table.pair_dists.astype(np.float64),) + ((table.pair_exits.astype(np.float64),) if chords else ())
+    log_ll = np.asarray(logpdf(y[rays], *pair_args), dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        first = np.log1p(-pi) + log_q + before_free + log_ll
+        second = np.log(pi) + np.log1p(-pi) + log_q + before_free + np.log(before_odds) + log_ll
+    all_free = np.zeros(table.num_rays)
+    np.add.at(all_free, rays, log_free)
+    total_odds = np.zeros(table.num_rays)
+    np.add.at(total_odds, rays, odds)
+    p_none = np.exp(all_free)
+    p_one = p_none * total_odds
+    no_wall_weight = p_none + pi * p_one + pi**2 * np.maximum(1.0 - p_none - p_one, 0.0)
+    no_wall = (np.full(table.num_rays, table.max_distance),) * (2 if chords else 1)
+    with np.errstate(divide="ignore"):
+        none_term = np.log(no_wall_weight) + np.asarray(logpdf(y, *no_wall), dtype=np.float64)
+    top = none_term.copy()
+    np.maximum.at(top, rays, np.maximum(first, second))
+    top = np.where(np.isfinite(top), top, 0.0)
+    total = np.exp(none_term - top)
+    np.add.at(total, rays, np.exp(first - top[rays]) + np.exp(second - top[rays]))
+    with np.errstate(divide="ignore"):
+        return top + np.log(total)
+
+
 def truth_scores(prob, truth, known=None) -> dict[str, float]:
     """Cell-wise scores of wall probabilities ``prob`` ``(nx, ny)`` against a floor plan ``truth`` ``(nx, ny)``
     (0/1) over the ``known`` cells (``(nx, ny)`` bool; default all): ``{"accuracy", "auc", "brier", "cells"}``
@@ -209,8 +289,11 @@ def truth_scores(prob, truth, known=None) -> dict[str, float]:
 
 
 def sensor_logpdf(params):
-    """``logpdf(y, d)`` (``logpdf(y, a, b)`` in the chord geometry) of the problem's sensor model, numpy in and out
-    (:func:`bayesmap.model.generative.reading_log_likelihood`)."""
+    """``logpdf(y, d)`` (``logpdf(y, a, b)`` in the chord geometry) of the problem's sensor model at one wall, numpy
+    in and out (:func:`bayesmap.model.generative.reading_log_likelihood`; a beam passing wall cells is the caller's
+    mixture)."""
+
+    params = dataclasses.replace(params, wall_pass_prob=0.0)  # one wall's density (the mixture is the caller's)
 
     def logpdf(y, d, exits=None):
         return np.asarray(reading_log_likelihood(np.asarray(y), np.asarray(d), params,
@@ -241,9 +324,13 @@ def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, f
     for name, (prob, samples) in maps.items():
         if samples is not None and len(samples):
             keep = samples[np.unique(np.linspace(0, len(samples) - 1, min(max_samples, len(samples))).astype(int))]
-            logp = predictive_log_density_samples(table, y_model, keep, logpdf, chords=chords)
+            if test.params.penetrable:
+                logp = predictive_log_density_walls(table, y_model, keep, test.params)
+            else:
+                logp = predictive_log_density_samples(table, y_model, keep, logpdf, chords=chords)
         else:
-            logp = predictive_log_density_independent(table, y_model, prob, logpdf, chords=chords)
+            logp = predictive_log_density_independent(table, y_model, prob, logpdf, chords=chords,
+                                                      pass_prob=test.params.wall_pass_prob)
         out[name] = {"auc": _auc(table, (hit, miss), prob), "nll": float(-np.mean(logp)),
                      "beams": int(table.num_rays), "positives": int(hit.sum()), "negatives": int(miss.sum())}
     return out
@@ -254,13 +341,14 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
                  sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL, progress: bool = True,
                  range_offset: float | None = None, sensor_params: dict | None = None,
                  likelihood_power: float | None = None, geometry: str = LOG_GEOMETRY,
-                 coupling: float | None = None) -> dict:
+                 coupling: float | None = None, wall_pass_prob: float | None = None) -> dict:
     """Held-out evaluation on a log: hold out every ``every``-th of the chosen scans, map the rest with bayesmap
     (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
     held-out beams (see the module docstring). ``sensor_noise``, ``range_offset``, ``sensor_params``,
-    ``likelihood_power``, ``geometry`` and ``coupling`` (the structured prior's; None: the log default at
-    ``resolution``): see :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses the measured ranges); the
-    other defaults are the scene defaults of :mod:`bayesmap.scenes`.
+    ``likelihood_power``, ``geometry``, ``coupling`` (the structured prior's; None: the log default at
+    ``resolution``) and ``wall_pass_prob`` (None: :func:`bayesmap.scenes.log_wall_pass_prob` of ``sampler``): see
+    :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses the measured ranges); the other defaults are
+    the scene defaults of :mod:`bayesmap.scenes`.
 
     Returns:
         ``{"bayesmap": {...}, "logodds": {...}, "setup": {...}}`` (JSON-serializable).
@@ -274,10 +362,12 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
     scans = np.arange(len(log)) if scans is None else np.asarray(scans)
     train_pos, test_pos = heldout_split(len(scans), every)
     train, test = scans[train_pos], scans[test_pos]
+    wall_pass_prob = log_wall_pass_prob(sampler) if wall_pass_prob is None else wall_pass_prob
     grid = log_problem(log, scans, resolution=resolution).grid  # covers all chosen scans, held-out ones too
     kwargs = dict(resolution=resolution, prior_wall_prob=prior_wall_prob, sensor_noise=sensor_noise,
                   beam_model=beam_model, grid=grid, range_offset=range_offset, sensor_params=sensor_params,
-                  likelihood_power=likelihood_power, geometry=geometry, coupling=coupling)
+                  likelihood_power=likelihood_power, geometry=geometry, coupling=coupling,
+                  wall_pass_prob=wall_pass_prob)
     train_problem = log_problem(log, train, **kwargs)
     test_problem = log_problem(log, test, **kwargs)
     start = time.perf_counter()
@@ -296,6 +386,7 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
         "range_offset": float(train_problem.range_offset), "likelihood_power": float(train_problem.likelihood_power),
         "geometry": geometry,
         "coupling": float(train_problem.params.coupling),
+        "wall_pass_prob": float(train_problem.params.wall_pass_prob),
     }
     return scores
 

@@ -138,16 +138,32 @@ def first_hit_chords(walls, pos, beam_angles, grid: Grid, max_distance: float):
         ``(K, 2)`` entry and exit distances in meters, JAX's default float dtype; column 0 equals
         :func:`first_hit_distances`. Never raises.
     """
+    return wall_hit_chords(walls, pos, beam_angles, grid, max_distance, 1)[:, 0]
+
+
+def wall_hit_chords(walls, pos, beam_angles, grid: Grid, max_distance: float, count: int):
+    """The chords of each beam through its first ``count`` wall cells, in order along the beam (the first as in
+    :func:`first_hit_chords`, the next the wall with the smallest entry distance among the rest, ties again by flat
+    index: the ray-cell table's order). A wall that does not exist within ``max_distance`` gets entry = exit =
+    ``max_distance``. The other arguments are those of :func:`first_hit_distances`; ``count`` >= 1 (static).
+
+    Returns:
+        ``(K, count, 2)`` entry and exit distances in meters, JAX's default float dtype. Never raises.
+    """
     p, cells, is_wall = _ray_setup(walls, pos, grid)
     max_cells = max_distance / grid.resolution
 
     def one_ray(angle):
         u = unit_dir(angle)
         distances = jnp.where(is_wall, cell_hit_distance(p, u[None, :], cells), jnp.inf)
-        first = jnp.argmin(distances)  # the first of equal minima: the smallest flat index
-        entry = jnp.minimum(distances[first], max_cells)
-        exit_ = cell_exit_distance(p, u, cells[first].astype(p.dtype))
-        return jnp.stack([entry, jnp.clip(exit_, entry, max_cells)])
+        out = []
+        for _ in range(count):
+            k = jnp.argmin(distances)  # the first of equal minima: the smallest flat index
+            entry = jnp.minimum(distances[k], max_cells)
+            exit_ = cell_exit_distance(p, u, cells[k].astype(p.dtype))
+            out.append(jnp.stack([entry, jnp.clip(exit_, entry, max_cells)]))
+            distances = distances.at[k].set(jnp.inf)
+        return jnp.stack(out)
 
     return jax.vmap(one_ray)(beam_angles) * grid.resolution
 

@@ -140,13 +140,23 @@ class RayTable:
         """``(R, 2)`` entry and exit distance (meters) of each ray's first wall cell, both the max distance for a ray
         with no wall: :func:`~bayesmap.geometry.raycast.first_hit_chords` from the table (column 0 is
         :meth:`first_wall_distances`; the exit is :attr:`pair_exits` of the first wall pair)."""
+        return self.wall_chords(walls, 1)[:, 0]
+
+    def wall_chords(self, walls, count: int) -> np.ndarray:
+        """``(R, count, 2)`` entry and exit distances (meters) of each ray's first ``count`` wall cells in order
+        along it, both the max distance for a wall the ray does not have:
+        :func:`~bayesmap.geometry.raycast.wall_hit_chords` from the table."""
         is_wall = np.asarray(walls).reshape(-1)[self.pair_cells] > 0
-        first = np.full(self.num_rays, self.num_pairs, dtype=np.int64)
-        wall_pairs = np.flatnonzero(is_wall)
-        np.minimum.at(first, self.pair_rays[wall_pairs], wall_pairs)
         entry = np.append(self.pair_dists, self.max_distance).astype(self.pair_dists.dtype)
         exit_ = np.append(self.pair_exits, self.max_distance).astype(self.pair_dists.dtype)
-        return np.stack([entry[first], exit_[first]], axis=-1)
+        out = []
+        for _ in range(count):
+            first = np.full(self.num_rays, self.num_pairs, dtype=np.int64)
+            wall_pairs = np.flatnonzero(is_wall)
+            np.minimum.at(first, self.pair_rays[wall_pairs], wall_pairs)
+            out.append(np.stack([entry[first], exit_[first]], axis=-1))
+            is_wall[first[first < self.num_pairs]] = False
+        return np.stack(out, axis=1)
 
     def ray(self, r: int) -> tuple[np.ndarray, np.ndarray]:
         """Cells ``(n,)`` int32 and stopping distances ``(n,)`` (meters) of ray ``r``, in order along the ray."""

@@ -40,6 +40,16 @@ conditional involves only its neighbours: each is drawn from its exact condition
 are those of the one-cell-at-a-time sweep in this order. With ``J = 0`` nothing changes: the same order, lanes and
 draws as without the structured prior.
 
+Wall cells a beam can pass (``params.wall_pass_prob`` ``pi > 0``; :mod:`bayesmap.model.generative`): a reading
+depends on its ray's first two walls, ``log p(y) = log((1 - pi) p(y | w1) + pi (1 - pi) p(y | w2) + pi^2 p(y | none))``
+(:func:`bayesmap.model.sensor.pass_mixture`). A cell's term for a ray compares this mixture with the cell a wall and
+free: with the cell before the ray's first wall, ``(cell, w1)`` against ``(w1, w2)``; the cell the first wall,
+``(w1, w2)`` against ``(w2, w3)``; between the first and second, ``(w1, cell)`` against ``(w1, w2)``; the second
+wall, ``(w1, w2)`` against ``(w1, w3)``; behind the second wall, nothing. So the rows keep each ray's first *three*
+walls; setting a cell changes a row if it lies before the ray's third wall, clearing it if it is one of the three.
+The mixture is tempered as a whole: the rows hold untempered log-likelihoods and each term is multiplied by the
+likelihood power (a mixture's log is not the sum of its components' logs).
+
 Posterior marginals: each update draws its cell from ``p(cell | rest)``; each sweep reports these probabilities in
 its ``info`` (:attr:`bayesmap.inference.base.GibbsInfo.wall_prob`: the prior for cells no ray crosses), and the
 mean of these conditional probabilities over kept sweeps estimates the marginal ``P(cell is a wall | readings)``
@@ -77,6 +87,7 @@ from bayesmap.model.likelihood import (
     tempered,
 )
 from bayesmap.model.prior import neighbour_field, neighbour_indices
+from bayesmap.model.sensor import pass_log_weights
 
 NO_WALL = float(1 << 22)  # "no such wall": a position beyond every ray (exact in float32)
 SEARCH_CHUNK = 32  # cells read per step of the walk along a ray to its next wall
@@ -94,6 +105,9 @@ class CellwiseState(NamedTuple):
         ray_walls: ``(R + 1, 4)`` float (kernel dtype): per ray, the position along the ray (0 = the cell closest to
             the sensor) of its first and of its second wall (:data:`NO_WALL` if there is none), then ``log p(y_r | d)``
             at each (at the max distance for :data:`NO_WALL`). The last row belongs to no ray (read by padding lanes).
+            When a beam can pass a wall cell (``params.wall_pass_prob > 0``), ``(R + 1, 12)``: the positions of the
+            first, second and third wall, ``log p(y_r | d)`` (untempered) at each, ``log p(y_r | no wall)``, and five
+            mixtures of these that do not depend on the cell scored (:meth:`CellwiseKernel._ray_mixtures`).
     """
 
     walls: jax.Array
@@ -206,11 +220,13 @@ class CellwiseKernel(KernelFields):
     """The sweep's data (pytree leaves) and code; built by :class:`CellwiseGibbs`. Problems with the same geometry
     and sensor model (other readings, prior, noise, mixture weights, coupling) share one compiled sweep.
     ``_coupling`` is the structured prior's ``J`` (a scalar array), None for the independent prior; ``_free_cells``
-    the cells no ray crosses (int32, ascending), None for the independent prior."""
+    the cells no ray crosses (int32, ascending), None for the independent prior. With wall cells a beam can pass
+    (``_penetrable``), ``_eta`` is the likelihood power and ``_pass_weights`` the ``(3,)`` log-weights of
+    :func:`bayesmap.model.sensor.pass_log_weights` (both None otherwise: the tables are tempered already)."""
 
     _ARRAYS = ("_lanes", "_free", "_rank", "_pair_cells", "_pair_ll", "_ray_start", "_ray_length", "_max_ll",
-               "_prior_log_odds", "_coupling", "_free_cells")
-    _STATIC = ("_shape", "_num_rays", "_num_pairs")
+               "_prior_log_odds", "_coupling", "_free_cells", "_eta", "_pass_weights")
+    _STATIC = ("_shape", "_num_rays", "_num_pairs", "_penetrable")
 
     # -- the per-ray rows ---------------------------------------------------------------------------------------
 
@@ -240,12 +256,19 @@ class CellwiseKernel(KernelFields):
         def position(wall):  # a ray's wall (pair index) as its position along the ray, NO_WALL if not on the ray
             return jnp.where(wall < end, (wall - start).astype(dtype), NO_WALL)
 
-        first = next_wall[start]
-        second = next_wall[jnp.minimum(first + 1, num_pairs)]
-        first, second = position(first), position(second)
+        walls_at = [next_wall[start]]
+        for _ in range(2 if self._penetrable else 1):  # the second (and third) wall: the next after the one before
+            walls_at.append(next_wall[jnp.minimum(walls_at[-1] + 1, num_pairs)])
+        positions = [position(w) for w in walls_at]
         rays = jnp.arange(self._num_rays + 1, dtype=jnp.int32)
-        rows = jnp.stack([first, second, self._pair_log_lik(rays, first), self._pair_log_lik(rays, second)], axis=1)
-        return rows.at[self._num_rays].set(jnp.array([-1.0, -1.0, 0.0, 0.0], dtype))  # the padding lanes' row
+        columns = positions + [self._pair_log_lik(rays, p) for p in positions]
+        padding = [-1.0] * len(positions) + [0.0] * len(positions)
+        if self._penetrable:  # log p(y | no wall) and the mixtures that do not depend on the cell scored
+            none = self._max_ll[rays]
+            columns += [none] + self._ray_mixtures(*columns[3:6], none)
+            padding += [0.0] * 6
+        rows = jnp.stack(columns, axis=1)
+        return rows.at[self._num_rays].set(jnp.array(padding, dtype))  # the padding lanes' row
 
     def init(self, walls) -> CellwiseState:
         """State for the map ``walls`` ``(nx, ny)``."""
@@ -254,18 +277,51 @@ class CellwiseKernel(KernelFields):
 
     # -- the sweep ---------------------------------------------------------------------------------------------
 
-    @staticmethod
-    def _score(rows, positions, log_lik):
+    def _score(self, rows, positions, log_lik):
         """Over the last axis (a cell's lanes): the sum of ``log p(y | d1) - log p(y | d0)`` (see the module
         docstring), and whether setting the cell to 1 / to 0 would change a row (a ray's first or second wall):
-        some lane lies before the ray's second wall / the cell is a ray's first or second wall. Padding lanes (row
-        ``(-1, -1, 0, 0)``, position 0) add nothing. One pass (a variadic reduction) over the lanes and their rows."""
-        first, second, ll_first, ll_second = rows[..., 0], rows[..., 1], rows[..., 2], rows[..., 3]
+        some lane lies before the ray's second wall / the cell is a ray's first or second wall (with wall cells a
+        beam can pass, the first three walls: :meth:`_pass_terms`). Padding lanes (row ``(-1, ..., 0, ...)``,
+        position 0) add nothing. One pass (a variadic reduction) over the lanes and their rows."""
         q = positions.astype(rows.dtype)
-        term = jnp.where(q < first, log_lik - ll_first, jnp.where(q == first, log_lik - ll_second, 0.0))
+        if self._penetrable:
+            term, can_add, can_remove = self._pass_terms(rows, q, log_lik)
+        else:
+            first, second, ll_first, ll_second = rows[..., 0], rows[..., 1], rows[..., 2], rows[..., 3]
+            term = jnp.where(q < first, log_lik - ll_first, jnp.where(q == first, log_lik - ll_second, 0.0))
+            can_add, can_remove = q < second, (q == first) | (q == second)
         zero = jnp.zeros((), term.dtype)
-        return jax.lax.reduce((term, q < second, (q == first) | (q == second)), (zero, False, False),
+        return jax.lax.reduce((term, can_add, can_remove), (zero, False, False),
                               lambda x, y: (x[0] + y[0], x[1] | y[1], x[2] | y[2]), (term.ndim - 1,))
+
+    def _ray_mixtures(self, ll_first, ll_second, ll_third, ll_none):
+        """The per-ray columns 7-11 of a row with passable walls: ``log p(y)`` with first and second walls (1, 2),
+        (2, 3) and (1, 3), and ``log(w1 p(y | 1) + w2 p(y | none))``, ``log(w0 p(y | 1) + w2 p(y | none))`` (``w``
+        the weights of :func:`bayesmap.model.sensor.pass_log_weights`): with them a lane's term needs one
+        ``logaddexp`` (:meth:`_pass_terms`). A list of arrays shaped like the arguments."""
+        w = self._pass_weights
+
+        def mix(a, b):  # log p(y) with first wall a and second wall b (log-likelihoods)
+            return jnp.logaddexp(jnp.logaddexp(w[0] + a, w[1] + b), w[2] + ll_none)
+
+        return [mix(ll_first, ll_second), mix(ll_second, ll_third), mix(ll_first, ll_third),
+                jnp.logaddexp(w[1] + ll_first, w[2] + ll_none), jnp.logaddexp(w[0] + ll_first, w[2] + ll_none)]
+
+    def _pass_terms(self, rows, q, log_lik):
+        """Per lane, with wall cells a beam can pass: the tempered term of the module docstring (the mixture with
+        the cell a wall minus with it free) and whether setting / clearing the cell changes the row (it lies before
+        the third wall / it is one of the first three). The mixtures that do not involve the cell are the row's
+        (:meth:`_ray_mixtures`); one ``logaddexp`` per lane adds the cell as the first or the second wall."""
+        first, second, third = rows[..., 0], rows[..., 1], rows[..., 2]
+        m12, m23, m13, rest_second, rest_first = (rows[..., c] for c in range(7, 12))
+        w = self._pass_weights
+        before, at_first, at_second = q < first, q == first, q == second
+        # the cell a wall: the first (before the first wall) or the second (between the first and second)
+        a, b = jnp.where(before, w[0], w[1]) + log_lik, jnp.where(before, rest_second, rest_first)
+        wall = jnp.maximum(a, b) + jnp.log1p(jnp.exp(-jnp.abs(a - b)))  # logaddexp of finite numbers
+        term = jnp.where(before | (q < second) & ~at_first, wall - m12,
+                         jnp.where(at_first, m12 - m23, jnp.where(at_second, m12 - m13, 0.0)))
+        return self._eta * term, q < third, at_first | at_second | (q == third)
 
     def _walk(self, rays, after, need, cur):
         """Position of the first wall of each ray beyond position ``after`` (:data:`NO_WALL` if none), for the lanes
@@ -301,27 +357,47 @@ class CellwiseKernel(KernelFields):
         width = rays.shape[0]
         batch = min(width, SEARCH_BATCH)
         q = positions.astype(rows.dtype)
-        first, second = rows[:, 0], rows[:, 1]
-        # the rays whose first or second wall changes (none for a cell behind every ray's second wall)
-        changed = (rays < self._num_rays) & jnp.where(new, (q < second) & (q != first), (q == first) | (q == second))
+        kept = 3 if self._penetrable else 2  # walls a row keeps
+        walls_at = [rows[:, c] for c in range(kept)]
+        # the rays whose first or second (with passable walls: or third) wall changes (none for a cell behind every
+        # ray's last kept wall)
+        is_kept = jnp.any(jnp.stack([q == w for w in walls_at]), axis=0)
+        changed = (rays < self._num_rays) & jnp.where(new, (q < walls_at[-1]) & ~is_kept, is_kept)
         lane_ids = jnp.arange(width, dtype=jnp.int32)
         rank = jnp.where(changed, (width - lane_ids).astype(jnp.float32), 0.0)  # largest for the first changed lane
         lane_data = jnp.concatenate([rows, q[:, None], log_lik[:, None]], axis=1)  # one gather per batch
 
         def new_rows(r, data, ok):
-            f, s, lf, ls, p, ll = (data[:, c] for c in range(6))
+            at, ll_at = data[:, :kept], data[:, kept:2 * kept]  # the kept walls' positions and log-likelihoods
+            p, ll = data[:, -2], data[:, -1]
 
-            def added():
-                b = p < f
-                return jnp.stack([jnp.where(b, p, f), jnp.where(b, f, p), jnp.where(b, ll, lf), jnp.where(b, lf, ll)],
-                                 axis=1)
+            def added():  # the cell joins the kept walls in order; the last one drops out
+                pos, lls = [], []
+                for c in range(kept):
+                    before = p < at[:, c]
+                    prev = p < at[:, c - 1] if c else jnp.zeros_like(before)
+                    pos.append(jnp.where(prev, at[:, c - 1] if c else p, jnp.where(before, p, at[:, c])))
+                    lls.append(jnp.where(prev, ll_at[:, c - 1] if c else ll, jnp.where(before, ll, ll_at[:, c])))
+                return row(pos, lls, data)
 
-            def removed():  # the ray's new second wall is its next wall after the old second one
-                nxt = self._walk(r, s, ok, cur)
-                a = p == f
-                return jnp.stack([jnp.where(a, s, f), nxt, jnp.where(a, ls, lf), self._pair_log_lik(r, nxt)], axis=1)
+            def removed():  # the walls after the cell move up one; the new last is the next wall after the old last
+                nxt = self._walk(r, at[:, -1], ok, cur)
+                nxt_ll = self._pair_log_lik(r, nxt)
+                pos, lls = [], []
+                for c in range(kept):
+                    gone = p <= at[:, c]  # the cell is this wall or one before it: shift up
+                    up, up_ll = (at[:, c + 1], ll_at[:, c + 1]) if c + 1 < kept else (nxt, nxt_ll)
+                    pos.append(jnp.where(gone, up, at[:, c]))
+                    lls.append(jnp.where(gone, up_ll, ll_at[:, c]))
+                return row(pos, lls, data)
 
             return jax.lax.cond(new, added, removed)
+
+        def row(pos, lls, data):  # a row from its walls' positions and log-likelihoods (and the no-wall one, kept)
+            if not self._penetrable:
+                return jnp.stack(pos + lls, axis=1)
+            none = data[:, 2 * kept]
+            return jnp.stack(pos + lls + [none] + self._ray_mixtures(*lls, none), axis=1)
 
         def one_batch(_, carry):
             done, rows_all = carry  # done: the last lane rewritten
@@ -450,8 +526,8 @@ class CellwiseGibbs(KernelSampler):
         params: model parameters (``prior_wall_prob``, the structured prior's ``coupling`` and the sensor model; for
             ``"beam"`` the table's max distance must be the model's max range ``params.max_range``).
         likelihood_power: ``eta`` in (0, 1]: sample ``p(walls) p(readings | walls) ** eta``
-            (every log-likelihood the sweep looks up times ``eta``: :func:`bayesmap.model.likelihood.tempered`); 1, the
-            posterior, by default.
+            (every log-likelihood the sweep looks up times ``eta``: :func:`bayesmap.model.likelihood.tempered`; with
+            ``params.wall_pass_prob > 0`` every beam's mixture times ``eta``); 1, the posterior, by default.
 
     Attributes:
         kernel: the :class:`CellwiseKernel`.
@@ -464,13 +540,14 @@ class CellwiseGibbs(KernelSampler):
     """
 
     def __init__(self, table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0):
-        inputs = likelihood_inputs(table, readings, params, likelihood_power)
+        inputs = likelihood_inputs(table, readings, params, likelihood_power, passable=True)
         y, beam_model, sensor, dtype, eta = inputs[:5]
         num_rays, num_pairs = table.num_rays, table.num_pairs
         # dispatched first: XLA computes the log-likelihoods while numpy sorts the pairs into the lanes
         max_ll = no_wall_log_likelihoods(inputs, table.max_distance)
         pair_ll = pair_log_likelihoods(table, y, beam_model, sensor, inputs.geometry)
-        if eta != 1.0:  # every log-likelihood the sweep looks up, tempered (eta = 1 would leave them as they are)
+        penetrable = params.penetrable
+        if eta != 1.0 and not penetrable:  # every log-likelihood the sweep looks up, tempered (eta = 1 leaves them)
             pair_ll, max_ll = tempered(pair_ll, eta), tempered(max_ll, eta)
         counts = table.rays_per_cell()
         structured = params.structured
@@ -496,7 +573,9 @@ class CellwiseGibbs(KernelSampler):
             _max_ll=jnp.asarray(np.append(max_ll, 0.0), dtype),
             _prior_log_odds=jnp.asarray(prior_log_odds(params.prior_wall_prob), dtype),
             _coupling=jnp.asarray(params.coupling, dtype) if structured else None,
-            _shape=tuple(table.grid.shape), _num_rays=num_rays, _num_pairs=num_pairs)
+            _eta=jnp.asarray(eta, dtype) if penetrable else None,
+            _pass_weights=pass_log_weights(params.wall_pass_prob).astype(dtype) if penetrable else None,
+            _shape=tuple(table.grid.shape), _num_rays=num_rays, _num_pairs=num_pairs, _penetrable=penetrable)
 
     def ray_walls(self, walls) -> jax.Array:
         """See :meth:`CellwiseKernel.ray_walls`."""

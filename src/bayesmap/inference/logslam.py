@@ -120,7 +120,8 @@ def with_grid(params, grid: Grid):
     beam = {name: getattr(params, name) for name in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")}
     return make_params(params.prior_wall_prob, params.sensor_noise, params.num_angles, grid,
                        max_distance=params.max_range, beam_model=params.beam_model, geometry=params.geometry,
-                       coupling=params.coupling, neighbourhood=params.neighbourhood, **beam)
+                       coupling=params.coupling, neighbourhood=params.neighbourhood,
+                       wall_pass_prob=params.wall_pass_prob, **beam)
 
 
 def _pose_record(state, info):

@@ -12,6 +12,10 @@
   face where the beam enters the first wall cell; ``"chord"`` anywhere on the beam's chord through that cell (the
   sensor model's hit averaged over the chord, :mod:`bayesmap.model.sensor`; the readings' distribution then takes
   the entry and exit distances from :func:`bayesmap.geometry.raycast.first_hit_chords`).
+  ``params.wall_pass_prob`` ``pi`` (default 0: every wall cell stops the beam, the tutorial's model) lets a beam pass
+  through a wall cell: the reading comes from the ray's first wall cell with probability ``1 - pi``, from its second
+  with ``pi (1 - pi)``, and is read as if there were no wall with ``pi^2``
+  (:func:`bayesmap.model.sensor.pass_reading`, the two walls from :func:`bayesmap.geometry.raycast.wall_hit_chords`).
 
 :data:`full_model` is the tutorial's single scan; its arguments are ``(pos, params, beam_angles)``: the sensor
 position (world meters; the tutorial's unit cells by default), the :class:`ModelParams` and the beam angles
@@ -44,7 +48,7 @@ from genjax import Pytree
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.geometry.raycast import angles, first_hit_chords, first_hit_distances
+from bayesmap.geometry.raycast import angles, first_hit_chords, first_hit_distances, wall_hit_chords
 from bayesmap.model import motion, prior, sensor
 
 
@@ -76,6 +80,10 @@ class ModelParams(Pytree):
             field on pairs of cells sharing an edge), static; :func:`make_params` sets 4 when ``coupling > 0``. With
             4, ``prior_wall_prob`` is the conditional wall probability of a cell with as many wall as free
             neighbours, not the marginal (:mod:`bayesmap.model.prior`).
+        wall_pass_prob: the probability ``pi`` in ``[0, 1)`` that a beam passes through a wall cell it meets
+            (static); default 0, every wall cell stops the beam (the tutorial's model). With ``pi > 0`` a reading
+            comes from the ray's first wall cell, its second, or no wall (module docstring;
+            :func:`bayesmap.model.sensor.pass_reading`).
     """
 
     prior_wall_prob: float = 0.5
@@ -92,6 +100,13 @@ class ModelParams(Pytree):
     geometry: str = Pytree.static(default="entry")
     coupling: float = prior.DEFAULT_COUPLING
     neighbourhood: int = Pytree.static(default=0)
+    wall_pass_prob: float = Pytree.static(default=0.0)
+
+    @property
+    def penetrable(self) -> bool:
+        """True when a beam can pass through a wall cell (``wall_pass_prob > 0``): a reading then depends on its
+        ray's first two wall cells, not the first alone."""
+        return self.wall_pass_prob > 0
 
     @property
     def structured(self) -> bool:
@@ -152,6 +167,7 @@ def make_params(
     geometry: str = "entry",
     coupling: float = prior.DEFAULT_COUPLING,
     neighbourhood: int | None = None,
+    wall_pass_prob: float = 0.0,
 ) -> ModelParams:
     """Build :class:`ModelParams` after checking every value.
 
@@ -160,14 +176,16 @@ def make_params(
     see :mod:`bayesmap.model.sensor` (checked for either model), and the wall ``geometry`` (``"entry"`` or
     ``"chord"``); the structured prior's ``coupling`` ``J`` (nats per agreeing pair of 4-neighbours,
     :mod:`bayesmap.model.prior`) and ``neighbourhood`` (default: 4 if ``coupling > 0``, else 0, the tutorial's
-    independent prior and model).
+    independent prior and model); ``wall_pass_prob``, the probability that a beam passes through a wall cell
+    (default 0, the tutorial's: :class:`ModelParams`).
 
     Raises:
         BayesmapError: if ``prior_wall_prob`` is not in (0, 1), ``sensor_noise`` is not finite and > 0,
             ``num_angles`` is not an integer >= 1, ``max_distance`` is not finite and > 0, ``beam_model`` is
             unknown, ``geometry`` is unknown, the mixture parameters are bad
             (:func:`bayesmap.model.sensor.check_sensor_params`), the coupling is not in ``[0, MAX_COUPLING]`` or the
-            neighbourhood not 0 or 4 (0 with a coupling > 0); the message names the bad value.
+            neighbourhood not 0 or 4 (0 with a coupling > 0), or ``wall_pass_prob`` is not in ``[0, 1)``; the
+            message names the bad value.
     """
     p = float(prior_wall_prob)
     if not (0.0 < p < 1.0):
@@ -181,6 +199,7 @@ def make_params(
         raise BayesmapError(f"max_distance must be a finite number > 0 (meters), got {max_distance!r}")
     weights = sensor.check_sensor_params(beam_model, z_hit, z_short, z_max, z_rand, lambda_short)
     sensor.check_geometry(geometry)
+    wall_pass_prob = sensor.check_wall_pass_prob(wall_pass_prob)
     coupling = prior.check_coupling(coupling)
     neighbourhood = (4 if coupling > 0 else 0) if neighbourhood is None else prior.check_neighbourhood(neighbourhood)
     if coupling > 0 and neighbourhood == 0:
@@ -196,6 +215,7 @@ def make_params(
         **dict(zip(("z_hit", "z_short", "z_max", "z_rand", "lambda_short"), weights)),
         coupling=coupling,
         neighbourhood=neighbourhood,
+        wall_pass_prob=wall_pass_prob,
     )
 
 
@@ -211,7 +231,14 @@ def sensor_model_single(pos, walls, params: ModelParams, angle):
     (the tutorial's, through ``genjax.normal`` exactly as before) or the beam mixture
     :data:`bayesmap.model.sensor.beam_reading` for ``"beam"``; in the ``"chord"`` geometry the entry and exit
     distances ``(a, b)`` of the first wall cell (:func:`bayesmap.geometry.raycast.first_hit_chords`) and
-    :data:`~bayesmap.model.sensor.chord_normal_reading` or :data:`~bayesmap.model.sensor.chord_beam_reading`."""
+    :data:`~bayesmap.model.sensor.chord_normal_reading` or :data:`~bayesmap.model.sensor.chord_beam_reading`.
+    With ``params.wall_pass_prob > 0``, the chords of the first two wall cells and no wall
+    (:func:`bayesmap.geometry.raycast.wall_hit_chords`) and :func:`~bayesmap.model.sensor.pass_reading`."""
+    if params.penetrable:
+        walls2 = wall_hit_chords(walls, pos, angle[None], params.grid, params.max_range, sensor.PASS_WALLS)[0]
+        chords = jnp.concatenate([walls2, jnp.full((1, 2), params.max_range, walls2.dtype)])
+        reading = sensor.pass_reading(params.beam_model, params.geometry)
+        return reading(chords, params.wall_pass_prob, *params.sensor_args) @ ()
     if params.geometry == "chord":
         chord = first_hit_chords(walls, pos, angle[None], params.grid, params.max_range)[0]
         reading = sensor.reading_distribution(params.beam_model, "chord")
@@ -340,8 +367,11 @@ def reading_log_likelihood(readings, distances, params: ModelParams, exit_distan
     ``exit_distances`` (meters, same shape).
 
     Raises:
-        BayesmapError: if ``params.geometry`` is ``"chord"`` and ``exit_distances`` is None.
+        BayesmapError: if ``params.geometry`` is ``"chord"`` and ``exit_distances`` is None, or if wall cells can
+            be passed (``params.wall_pass_prob > 0``: the reading depends on the second wall too; use
+            :func:`walls_log_likelihood`).
     """
+    check_opaque_walls(params, "a first-wall log-likelihood")
     if params.geometry == "chord":
         if exit_distances is None:
             raise BayesmapError("the chord geometry needs the first wall cells' exit distances")
@@ -350,6 +380,37 @@ def reading_log_likelihood(readings, distances, params: ModelParams, exit_distan
         exit_distances = None
     return sensor.reading_logpdf(params.beam_model, jnp.asarray(readings), jnp.asarray(distances), params.sensor_args,
                                  exit_distances)
+
+
+def walls_log_likelihood(readings, chords, params: ModelParams):
+    """Per-beam log-likelihood of readings ``y`` ``(...,)`` given the chords ``(..., 2, 2)`` (meters: entry and exit
+    distance) of each ray's first and second wall cell (both the max distance for a wall that does not exist), for
+    any ``params``: the first wall's :func:`reading_log_likelihood` when every wall cell stops the beam, the
+    mixture :func:`bayesmap.model.sensor.pass_mixture` over the first wall, the second and no wall when
+    ``params.wall_pass_prob > 0`` (what the model's ``assess`` scores per beam). The entry geometry ignores the
+    exits. Never raises for matching shapes."""
+    y, chords = jnp.asarray(readings), jnp.asarray(chords)
+    exits = chords[..., 1] if params.geometry == "chord" else None
+    if not params.penetrable:
+        return reading_log_likelihood(y, chords[..., 0, 0], params, None if exits is None else exits[..., 0])
+    none = jnp.full(y.shape, params.max_range, chords.dtype)
+    parts = [sensor.reading_logpdf(params.beam_model, y, a, params.sensor_args, b)
+             for a, b in ((chords[..., 0, 0], None if exits is None else exits[..., 0]),
+                          (chords[..., 1, 0], None if exits is None else exits[..., 1]),
+                          (none, None if exits is None else none))]
+    return sensor.pass_mixture(*parts, params.wall_pass_prob)
+
+
+def check_opaque_walls(params: ModelParams, what: str) -> None:
+    """Refuse wall cells a beam can pass through where only the first wall is computed (``what`` names the caller:
+    the level-based fast samplers, the dense sweeps and the pose moves keep one wall per ray).
+
+    Raises:
+        BayesmapError: if ``params.wall_pass_prob > 0``, naming it and ``what``.
+    """
+    if params.penetrable:
+        raise BayesmapError(f"{what} supports only wall_pass_prob 0 (every wall cell stops the beam), got "
+                            f"wall_pass_prob = {params.wall_pass_prob!r}; the cellwise sampler supports it")
 
 
 def check_entry_geometry(params: ModelParams, what: str) -> None:

@@ -24,7 +24,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raytable import RayTable, check_readings
-from bayesmap.model.generative import ModelParams, check_likelihood_power
+from bayesmap.model.generative import ModelParams, check_likelihood_power, check_opaque_walls
 from bayesmap.model.sensor import (
     beam_log_density,
     beam_log_max_mass,
@@ -71,7 +71,7 @@ def check_max_range(table: RayTable, params: ModelParams) -> None:
 
 
 def likelihood_inputs(table: RayTable, readings, params: ModelParams,
-                      likelihood_power: float = 1.0) -> LikelihoodInputs:
+                      likelihood_power: float = 1.0, passable: bool = False) -> LikelihoodInputs:
     """Check a sampler's arguments and cast them for its kernel (see :class:`LikelihoodInputs`).
 
     Args:
@@ -79,11 +79,16 @@ def likelihood_inputs(table: RayTable, readings, params: ModelParams,
         readings: ``(R,)`` ranges, meters (max-range readings equal to the max distance).
         params: model parameters (the sensor model).
         likelihood_power: ``eta`` (:func:`bayesmap.model.generative.check_likelihood_power`).
+        passable: whether the sampler handles wall cells a beam can pass (``params.wall_pass_prob > 0``: each ray's
+            first two walls); the level-based samplers keep one.
 
     Raises:
         BayesmapError: on readings that do not match the table's rays (:func:`check_readings`), a bad likelihood
-            power, or a table that breaks the max-range rule (:func:`check_max_range`).
+            power, a table that breaks the max-range rule (:func:`check_max_range`), or ``params.wall_pass_prob > 0``
+            for a sampler that is not ``passable``.
     """
+    if not passable:
+        check_opaque_walls(params, "this sampler")
     y = check_readings(readings, table.num_rays)
     eta = check_likelihood_power(likelihood_power)
     check_max_range(table, params)
