@@ -318,7 +318,7 @@ class CellwiseKernel(KernelFields):
         before, at_first, at_second = q < first, q == first, q == second
         # the cell a wall: the first (before the first wall) or the second (between the first and second)
         a, b = jnp.where(before, w[0], w[1]) + log_lik, jnp.where(before, rest_second, rest_first)
-        wall = jnp.maximum(a, b) + jnp.log1p(jnp.exp(-jnp.abs(a - b)))  # logaddexp of finite numbers
+        wall = jnp.logaddexp(a, b)
         term = jnp.where(before | (q < second) & ~at_first, wall - m12,
                          jnp.where(at_first, m12 - m23, jnp.where(at_second, m12 - m13, 0.0)))
         return self._eta * term, q < third, at_first | at_second | (q == third)
