@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from bayesmap.inference.logslam import GRAPH_COV_SCALE, POSE_SWEEPS
+from bayesmap import scenes
+from bayesmap.inference.logslam import FINAL_MAP_SWEEPS, GRAPH_COV_SCALE, POSE_SWEEPS
 from bayesmap.inference.posegraph import SEQUENTIAL_STD
 from bayesmap.io.carmen import read_carmen
 from bayesmap.io.rosbag import read_bag
@@ -64,6 +65,12 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     settings = summary["settings"]
     assert summary["num_scans"] == 25 and settings["sweeps"] == 2 and settings["burn_in"] == 0 and settings["seed"] == 3
     assert settings["geometry"] == "chord" and settings["range_offset_m"] == 0.0  # no offset in any default
+    # posterior.npy is the final map at the mean path, in the map model of a log at known poses (log_problem's)
+    final, known = settings["final_map"], scenes.log_problem(read_carmen(aces_odom), np.arange(25), resolution=0.2)
+    assert final["sweeps"] == FINAL_MAP_SWEEPS and final["geometry"] == "chord"
+    for name in ("sensor_noise", "coupling", "wall_pass_prob"):
+        assert final[name] == pytest.approx(float(getattr(known.params, name))) and final[name] > 0, name
+    assert final["likelihood_power"] == known.likelihood_power
     assert summary["pose_samples"] == len(samples) and 0 <= summary["acceptance_rate"] <= 1
     # the pose graph's spread is in the covariances: 25 scans close no loop (LOOP_GAP), so the graph is a chain of
     # sequential edges and pose k's (x, y) block has trace at least 2 k SEQUENTIAL_STD[0]^2 (heading errors add)

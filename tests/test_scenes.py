@@ -120,6 +120,24 @@ def test_slam_problem_keeps_the_slam_map_model(small_log):
     assert given.range_offset == 0.1 and given.likelihood_power == 1.0 and given.params.sensor_noise == 0.02
 
 
+def test_slam_problem_final_map_is_the_log_map_model(small_log):
+    """The final map of ``slam --log`` (run_log_slam's stage 6) is drawn in exactly the map model ``infer --log``
+    uses at known poses (log_problem's defaults), on the SLAM problem's grid and beam model."""
+    from bayesmap import scenes
+    from bayesmap.io.carmen import read_carmen
+
+    log = read_carmen(small_log)
+    for resolution in (0.1, 0.2):
+        slam = scenes.log_slam_problem(log, resolution=resolution)
+        known = scenes.log_problem(log, resolution=resolution)
+        final = slam.final_map_params
+        for name in ("sensor_noise", "coupling", "wall_pass_prob", "geometry", "neighbourhood", "prior_wall_prob",
+                     "beam_model", "z_hit", "z_short", "z_max", "z_rand", "lambda_short", "max_range"):
+            assert getattr(final, name) == pytest.approx(getattr(known.params, name)), name
+        assert final.grid == slam.params.grid and final.wall_pass_prob > 0 and final.coupling > 0
+        assert slam.final_map_power == known.likelihood_power
+
+
 def test_with_poses_moves_the_rays_and_keeps_the_observations():
     pb = room_scans("normal")
     moved = pb.poses.copy()

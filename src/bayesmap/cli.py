@@ -23,7 +23,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.heldout import evaluate_log, evaluate_truth
 from bayesmap.evaluation.trajectory import score_trajectory
 from bayesmap.inference.driver import run_inference, run_logodds
-from bayesmap.inference.logslam import BURN_IN_ROUNDS, GRAPH_COV_SCALE, ROUNDS, run_log_slam
+from bayesmap.inference.logslam import BURN_IN_ROUNDS, FINAL_MAP_SWEEPS, GRAPH_COV_SCALE, ROUNDS, run_log_slam
 from bayesmap.inference.registry import SAMPLERS
 from bayesmap.inference.slam import run_slam
 from bayesmap.inference.traces import chain_traces
@@ -784,7 +784,7 @@ def _evaluate_trajectory(log, bag, scan_topic, odom_topic, tf, max_range, truth_
                                 f"strictly): {err}") from None
         setup["run"] = str(run)
     else:
-        _, result, chosen, settings = _log_slam(carmen, path, scans, resolution, sweeps, None, seed)
+        _, result, chosen, settings = _log_slam(carmen, path, scans, resolution, sweeps, None, seed, final_map=False)
         stamps, mean, cov = log_stamps[chosen], result.mean_path, result.pose_cov
         setup.update(settings=settings, runtime_s=result.runtime_s, acceptance_rate=result.acceptance_rate)
     truth, paired = truth_of_scans(truth_stamps, truth_poses, chosen, stamps, len(carmen), name=str(truth_path))
@@ -986,16 +986,17 @@ def _check_slam_size(problem) -> None:
 
 
 def _log_slam(carmen, path: Path, scans: Optional[str], resolution: Optional[float], sweeps: Optional[int],
-              burn_in: Optional[int], seed: int):
-    """Run ``run_log_slam`` on the ``scans`` of a log (with a progress bar): ``(problem, result, chosen scan indices,
-    settings)``."""
+              burn_in: Optional[int], seed: int, final_map: bool = True):
+    """Run ``run_log_slam`` on the ``scans`` of a log (with a progress bar; without ``final_map``, no final map,
+    for scoring the path alone): ``(problem, result, chosen scan indices, settings)``."""
     chosen = parse_scans(scans, len(carmen))
     resolution = scenes.RESOLUTION if resolution is None else resolution
     sweeps, burn_in = _slam_counts(sweeps, burn_in, LOG_SLAM_DEFAULTS)
     problem = scenes.log_slam_problem(carmen, chosen, resolution=resolution)
     _check_slam_size(problem)
     typer.echo(f"bayesmap slam: {path.name}, {len(chosen)} scans, {sweeps} sweeps ...", err=True)
-    result = run_log_slam(problem, rounds=sweeps, burn_in=burn_in, seed=seed, progress=True)
+    result = run_log_slam(problem, rounds=sweeps, burn_in=burn_in, seed=seed, progress=True,
+                          final_map_sweeps=FINAL_MAP_SWEEPS if final_map else 0)
     p = problem.params
     settings = {"scans": scans if scans is not None else "all", "resolution": resolution, "sweeps": sweeps,
                 "burn_in": burn_in, "seed": seed, "prior_wall_prob": float(p.prior_wall_prob),
@@ -1005,6 +1006,12 @@ def _log_slam(carmen, path: Path, scans: Optional[str], resolution: Optional[flo
                 "motion": {name: float(getattr(problem.motion, name))
                            for name in ("a1", "a2", "a3", "a4", "floor_xy", "floor_theta")},
                 "graph_cov_scale": GRAPH_COV_SCALE}
+    final = problem.final_map_params
+    if result.chain_posterior is not None:  # posterior.npy is the final map at the mean path (run_log_slam stage 6)
+        settings["final_map"] = {"sweeps": FINAL_MAP_SWEEPS, "burn_in": FINAL_MAP_SWEEPS // 2,
+                                 "sensor_noise": float(final.sensor_noise), "geometry": final.geometry,
+                                 "coupling": float(final.coupling), "wall_pass_prob": float(final.wall_pass_prob),
+                                 "likelihood_power": float(problem.final_map_power)}
     return problem, result, chosen, settings
 
 

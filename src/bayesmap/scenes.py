@@ -731,6 +731,10 @@ class SlamProblem:
         range_offset: meters the model's ``readings`` are short of what the sensor read (returned beams only; the
             range offset of :func:`log_problem`, 0 for simulated scenes): the geometry of the scans themselves,
             used by scan matching, is ``readings + range_offset``.
+        final_map_params: the map model of the final map drawn at the posterior mean path
+            (:func:`bayesmap.inference.logslam.run_log_slam`, stage 6), or None (no final map: the chain's own).
+            :func:`log_slam_problem` sets the map model of a log at known poses (:func:`log_map_params`).
+        final_map_power: the likelihood power of that final map, in (0, 1].
     """
 
     params: ModelParams
@@ -745,6 +749,8 @@ class SlamProblem:
     max_range_mask: np.ndarray | None = None
     timestamps: np.ndarray | None = None
     range_offset: float = 0.0
+    final_map_params: ModelParams | None = None
+    final_map_power: float = 1.0
 
     @property
     def num_scans(self) -> int:
@@ -862,6 +868,17 @@ distorted by its drift, so the inferred map's extent is only known after the fro
 (:func:`bayesmap.inference.logslam.run_log_slam`) fits the final grid to the matched path."""
 
 
+def log_map_params(params: ModelParams) -> ModelParams:
+    """``params`` (a log's model) with the map model of a log at known poses, :func:`log_problem`'s defaults: the
+    geometry :data:`LOG_GEOMETRY`, the sensor noise :data:`LOG_SENSOR_NOISE`, the structured prior of
+    :func:`log_coupling` and the pass probability :data:`LOG_WALL_PASS_PROB`; the grid, the prior probability, the
+    beam model and its weights and the max range kept. (Its likelihood power is :data:`LOG_LIKELIHOOD_POWER`.)"""
+    beam = {name: getattr(params, name) for name in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")}
+    return make_params(params.prior_wall_prob, LOG_SENSOR_NOISE, params.num_angles, params.grid,
+                       max_distance=params.max_range, beam_model=params.beam_model, geometry=LOG_GEOMETRY,
+                       coupling=log_coupling(params.grid.resolution), wall_pass_prob=LOG_WALL_PASS_PROB, **beam)
+
+
 def log_slam_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob: float = LOG_PRIOR,
                      sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL,
                      range_offset: float | None = None, sensor_params: dict | None = None,
@@ -898,4 +915,5 @@ def log_slam_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall
                        odometry=np.asarray(problem.poses, np.float64), sensor_angles=obs.beam_angles,
                        readings=problem.model_readings, likelihood_power=problem.likelihood_power,
                        source=problem.source, max_range_mask=mask,
-                       timestamps=np.asarray(log.timestamps, np.float64)[scans], range_offset=problem.range_offset)
+                       timestamps=np.asarray(log.timestamps, np.float64)[scans], range_offset=problem.range_offset,
+                       final_map_params=log_map_params(problem.params), final_map_power=LOG_LIKELIHOOD_POWER)

@@ -10,11 +10,14 @@ Protocol (issue 15's map-quality target):
    ``theta = theta_g - angle(R)``.
 3. The reference map is made with the true poses of the same mapped scans
    (:func:`bayesmap.inference.driver.run_inference`, the cellwise sampler, as ``bayesmap evaluate --log`` does on a
-   corrected log), with the SLAM pipeline's map model (:func:`bayesmap.scenes.slam_map_settings`), so the two maps
-   differ only in their poses.
+   corrected log), in the map model of the SLAM run's map: the map model of a log at known poses (the defaults of
+   :func:`bayesmap.scenes.log_problem`) when the run drew a final map at its mean path (stage 6 of
+   :func:`bayesmap.inference.logslam.run_log_slam`, the default), the SLAM model's own
+   (:func:`bayesmap.scenes.slam_map_settings`) otherwise; so the two maps differ only in their poses.
 4. Both maps are scored on the held-out beams at their true poses with the occupancy AUC and the predictive NLL of
    :func:`bayesmap.evaluation.heldout.score_maps`, each map as independent wall probabilities (the SLAM run keeps
-   its posterior marginals, not map samples, so the reference is scored the same way).
+   its posterior marginals, not map samples, so the reference is scored the same way), each in its own map model.
+   With a final map, the joint chain's own map is scored too (``"slam_chain"``, in the SLAM model).
 """
 
 from __future__ import annotations
@@ -48,8 +51,9 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
         slam_options: keywords of :func:`bayesmap.inference.logslam.run_log_slam` (rounds, sweeps).
 
     Returns:
-        ``{"slam": {"auc", "nll", ...}, "true_poses": {...}, "setup": {...}}`` (JSON-serializable); ``setup`` has the
-        SLAM path's ATE on the mapped scans and both runtimes.
+        ``{"slam": {"auc", "nll", ...}, "true_poses": {...}, "setup": {...}}`` (JSON-serializable), and
+        ``"slam_chain"`` with a final map; ``setup`` has the SLAM path's ATE on the mapped scans, both runtimes and
+        the map model (``"log at known poses"`` or ``"SLAM chain"``).
 
     Raises:
         BayesmapError: if ``truth`` is not ``(S, 3)`` finite, and on bad arguments (see :func:`heldout_split`,
@@ -65,9 +69,16 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
     slam_s = time.perf_counter() - start
     poses = truth.copy()
     poses[test] = frame_of(slam.mean_path, truth[train], truth[test])
-    same = slam_map_settings()  # both maps and the scoring: the SLAM pipeline's map model
-    slam_test = log_problem(log.with_poses(poses), test, resolution=resolution, grid=slam.grid, **same)
-    scores = score_maps(slam_test, {"slam": (slam.posterior, None)})
+    final = slam.chain_posterior is not None
+    chain_model = slam_map_settings()
+    same = {} if final else chain_model  # the model of slam.posterior: the log's at known poses, or the chain's
+
+    def slam_test(settings):
+        return log_problem(log.with_poses(poses), test, resolution=resolution, grid=slam.grid, **settings)
+
+    scores = score_maps(slam_test(same), {"slam": (slam.posterior, None)})
+    if final:
+        scores.update(score_maps(slam_test(chain_model), {"slam_chain": (slam.chain_posterior, None)}))
 
     true_log = log.with_poses(truth)
     grid = log_problem(true_log, resolution=resolution).grid  # covers the held-out scans too
@@ -81,5 +92,6 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
                        "every": int(every), "resolution": float(resolution),
                        "slam_ate_m": absolute_trajectory_error(slam.mean_path, truth[train])["rmse_m"],
                        "slam_runtime_s": round(slam_s, 3), "reference_runtime_s": round(reference_s, 3),
-                       "reference_sweeps": int(reference_sweeps)}
+                       "reference_sweeps": int(reference_sweeps),
+                       "map_model": "log at known poses" if final else "SLAM chain"}
     return scores

@@ -32,6 +32,14 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
    squared. The reported covariance of a pose is the chain's plus the graph's; each pose sample is a chain sample
    plus a draw of the graph's correlated deviation of the whole path (:func:`bayesmap.inference.posegraph.
    sample_deviations`), in antithetic pairs so that the samples' mean is the chain's mean path (docs/slam.md).
+6. **The final map** (with ``problem.final_map_params``, which :func:`bayesmap.scenes.log_slam_problem` sets): the
+   walls given the readings at the mean path, in the map model of a log at known poses
+   (:func:`bayesmap.scenes.log_map_params`: 0.1 m sensor noise, the structured prior, wall cells a beam can pass,
+   cross-validated across logs), :data:`FINAL_MAP_SWEEPS` cellwise sweeps from the chain's last map. This is what
+   a SLAM system's map is, occupancy mapping at the estimated path, in bayesmap's best map model of known poses;
+   the joint chain's own map (the SLAM model's, whose walls stop every beam as its pose moves need) stays in
+   ``chain_posterior``. Scored at the true poses on held-out beams it ranks the cells better than the chain's
+   (README, "Real logs and bags").
 """
 
 from __future__ import annotations
@@ -73,6 +81,10 @@ MAP_SWEEPS = 4
 
 POSE_SWEEPS = 8
 """Pose sweeps (every pose once) per round."""
+
+FINAL_MAP_SWEEPS = 40
+"""Cellwise sweeps of the final map (stage 6; the first half burn-in): the sweeps with which the map model of a log
+at known poses was cross-validated (README, "Map defaults of logs")."""
 
 GRAPH_COV_SCALE = 0.36
 """The factor on the pose graph's standard deviations in the reported uncertainty (module docstring, stage 5): its
@@ -129,13 +141,15 @@ def _pose_record(state, info):
     return state.poses, info.accepted
 
 
-def _map_round(key, problem, params, poses, walls, sweeps: int):
-    """One map block: the table at ``poses`` and ``sweeps`` cellwise sweeps from ``walls``; returns the chain's
-    ``(last walls (nx, ny) float32, wall probabilities (sweeps, nx, ny))``."""
+def _map_round(key, problem, params, poses, walls, sweeps: int, power: float | None = None):
+    """One map block: the table at ``poses`` and ``sweeps`` cellwise sweeps from ``walls`` (likelihood power
+    ``power``, default the problem's); returns the chain's ``(last walls (nx, ny) float32, wall probabilities
+    (sweeps, nx, ny))``."""
     theta = poses[:, 2:3] + problem.sensor_angles
     origins = np.repeat(poses[:, :2], problem.sensor_angles.shape[1], axis=0)
     table = build_ray_table(params.grid, origins, theta.reshape(-1), params.max_range)
-    sampler = cellwise_gibbs(table, problem.readings.reshape(-1), params, problem.likelihood_power)
+    sampler = cellwise_gibbs(table, problem.readings.reshape(-1), params,
+                             problem.likelihood_power if power is None else power)
     chain = run_chain(key, sampler, walls, sweeps)
     return jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs)
 
@@ -175,7 +189,7 @@ def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_
 
 def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, seed: int = 0, progress: bool = False,
                  map_sweeps: int = MAP_SWEEPS, pose_sweeps: int = POSE_SWEEPS,
-                 graph_scale: float = GRAPH_COV_SCALE) -> SlamResult:
+                 graph_scale: float = GRAPH_COV_SCALE, final_map_sweeps: int = FINAL_MAP_SWEEPS) -> SlamResult:
     """Infer the path and the map of a real log (:func:`bayesmap.scenes.log_slam_problem`) with the pipeline of the
     module docstring.
 
@@ -189,20 +203,28 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         pose_sweeps: pose sweeps per round, >= 1.
         graph_scale: the factor on the pose graph's standard deviations (:data:`GRAPH_COV_SCALE`; 0: the chain's
             spread alone).
+        final_map_sweeps: cellwise sweeps of the final map at the mean path (stage 6, :data:`FINAL_MAP_SWEEPS`),
+            >= 2, or 0: no final map (``posterior`` is the chain's). Without ``problem.final_map_params`` there is
+            no final map.
 
     Returns:
         A :class:`bayesmap.inference.slam.SlamResult`: ``pose_samples`` ``(N, S, 3)`` with ``N = (rounds - burn_in)
         pose_sweeps`` and ``pose_cov`` with the graph's uncertainty (:func:`graph_uncertainty`), ``posterior`` on
-        ``grid``, the grid fitted to the start path, ``graph_cov`` the graph's covariance at unit scale.
+        ``grid``, the grid fitted to the start path (the final map's, or the chain's without one; the chain's is
+        ``chain_posterior``), ``graph_cov`` the graph's covariance at unit scale.
 
     Raises:
-        BayesmapError: on bad counts or a bad ``graph_scale`` (the message names the value).
+        BayesmapError: on bad counts, a bad ``graph_scale`` or ``final_map_sweeps`` (the message names the value).
     """
+    if (isinstance(final_map_sweeps, bool) or not isinstance(final_map_sweeps, (int, np.integer))
+            or final_map_sweeps < 0 or final_map_sweeps == 1):
+        raise BayesmapError(f"final_map_sweeps must be 0 or an integer >= 2, got {final_map_sweeps!r}")
+    final = problem.final_map_params is not None and final_map_sweeps > 0
     rounds, burn_in, _ = check_counts(rounds, burn_in, 1)
     map_sweeps, _, _ = check_counts(map_sweeps, 0, 1)
     pose_sweeps, _, _ = check_counts(pose_sweeps, 0, 1)
     start = time.perf_counter()
-    with tqdm(total=2 + 2 * rounds, unit="stage", delay=1.0, disable=not progress, leave=False) as bar:
+    with tqdm(total=2 + 2 * rounds + final, unit="stage", delay=1.0, disable=not progress, leave=False) as bar:
         bar.set_description("front end")
         scans = scan_data(problem)
         path = front_end(problem, scans)
@@ -232,10 +254,19 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
                 samples.append(np.asarray(pose_samples, np.float64))
                 probs.append(wall_probs)
                 accepted.append(np.asarray(acc))
-    mean, cov, samples, graph_cov = graph_uncertainty(seed, np.concatenate(samples), edges, graph_scale)
-    posterior = np.concatenate(probs).astype(np.float64).mean(axis=0)
+        mean, cov, samples, graph_cov = graph_uncertainty(seed, np.concatenate(samples), edges, graph_scale)
+        chain_posterior = np.concatenate(probs).astype(np.float64).mean(axis=0)
+        posterior = chain_posterior
+        if final:
+            bar.set_description("final map")
+            key = jax.random.fold_in(jax.random.key(seed), 2 * rounds)  # none of the chain's keys
+            _, final_probs = _map_round(key, problem, with_grid(problem.final_map_params, grid), mean, walls,
+                                        final_map_sweeps, problem.final_map_power)
+            posterior = final_probs[final_map_sweeps // 2:].astype(np.float64).mean(axis=0)
+            bar.update()
     acceptance = float(np.concatenate(accepted).mean()) if accepted[0].size else 1.0
     return SlamResult(pose_samples=samples, mean_path=mean, pose_cov=cov, posterior=posterior,
                       acceptance_rate=acceptance, runtime_s=time.perf_counter() - start,
                       last_walls=np.asarray(walls, np.float32), grid=grid,
-                      loop_edges=len(edges.i) - (len(path) - 1), graph_cov=graph_cov)
+                      loop_edges=len(edges.i) - (len(path) - 1), graph_cov=graph_cov,
+                      chain_posterior=chain_posterior if final else None)

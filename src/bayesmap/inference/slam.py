@@ -190,6 +190,9 @@ class SlamResult(NamedTuple):
         loop_edges: loop edges of the start path's pose graph (real logs), or None.
         graph_cov: ``(S, 3, 3)`` float64 the pose graph's Laplace covariances at unit scale (real logs;
             :func:`bayesmap.inference.logslam.graph_uncertainty`), or None.
+        chain_posterior: ``(nx, ny)`` float64 the joint chain's own posterior wall probabilities where
+            ``posterior`` is another map's (real logs: the final map at the mean path,
+            :func:`bayesmap.inference.logslam.run_log_slam`), or None (``posterior`` is the chain's).
     """
 
     pose_samples: np.ndarray
@@ -202,6 +205,7 @@ class SlamResult(NamedTuple):
     grid: object = None
     loop_edges: int | None = None
     graph_cov: np.ndarray | None = None
+    chain_posterior: np.ndarray | None = None
 
 
 def check_counts(sweeps, burn_in, chains) -> tuple[int, int, int]:
