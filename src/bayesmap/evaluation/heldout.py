@@ -230,14 +230,26 @@ def _independent_passable(table: RayTable, y, q, logpdf, chords: bool, pi: float
     qp = np.minimum(q.reshape(-1)[table.pair_cells], 1.0 - 1e-9)
     rays = table.pair_rays
     starts = table.offsets[:-1]
+    lengths = table.offsets[1:] - starts
+    by_length = np.argsort(-lengths, kind="stable")  # the rays still running at position k: by_length[:count[k]]
+    count = np.searchsorted(-lengths[by_length], -np.arange(lengths.max(initial=0)), side="left")
     log_free = np.log1p(-qp)
     with np.errstate(divide="ignore"):
         log_q = np.log(qp)
     odds = qp / (1.0 - qp)
 
-    def exclusive_sum(values):  # per pair, the sum of values over the earlier pairs of its ray
-        csum = np.cumsum(values)
-        return csum - values - np.where(starts > 0, csum[np.maximum(starts - 1, 0)], 0.0)[rays]
+    def exclusive_sum(values):
+        """Per pair, the sum of ``values`` over the earlier pairs of its ray, accumulated ray by ray along the
+        rays' positions: a running sum over the whole table minus each ray's start would lose a ray's small sums
+        to the rounding of every earlier ray's (a cell of probability ``1 - 1e-9`` adds ``1e9`` to the odds)."""
+        out = np.empty_like(values)
+        acc = np.zeros(table.num_rays)
+        for k, n in enumerate(count):
+            live = by_length[:n]
+            at = starts[live] + k
+            out[at] = acc[live]
+            acc[live] += values[at]
+        return out
 
     before_free = exclusive_sum(log_free)  # log prod_{j<k} (1 - q_j)
     before_odds = exclusive_sum(odds)  # sum_{j<k} q_j / (1 - q_j)
