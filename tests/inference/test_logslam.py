@@ -16,7 +16,7 @@ def slam_problem(small_log):
     return log_slam_problem(read_carmen(small_log), resolution=0.2)
 
 
-RUN = {"rounds": 2, "burn_in": 1, "map_sweeps": 2, "pose_sweeps": 2, "seed": 5}
+RUN = {"rounds": 1, "burn_in": 0, "map_sweeps": 2, "pose_sweeps": 2, "seed": 5}
 
 
 def test_final_map_leaves_the_chain_alone_and_differs_from_its_map(slam_problem):
