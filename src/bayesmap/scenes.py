@@ -53,6 +53,7 @@ from bayesmap.model.generative import (
     log_joint,
     log_joint_scans,
     make_params,
+    replace_params,
     simulate_readings,
     simulate_scan_readings,
     walls_log_likelihood,
@@ -873,10 +874,9 @@ def log_map_params(params: ModelParams) -> ModelParams:
     geometry :data:`LOG_GEOMETRY`, the sensor noise :data:`LOG_SENSOR_NOISE`, the structured prior of
     :func:`log_coupling` and the pass probability :data:`LOG_WALL_PASS_PROB`; the grid, the prior probability, the
     beam model and its weights and the max range kept. (Its likelihood power is :data:`LOG_LIKELIHOOD_POWER`.)"""
-    beam = {name: getattr(params, name) for name in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")}
-    return make_params(params.prior_wall_prob, LOG_SENSOR_NOISE, params.num_angles, params.grid,
-                       max_distance=params.max_range, beam_model=params.beam_model, geometry=LOG_GEOMETRY,
-                       coupling=log_coupling(params.grid.resolution), wall_pass_prob=LOG_WALL_PASS_PROB, **beam)
+    return replace_params(params, sensor_noise=LOG_SENSOR_NOISE, geometry=LOG_GEOMETRY,
+                          coupling=log_coupling(params.grid.resolution), neighbourhood=None,
+                          wall_pass_prob=LOG_WALL_PASS_PROB, max_distance=params.max_range)
 
 
 def log_slam_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob: float = LOG_PRIOR,

@@ -16,7 +16,7 @@ from jax.experimental import enable_x64
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.model import sensor
-from bayesmap.model.generative import make_params
+from bayesmap.model.generative import PARAMS_FIELDS, make_params, replace_params
 
 DEFAULT = dict(sigma=0.2, **{k: v for k, v in sensor.BEAM_DEFAULTS.items()}, max_range=42.0)
 # a second setting where the short and random parts carry real mass and the max range is short
@@ -210,3 +210,20 @@ def test_make_params_keeps_its_positional_signature_and_carries_the_sensor():
     assert beam.sensor_args == (0.25, 0.7, 0.1, 0.1, 0.1, 0.5, 4.0)
     with pytest.raises(BayesmapError, match="takes 7 parameters"):
         sensor.reading_logpdf("beam", 1.0, 1.0, (0.2,))
+
+
+def test_replace_params_changes_only_what_it_is_given_and_checks_it():
+    """Every field is kept but those given; the new values are checked as make_params checks them; a coupling given
+    with ``neighbourhood=None`` gets the 4-neighbourhood; a name that is no field is refused by name."""
+    params = make_params(0.3, 0.25, 12, Grid((5, 6)), 4.0, beam_model="beam", z_rand=0.2, z_hit=0.7,
+                         geometry="chord")
+    other = replace_params(params, sensor_noise=0.1, coupling=1.5, neighbourhood=None, wall_pass_prob=0.5)
+    changed = {"sensor_noise": 0.1, "coupling": 1.5, "neighbourhood": 4, "wall_pass_prob": 0.5}
+    for name in PARAMS_FIELDS:
+        assert getattr(other, name) == changed.get(name, getattr(params, name)), name
+    with pytest.raises(BayesmapError, match="sensor_noise"):
+        replace_params(params, sensor_noise=-1.0)
+    with pytest.raises(BayesmapError, match="neighbourhood 4"):
+        replace_params(params, coupling=1.5)  # the kept neighbourhood 0 cannot carry a coupling
+    with pytest.raises(BayesmapError, match="not a model parameter: noise"):
+        replace_params(params, noise=0.1)

@@ -239,11 +239,12 @@ def _independent_passable(table: RayTable, y, q, logpdf, chords: bool, pi: float
     odds = qp / (1.0 - qp)
 
     def exclusive_sum(values):
-        """Per pair, the sum of ``values`` over the earlier pairs of its ray, accumulated ray by ray along the
-        rays' positions: a running sum over the whole table minus each ray's start would lose a ray's small sums
-        to the rounding of every earlier ray's (a cell of probability ``1 - 1e-9`` adds ``1e9`` to the odds)."""
+        """Per pair, the sum of ``values`` ``(P, ...)`` over the earlier pairs of its ray, accumulated ray by ray
+        along the rays' positions: a running sum over the whole table minus each ray's start would lose a ray's
+        small sums to the rounding of every earlier ray's (a cell of probability ``1 - 1e-9`` adds ``1e9`` to the
+        odds)."""
         out = np.empty_like(values)
-        acc = np.zeros(table.num_rays)
+        acc = np.zeros((table.num_rays,) + values.shape[1:])
         for k, n in enumerate(count):
             live = by_length[:n]
             at = starts[live] + k
@@ -251,8 +252,8 @@ def _independent_passable(table: RayTable, y, q, logpdf, chords: bool, pi: float
             acc[live] += values[at]
         return out
 
-    before_free = exclusive_sum(log_free)  # log prod_{j<k} (1 - q_j)
-    before_odds = exclusive_sum(odds)  # sum_{j<k} q_j / (1 - q_j)
+    # log prod_{j<k} (1 - q_j) and sum_{j<k} q_j / (1 - q_j), in one pass
+    before_free, before_odds = exclusive_sum(np.stack([log_free, odds], axis=1)).T
     pair_args = (table.pair_dists.astype(np.float64),) + ((table.pair_exits.astype(np.float64),) if chords else ())
     log_ll = np.asarray(logpdf(y[rays], *pair_args), dtype=np.float64)
     with np.errstate(divide="ignore"):

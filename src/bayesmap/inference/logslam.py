@@ -60,7 +60,7 @@ from bayesmap.inference.posegraph import close_loops, marginal_covariances, samp
 from bayesmap.inference.poses import PoseState, random_walk_pose_mh, slam_data
 from bayesmap.inference.scanmatch import ScanData, correlative_path, scan_endpoints
 from bayesmap.inference.slam import SlamResult, check_counts, pose_summary
-from bayesmap.model.generative import make_params
+from bayesmap.model.generative import replace_params
 from bayesmap.model.motion import odometry_controls
 
 FRONT_END_RESOLUTION = 0.05
@@ -128,12 +128,9 @@ def front_end(problem, data: ScanData) -> np.ndarray:
 
 
 def with_grid(params, grid: Grid):
-    """``params`` (:class:`bayesmap.model.generative.ModelParams`) on another grid, every other value kept."""
-    beam = {name: getattr(params, name) for name in ("z_hit", "z_short", "z_max", "z_rand", "lambda_short")}
-    return make_params(params.prior_wall_prob, params.sensor_noise, params.num_angles, grid,
-                       max_distance=params.max_range, beam_model=params.beam_model, geometry=params.geometry,
-                       coupling=params.coupling, neighbourhood=params.neighbourhood,
-                       wall_pass_prob=params.wall_pass_prob, **beam)
+    """``params`` (:class:`bayesmap.model.generative.ModelParams`) on another grid, every other value kept (the max
+    range the one ``params`` resolves on its own grid)."""
+    return replace_params(params, grid=grid, max_distance=params.max_range)
 
 
 def _pose_record(state, info):

@@ -219,6 +219,26 @@ def make_params(
     )
 
 
+PARAMS_FIELDS = ("prior_wall_prob", "sensor_noise", "num_angles", "grid", "max_distance", "beam_model", "z_hit",
+                 "z_short", "z_max", "z_rand", "lambda_short", "geometry", "coupling", "neighbourhood",
+                 "wall_pass_prob")
+"""The fields of :class:`ModelParams`, each an argument of :func:`make_params` of the same name."""
+
+
+def replace_params(params: ModelParams, **changes) -> ModelParams:
+    """``params`` with the fields named in ``changes`` replaced, every value checked again by :func:`make_params`
+    (``neighbourhood=None`` derives it from the coupling again; ``max_distance`` keeps ``params.max_distance``,
+    ``None`` included, unless given).
+
+    Raises:
+        BayesmapError: as :func:`make_params`, or if a name in ``changes`` is not one of :data:`PARAMS_FIELDS`.
+    """
+    unknown = sorted(set(changes) - set(PARAMS_FIELDS))
+    if unknown:
+        raise BayesmapError(f"not a model parameter: {', '.join(unknown)} (the fields: {', '.join(PARAMS_FIELDS)})")
+    return make_params(**{name: getattr(params, name) for name in PARAMS_FIELDS} | changes)
+
+
 def walls_prior(shape: tuple[int, int]):
     """The prior over walls as a generative function of ``prior_wall_prob``: ``(nx, ny)`` independent flips."""
     return genjax.flip.repeat(n=shape[1]).repeat(n=shape[0])
