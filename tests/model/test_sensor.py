@@ -3,6 +3,7 @@ GenJAX distribution scores and samples it, and bad parameters are refused.
 
 Everything numeric runs in float64 (``enable_x64``) so that tolerances measure the model, not float32 rounding."""
 
+import inspect
 import math
 
 import genjax
@@ -219,6 +220,7 @@ def test_replace_params_changes_only_what_it_is_given_and_checks_it():
                          geometry="chord")
     other = replace_params(params, sensor_noise=0.1, coupling=1.5, neighbourhood=None, wall_pass_prob=0.5)
     changed = {"sensor_noise": 0.1, "coupling": 1.5, "neighbourhood": 4, "wall_pass_prob": 0.5}
+    assert PARAMS_FIELDS == tuple(inspect.signature(make_params).parameters)  # every field, and make_params takes it
     for name in PARAMS_FIELDS:
         assert getattr(other, name) == changed.get(name, getattr(params, name)), name
     with pytest.raises(BayesmapError, match="sensor_noise"):

@@ -37,6 +37,7 @@ of each scan at its pose, with beam angles relative to the heading. With zero mo
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import genjax
@@ -219,10 +220,8 @@ def make_params(
     )
 
 
-PARAMS_FIELDS = ("prior_wall_prob", "sensor_noise", "num_angles", "grid", "max_distance", "beam_model", "z_hit",
-                 "z_short", "z_max", "z_rand", "lambda_short", "geometry", "coupling", "neighbourhood",
-                 "wall_pass_prob")
-"""The fields of :class:`ModelParams`, each an argument of :func:`make_params` of the same name."""
+PARAMS_FIELDS = tuple(field.name for field in dataclasses.fields(ModelParams))
+"""The fields of :class:`ModelParams`, each an argument of :func:`make_params` of the same name (tested)."""
 
 
 def replace_params(params: ModelParams, **changes) -> ModelParams:
