@@ -13,13 +13,23 @@ excluded, as ``bayesmap bench`` times its samplers). Settings:
   walls in the rows, as before passable walls);
 * ``default``: the log defaults of ``bayesmap.scenes`` (chord geometry, the structured prior and passable walls).
 
+With ``--profile DIR``, one more compiled sweep per setting runs under ``jax.profiler.trace`` (a Perfetto trace in
+``DIR/SETTING``), and the script prints the compiled program's steps (XLA:CPU thunks: fusions, loops, conditionals)
+with the largest self time, their calls and microseconds per call. The profiler drops events when a sweep has more
+than its buffer holds (tens of thousands of steps), so compare the time per call, not the totals.
+
 Usage: PYTHONPATH=src python benchmarks/sweep_cost.py [--log intel] [--resolution 0.1] [--sweeps 20] [--repeats 3]
+[--profile DIR]
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
+import gzip
+import json
 import time
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -39,19 +49,49 @@ SETTINGS = {
 }
 
 
-def seconds_per_sweep(problem, sweeps: int, repeats: int) -> float:
-    """Best of ``repeats`` runs of a compiled ``sweeps``-sweep cellwise chain, per sweep."""
+def seconds_per_sweep(problem, sweeps: int, repeats: int, profile: Path | None = None) -> float:
+    """Best of ``repeats`` runs of a compiled ``sweeps``-sweep cellwise chain, per sweep; with ``profile``, then one
+    compiled sweep from the chain's last state under the profiler, its trace written into that folder."""
     algorithm = make_sampler(problem, "cellwise")
     state = algorithm.init(np.asarray(run_logodds(problem).posterior) > 0.5)
     key = jax.random.key(0)
     run = compile_chain(key, state, algorithm, sweeps)
-    jax.block_until_ready(run(key, state))
+    final = jax.block_until_ready(run(key, state))[1]
     best = np.inf
     for _ in range(repeats):
         start = time.perf_counter()
         jax.block_until_ready(run(key, state))
         best = min(best, time.perf_counter() - start)
+    if profile is not None:
+        one = compile_chain(key, final, algorithm, 1)
+        with jax.profiler.trace(str(profile), create_perfetto_trace=True):
+            jax.block_until_ready(one(jax.random.key(1), final))
     return best / sweeps
+
+
+def self_times(trace_file: Path) -> list[tuple[str, float, int]]:
+    """``(name, self time in ms, calls)`` of every complete event of a Chrome/Perfetto trace (``.json.gz``), largest
+    self time first: an event's duration minus that of the events nested in it on the same thread."""
+    with gzip.open(trace_file) as f:
+        events = json.load(f)
+    events = events["traceEvents"] if isinstance(events, dict) else events
+    threads = collections.defaultdict(list)
+    for event in events:
+        if event.get("ph") == "X":
+            threads[event["pid"], event["tid"]].append(event)
+    own, calls = collections.Counter(), collections.Counter()
+    for thread in threads.values():
+        thread.sort(key=lambda e: (e["ts"], -e.get("dur", 0)))
+        stack = []
+        for event in thread:
+            while stack and stack[-1]["ts"] + stack[-1].get("dur", 0) <= event["ts"]:
+                stack.pop()
+            if stack:
+                own[stack[-1]["name"]] -= event.get("dur", 0)
+            own[event["name"]] += event.get("dur", 0)
+            calls[event["name"]] += 1
+            stack.append(event)
+    return [(name, us / 1e3, calls[name]) for name, us in own.most_common()]
 
 
 def main(argv=None) -> int:
@@ -60,15 +100,23 @@ def main(argv=None) -> int:
     parser.add_argument("--resolution", type=float, default=scenes.RESOLUTION)
     parser.add_argument("--sweeps", type=int, default=20)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--profile", type=Path, default=None, help="folder for a profiled sweep per setting")
+    parser.add_argument("--top", type=int, default=12, help="steps printed per profiled setting (12)")
     args = parser.parse_args(argv)
     log = read_carmen(CORRECTED_LOGS[args.log])
     print("| setting | coupling J | seconds per sweep | ratio to entry |\n|---|---|---|---|")
     base = None
     for name, kwargs in SETTINGS.items():
         problem = scenes.log_problem(log, resolution=args.resolution, **kwargs)
-        cost = seconds_per_sweep(problem, args.sweeps, args.repeats)
+        folder = None if args.profile is None else args.profile / name
+        cost = seconds_per_sweep(problem, args.sweeps, args.repeats, folder)
         base = cost if base is None else base
         print(f"| {name} | {problem.params.coupling:.3f} | {cost:.3f} | {cost / base:.2f} |", flush=True)
+        if folder is not None:
+            trace = max(folder.glob("**/perfetto_trace.json.gz"), key=lambda p: p.stat().st_mtime)
+            steps = [row for row in self_times(trace) if not row[0].startswith(("ThunkExecutor", "$"))]
+            for step, ms, count in steps[:args.top]:
+                print(f"    {name}: {step[:60]}: {ms:.1f} ms self, {count} calls, {1e3 * ms / count:.1f} us per call")
     return 0
 
 
