@@ -87,8 +87,13 @@ def test_log_defaults_come_from_the_scene_defaults(small_log):
 
     log = read_carmen(small_log)
     pb = log_problem(log, resolution=0.2)
-    assert (pb.params.prior_wall_prob == pytest.approx(scenes.LOG_PRIOR)
+    assert (pb.params.prior_wall_prob == pytest.approx(scenes.LOG_STRUCTURED_PRIOR)
             and pb.params.beam_model == scenes.LOG_BEAM_MODEL)
+    # the prior wall probability follows the prior: the structured prior's (given balanced neighbours) by default,
+    # the independent prior's with no coupling, and a given value whatever the coupling
+    assert pb.params.coupling > 0 and scenes.LOG_STRUCTURED_PRIOR != scenes.LOG_PRIOR
+    assert log_problem(log, resolution=0.2, coupling=0.0).params.prior_wall_prob == pytest.approx(scenes.LOG_PRIOR)
+    assert log_problem(log, resolution=0.2, prior_wall_prob=0.2).params.prior_wall_prob == pytest.approx(0.2)
     # issue 16: every map default of a log is in meters (or a probability), the same at every resolution
     for res in (0.1, 0.2):
         pb = log_problem(log, resolution=res)

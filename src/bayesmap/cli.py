@@ -382,8 +382,13 @@ PASS_HELP = ("--log (several scans): the probability that a beam passes through 
              "partly filled cells; the reading then comes from the ray's next wall), in [0, 1); default "
              f"{scenes.LOG_WALL_PASS_PROB:g} with the cellwise sampler (the default), 0 with the others, which "
              "support only 0")
-PRIOR_HELP = (f"prior probability that a cell is a wall (default {scenes.TUTORIAL_PRIOR}, the tutorial's; "
-              f"{scenes.LOG_PRIOR} for several scans of a log)")
+EVALUATE_PRIOR_HELP = (f"prior probability that a cell is a wall (default for --log {scenes.LOG_STRUCTURED_PRIOR} "
+                       f"with the structured prior, the default, and {scenes.LOG_PRIOR} with independent cells; "
+                       f"for --truth {scenes.LOG_PRIOR})")
+PRIOR_HELP = (f"prior probability that a cell is a wall (default {scenes.TUTORIAL_PRIOR}, the tutorial's; for "
+              f"several scans of a log {scenes.LOG_STRUCTURED_PRIOR} with the structured prior, the default, where "
+              f"it is the probability given as many wall as free neighbours, and {scenes.LOG_PRIOR} with "
+              "independent cells)")
 SENSOR_NOISE_HELP = (f"standard deviation of a reading, meters (default {scenes.TUTORIAL_SENSOR_NOISE}, "
                      f"the tutorial's; for --log {scenes.LOG_SENSOR_NOISE:g}, for --scan N "
                      f"{scenes.SCAN_SENSOR_NOISE:g})")
@@ -567,7 +572,7 @@ def _log_scene(carmen, path: Path, scan, scans, resolution, prior_wall_prob, sen
     chosen = parse_scans(scans, len(carmen))
     wall_pass_prob = scenes.log_wall_pass_prob(sampler) if wall_pass_prob is None else wall_pass_prob
     problem = log_problem(carmen, chosen, resolution=resolution,
-                          prior_wall_prob=scenes.LOG_PRIOR if prior_wall_prob is None else prior_wall_prob,
+                          prior_wall_prob=prior_wall_prob,
                           sensor_noise=sensor_noise, beam_model=beam_model or scenes.LOG_BEAM_MODEL,
                           range_offset=range_offset, sensor_params=sensor_params, likelihood_power=likelihood_power,
                           geometry=scenes.LOG_GEOMETRY if geometry is None else geometry, coupling=coupling,
@@ -829,8 +834,7 @@ def evaluate(
                                               callback=_in_range("--max-range", 0, MAX_RANGE_LIMIT, lo_open=True,
                                                                  unit=" m")),
     sensor_noise: Optional[float] = typer.Option(None, "--sensor-noise", help=EVALUATE_SENSOR_NOISE_HELP),
-    prior_wall_prob: float = typer.Option(scenes.LOG_PRIOR, "--prior-wall-prob",
-                                          help="prior probability that a cell is a wall"),
+    prior_wall_prob: Optional[float] = typer.Option(None, "--prior-wall-prob", help=EVALUATE_PRIOR_HELP),
     range_offset: Optional[float] = typer.Option(None, "--range-offset", help=EVALUATE_RANGE_OFFSET_HELP),
     geometry: Optional[str] = typer.Option(None, "--geometry", help=GEOMETRY_HELP),
     wall_pass_prob: Optional[float] = typer.Option(None, "--wall-pass-prob", help=PASS_HELP),

@@ -20,7 +20,7 @@ def test_evaluate_log_writes_the_table(small_log, tmp_path, monkeypatch, capsys)
     assert scores["setup"]["test_scans"] == 3 and scores["setup"]["train_scans"] == 9
     # the log defaults, in meters whatever the resolution
     from bayesmap import scenes
-    assert scores["setup"]["prior_wall_prob"] == scenes.LOG_PRIOR
+    assert scores["setup"]["prior_wall_prob"] == scenes.LOG_STRUCTURED_PRIOR
     assert scores["setup"]["sensor_noise"] == scenes.LOG_SENSOR_NOISE and scores["setup"]["range_offset"] == 0.0
     assert scores["setup"]["geometry"] == "chord" and scores["setup"]["coupling"] == scenes.log_coupling(0.2)
     assert "bayesmap" in out and "logodds" in out and "auc" in out

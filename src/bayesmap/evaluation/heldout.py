@@ -350,7 +350,7 @@ def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, f
 
 
 def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTION, sampler: str = "cellwise",
-                 sweeps: int = 100, seed: int = 0, prior_wall_prob: float = LOG_PRIOR,
+                 sweeps: int = 100, seed: int = 0, prior_wall_prob: float | None = None,
                  sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL, progress: bool = True,
                  range_offset: float | None = None, sensor_params: dict | None = None,
                  likelihood_power: float | None = None, geometry: str = LOG_GEOMETRY,
@@ -359,7 +359,8 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
     (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
     held-out beams (see the module docstring). ``sensor_noise``, ``range_offset``, ``sensor_params``,
     ``likelihood_power``, ``geometry``, ``coupling`` (the structured prior's; None: the log default at
-    ``resolution``) and ``wall_pass_prob`` (None: :func:`bayesmap.scenes.log_wall_pass_prob` of ``sampler``): see
+    ``resolution``), ``prior_wall_prob`` (None: :func:`bayesmap.scenes.log_prior_wall_prob` of the coupling) and
+    ``wall_pass_prob`` (None: :func:`bayesmap.scenes.log_wall_pass_prob` of ``sampler``): see
     :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses the measured ranges); the other defaults are
     the scene defaults of :mod:`bayesmap.scenes`.
 
@@ -395,7 +396,8 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
         "log": str(log.path), "scans": int(len(scans)), "train_scans": int(len(train)), "test_scans": int(len(test)),
         "every": int(every), "resolution": float(resolution), "grid": list(grid.shape), "sampler": sampler,
         "sweeps": int(sweeps), "beam_model": beam_model, "sensor_noise": float(train_problem.params.sensor_noise),
-        "prior_wall_prob": float(prior_wall_prob), "train_pairs": int(train_problem.table.num_pairs),
+        "prior_wall_prob": float(train_problem.params.prior_wall_prob),
+        "train_pairs": int(train_problem.table.num_pairs),
         "range_offset": float(train_problem.range_offset), "likelihood_power": float(train_problem.likelihood_power),
         "geometry": geometry,
         "coupling": float(train_problem.params.coupling),
@@ -429,7 +431,7 @@ def simulate_readings_from_table(key, table: RayTable, walls, params) -> np.ndar
 def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULATED_NUM_POSES,
                    num_angles: int = SIMULATED_NUM_ANGLES, max_range: float = SIMULATED_MAX_RANGE,
                    sampler: str = "cellwise", sweeps: int = 100, seed: int = 0, sensor_noise: float | None = None,
-                   beam_model: str = LOG_BEAM_MODEL, prior_wall_prob: float = LOG_PRIOR,
+                   beam_model: str = LOG_BEAM_MODEL, prior_wall_prob: float | None = None,
                    clearance: float = SIMULATED_CLEARANCE, sensor_params: dict | None = None,
                    coupling: float | None = None) -> dict:
     """Map synthetic scans of a known floor plan and score the maps against it.
@@ -445,8 +447,9 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
         path: the floor plan, a ROS map (``.yaml``, or a bare ``.pgm`` with ``resolution`` meters per pixel).
         sensor_noise: meters, the simulated sensor's and the model's; default
             :data:`bayesmap.scenes.SIMULATED_SENSOR_NOISE`.
-        coupling: the structured prior's ``J`` (:mod:`bayesmap.model.prior`); None: 0. The other defaults
-            are the scene defaults of :mod:`bayesmap.scenes`.
+        coupling: the structured prior's ``J`` (:mod:`bayesmap.model.prior`); None: 0.
+        prior_wall_prob: None: :data:`bayesmap.scenes.LOG_PRIOR`, whatever the coupling (the floor plan's prior
+            was not cross-validated). The other defaults are the scene defaults of :mod:`bayesmap.scenes`.
 
     Returns:
         ``{"bayesmap": {"accuracy", "auc", "brier", "cells"}, "logodds": {...}, "setup": {...}}``.
@@ -485,6 +488,7 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
     relative = np.broadcast_to(np.linspace(0, 2 * np.pi, num_angles, endpoint=False), (num_poses, num_angles))
     noise = SIMULATED_SENSOR_NOISE if sensor_noise is None else sensor_noise
     coupling = DEFAULT_COUPLING if coupling is None else coupling
+    prior_wall_prob = LOG_PRIOR if prior_wall_prob is None else prior_wall_prob
     params = make_params(prior_wall_prob, noise, num_angles, grid, max_distance=max_range, beam_model=beam_model,
                          **(sensor_params or {}), coupling=coupling)
     world = poses[:, 2:3] + relative  # (the world-frame angles the Problem derives from the poses)
