@@ -11,9 +11,9 @@ Selection: for each log held out, among the settings whose NLL is below log-odds
 logs, the one with the highest mean AUC margin over log-odds (bayesmap's AUC minus log-odds', every resolution of
 the other logs weighted equally) is chosen and reported on the held-out log, at every resolution ("mean"); and by a
 second rule ("tie-by-nll", :data:`TIE`): among those within 0.0005 of the highest mean margin, the one with the
-lowest mean NLL margin over log-odds. Issue 16's
-target is a margin of at least 0.01 with a lower NLL than log-odds' on every log and resolution. The last line is
-the setting chosen on every log, the defaults' candidate.
+lowest mean NLL margin over log-odds. Issue 16's target is a margin of at least 0.01 with a lower NLL than
+log-odds' on every log and resolution. The last lines are the settings each rule chooses on every log; the tie
+rule's is the defaults' (since 2026-11-24).
 
 Every setting is stated in the world's or the sensor's units, never in cells: the run length in meters
 (``bayesmap.model.prior.coupling_for_run_length``; 0 is the independent prior), the sensor noise in meters, the power,
