@@ -110,9 +110,9 @@ def choose(rows: list[dict], logs: list[str], tie: float = 0.0) -> tuple:
                 (r["log"], r["resolution"])] = (margin, r["nll"] - r["logodds_nll"])
     eligible = {s: (np.mean([a for a, _ in m.values()]), np.mean([b for _, b in m.values()]))
                 for s, m in by_setting.items() if set(m) == cells}
-    best = max(v[0] for v in eligible.values())
     if tie <= 0:
         return max(eligible, key=lambda s: eligible[s][0])
+    best = max(v[0] for v in eligible.values())
     return min((s for s, v in eligible.items() if v[0] >= best - tie), key=lambda s: eligible[s][1])
 
 
