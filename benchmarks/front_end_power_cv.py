@@ -11,7 +11,7 @@ the best rigid 2-D alignment; within 0.003 m of the whole chain's ATE on the run
 docs/slam.md), the front end's alone, and its steps off by more than 0.15 m.
 
 Then, for each log held out, the power with the lowest mean ATE over the runs of the other logs, and the held-out
-log's mean ATE at that power, at 1 and at the default (:data:`bayesmap.scenes.LOG_LIKELIHOOD_POWER`, which
+log's mean ATE at that power, at 1 and at the default (:data:`bayesmap.scenes.SLAM_LIKELIHOOD_POWER`, which
 ``logslam.front_end`` uses: the target's own power). The last line is the power chosen on every log.
 
 Each run is appended to ``--records FILE`` (JSON lines) as soon as it is done, and runs already in the file are not
@@ -63,7 +63,7 @@ def leave_one_log_out(records: list[dict], powers: list[float]) -> list[str]:
         ates = [r["start_ate_m"] for r in records if r["log"] in subset_logs and r["power"] == power]
         return float(np.mean(ates)) if ates else float("nan")
 
-    default = scenes.LOG_LIKELIHOOD_POWER
+    default = scenes.SLAM_LIKELIHOOD_POWER
     lines = ["| held out | power chosen on the others (their mean ATE, m) | held-out mean ATE at it (m) | at 1 (m) | "
              f"at {default:g}, the default (m) |", "|---|---|---|---|---|"]
     for held in logs:

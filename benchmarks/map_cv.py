@@ -1,6 +1,7 @@
-"""Leave-one-log-out cross-validation of the map model's defaults for logs (issue 16): the likelihood power, the
-structured prior's run length, the sensor noise, the beam mixture's random weight and the probability that a beam
-passes a wall cell, in the chord geometry with no range offset, at several resolutions.
+"""Leave-one-log-out cross-validation of the map model's defaults for logs (issue 16): the likelihood power (fixed, or
+following the data: ``c`` readings per cell), the structured prior's run length, the sensor noise, the beam mixture's
+random weight and the probability that a beam passes a wall cell, in the chord geometry with no range offset, at several
+resolutions.
 
 For each log (intel, aces, csail), resolution and setting of the grid, ``bayesmap.evaluation.heldout.evaluate_log``
 maps every ``--step``-th scan of the log (every 10th of those held out) with bayesmap (cellwise, ``--sweeps``
@@ -15,16 +16,21 @@ lowest mean NLL margin over log-odds. Issue 16's target is a margin of at least 
 log-odds' on every log and resolution. The last lines are the settings each rule chooses on every log; the tie
 rule's is the defaults' (since 2026-11-24).
 
+A setting with ``readings_per_cell`` ``c > 0`` (``--readings-per-cell``) has no fixed power (``power`` 0 in its row):
+its power is ``c`` over the mean number of returned readings per cell of the training scans
+(``bayesmap.scenes.log_likelihood_power``), recorded as ``fitted_power``.
+
 Every setting is stated in the world's or the sensor's units, never in cells: the run length in meters
 (``bayesmap.model.prior.coupling_for_run_length``; 0 is the independent prior), the sensor noise in meters, the power,
 the weights, the pass probability and the prior wall probability as numbers. Cached rows written before the pass
-probability or the prior wall probability was a setting (no ``pass_prob`` or ``prior`` key) are read as
-``pass_prob`` 0 and ``prior`` 0.1, the model they were run with. A run length shorter than two cells
-of a resolution is skipped at that resolution.
+probability, the prior wall probability or the readings per cell was a setting (no ``pass_prob``, ``prior`` or
+``readings_per_cell`` key) are read as ``pass_prob`` 0, ``prior`` 0.1 and ``readings_per_cell`` 0 (a fixed power),
+the model they were run with. A run length shorter than two cells of a resolution is skipped at that resolution.
 
 Usage: PYTHONPATH=src python benchmarks/map_cv.py [--logs intel,aces,csail] [--resolutions 0.1,0.2]
            [--powers 0.01,0.02,0.05,0.1] [--run-lengths 0,1] [--noises 0.05,0.1] [--z-rands 0.1]
-           [--pass-probs 0] [--prior-wall-probs 0.1] [--step 2] [--sweeps 40] [--cache FILE.jsonl] [--json FILE]
+           [--readings-per-cell 0.7,1] [--pass-probs 0] [--prior-wall-probs 0.1] [--step 2] [--sweeps 40]
+           [--cache FILE.jsonl] [--json FILE]
 """
 
 from __future__ import annotations
@@ -47,8 +53,9 @@ from bayesmap.scenes import LOG_PRIOR
 OLD_PRIOR = 0.1
 """The prior wall probability of every cached row written before it was a setting (no ``prior`` key)."""
 
-KEYS = ("log", "resolution", "power", "run_length", "noise", "z_rand", "pass_prob", "prior", "step", "sweeps")
-SETTING = ("power", "run_length", "noise", "z_rand", "pass_prob", "prior")
+KEYS = ("log", "resolution", "power", "readings_per_cell", "run_length", "noise", "z_rand", "pass_prob", "prior",
+        "step", "sweeps")
+SETTING = ("power", "readings_per_cell", "run_length", "noise", "z_rand", "pass_prob", "prior")
 """A setting's keys, in the order of the tables."""
 
 
@@ -71,11 +78,15 @@ def run_one(log, setting: dict) -> dict:
     coupling = coupling_for_run_length(setting["run_length"], res) if setting["run_length"] else 0.0
     scans = np.arange(0, len(log), setting["step"])
     start = time.perf_counter()
+    by_density = setting["readings_per_cell"] > 0
     out = evaluate_log(log, scans, resolution=res, sweeps=setting["sweeps"], sensor_noise=setting["noise"],
-                       geometry="chord", range_offset=0.0, coupling=coupling, likelihood_power=setting["power"],
+                       geometry="chord", range_offset=0.0, coupling=coupling,
+                       likelihood_power=None if by_density else setting["power"],
+                       readings_per_cell=setting["readings_per_cell"] if by_density else None,
                        sensor_params=sensor_params(setting["z_rand"]), wall_pass_prob=setting["pass_prob"],
                        prior_wall_prob=setting["prior"], progress=False)
-    row = dict(setting, coupling=coupling, auc=out["bayesmap"]["auc"], nll=out["bayesmap"]["nll"],
+    row = dict(setting, coupling=coupling, fitted_power=out["setup"]["likelihood_power"],
+               auc=out["bayesmap"]["auc"], nll=out["bayesmap"]["nll"],
                logodds_auc=out["logodds"]["auc"], logodds_nll=out["logodds"]["nll"],
                seconds=round(time.perf_counter() - start, 1))
     print(json.dumps(row), flush=True)
@@ -121,6 +132,7 @@ def main(argv=None) -> int:
     parser.add_argument("--logs", default="intel,aces,csail")
     parser.add_argument("--resolutions", default="0.1,0.2")
     parser.add_argument("--powers", default="0.01,0.02,0.05,0.1")
+    parser.add_argument("--readings-per-cell", default="")
     parser.add_argument("--run-lengths", default="0,1")
     parser.add_argument("--noises", default="0.05,0.1")
     parser.add_argument("--z-rands", default=str(BEAM_DEFAULTS["z_rand"]))
@@ -135,17 +147,20 @@ def main(argv=None) -> int:
     rows = []
     if args.cache and args.cache.exists():
         rows = [json.loads(line) for line in args.cache.read_text().splitlines() if line.strip()]
-        rows = [dict(r, pass_prob=r.get("pass_prob", 0.0), prior=r.get("prior", OLD_PRIOR)) for r in rows]
+        rows = [dict(r, pass_prob=r.get("pass_prob", 0.0), prior=r.get("prior", OLD_PRIOR),
+                     readings_per_cell=r.get("readings_per_cell", 0.0)) for r in rows]
     done = {key(r) for r in rows}
     for name in logs:
         log = None
-        for res, power, length, noise, z_rand, pass_prob, prior in itertools.product(
-                floats(args.resolutions), floats(args.powers), floats(args.run_lengths), floats(args.noises),
+        powers = [(p, 0.0) for p in floats(args.powers)] + [(0.0, c) for c in floats(args.readings_per_cell)]
+        for res, (power, per_cell), length, noise, z_rand, pass_prob, prior in itertools.product(
+                floats(args.resolutions), powers, floats(args.run_lengths), floats(args.noises),
                 floats(args.z_rands), floats(args.pass_probs), floats(args.prior_wall_probs)):
             if length and length < 2 * res:
                 continue
-            setting = dict(log=name, resolution=res, power=power, run_length=length, noise=noise, z_rand=z_rand,
-                           pass_prob=pass_prob, prior=prior, step=args.step, sweeps=args.sweeps)
+            setting = dict(log=name, resolution=res, power=power, readings_per_cell=per_cell, run_length=length,
+                           noise=noise, z_rand=z_rand, pass_prob=pass_prob, prior=prior, step=args.step,
+                           sweeps=args.sweeps)
             if key(setting) in done:
                 continue
             log = log or read_carmen(CORRECTED_LOGS[name])
@@ -159,8 +174,8 @@ def main(argv=None) -> int:
     lookup = {(r["log"], r["resolution"], *setting_of(r)): r for r in rows}
     resolutions = sorted({r["resolution"] for r in rows})
     rules = {"mean": 0.0, "tie-by-nll": TIE}
-    print("\n| held out | rule | chosen on the others: power, run length (m), noise (m), z_rand, pass probability, "
-          "prior wall probability | "
+    print("\n| held out | rule | chosen on the others: power, readings per cell, run length (m), noise (m), z_rand, "
+          "pass probability, prior wall probability | "
           + " | ".join(f"{res:g} m: AUC bayesmap / log-odds, NLL bayesmap / log-odds" for res in resolutions) + " |")
     print("|---|---|---|" + "---|" * len(resolutions))
     summary = {"folds": {rule: {} for rule in rules}, "rows": rows, "chosen_on_every_log": {}}
@@ -176,8 +191,9 @@ def main(argv=None) -> int:
     for rule, tie in rules.items():
         every = choose(rows, logs, tie)
         summary["chosen_on_every_log"][rule] = every
-        print(f"\nChosen on every log ({rule}): power {every[0]:g}, run length {every[1]:g} m, noise {every[2]:g} m, "
-              f"z_rand {every[3]:g}, pass probability {every[4]:g}, prior wall probability {every[5]:g}")
+        power = f"readings per cell {every[1]:g}" if every[1] > 0 else f"power {every[0]:g}"
+        print(f"\nChosen on every log ({rule}): {power}, run length {every[2]:g} m, noise {every[3]:g} m, "
+              f"z_rand {every[4]:g}, pass probability {every[5]:g}, prior wall probability {every[6]:g}")
     if args.json:
         args.json.write_text(json.dumps(summary, indent=1))
     return 0

@@ -36,8 +36,8 @@ def test_self_times_subtract_the_events_nested_on_the_same_thread(tmp_path, wrap
 
 def _cv_row(log, res, setting, auc, nll, lo_auc=0.9, lo_nll=2.0):
     power, run_length, pi = setting
-    return dict(log=log, resolution=res, power=power, run_length=run_length, noise=0.1, z_rand=0.1, pass_prob=0.5,
-                prior=pi, auc=auc, nll=nll, logodds_auc=lo_auc, logodds_nll=lo_nll)
+    return dict(log=log, resolution=res, power=power, readings_per_cell=0.0, run_length=run_length, noise=0.1,
+                z_rand=0.1, pass_prob=0.5, prior=pi, auc=auc, nll=nll, logodds_auc=lo_auc, logodds_nll=lo_nll)
 
 
 def test_map_cv_rules_choose_by_mean_margin_and_break_ties_by_nll():

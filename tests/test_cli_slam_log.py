@@ -10,7 +10,8 @@ import pytest
 from PIL import Image
 
 from bayesmap import scenes
-from bayesmap.inference.logslam import FINAL_MAP_SWEEPS, GRAPH_COV_SCALE, POSE_SWEEPS
+from bayesmap.geometry.grid import Grid
+from bayesmap.inference.logslam import FINAL_MAP_SWEEPS, GRAPH_COV_SCALE, POSE_SWEEPS, final_map_power
 from bayesmap.inference.posegraph import SEQUENTIAL_STD
 from bayesmap.io.carmen import read_carmen
 from bayesmap.io.rosbag import read_bag
@@ -70,7 +71,14 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert final["sweeps"] == FINAL_MAP_SWEEPS and final["geometry"] == "chord"
     for name in ("sensor_noise", "coupling", "wall_pass_prob"):
         assert final[name] == pytest.approx(float(getattr(known.params, name))) and final[name] > 0, name
-    assert final["likelihood_power"] == known.likelihood_power
+    # its power follows the readings' density at the mean path (trajectory.tum, rounded to 1e-6: a few endpoints
+    # may change cells, hence rel 1e-2), not at the odometry, whose endpoints smear over twice the cells here
+    slam_problem = scenes.log_slam_problem(read_carmen(aces_odom), np.arange(25), resolution=0.2)
+    wide = Grid((2000, 2000), resolution=0.2, origin=(-200.0, -200.0))
+    at_mean = final_map_power(slam_problem, poses, wide)
+    assert final["likelihood_power"] == pytest.approx(at_mean, rel=1e-2)
+    assert final_map_power(slam_problem, slam_problem.odometry, wide) == pytest.approx(known.likelihood_power)
+    assert abs(at_mean - known.likelihood_power) > 0.2 * known.likelihood_power
     assert summary["pose_samples"] == len(samples) and 0 <= summary["acceptance_rate"] <= 1
     # the pose graph's spread is in the covariances: 25 scans close no loop (LOOP_GAP), so the graph is a chain of
     # sequential edges and pose k's (x, y) block has trace at least 2 k SEQUENTIAL_STD[0]^2 (heading errors add)

@@ -99,7 +99,8 @@ def test_log_defaults_come_from_the_scene_defaults(small_log):
         pb = log_problem(log, resolution=res)
         assert pb.params.sensor_noise == pytest.approx(scenes.LOG_SENSOR_NOISE)
         assert pb.range_offset == 0.0 and pb.params.geometry == scenes.LOG_GEOMETRY == "chord"
-        assert pb.likelihood_power == pytest.approx(scenes.LOG_LIKELIHOOD_POWER)
+        per_cell = scenes.endpoints_per_cell(pb.poses, pb.world_angles, pb.readings, pb.max_range_mask, pb.grid)
+        assert pb.likelihood_power == pytest.approx(scenes.log_likelihood_power(per_cell)) and pb.likelihood_power < 1
         assert pb.params.coupling == pytest.approx(scenes.log_coupling(res)) == pytest.approx(
             math.log(scenes.LOG_RUN_LENGTH / res - 1) if scenes.LOG_RUN_LENGTH >= 2 * res else 0.0)
         assert pb.extra["coupling"] == pytest.approx(pb.params.coupling)
@@ -129,6 +130,7 @@ def test_slam_problem_final_map_is_the_log_map_model(small_log):
     """The final map of ``slam --log`` (run_log_slam's stage 6) is drawn in exactly the map model ``infer --log``
     uses at known poses (log_problem's defaults), on the SLAM problem's grid and beam model."""
     from bayesmap import scenes
+    from bayesmap.inference.logslam import final_map_power
     from bayesmap.io.carmen import read_carmen
 
     log = read_carmen(small_log)
@@ -140,7 +142,9 @@ def test_slam_problem_final_map_is_the_log_map_model(small_log):
                      "beam_model", "z_hit", "z_short", "z_max", "z_rand", "lambda_short", "max_range"):
             assert getattr(final, name) == pytest.approx(getattr(known.params, name)), name
         assert final.grid == slam.params.grid and final.wall_pass_prob > 0 and final.coupling > 0
-        assert slam.final_map_power == known.likelihood_power
+        # the final map's power follows the readings' density at the path: at the same poses, the known-pose map's
+        assert slam.final_map_power is None
+        assert final_map_power(slam, slam.odometry, final.grid) == pytest.approx(known.likelihood_power)
 
 
 def test_with_poses_moves_the_rays_and_keeps_the_observations():
@@ -231,14 +235,43 @@ def test_range_offset_shifts_only_returned_readings_the_model_scores(small_log):
 
 
 def test_likelihood_power_default_for_logs_and_bad_powers(small_log):
-    """Logs default to the tempered target (LOG_LIKELIHOOD_POWER); bad powers are refused with the value named."""
+    """Logs default to a tempered target whose power follows the data's density (log_likelihood_power): the same
+    scans twice halve it, cells of twice the side hold more endpoints each and get a lower one; a given power wins;
+    bad powers are refused with the value named."""
     from bayesmap.io.carmen import read_carmen
-    from bayesmap.scenes import LOG_LIKELIHOOD_POWER
+    from bayesmap.scenes import LOG_READINGS_PER_CELL, endpoints_per_cell, log_likelihood_power
 
     log = read_carmen(small_log)
     pb = log_problem(log, resolution=0.2)
-    assert pb.likelihood_power == LOG_LIKELIHOOD_POWER < 1
+    per_cell = endpoints_per_cell(pb.poses, pb.world_angles, pb.readings, pb.max_range_mask, pb.grid)
+    assert pb.likelihood_power == pytest.approx(LOG_READINGS_PER_CELL / per_cell) and pb.likelihood_power < 1
+    scans = np.arange(len(log))
+    twice = log_problem(log, np.concatenate([scans, scans]), resolution=0.2)
+    assert twice.likelihood_power == pytest.approx(pb.likelihood_power / 2)
+    assert log_problem(log, resolution=0.1).likelihood_power > pb.likelihood_power
+    assert log_problem(log, resolution=0.2, readings_per_cell=2 * LOG_READINGS_PER_CELL).likelihood_power == (
+        pytest.approx(2 * pb.likelihood_power))
     assert log_problem(log, resolution=0.2, likelihood_power=1).likelihood_power == 1.0
     for bad in (0, -0.5, 2, "x"):
         with pytest.raises(BayesmapError, match="likelihood_power"):
             log_problem(log, resolution=0.2, likelihood_power=bad)
+    with pytest.raises(BayesmapError, match="readings_per_cell must be a finite number > 0, got -1"):
+        log_likelihood_power(3.0, -1)
+
+
+def test_endpoints_per_cell_counts_returned_endpoints_inside_the_grid():
+    """Hand-made: 3 endpoints in one cell and 1 in another (4 over 2 cells), a max-range reading and an endpoint
+    outside the grid not counted; the power is readings_per_cell over that mean, at most 1."""
+    from bayesmap.geometry.grid import Grid
+    from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
+
+    grid = Grid((4, 4), resolution=1.0, origin=(0.0, 0.0))
+    poses = np.array([[0.5, 0.5, 0.0]])
+    angles = np.zeros((1, 6))
+    angles[0, 3] = np.pi / 2  # straight up, into cell (0, 2)
+    readings = np.array([[2.1, 2.2, 2.3, 2.0, 1.0, 9.0]])  # 3 in cell (2, 0), 1 in (0, 2), a max-range, outside
+    mask = np.array([[False, False, False, False, True, False]])
+    assert endpoints_per_cell(poses, angles, readings, mask, grid) == pytest.approx(2.0)
+    assert endpoints_per_cell(poses, angles, readings, np.ones_like(mask), grid) == 0.0
+    assert log_likelihood_power(2.0, 1.0) == pytest.approx(0.5) and log_likelihood_power(0.5, 1.0) == 1.0
+    assert log_likelihood_power(0.0) == 1.0

@@ -355,7 +355,8 @@ def _in_range(name: str, lo: float | None = None, hi: float | None = None, lo_op
 
 POWER_HELP = ("--log: power eta in (0, 1] of the likelihood, sampling p(walls) p(readings | walls)^eta "
               "(a power posterior for beams that are not independent evidence; 1 is the plain posterior; "
-              f"default {scenes.LOG_LIKELIHOOD_POWER} for logs)")
+              f"default for logs: {scenes.LOG_READINGS_PER_CELL:g} over the mean number of returned readings that "
+              "end in a cell, so it follows the scans' density and the cell size)")
 COUPLING_HELP = ("the structured prior's coupling J >= 0, nats per pair of neighbouring cells that agree (a "
                  "4-neighbour Markov random field, bayesmap.model.prior); default for several scans of a log: mean "
                  f"runs of {scenes.LOG_RUN_LENGTH:g} m (see --run-length), elsewhere 0, independent cells (the "
@@ -1015,7 +1016,7 @@ def _log_slam(carmen, path: Path, scans: Optional[str], resolution: Optional[flo
         settings["final_map"] = {"sweeps": FINAL_MAP_SWEEPS, "burn_in": FINAL_MAP_SWEEPS // 2,
                                  "sensor_noise": float(final.sensor_noise), "geometry": final.geometry,
                                  "coupling": float(final.coupling), "wall_pass_prob": float(final.wall_pass_prob),
-                                 "likelihood_power": float(problem.final_map_power)}
+                                 "likelihood_power": float(result.final_map_power)}
     return problem, result, chosen, settings
 
 

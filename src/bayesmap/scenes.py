@@ -119,10 +119,13 @@ The cross-validation (``benchmarks/map_cv.py``): every other scan of each log, e
 the other two logs, among those whose predictive NLL is below log-odds' on both logs at both resolutions.
 Searched: power 0.01-0.3, run length 0-4 m, noise 0.05 and 0.1 m, ``z_rand`` 0.1 and 0.3 (2026-11-22), then the
 probability that a beam passes a wall cell, 0.1, 0.3 and 0.5, with run lengths 0, 1 and 2 m at power 0.1 and noise
-0.1 m (2026-11-23), then the prior wall probability of the structured prior, 0.3 and 0.5 (2026-11-24). Chosen on all
-three logs: power 0.1, run length 1 m, noise 0.1 m, ``z_rand`` 0.1, pass probability 0.5, prior wall probability
-0.3 (:data:`LOG_STRUCTURED_PRIOR`; mean AUC margin +0.030, at least +0.016 and an NLL below log-odds' on every log and
-resolution; before passable walls: power 0.1, 2 m, mean margin +0.020, 0.003 below log-odds on CSAIL at 0.2 m)."""
+0.1 m (2026-11-23), then the prior wall probability of the structured prior, 0.3 and 0.5 (2026-11-24), then a power
+that follows the data's density, 0.5, 0.7, 1, 1.4 and 2 readings per cell (:data:`LOG_READINGS_PER_CELL`), with runs
+of 1 and 2 m (2026-11-24). Chosen on all three logs: 0.7 readings per cell, run length 1 m, noise 0.1 m, ``z_rand``
+0.1, pass probability 0.5, prior wall probability 0.3 (:data:`LOG_STRUCTURED_PRIOR`; mean AUC margin +0.034, at
+least +0.022 and an NLL below log-odds' on every log and resolution; README, "The likelihood power follows the
+data"; with the fixed power 0.1 before it: mean +0.030, at least +0.016; before passable walls: power 0.1, 2 m, mean
+margin +0.020, 0.003 below log-odds on CSAIL at 0.2 m)."""
 
 LOG_SENSOR_NOISE = 0.1
 """Default ``sensor_noise`` of a log's map, meters: the hit component's standard deviation (a property of the laser
@@ -133,13 +136,62 @@ SCAN_SENSOR_NOISE = 0.05
 model), meters: what half a cell gave at the default 0.1 m before every default became a length in meters. One scan
 has no held-out beams to cross-validate it on."""
 
-LOG_LIKELIHOOD_POWER = 0.1
-"""Default likelihood power ``eta`` of a log's map (:attr:`Problem.likelihood_power`). The model treats every beam as
-independent evidence given the map; the beams of a log are not (a scan's beams share its pose error, neighbouring
-beams and consecutive scans see the same surface through the same errors), so the plain posterior is overconfident
-about which cell of a surface is the wall. Raising the likelihood to ``eta < 1`` counts each beam as a fraction of
-one (a power posterior; :func:`bayesmap.model.generative.check_likelihood_power`). Cross-validated
-(:data:`LOG_GEOMETRY`'s note)."""
+LOG_READINGS_PER_CELL = 0.7
+"""How many independent readings the returned beams that end in one cell are worth together, on average: the default
+likelihood power ``eta`` of a log's map (:attr:`Problem.likelihood_power`) is this over the mean number of returned
+readings per cell that holds an endpoint (:func:`log_likelihood_power`). The model treats every beam as independent
+evidence given the map; the beams of a log are not (a scan's beams share its pose error, neighbouring beams and
+consecutive scans see the same surface through the same errors), so the plain posterior is overconfident about which
+cell of a surface is the wall. Raising the likelihood to ``eta < 1`` counts each beam as a fraction of one (a power
+posterior; :func:`bayesmap.model.generative.check_likelihood_power`). A scan taken a few centimeters from the last one
+sees the same surface through the same errors, so a cell's evidence does not grow with the number of scans; a power that
+does not follow the density over-counts a log with twice the scans, or cells of twice the size (README, "The likelihood
+power follows the data"). Cross-validated (:data:`LOG_GEOMETRY`'s note)."""
+
+
+def endpoints_per_cell(poses, world_angles, readings, max_range_mask, grid: Grid) -> float:
+    """The mean number of returned readings whose endpoint falls in a cell, over the cells of ``grid`` that hold at
+    least one endpoint.
+
+    Args:
+        poses: ``(S, 3)`` poses ``(x m, y m, theta rad)``; only ``x, y`` are read.
+        world_angles: ``(S, K)`` world-frame beam angles, radians.
+        readings: ``(S, K)`` measured ranges, meters.
+        max_range_mask: ``(S, K)`` bool, True for max-range readings (not counted), or None (every reading returned).
+        grid: the cells; endpoints outside it are not counted.
+
+    Returns:
+        The mean count (a float >= 1), or 0.0 when no returned reading ends inside the grid.
+    """
+    poses = np.asarray(poses, np.float64)
+    angles = np.asarray(world_angles, np.float64)
+    readings = np.asarray(readings, np.float64)
+    ends = poses[:, None, :2] + readings[..., None] * np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+    returned = np.ones(readings.shape, bool) if max_range_mask is None else ~np.asarray(max_range_mask, bool)
+    cells = grid.cell_index(ends[returned])
+    inside = np.all((cells >= 0) & (cells < np.asarray(grid.shape)), axis=1)
+    if not inside.any():
+        return 0.0
+    flat = cells[inside, 0] * grid.shape[1] + cells[inside, 1]
+    return float(inside.sum() / len(np.unique(flat)))
+
+
+def log_likelihood_power(per_cell: float, readings_per_cell: float = LOG_READINGS_PER_CELL) -> float:
+    """The default likelihood power of a log's map whose cells hold ``per_cell`` returned endpoints on average
+    (:func:`endpoints_per_cell`): ``min(1, readings_per_cell / per_cell)``, so that a typical wall cell's readings
+    together count as ``readings_per_cell`` independent ones (:data:`LOG_READINGS_PER_CELL`); 1 when nothing
+    returned. This is the power of Miller & Dunson's coarsened posterior (2019, JASA 114(527), in its power-posterior
+    form ``alpha / (alpha + n)`` for ``n`` observations, about ``alpha / n`` for large ``n``) with ``n`` the
+    observations of one cell, the unit whose posterior the map reports.
+
+    Raises:
+        BayesmapError: if ``readings_per_cell`` is not a finite number > 0.
+    """
+    if (isinstance(readings_per_cell, bool) or not isinstance(readings_per_cell, (int, float))
+            or not math.isfinite(readings_per_cell) or readings_per_cell <= 0):
+        raise BayesmapError(f"readings_per_cell must be a finite number > 0, got {readings_per_cell!r}")
+    return 1.0 if per_cell <= 0 else min(1.0, float(readings_per_cell) / float(per_cell))
+
 
 LOG_RUN_LENGTH = 1.0
 """Default mean run length of the structured prior of a log's map, meters (:func:`log_coupling`;
@@ -193,8 +245,9 @@ SLAM_SENSOR_NOISE = 0.05
 """``sensor_noise`` of ``bayesmap slam --log``, meters (:func:`slam_map_settings`)."""
 
 SLAM_LIKELIHOOD_POWER = 0.1
-"""Likelihood power of ``bayesmap slam --log`` (maps and poses; :func:`slam_map_settings`): the value its front end,
-motion noise, loop edges and path uncertainty were cross-validated with (README, SLAM section)."""
+"""Likelihood power of ``bayesmap slam --log``'s chain (maps and poses; :func:`slam_map_settings`) and front end: the
+value its front end, motion noise, loop edges and path uncertainty were cross-validated with (README, SLAM section),
+the map power of logs at the time. The final map at the mean path follows the log default (:func:`log_map_params`)."""
 
 SIMULATED_NUM_POSES = 30
 """Simulated scans of a floor plan (:func:`bayesmap.evaluation.heldout.evaluate_truth`): number of poses."""
@@ -308,7 +361,7 @@ class Problem:
             chord geometry of logs needs none).
         likelihood_power: ``eta`` in (0, 1]: the samplers target ``p(walls) p(readings | walls) ** eta``
             (:func:`bayesmap.model.generative.check_likelihood_power`); 1 (the posterior) except for logs
-            (:data:`LOG_LIKELIHOOD_POWER`). The reference samplers support only 1.
+            (:func:`log_likelihood_power`). The reference samplers support only 1.
         multi_scan: False for a single-scan problem (the reference samplers apply; the views drop the scan axis).
         world_angles: ``(S, K)`` float64 world-frame beam angles, radians, exactly as the data source computed them
             (see the module docstring); None: ``theta + observations.beam_angles``.
@@ -661,7 +714,7 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
                 grid: Grid | None = None, range_offset: float | None = None,
                 sensor_params: dict | None = None, likelihood_power: float | None = None,
                 geometry: str = LOG_GEOMETRY, coupling: float | None = None,
-                wall_pass_prob: float | None = None) -> Problem:
+                wall_pass_prob: float | None = None, readings_per_cell: float = LOG_READINGS_PER_CELL) -> Problem:
     """Many scans of a real log at their poses: one map from all of them.
 
     The grid (``resolution`` meters per cell) covers the sensor positions and the endpoints of all beams that
@@ -684,13 +737,16 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
             default 0.
         sensor_params: the beam mixture's ``z_hit``, ``z_short``, ``z_max``, ``z_rand``, ``lambda_short`` (keywords of
             :func:`bayesmap.model.generative.make_params`); default :data:`bayesmap.model.sensor.BEAM_DEFAULTS`.
-        likelihood_power: :attr:`Problem.likelihood_power`; default :data:`LOG_LIKELIHOOD_POWER`.
+        likelihood_power: :attr:`Problem.likelihood_power`; default :func:`log_likelihood_power` of the chosen
+            scans' :func:`endpoints_per_cell` on the grid and ``readings_per_cell``.
         geometry: the wall geometry, ``"chord"`` (default, :data:`LOG_GEOMETRY`) or ``"entry"`` (the tutorial's).
         coupling: the structured prior's ``J`` (nats per agreeing pair of 4-neighbours,
             :mod:`bayesmap.model.prior`); default :func:`log_coupling` at the grid's resolution (mean runs of
             :data:`LOG_RUN_LENGTH` meters); 0 is the independent prior.
         wall_pass_prob: the probability that a beam passes through a wall cell
             (:class:`bayesmap.model.generative.ModelParams`); default :data:`LOG_WALL_PASS_PROB`.
+        readings_per_cell: what the default likelihood power makes a cell's endpoints worth
+            (:data:`LOG_READINGS_PER_CELL`); unused when ``likelihood_power`` is given.
 
     Raises:
         BayesmapError: on bad parameters or scan indices, or a sensor position outside ``grid``.
@@ -711,7 +767,10 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
     if not (math.isfinite(offset) and 0 <= offset < obs.max_range):
         raise BayesmapError(f"range_offset must be between 0 and the max range {obs.max_range:g} m, "
                             f"got {range_offset!r}")
-    eta = check_likelihood_power(LOG_LIKELIHOOD_POWER if likelihood_power is None else likelihood_power)
+    if likelihood_power is None:
+        per_cell = endpoints_per_cell(chosen.poses, chosen.world_angles, obs.readings, obs.max_range_mask, grid)
+        likelihood_power = log_likelihood_power(per_cell, readings_per_cell)
+    eta = check_likelihood_power(likelihood_power)
     return Problem(params=params, observations=obs, poses=chosen.poses, world_angles=chosen.world_angles,
                    source=label, extra={"max_range": obs.max_range, "scans": len(scans), "range_offset": offset,
                                          "geometry": geometry, "coupling": float(coupling),
@@ -757,7 +816,9 @@ class SlamProblem:
         final_map_params: the map model of the final map drawn at the posterior mean path
             (:func:`bayesmap.inference.logslam.run_log_slam`, stage 6), or None (no final map: the chain's own).
             :func:`log_slam_problem` sets the map model of a log at known poses (:func:`log_map_params`).
-        final_map_power: the likelihood power of that final map, in (0, 1].
+        final_map_power: the likelihood power of that final map, in (0, 1], or None: the log default at the mean
+            path (:func:`log_likelihood_power` of its :func:`endpoints_per_cell`), which :func:`log_slam_problem`
+            sets.
     """
 
     params: ModelParams
@@ -773,7 +834,7 @@ class SlamProblem:
     timestamps: np.ndarray | None = None
     range_offset: float = 0.0
     final_map_params: ModelParams | None = None
-    final_map_power: float = 1.0
+    final_map_power: float | None = 1.0
 
     @property
     def num_scans(self) -> int:
@@ -896,7 +957,7 @@ def log_map_params(params: ModelParams) -> ModelParams:
     geometry :data:`LOG_GEOMETRY`, the sensor noise :data:`LOG_SENSOR_NOISE`, the structured prior of
     :func:`log_coupling`, its prior wall probability :func:`log_prior_wall_prob` and the pass probability
     :data:`LOG_WALL_PASS_PROB`; the grid, the beam model and its weights and the max range kept. (Its likelihood
-    power is :data:`LOG_LIKELIHOOD_POWER`.)"""
+    power follows the density of the readings at the path, :func:`log_likelihood_power`.)"""
     coupling = log_coupling(params.grid.resolution)
     return replace_params(params, sensor_noise=LOG_SENSOR_NOISE, geometry=LOG_GEOMETRY,
                           prior_wall_prob=log_prior_wall_prob(coupling), coupling=coupling, neighbourhood=None,
@@ -940,4 +1001,4 @@ def log_slam_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall
                        readings=problem.model_readings, likelihood_power=problem.likelihood_power,
                        source=problem.source, max_range_mask=mask,
                        timestamps=np.asarray(log.timestamps, np.float64)[scans], range_offset=problem.range_offset,
-                       final_map_params=log_map_params(problem.params), final_map_power=LOG_LIKELIHOOD_POWER)
+                       final_map_params=log_map_params(problem.params), final_map_power=None)

@@ -354,13 +354,16 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
                  sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL, progress: bool = True,
                  range_offset: float | None = None, sensor_params: dict | None = None,
                  likelihood_power: float | None = None, geometry: str = LOG_GEOMETRY,
-                 coupling: float | None = None, wall_pass_prob: float | None = None) -> dict:
+                 coupling: float | None = None, wall_pass_prob: float | None = None,
+                 readings_per_cell: float | None = None) -> dict:
     """Held-out evaluation on a log: hold out every ``every``-th of the chosen scans, map the rest with bayesmap
     (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
     held-out beams (see the module docstring). ``sensor_noise``, ``range_offset``, ``sensor_params``,
-    ``likelihood_power``, ``geometry``, ``coupling`` (the structured prior's; None: the log default at
-    ``resolution``), ``prior_wall_prob`` (None: :func:`bayesmap.scenes.log_prior_wall_prob` of the coupling) and
-    ``wall_pass_prob`` (None: :func:`bayesmap.scenes.log_wall_pass_prob` of ``sampler``): see
+    ``likelihood_power`` (None: the log default, which follows the training scans' density,
+    :func:`bayesmap.scenes.log_likelihood_power`), ``geometry``, ``coupling`` (the structured prior's; None: the log
+    default at ``resolution``), ``prior_wall_prob`` (None: :func:`bayesmap.scenes.log_prior_wall_prob` of the
+    coupling), ``wall_pass_prob`` (None: :func:`bayesmap.scenes.log_wall_pass_prob` of ``sampler``) and
+    ``readings_per_cell`` (None: :data:`bayesmap.scenes.LOG_READINGS_PER_CELL`): see
     :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses the measured ranges); the other defaults are
     the scene defaults of :mod:`bayesmap.scenes`.
 
@@ -382,6 +385,8 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
                   beam_model=beam_model, grid=grid, range_offset=range_offset, sensor_params=sensor_params,
                   likelihood_power=likelihood_power, geometry=geometry, coupling=coupling,
                   wall_pass_prob=wall_pass_prob)
+    if readings_per_cell is not None:
+        kwargs["readings_per_cell"] = readings_per_cell
     train_problem = log_problem(log, train, **kwargs)
     test_problem = log_problem(log, test, **kwargs)
     start = time.perf_counter()

@@ -35,7 +35,8 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
 6. **The final map** (with ``problem.final_map_params``, which :func:`bayesmap.scenes.log_slam_problem` sets): the
    walls given the readings at the mean path, in the map model of a log at known poses
    (:func:`bayesmap.scenes.log_map_params`: 0.1 m sensor noise, the structured prior, wall cells a beam can pass,
-   cross-validated across logs), :data:`FINAL_MAP_SWEEPS` cellwise sweeps from the chain's last map. This is what
+   a likelihood power that follows the readings' density at the path, :func:`final_map_power`; cross-validated
+   across logs), :data:`FINAL_MAP_SWEEPS` cellwise sweeps from the chain's last map. This is what
    a SLAM system's map is, occupancy mapping at the estimated path, in bayesmap's best map model of known poses;
    the joint chain's own map (the SLAM model's, whose walls stop every beam as its pose moves need) stays in
    ``chain_posterior``. Scored at the true poses on held-out beams it ranks the cells better than the chain's
@@ -62,6 +63,7 @@ from bayesmap.inference.scanmatch import ScanData, correlative_path, scan_endpoi
 from bayesmap.inference.slam import SlamResult, check_counts, pose_summary
 from bayesmap.model.generative import replace_params
 from bayesmap.model.motion import odometry_controls
+from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
 
 FRONT_END_RESOLUTION = 0.05
 """Cell size of the front end's likelihood fields, meters (finer than the map: the fields resolve sub-cell
@@ -149,6 +151,20 @@ def _map_round(key, problem, params, poses, walls, sweeps: int, power: float | N
                              problem.likelihood_power if power is None else power)
     chain = run_chain(key, sampler, walls, sweeps)
     return jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs)
+
+
+def final_map_power(problem, path, grid: Grid) -> float:
+    """The likelihood power of the final map at ``path`` (``(S, 3)``, x m, y m, theta rad) on ``grid``:
+    ``problem.final_map_power``, or where that is None the log default,
+    :func:`bayesmap.scenes.log_likelihood_power` of the returned readings' :func:`bayesmap.scenes.endpoints_per_cell`
+    at the path (the readings as measured: the range offset added back)."""
+    if problem.final_map_power is not None:
+        return float(problem.final_map_power)
+    path = np.asarray(path, np.float64)
+    mask = problem.max_range_mask
+    measured = problem.readings + (problem.range_offset if mask is None else np.where(mask, 0.0, problem.range_offset))
+    per_cell = endpoints_per_cell(path, path[:, 2:3] + problem.sensor_angles, measured, mask, grid)
+    return log_likelihood_power(per_cell)
 
 
 def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_SCALE):
@@ -257,8 +273,9 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         if final:
             bar.set_description("final map")
             key = jax.random.fold_in(jax.random.key(seed), 2 * rounds)  # none of the chain's keys
+            final_power = final_map_power(problem, mean, grid)
             _, final_probs = _map_round(key, problem, with_grid(problem.final_map_params, grid), mean, walls,
-                                        final_map_sweeps, problem.final_map_power)
+                                        final_map_sweeps, final_power)
             posterior = final_probs[final_map_sweeps // 2:].astype(np.float64).mean(axis=0)
             bar.update()
     acceptance = float(np.concatenate(accepted).mean()) if accepted[0].size else 1.0
@@ -266,4 +283,5 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
                       acceptance_rate=acceptance, runtime_s=time.perf_counter() - start,
                       last_walls=np.asarray(walls, np.float32), grid=grid,
                       loop_edges=len(edges.i) - (len(path) - 1), graph_cov=graph_cov,
-                      chain_posterior=chain_posterior if final else None)
+                      chain_posterior=chain_posterior if final else None,
+                      final_map_power=final_power if final else None)

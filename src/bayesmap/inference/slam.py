@@ -193,6 +193,7 @@ class SlamResult(NamedTuple):
         chain_posterior: ``(nx, ny)`` float64 the joint chain's own posterior wall probabilities where
             ``posterior`` is another map's (real logs: the final map at the mean path,
             :func:`bayesmap.inference.logslam.run_log_slam`), or None (``posterior`` is the chain's).
+        final_map_power: the likelihood power of that other map (real logs), or None.
     """
 
     pose_samples: np.ndarray
@@ -206,6 +207,7 @@ class SlamResult(NamedTuple):
     loop_edges: int | None = None
     graph_cov: np.ndarray | None = None
     chain_posterior: np.ndarray | None = None
+    final_map_power: float | None = None
 
 
 def check_counts(sweeps, burn_in, chains) -> tuple[int, int, int]:
