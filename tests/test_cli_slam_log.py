@@ -11,7 +11,7 @@ from PIL import Image
 
 from bayesmap import scenes
 from bayesmap.geometry.grid import Grid
-from bayesmap.inference.logslam import FINAL_MAP_SWEEPS, GRAPH_COV_SCALE, POSE_SWEEPS, final_map_power
+from bayesmap.inference.logslam import FINAL_MAP_SWEEPS, GRAPH_COV_SCALE, POSE_SWEEPS, final_map_power, scan_data
 from bayesmap.inference.posegraph import SEQUENTIAL_STD
 from bayesmap.io.carmen import read_carmen
 from bayesmap.io.rosbag import read_bag
@@ -75,9 +75,10 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     # may change cells, hence rel 1e-2), not at the odometry, whose endpoints smear over twice the cells here
     slam_problem = scenes.log_slam_problem(read_carmen(aces_odom), np.arange(25), resolution=0.2)
     wide = Grid((2000, 2000), resolution=0.2, origin=(-200.0, -200.0))
-    at_mean = final_map_power(slam_problem, poses, wide)
+    data = scan_data(slam_problem)
+    at_mean = final_map_power(slam_problem, data, poses, wide)
     assert final["likelihood_power"] == pytest.approx(at_mean, rel=1e-2)
-    assert final_map_power(slam_problem, slam_problem.odometry, wide) == pytest.approx(known.likelihood_power)
+    assert final_map_power(slam_problem, data, slam_problem.odometry, wide) == pytest.approx(known.likelihood_power)
     assert abs(at_mean - known.likelihood_power) > 0.2 * known.likelihood_power
     assert summary["pose_samples"] == len(samples) and 0 <= summary["acceptance_rate"] <= 1
     # the pose graph's spread is in the covariances: 25 scans close no loop (LOOP_GAP), so the graph is a chain of

@@ -99,7 +99,7 @@ def test_log_defaults_come_from_the_scene_defaults(small_log):
         pb = log_problem(log, resolution=res)
         assert pb.params.sensor_noise == pytest.approx(scenes.LOG_SENSOR_NOISE)
         assert pb.range_offset == 0.0 and pb.params.geometry == scenes.LOG_GEOMETRY == "chord"
-        per_cell = scenes.endpoints_per_cell(pb.poses, pb.world_angles, pb.readings, pb.max_range_mask, pb.grid)
+        per_cell = scenes.endpoints_per_cell(_returned_endpoints(log), pb.grid)
         assert pb.likelihood_power == pytest.approx(scenes.log_likelihood_power(per_cell)) and pb.likelihood_power < 1
         assert pb.params.coupling == pytest.approx(scenes.log_coupling(res)) == pytest.approx(
             math.log(scenes.LOG_RUN_LENGTH / res - 1) if scenes.LOG_RUN_LENGTH >= 2 * res else 0.0)
@@ -130,7 +130,7 @@ def test_slam_problem_final_map_is_the_log_map_model(small_log):
     """The final map of ``slam --log`` (run_log_slam's stage 6) is drawn in exactly the map model ``infer --log``
     uses at known poses (log_problem's defaults), on the SLAM problem's grid and beam model."""
     from bayesmap import scenes
-    from bayesmap.inference.logslam import final_map_power
+    from bayesmap.inference.logslam import final_map_power, scan_data
     from bayesmap.io.carmen import read_carmen
 
     log = read_carmen(small_log)
@@ -144,7 +144,8 @@ def test_slam_problem_final_map_is_the_log_map_model(small_log):
         assert final.grid == slam.params.grid and final.wall_pass_prob > 0 and final.coupling > 0
         # the final map's power follows the readings' density at the path: at the same poses, the known-pose map's
         assert slam.final_map_power is None
-        assert final_map_power(slam, slam.odometry, final.grid) == pytest.approx(known.likelihood_power)
+        assert final_map_power(slam, scan_data(slam), slam.odometry, final.grid) == pytest.approx(
+            known.likelihood_power)
 
 
 def test_with_poses_moves_the_rays_and_keeps_the_observations():
@@ -234,6 +235,11 @@ def test_range_offset_shifts_only_returned_readings_the_model_scores(small_log):
         log_problem(log, resolution=0.2, geometry="inside")
 
 
+def _returned_endpoints(log) -> np.ndarray:
+    """``(N, 2)`` world endpoints of every returned beam of ``log`` (the reader's own, scan by scan)."""
+    return np.concatenate([log.endpoints(i)[~log.is_max_range[i]] for i in range(len(log))])
+
+
 def test_likelihood_power_default_for_logs_and_bad_powers(small_log):
     """Logs default to a tempered target whose power follows the data's density (log_likelihood_power): the same
     scans twice halve it, cells of twice the side hold more endpoints each and get a lower one; a given power wins;
@@ -243,7 +249,7 @@ def test_likelihood_power_default_for_logs_and_bad_powers(small_log):
 
     log = read_carmen(small_log)
     pb = log_problem(log, resolution=0.2)
-    per_cell = endpoints_per_cell(pb.poses, pb.world_angles, pb.readings, pb.max_range_mask, pb.grid)
+    per_cell = endpoints_per_cell(_returned_endpoints(log), pb.grid)
     assert pb.likelihood_power == pytest.approx(LOG_READINGS_PER_CELL / per_cell) and pb.likelihood_power < 1
     scans = np.arange(len(log))
     twice = log_problem(log, np.concatenate([scans, scans]), resolution=0.2)
@@ -260,18 +266,14 @@ def test_likelihood_power_default_for_logs_and_bad_powers(small_log):
 
 
 def test_endpoints_per_cell_counts_returned_endpoints_inside_the_grid():
-    """Hand-made: 3 endpoints in one cell and 1 in another (4 over 2 cells), a max-range reading and an endpoint
-    outside the grid not counted; the power is readings_per_cell over that mean, at most 1."""
+    """Hand-made: 3 endpoints in one cell and 1 in another (4 over 2 cells), an endpoint outside the grid not
+    counted; the power is readings_per_cell over that mean, at most 1."""
     from bayesmap.geometry.grid import Grid
     from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
 
     grid = Grid((4, 4), resolution=1.0, origin=(0.0, 0.0))
-    poses = np.array([[0.5, 0.5, 0.0]])
-    angles = np.zeros((1, 6))
-    angles[0, 3] = np.pi / 2  # straight up, into cell (0, 2)
-    readings = np.array([[2.1, 2.2, 2.3, 2.0, 1.0, 9.0]])  # 3 in cell (2, 0), 1 in (0, 2), a max-range, outside
-    mask = np.array([[False, False, False, False, True, False]])
-    assert endpoints_per_cell(poses, angles, readings, mask, grid) == pytest.approx(2.0)
-    assert endpoints_per_cell(poses, angles, readings, np.ones_like(mask), grid) == 0.0
+    ends = np.array([[2.6, 0.5], [2.7, 0.5], [2.8, 0.5], [0.5, 2.5], [9.5, 0.5]])  # 3 in (2, 0), 1 in (0, 2), outside
+    assert endpoints_per_cell(ends, grid) == pytest.approx(2.0)
+    assert endpoints_per_cell(ends[4:], grid) == 0.0 and endpoints_per_cell(np.zeros((0, 2)), grid) == 0.0
     assert log_likelihood_power(2.0, 1.0) == pytest.approx(0.5) and log_likelihood_power(0.5, 1.0) == 1.0
     assert log_likelihood_power(0.0) == 1.0

@@ -149,26 +149,18 @@ does not follow the density over-counts a log with twice the scans, or cells of 
 power follows the data"). Cross-validated (:data:`LOG_GEOMETRY`'s note)."""
 
 
-def endpoints_per_cell(poses, world_angles, readings, max_range_mask, grid: Grid) -> float:
+def endpoints_per_cell(endpoints, grid: Grid) -> float:
     """The mean number of returned readings whose endpoint falls in a cell, over the cells of ``grid`` that hold at
     least one endpoint.
 
     Args:
-        poses: ``(S, 3)`` poses ``(x m, y m, theta rad)``; only ``x, y`` are read.
-        world_angles: ``(S, K)`` world-frame beam angles, radians.
-        readings: ``(S, K)`` measured ranges, meters.
-        max_range_mask: ``(S, K)`` bool, True for max-range readings (not counted), or None (every reading returned).
+        endpoints: ``(N, 2)`` world-frame endpoints of the returned (not max-range) readings, meters.
         grid: the cells; endpoints outside it are not counted.
 
     Returns:
-        The mean count (a float >= 1), or 0.0 when no returned reading ends inside the grid.
+        The mean count (a float >= 1), or 0.0 when no endpoint lies inside the grid.
     """
-    poses = np.asarray(poses, np.float64)
-    angles = np.asarray(world_angles, np.float64)
-    readings = np.asarray(readings, np.float64)
-    ends = poses[:, None, :2] + readings[..., None] * np.stack([np.cos(angles), np.sin(angles)], axis=-1)
-    returned = np.ones(readings.shape, bool) if max_range_mask is None else ~np.asarray(max_range_mask, bool)
-    cells = grid.cell_index(ends[returned])
+    cells = grid.cell_index(np.asarray(endpoints, np.float64).reshape(-1, 2))
     inside = np.all((cells >= 0) & (cells < np.asarray(grid.shape)), axis=1)
     if not inside.any():
         return 0.0
@@ -647,6 +639,7 @@ class _LogScans:
     poses: np.ndarray  # (S, 3)
     world_angles: np.ndarray  # (S, K), as the log computed them
     grid: Grid
+    endpoints: np.ndarray  # (N, 2) world endpoints of the returned beams, meters
 
 
 def _log_scans(log, scans: np.ndarray, resolution: float, margin: float, grid: Grid | None) -> _LogScans:
@@ -669,12 +662,12 @@ def _log_scans(log, scans: np.ndarray, resolution: float, margin: float, grid: G
     is_max = ranges >= max_range
     poses = np.asarray(log.poses[scans], dtype=np.float64)
     world = np.asarray(log.angles[scans], dtype=np.float64)
+    ends = (poses[:, None, :2] + ranges[..., None] * np.stack([np.cos(world), np.sin(world)], axis=-1))[~is_max]
     if grid is None:
-        ends = poses[:, None, :2] + ranges[..., None] * np.stack([np.cos(world), np.sin(world)], axis=-1)
-        grid = Grid.covering(np.vstack([ends[~is_max], poses[:, :2]]), resolution=resolution, margin=margin)
+        grid = Grid.covering(np.vstack([ends, poses[:, :2]]), resolution=resolution, margin=margin)
     observations = Observations(beam_angles=world - poses[:, 2:3], readings=np.where(is_max, max_range, ranges),
                                 max_range_mask=is_max, max_range=max_range)
-    return _LogScans(observations, poses, world, grid)
+    return _LogScans(observations, poses, world, grid, ends)
 
 
 def scan_problem(log, index: int, resolution: float = RESOLUTION, prior_wall_prob: float = TUTORIAL_PRIOR,
@@ -714,7 +707,7 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
                 grid: Grid | None = None, range_offset: float | None = None,
                 sensor_params: dict | None = None, likelihood_power: float | None = None,
                 geometry: str = LOG_GEOMETRY, coupling: float | None = None,
-                wall_pass_prob: float | None = None, readings_per_cell: float = LOG_READINGS_PER_CELL) -> Problem:
+                wall_pass_prob: float | None = None, readings_per_cell: float | None = None) -> Problem:
     """Many scans of a real log at their poses: one map from all of them.
 
     The grid (``resolution`` meters per cell) covers the sensor positions and the endpoints of all beams that
@@ -745,8 +738,8 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
             :data:`LOG_RUN_LENGTH` meters); 0 is the independent prior.
         wall_pass_prob: the probability that a beam passes through a wall cell
             (:class:`bayesmap.model.generative.ModelParams`); default :data:`LOG_WALL_PASS_PROB`.
-        readings_per_cell: what the default likelihood power makes a cell's endpoints worth
-            (:data:`LOG_READINGS_PER_CELL`); unused when ``likelihood_power`` is given.
+        readings_per_cell: what the default likelihood power makes a cell's endpoints worth; default
+            :data:`LOG_READINGS_PER_CELL`; unused when ``likelihood_power`` is given.
 
     Raises:
         BayesmapError: on bad parameters or scan indices, or a sensor position outside ``grid``.
@@ -768,8 +761,9 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
         raise BayesmapError(f"range_offset must be between 0 and the max range {obs.max_range:g} m, "
                             f"got {range_offset!r}")
     if likelihood_power is None:
-        per_cell = endpoints_per_cell(chosen.poses, chosen.world_angles, obs.readings, obs.max_range_mask, grid)
-        likelihood_power = log_likelihood_power(per_cell, readings_per_cell)
+        per_cell = endpoints_per_cell(chosen.endpoints, grid)
+        likelihood_power = log_likelihood_power(
+            per_cell, LOG_READINGS_PER_CELL if readings_per_cell is None else readings_per_cell)
     eta = check_likelihood_power(likelihood_power)
     return Problem(params=params, observations=obs, poses=chosen.poses, world_angles=chosen.world_angles,
                    source=label, extra={"max_range": obs.max_range, "scans": len(scans), "range_offset": offset,

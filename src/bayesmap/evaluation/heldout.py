@@ -384,9 +384,7 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
     kwargs = dict(resolution=resolution, prior_wall_prob=prior_wall_prob, sensor_noise=sensor_noise,
                   beam_model=beam_model, grid=grid, range_offset=range_offset, sensor_params=sensor_params,
                   likelihood_power=likelihood_power, geometry=geometry, coupling=coupling,
-                  wall_pass_prob=wall_pass_prob)
-    if readings_per_cell is not None:
-        kwargs["readings_per_cell"] = readings_per_cell
+                  wall_pass_prob=wall_pass_prob, readings_per_cell=readings_per_cell)
     train_problem = log_problem(log, train, **kwargs)
     test_problem = log_problem(log, test, **kwargs)
     start = time.perf_counter()

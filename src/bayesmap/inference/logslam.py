@@ -111,11 +111,17 @@ def scan_data(problem) -> ScanData:
                     np.asarray(covs))
 
 
+def _returned_endpoints(data: ScanData, path) -> np.ndarray:
+    """``(N, 2)`` float64 world endpoints (meters) of the returned beams of ``data`` (:func:`scan_data`: the readings
+    as measured) at ``path`` ``(S, 3)``."""
+    return np.asarray(scan_endpoints(jnp.asarray(path), data.sensor_angles, data.readings))[data.returned]
+
+
 def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MARGIN) -> Grid:
     """The grid covering the returned beams' endpoints (:func:`scan_data`) and the sensor positions at ``path``
     ``(S, 3)`` plus ``margin`` meters."""
-    ends = np.asarray(scan_endpoints(jnp.asarray(path), data.sensor_angles, data.readings))
-    return Grid.covering(np.vstack([ends[data.returned], path[:, :2]]), resolution=resolution, margin=margin)
+    return Grid.covering(np.vstack([_returned_endpoints(data, path), path[:, :2]]), resolution=resolution,
+                         margin=margin)
 
 
 def front_end(problem, data: ScanData) -> np.ndarray:
@@ -153,18 +159,14 @@ def _map_round(key, problem, params, poses, walls, sweeps: int, power: float | N
     return jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs)
 
 
-def final_map_power(problem, path, grid: Grid) -> float:
+def final_map_power(problem, data: ScanData, path, grid: Grid) -> float:
     """The likelihood power of the final map at ``path`` (``(S, 3)``, x m, y m, theta rad) on ``grid``:
     ``problem.final_map_power``, or where that is None the log default,
-    :func:`bayesmap.scenes.log_likelihood_power` of the returned readings' :func:`bayesmap.scenes.endpoints_per_cell`
-    at the path (the readings as measured: the range offset added back)."""
+    :func:`bayesmap.scenes.log_likelihood_power` of the :func:`bayesmap.scenes.endpoints_per_cell` of the returned
+    beams of ``data`` (:func:`scan_data` of ``problem``: the readings as measured) at the path."""
     if problem.final_map_power is not None:
         return float(problem.final_map_power)
-    path = np.asarray(path, np.float64)
-    mask = problem.max_range_mask
-    measured = problem.readings + (problem.range_offset if mask is None else np.where(mask, 0.0, problem.range_offset))
-    per_cell = endpoints_per_cell(path, path[:, 2:3] + problem.sensor_angles, measured, mask, grid)
-    return log_likelihood_power(per_cell)
+    return log_likelihood_power(endpoints_per_cell(_returned_endpoints(data, path), grid))
 
 
 def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_SCALE):
@@ -273,7 +275,7 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         if final:
             bar.set_description("final map")
             key = jax.random.fold_in(jax.random.key(seed), 2 * rounds)  # none of the chain's keys
-            final_power = final_map_power(problem, mean, grid)
+            final_power = final_map_power(problem, scans, mean, grid)
             _, final_probs = _map_round(key, problem, with_grid(problem.final_map_params, grid), mean, walls,
                                         final_map_sweeps, final_power)
             posterior = final_probs[final_map_sweeps // 2:].astype(np.float64).mean(axis=0)
