@@ -18,6 +18,16 @@ Protocol (issue 15's map-quality target):
    :func:`bayesmap.evaluation.heldout.score_maps`, each map as independent wall probabilities (the SLAM run keeps
    its posterior marginals, not map samples, so the reference is scored the same way), each in its own map model.
    With a final map, the joint chain's own map is scored too (``"slam_chain"``, in the SLAM model).
+5. The same maps are scored again with each held-out scan registered into each map's frame
+   (``"slam_localized"``, ``"true_poses_localized"``, ``"slam_chain_localized"``; :func:`localize_heldout`): the scan
+   is matched, from the pose step 2 gives it (for the reference, its true pose), against the local map of the
+   :data:`LOCALIZE_NEIGHBOURS` mapped scans on each side of it in the log at that map's poses (the SLAM run's mean
+   path, or the true poses), by the loop closure's correlative matcher
+   (:func:`bayesmap.inference.posegraph.match_to_local_maps`, window :data:`LOCALIZE_LEVELS`). Each entry adds
+   ``shift_rms_m``, the RMS distance the held-out positions moved. Step 4 scores a map together with the error of
+   its frame: a path warped by 0.1 m puts the held-out beams 0.1 m off walls that are right relative to the path; the
+   truth has such errors too (its held-out scans move by 3-5 cm when registered into the map of their neighbours'
+   true poses). Step 5 scores the map up to that registration, as a robot localizing in it would use it.
 """
 
 from __future__ import annotations
@@ -30,11 +40,46 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.heldout import heldout_split, score_maps
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, frame_of
 from bayesmap.inference.driver import run_inference
-from bayesmap.inference.logslam import run_log_slam
+from bayesmap.inference.logslam import run_log_slam, scan_data
+from bayesmap.inference.posegraph import match_to_local_maps
 from bayesmap.scenes import RESOLUTION, log_problem, log_slam_problem, slam_map_settings
+
+LOCALIZE_NEIGHBOURS = 10
+"""Mapped scans on each side of a held-out scan (nearest in the log's order) whose endpoints make the local map it is
+registered against (the loop closure's :data:`bayesmap.inference.posegraph.LOOP_NEIGHBOURS`)."""
+
+LOCALIZE_LEVELS = ((0.1, 0.02, 3, 5, 1), (0.03, 0.007, 3, 3, 0), (0.01, 0.0025, 2, 2, 0), (0.003, 0.0008, 2, 2, 0))
+"""The registration's search (as :data:`bayesmap.inference.scanmatch.MATCH_LEVELS`): +-0.3 m and +-0.1 rad around
+the starting pose, down to 3 mm and 0.05 degrees. Narrower than the loop closure's +-1.5 m: a path whose ATE is
+0.1-0.2 m is off by less than 0.3 m almost everywhere, and a wide window lets a scan in a corridor slide along it
+to wherever it scores best."""
 
 REFERENCE_SWEEPS = 100
 """Cellwise sweeps of the map made at the true poses (half burn-in): ``bayesmap evaluate --log``'s default."""
+
+
+def localize_heldout(path, data, train, test, starts) -> np.ndarray:
+    """Register held-out scans into the frame of a map made from the other scans (step 5 of the module docstring).
+
+    Args:
+        path: ``(S, 3)`` poses of every scan of ``data`` in the map's frame; only the rows of ``train`` are read.
+        data: the log's scans (:func:`bayesmap.inference.logslam.scan_data`).
+        train: ``(M,)`` sorted indices of the mapped scans.
+        test: ``(T,)`` indices of the held-out scans.
+        starts: ``(T, 3)`` where each held-out scan's search starts, in the map's frame.
+
+    Returns:
+        ``(T, 3)`` float64 registered poses (x m, y m, theta rad).
+
+    Raises:
+        BayesmapError: as :func:`bayesmap.inference.posegraph.match_to_local_maps`, or if ``train`` is empty.
+    """
+    train, test = np.asarray(train, np.int64), np.asarray(test, np.int64)
+    if len(train) == 0:
+        raise BayesmapError("no mapped scan to register the held-out scans against")
+    at = np.searchsorted(train, test)[:, None] + np.arange(-LOCALIZE_NEIGHBOURS, LOCALIZE_NEIGHBOURS)
+    neighbours = train[np.clip(at, 0, len(train) - 1)]
+    return match_to_local_maps(path, data, test, neighbours, starts, levels=LOCALIZE_LEVELS)[0]
 
 
 def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTION, seed: int = 0,
@@ -52,7 +97,8 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
 
     Returns:
         ``{"slam": {"auc", "nll", ...}, "true_poses": {...}, "setup": {...}}`` (JSON-serializable), and
-        ``"slam_chain"`` with a final map; ``setup`` has the SLAM path's ATE on the mapped scans, both runtimes and
+        ``"slam_chain"`` with a final map; the ``"..._localized"`` scores of step 5 (each with ``shift_rms_m``);
+        ``setup`` has the SLAM path's ATE on the mapped scans, both runtimes and
         the map model (``"log at known poses"`` or ``"SLAM chain"``).
 
     Raises:
@@ -73,12 +119,25 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
     chain_model = slam_map_settings()
     same = {} if final else chain_model  # the model of slam.posterior: the log's at known poses, or the chain's
 
-    def slam_test(settings):
-        return log_problem(log.with_poses(poses), test, resolution=resolution, grid=slam.grid, **settings)
+    def slam_test(settings, at):
+        return log_problem(log.with_poses(at), test, resolution=resolution, grid=slam.grid, **settings)
 
-    scores = score_maps(slam_test(same), {"slam": (slam.posterior, None)})
+    def shift(moved, start):
+        return float(np.sqrt(np.mean(np.sum((moved[test, :2] - start[test, :2]) ** 2, axis=1))))
+
+    data = scan_data(log_slam_problem(log, resolution=resolution))  # every scan, the readings as measured
+    slam_path = poses.copy()
+    slam_path[train] = slam.mean_path
+    registered = poses.copy()
+    registered[test] = localize_heldout(slam_path, data, train, test, poses[test])
+    scores = score_maps(slam_test(same, poses), {"slam": (slam.posterior, None)})
+    scores.update(_with_shift(score_maps(slam_test(same, registered), {"slam_localized": (slam.posterior, None)}),
+                              shift(registered, poses)))
     if final:
-        scores.update(score_maps(slam_test(chain_model), {"slam_chain": (slam.chain_posterior, None)}))
+        scores.update(score_maps(slam_test(chain_model, poses), {"slam_chain": (slam.chain_posterior, None)}))
+        scores.update(_with_shift(score_maps(slam_test(chain_model, registered),
+                                             {"slam_chain_localized": (slam.chain_posterior, None)}),
+                                  shift(registered, poses)))
 
     true_log = log.with_poses(truth)
     grid = log_problem(true_log, resolution=resolution).grid  # covers the held-out scans too
@@ -88,6 +147,12 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
     reference_s = time.perf_counter() - start
     scores.update(score_maps(log_problem(true_log, test, resolution=resolution, grid=grid, **same),
                              {"true_poses": (reference.posterior, None)}))
+    true_registered = truth.copy()
+    true_registered[test] = localize_heldout(truth, data, train, test, truth[test])
+    scores.update(_with_shift(score_maps(log_problem(log.with_poses(true_registered), test, resolution=resolution,
+                                                     grid=grid, **same),
+                                         {"true_poses_localized": (reference.posterior, None)}),
+                              shift(true_registered, truth)))
     scores["setup"] = {"log": str(log.path), "scans": len(log), "train_scans": len(train), "test_scans": len(test),
                        "every": int(every), "resolution": float(resolution),
                        "slam_ate_m": absolute_trajectory_error(slam.mean_path, truth[train])["rmse_m"],
@@ -95,3 +160,8 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
                        "reference_sweeps": int(reference_sweeps),
                        "map_model": "log at known poses" if final else "SLAM chain"}
     return scores
+
+
+def _with_shift(scores: dict, shift_m: float) -> dict:
+    """``scores`` (name -> figures) with ``shift_rms_m`` added to every entry."""
+    return {name: {**figures, "shift_rms_m": shift_m} for name, figures in scores.items()}

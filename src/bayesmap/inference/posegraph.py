@@ -155,33 +155,80 @@ def _local_grid() -> Grid:
 
 
 def match_loops(path, data: ScanData, pairs) -> tuple[np.ndarray, np.ndarray]:
-    """Match scan ``t`` against the local map around scan ``s`` for each pair of ``pairs`` ``(P, 2)``.
+    """Match scan ``t`` against the local map around scan ``s`` for each pair of ``pairs`` ``(P, 2)``
+    (:func:`match_to_local_maps` with :data:`LOOP_LEVELS`, from ``t``'s estimate, the local map of the scans
+    ``s - LOOP_NEIGHBOURS .. s + LOOP_NEIGHBOURS``, every :data:`LOCAL_MAP_STEP`-th, centered on ``s``).
 
     Returns:
         ``(poses (P, 3), hit_fraction (P,))``: scan ``t``'s matched world pose and its match quality
         (:func:`bayesmap.inference.scanmatch.hit_fraction`).
     """
     path = np.asarray(path, np.float64)
-    grid = _local_grid()
-    steps = lattices(LOOP_LEVELS)
-    s_count = len(path)
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
     offsets = np.arange(-LOOP_NEIGHBOURS, LOOP_NEIGHBOURS + 1, LOCAL_MAP_STEP)
+    neighbours = np.clip(pairs[:, :1] + offsets, 0, len(path) - 1)
+    return match_to_local_maps(path, data, pairs[:, 1], neighbours, path[pairs[:, 1]], path[pairs[:, 0], :2])
+
+
+def match_to_local_maps(path, data: ScanData, scans, neighbours, starts, centers=None,
+                        levels=LOOP_LEVELS) -> tuple[np.ndarray, np.ndarray]:
+    """Match each scan of ``scans`` against the local map of its ``neighbours`` at their poses in ``path``.
+
+    The local map of scan ``scans[k]`` is the likelihood fields (:func:`bayesmap.inference.scanmatch.add_to_fields`)
+    of the scans ``neighbours[k]`` at ``path[neighbours[k]]``, on a square grid of +-:data:`LOCAL_MAP_HALF_WIDTH`
+    meters around ``centers[k]``; the scan is searched (:func:`bayesmap.inference.scanmatch.search`, no prior) from
+    ``starts[k]`` over ``levels``. The loop closure's matcher (:func:`match_loops`), and what
+    :mod:`bayesmap.evaluation.slammap` registers a held-out scan into a map's frame with.
+
+    Args:
+        path: ``(S, 3)`` poses of the scans of ``data`` (x m, y m, theta rad); only the neighbours' rows are read.
+        data: the scans (:class:`bayesmap.inference.scanmatch.ScanData`; its odometry is not used).
+        scans: ``(P,)`` int indices into ``data`` of the scans to match.
+        neighbours: ``(P, N)`` int indices into ``data`` of each one's local map (a scan may be its own neighbour
+            only if the caller wants it to).
+        starts: ``(P, 3)`` where each search starts (world frame).
+        centers: ``(P, 2)`` the local maps' centers (meters); default the starts' positions.
+        levels: the coarse-to-fine search (as :data:`bayesmap.inference.scanmatch.MATCH_LEVELS`).
+
+    Returns:
+        ``(poses (P, 3), hit_fraction (P,))`` float64: each scan's matched world pose and the fraction of its returned
+        beams that land on the local map (:func:`bayesmap.inference.scanmatch.hit_fraction`).
+
+    Raises:
+        BayesmapError: if the shapes disagree or an index is outside ``data``.
+    """
+    path = np.asarray(path, np.float64)
+    scans = np.asarray(scans, np.int64).reshape(-1)
+    neighbours = np.asarray(neighbours, np.int64)
+    starts = np.asarray(starts, np.float64).reshape(-1, 3)
+    centers = starts[:, :2] if centers is None else np.asarray(centers, np.float64).reshape(-1, 2)
+    count = np.asarray(data.readings).shape[0]
+    if path.shape != (count, 3):
+        raise BayesmapError(f"path must be ({count}, 3), one pose per scan of the data, got shape {path.shape}")
+    if neighbours.ndim != 2 or not (len(neighbours) == len(scans) == len(starts) == len(centers)):
+        raise BayesmapError(f"scans {scans.shape}, neighbours {neighbours.shape}, starts {starts.shape} and centers "
+                            f"{centers.shape} must have one row per matched scan")
+    for name, index in (("scans", scans), ("neighbours", neighbours)):
+        if index.size and (index.min() < 0 or index.max() >= count):
+            raise BayesmapError(f"{name} must index the {count} scans of the data, got {index.min()}..{index.max()}")
+    grid = _local_grid()
+    steps = lattices(levels)
     angles, readings, returned = (jnp.asarray(np.asarray(a)) for a in (data.sensor_angles, data.readings,
                                                                        data.returned))
-    poses, quality = np.zeros((len(pairs), 3)), np.zeros(len(pairs))
-    for k, (s, t) in enumerate(np.asarray(pairs)):
-        shift = np.array([path[s, 0], path[s, 1], 0.0])  # local frame: scan s's position at the origin
-        neighbours = np.clip(s + offsets, 0, s_count - 1)
-        best, q = _match_one(jnp.asarray(neighbours), t, jnp.asarray(path[neighbours] - shift),
-                             jnp.asarray(path[t] - shift), angles, readings, returned, steps, grid)
+    poses, quality = np.zeros((len(scans), 3)), np.zeros(len(scans))
+    for k, t in enumerate(scans):
+        shift = np.array([centers[k, 0], centers[k, 1], 0.0])  # local frame: the center at the origin
+        best, q = _match_one(jnp.asarray(neighbours[k]), int(t), jnp.asarray(path[neighbours[k]] - shift),
+                             jnp.asarray(starts[k] - shift), angles, readings, returned, steps, grid)
         poses[k], quality[k] = np.asarray(best, np.float64) + shift, float(q)
     return poses, quality
 
 
 @functools.partial(jax.jit, static_argnames=("grid",))
 def _match_one(neighbours, t, local_poses, center, angles, readings, returned, steps: Lattices, grid: Grid):
-    """One loop match of :func:`match_loops` (module level, so that every run with these shapes shares one compiled
-    search): scan ``t`` searched from ``center`` against the fields of the scans ``neighbours`` at ``local_poses``."""
+    """One match of :func:`match_to_local_maps` (module level, so that every run with these shapes shares one
+    compiled search): scan ``t`` searched from ``center`` against the fields of the scans ``neighbours`` at
+    ``local_poses``."""
     fields = add_to_fields(empty_fields(grid), grid, local_poses, angles[neighbours], readings[neighbours],
                            returned[neighbours])
     best, _ = search(fields, grid, center, angles[t], readings[t], returned[t], steps)
