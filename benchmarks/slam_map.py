@@ -33,7 +33,7 @@ def table_row(name: str, seed: int, scores: dict) -> str:
     slam, ref = scores["slam"], scores["true_poses"]
     chain = scores.get("slam_chain")
     chain_cell = "-" if chain is None else f"{chain['auc']:.4f} / {chain['nll']:.3f}"
-    slam_r, ref_r = scores["slam_localized"], scores["true_poses_localized"]
+    slam_r, ref_r = scores["slam_registered"], scores["true_poses_registered"]
     return (f"| {name} | {seed} | {scores['setup']['slam_ate_m']:.3f} | {slam['auc']:.4f} | {ref['auc']:.4f} | "
             f"{ref['auc'] - slam['auc']:+.4f} | {slam['nll']:.3f} | {ref['nll']:.3f} | "
             f"{slam_r['auc']:.4f} / {slam_r['nll']:.3f} ({slam_r['shift_rms_m']:.3f}) | "

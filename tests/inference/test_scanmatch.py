@@ -268,16 +268,15 @@ def test_a_second_run_of_the_same_shapes_compiles_nothing(caplog):
     assert not np.array_equal(first, second)
 
 
-
 @pytest.mark.parametrize("angle, move", [(0.3, (2.0, -1.0)), (-1.0, (5.0, 3.0))])
 def test_a_held_out_scan_is_registered_into_the_frame_of_the_map_it_is_scored_on(angle, move):
-    """``evaluation.slammap.localize_heldout`` (the registered columns of issue 15's map benchmark): held-out scans of
+    """``evaluation.slammap.register_heldout`` (the registered columns of issue 15's map benchmark): held-out scans of
     the room (3, 5 and 8, one at a time), started 0.14 m and 0.04 rad off, land within 1 cm and 0.005 rad of their
     true poses carried into the map's frame, the truth turned by ``angle`` and moved by ``move``: they are matched
     against their neighbours at the map's poses, not against the truth (2-6 m away). Exact readings, so the only
     error is the matcher's: a few millimeters here; in the room's own axis-aligned frame up to 3 cm, where its
     cell-stepped walls line up with the fields' cells and the score is flat over a cell, so the frames are turned."""
-    from bayesmap.evaluation.slammap import localize_heldout
+    from bayesmap.evaluation.slammap import register_heldout
 
     grid, truth, odometry, beams, readings = room_scans(num_poses=12)
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
@@ -287,10 +286,10 @@ def test_a_held_out_scan_is_registered_into_the_frame_of_the_map_it_is_scored_on
     for held in (3, 5, 8):
         train, test = np.delete(np.arange(12), held), np.array([held])
         start = frame[test] + np.array([0.12, -0.07, 0.04])
-        registered = localize_heldout(frame, data, train, test, start)
+        registered = register_heldout(frame, data, train, test, start)
         assert np.hypot(*(registered[0, :2] - frame[held, :2])) < 0.01
         assert abs(registered[0, 2] - frame[held, 2]) < 0.005
     with pytest.raises(BayesmapError, match=r"path must be \(12, 3\)"):
-        localize_heldout(frame[:5], data, train, test, start)
+        register_heldout(frame[:5], data, train, test, start)
     with pytest.raises(BayesmapError, match="neighbours must index the 12 scans"):
         posegraph.match_to_local_maps(frame, data, test, np.array([[3, 12]]), start)

@@ -19,15 +19,16 @@ Protocol (issue 15's map-quality target):
    its posterior marginals, not map samples, so the reference is scored the same way), each in its own map model.
    With a final map, the joint chain's own map is scored too (``"slam_chain"``, in the SLAM model).
 5. The same maps are scored again with each held-out scan registered into each map's frame
-   (``"slam_localized"``, ``"true_poses_localized"``, ``"slam_chain_localized"``; :func:`localize_heldout`): the scan
+   (``"slam_registered"``, ``"true_poses_registered"``, ``"slam_chain_registered"``; :func:`register_heldout`): the scan
    is matched, from the pose step 2 gives it (for the reference, its true pose), against the local map of the
-   :data:`LOCALIZE_NEIGHBOURS` mapped scans on each side of it in the log at that map's poses (the SLAM run's mean
+   :data:`REGISTER_NEIGHBOURS` mapped scans on each side of it in the log at that map's poses (the SLAM run's mean
    path, or the true poses), by the loop closure's correlative matcher
-   (:func:`bayesmap.inference.posegraph.match_to_local_maps`, window :data:`LOCALIZE_LEVELS`). Each entry adds
+   (:func:`bayesmap.inference.posegraph.match_to_local_maps`, window :data:`REGISTER_LEVELS`). Each entry adds
    ``shift_rms_m``, the RMS distance the held-out positions moved. Step 4 scores a map together with the error of
-   its frame: a path warped by 0.1 m puts the held-out beams 0.1 m off walls that are right relative to the path; the
-   truth has such errors too (its held-out scans move by 3-5 cm when registered into the map of their neighbours'
-   true poses). Step 5 scores the map up to that registration, as a robot localizing in it would use it.
+   its frame: a path warped by 0.1 m puts the held-out beams 0.1 m off walls that are right relative to the path (the
+   truth's held-out scans move by 3-5 cm when registered into the map of their neighbours' true poses: the truth's
+   own error and the matcher's together). Step 5 scores the map up to that registration, as a robot localizing in it
+   would use it; both maps get the same registration.
 """
 
 from __future__ import annotations
@@ -44,11 +45,11 @@ from bayesmap.inference.logslam import run_log_slam, scan_data
 from bayesmap.inference.posegraph import match_to_local_maps
 from bayesmap.scenes import RESOLUTION, log_problem, log_slam_problem, slam_map_settings
 
-LOCALIZE_NEIGHBOURS = 10
+REGISTER_NEIGHBOURS = 10
 """Mapped scans on each side of a held-out scan (nearest in the log's order) whose endpoints make the local map it is
 registered against (the loop closure's :data:`bayesmap.inference.posegraph.LOOP_NEIGHBOURS`)."""
 
-LOCALIZE_LEVELS = ((0.1, 0.02, 3, 5, 1), (0.03, 0.007, 3, 3, 0), (0.01, 0.0025, 2, 2, 0), (0.003, 0.0008, 2, 2, 0))
+REGISTER_LEVELS = ((0.1, 0.02, 3, 5, 1), (0.03, 0.007, 3, 3, 0), (0.01, 0.0025, 2, 2, 0), (0.003, 0.0008, 2, 2, 0))
 """The registration's search (as :data:`bayesmap.inference.scanmatch.MATCH_LEVELS`): +-0.3 m and +-0.1 rad around
 the starting pose, down to 3 mm and 0.05 degrees. Narrower than the loop closure's +-1.5 m: a path whose ATE is
 0.1-0.2 m is off by less than 0.3 m almost everywhere, and a wide window lets a scan in a corridor slide along it
@@ -58,7 +59,7 @@ REFERENCE_SWEEPS = 100
 """Cellwise sweeps of the map made at the true poses (half burn-in): ``bayesmap evaluate --log``'s default."""
 
 
-def localize_heldout(path, data, train, test, starts) -> np.ndarray:
+def register_heldout(path, data, train, test, starts) -> np.ndarray:
     """Register held-out scans into the frame of a map made from the other scans (step 5 of the module docstring).
 
     Args:
@@ -77,9 +78,9 @@ def localize_heldout(path, data, train, test, starts) -> np.ndarray:
     train, test = np.asarray(train, np.int64), np.asarray(test, np.int64)
     if len(train) == 0:
         raise BayesmapError("no mapped scan to register the held-out scans against")
-    at = np.searchsorted(train, test)[:, None] + np.arange(-LOCALIZE_NEIGHBOURS, LOCALIZE_NEIGHBOURS)
+    at = np.searchsorted(train, test)[:, None] + np.arange(-REGISTER_NEIGHBOURS, REGISTER_NEIGHBOURS)
     neighbours = train[np.clip(at, 0, len(train) - 1)]
-    return match_to_local_maps(path, data, test, neighbours, starts, levels=LOCALIZE_LEVELS)[0]
+    return match_to_local_maps(path, data, test, neighbours, starts, levels=REGISTER_LEVELS)[0]
 
 
 def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTION, seed: int = 0,
@@ -97,7 +98,7 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
 
     Returns:
         ``{"slam": {"auc", "nll", ...}, "true_poses": {...}, "setup": {...}}`` (JSON-serializable), and
-        ``"slam_chain"`` with a final map; the ``"..._localized"`` scores of step 5 (each with ``shift_rms_m``);
+        ``"slam_chain"`` with a final map; the ``"..._registered"`` scores of step 5 (each with ``shift_rms_m``);
         ``setup`` has the SLAM path's ATE on the mapped scans, both runtimes and
         the map model (``"log at known poses"`` or ``"SLAM chain"``).
 
@@ -129,14 +130,14 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
     slam_path = poses.copy()
     slam_path[train] = slam.mean_path
     registered = poses.copy()
-    registered[test] = localize_heldout(slam_path, data, train, test, poses[test])
+    registered[test] = register_heldout(slam_path, data, train, test, poses[test])
     scores = score_maps(slam_test(same, poses), {"slam": (slam.posterior, None)})
-    scores.update(_with_shift(score_maps(slam_test(same, registered), {"slam_localized": (slam.posterior, None)}),
+    scores.update(_with_shift(score_maps(slam_test(same, registered), {"slam_registered": (slam.posterior, None)}),
                               shift(registered, poses)))
     if final:
         scores.update(score_maps(slam_test(chain_model, poses), {"slam_chain": (slam.chain_posterior, None)}))
         scores.update(_with_shift(score_maps(slam_test(chain_model, registered),
-                                             {"slam_chain_localized": (slam.chain_posterior, None)}),
+                                             {"slam_chain_registered": (slam.chain_posterior, None)}),
                                   shift(registered, poses)))
 
     true_log = log.with_poses(truth)
@@ -148,10 +149,10 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
     scores.update(score_maps(log_problem(true_log, test, resolution=resolution, grid=grid, **same),
                              {"true_poses": (reference.posterior, None)}))
     true_registered = truth.copy()
-    true_registered[test] = localize_heldout(truth, data, train, test, truth[test])
+    true_registered[test] = register_heldout(truth, data, train, test, truth[test])
     scores.update(_with_shift(score_maps(log_problem(log.with_poses(true_registered), test, resolution=resolution,
                                                      grid=grid, **same),
-                                         {"true_poses_localized": (reference.posterior, None)}),
+                                         {"true_poses_registered": (reference.posterior, None)}),
                               shift(true_registered, truth)))
     scores["setup"] = {"log": str(log.path), "scans": len(log), "train_scans": len(train), "test_scans": len(test),
                        "every": int(every), "resolution": float(resolution),
