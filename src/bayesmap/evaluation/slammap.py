@@ -131,14 +131,14 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
     slam_path[train] = slam.mean_path
     registered = poses.copy()
     registered[test] = register_heldout(slam_path, data, train, test, poses[test])
+    slam_shift = shift(registered, poses)  # the same registration for the final map and the chain's
     scores = score_maps(slam_test(same, poses), {"slam": (slam.posterior, None)})
     scores.update(_with_shift(score_maps(slam_test(same, registered), {"slam_registered": (slam.posterior, None)}),
-                              shift(registered, poses)))
+                              slam_shift))
     if final:
         scores.update(score_maps(slam_test(chain_model, poses), {"slam_chain": (slam.chain_posterior, None)}))
         scores.update(_with_shift(score_maps(slam_test(chain_model, registered),
-                                             {"slam_chain_registered": (slam.chain_posterior, None)}),
-                                  shift(registered, poses)))
+                                             {"slam_chain_registered": (slam.chain_posterior, None)}), slam_shift))
 
     true_log = log.with_poses(truth)
     grid = log_problem(true_log, resolution=resolution).grid  # covers the held-out scans too
