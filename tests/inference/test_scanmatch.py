@@ -8,14 +8,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import march_first_hit
 from bayesmap.inference import posegraph
-from bayesmap.inference.scanmatch import (
-    FIELD_FLOOR,
-    FREE_SPACE_FLOOR,
-    FREE_SPACE_MARGIN,
-    ScanData,
-    correlative_path,
-    stamp_free,
-)
+from bayesmap.inference.scanmatch import ScanData, correlative_path
 from bayesmap.model.motion import compose, make_motion_params, odometry_controls
 
 
@@ -54,11 +47,10 @@ def exact_scans(walls, grid, truth, max_range=20.0):
     return np.tile(beams, (len(truth), 1)), readings
 
 
-@pytest.mark.parametrize("window, free_space_floor", [(None, FIELD_FLOOR), (10.0, FIELD_FLOOR), (10.0, 0.005)])
-def test_correlative_path_recovers_the_true_path(window, free_space_floor):
+@pytest.mark.parametrize("window", [None, 10.0])
+def test_correlative_path_recovers_the_true_path(window):
     """Matching every scan against the field of the scans before it (all of them, or those of the last 10 m of
-    travel; with no free-space term, or a strong one, which exact readings never contradict) recovers the true path
-    to 3 cm and 0.02 rad,
+    travel) recovers the true path to 3 cm and 0.02 rad,
     where the odometry is off by decimeters. Tolerances: the field lives on 0.05 m cells, so a match is good to about
     half a cell (2.5 cm) plus the last search step (3 mm); over walls 1.5-4 m away that half cell is up to 0.017 rad
     of heading. A matcher that ignores the field, searches in the wrong frame or masks out its local map stays on the
@@ -66,7 +58,7 @@ def test_correlative_path_recovers_the_true_path(window, free_space_floor):
     grid, truth, odometry, beams, readings = room_scans()
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
     data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov))
-    path = correlative_path(odometry[0], data, grid.resolution, window=window, free_space_floor=free_space_floor)
+    path = correlative_path(odometry[0], data, grid.resolution, window=window)
     assert np.abs(odometry - truth)[:, :2].max() > 0.1
     assert np.abs(path - truth)[:, :2].max() < 0.03
     assert np.abs(path - truth)[:, 2].max() < 0.02
@@ -147,8 +139,7 @@ def test_the_likelihood_power_weighs_the_scan_against_the_motion_model():
 
 def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch):
     """run_log_slam's front end scores scans at the problem's own likelihood power (the power its target gives the
-    readings; docs/slam.md), from the first odometry pose, on fields of FRONT_END_RESOLUTION, with the free-space
-    floor FREE_SPACE_FLOOR: the call it makes."""
+    readings; docs/slam.md), from the first odometry pose, on fields of FRONT_END_RESOLUTION: the call it makes."""
     from types import SimpleNamespace
 
     from bayesmap.inference import logslam
@@ -160,28 +151,7 @@ def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch)
     logslam.front_end(problem, "scans")
     (first, data, resolution, options), = calls
     assert np.array_equal(first, [1.0, 2.0, 0.3]) and data == "scans"
-    assert resolution == logslam.FRONT_END_RESOLUTION
-    assert options == {"likelihood_power": 0.25, "free_space_floor": FREE_SPACE_FLOOR}
-
-
-def test_a_beam_marks_the_cells_it_passed_through_short_of_its_endpoint():
-    """stamp_free marks the cells along each returned beam from the sensor to FREE_SPACE_MARGIN short of the
-    endpoint, and nothing else: a beam along +x from (1.025, 1.025) reading 2 m marks cells i = 20..54 of row j =
-    20 (x from 1.0 to 2.775 m, the margin 0.25 m), a beam along +y reading 0.2 m (under the margin) and a beam that did
-    not return mark nothing, and a beam leaving the grid marks only the cells inside it."""
-    grid = Grid(shape=(100, 60), resolution=0.05, origin=(0.0, 0.0))
-    pose = jnp.asarray([1.025, 1.025, 0.0])
-    angles = jnp.asarray([0.0, np.pi / 2, np.pi, -np.pi / 2])
-    readings = jnp.asarray([2.0, 0.2, 5.0, 8.0])
-    returned = jnp.asarray([True, True, False, True])
-    stamps = np.asarray(stamp_free(jnp.full(grid.shape, -jnp.inf), grid, pose, angles, readings, returned, 7.0))
-    marked = np.argwhere(stamps == 7.0)
-    assert np.all(stamps[stamps != 7.0] == -np.inf)
-    along_x = marked[marked[:, 1] == 20]
-    assert along_x[:, 0].min() == 20 and along_x[:, 0].max() == int((1.025 + 2.0 - FREE_SPACE_MARGIN) / 0.05)
-    down = marked[marked[:, 0] == 20]
-    assert down[:, 1].min() == 0 and down[:, 1].max() == 20  # -y to the grid's edge (8 m beam, 1 m of grid)
-    assert len(marked) == len(along_x) + len(down) - 1  # the sensor's own cell is in both; the +y and -x beams none
+    assert resolution == logslam.FRONT_END_RESOLUTION and options == {"likelihood_power": 0.25}
 
 
 def test_correlative_path_checks_shapes():
@@ -190,10 +160,6 @@ def test_correlative_path_checks_shapes():
     with pytest.raises(BayesmapError, match="shapes disagree"):
         correlative_path(odometry[0], ScanData(beams[:, :10], readings, readings > 0, np.asarray(inc),
                                                np.asarray(cov)), grid.resolution)
-    data = ScanData(beams, readings, readings > 0, np.asarray(inc), np.asarray(cov))
-    for bad in (0.0, 0.06, float("nan")):
-        with pytest.raises(BayesmapError, match=f"free_space_floor .*{bad!r}"):
-            correlative_path(odometry[0], data, grid.resolution, free_space_floor=bad)
 
 
 def test_relative_inverts_compose():

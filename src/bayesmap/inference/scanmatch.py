@@ -13,10 +13,6 @@ correlative scan matching", ICRA; the likelihood field of Thrun, Burgard & Fox, 
   not pull the match; ``p`` the likelihood power, 1 in Olson's score: below 1 the scan's hundreds of correlated
   beams count as fewer, and the odometry decides along directions where the field is nearly flat, a corridor's
   axis);
-* an endpoint in a cell that a beam of the local map passed through, short of its own endpoint, is evidence
-  against the candidate: there the floor is :data:`FREE_SPACE_FLOOR`, lower than :data:`FIELD_FLOOR` (the
-  log-odds mapping's free-space evidence, *Probabilistic Robotics* sec. 9.2, brought into the match: a pose that puts
-  a wall where the robot saw through costs more than one that puts it where the robot never looked);
 * the candidates form a coarse-to-fine lattice around the odometry's prediction (:data:`MATCH_LEVELS`), each level
   centered on the previous level's best.
 
@@ -54,21 +50,6 @@ search)."""
 FIELD_FLOOR = 0.05
 """The field's floor inside the score's logarithm: an endpoint in unmapped space costs ``log 0.05`` instead of
 ``-inf`` (the beam model's random-reading floor, *Probabilistic Robotics* sec. 6.4)."""
-
-FREE_SPACE_FLOOR = 0.05
-"""The floor inside the score's logarithm for an endpoint in a cell that a beam of the local map passed through
-(:data:`FREE_SPACE_MARGIN` or more short of that beam's own endpoint): such an endpoint costs ``log(field +
-FREE_SPACE_FLOOR)`` instead of ``log(field + FIELD_FLOOR)``. Equal to :data:`FIELD_FLOOR` the term is off."""
-
-FREE_SPACE_MARGIN = 0.25
-"""Meters: a beam marks as passed-through the cells along it up to this distance short of its endpoint, so that a
-beam which grazes a wall, or reads a few centimeters long, does not mark the wall's own cells (five cells of the
-front end's 0.05 m fields; the broad field's sigma is 0.2 m)."""
-
-FREE_SPACE_SAMPLES = 128
-"""Points per beam at which the cells a beam passed through are marked (evenly spaced along it): every cell of a
-0.05 m grid for beams up to 6.4 m, every ``range / 128`` meters beyond (the scans of the local map fill the gaps
-between one beam's marks)."""
 
 MATCH_LEVELS = ((0.1, 0.04, 4, 20, 1), (0.03, 0.007, 3, 3, 0), (0.01, 0.0025, 2, 2, 0), (0.003, 0.0008, 2, 2, 0))
 """The coarse-to-fine search: per level the lattice step in x and y (meters) and in theta (radians), the half widths
@@ -206,20 +187,6 @@ def add_to_fields(fields: tuple, grid: Grid, pose, sensor_angles, readings, retu
                  for field, (sigma, radius) in zip(fields, FIELDS))
 
 
-def stamp_free(stamps, grid: Grid, pose, sensor_angles, readings, returned, value):
-    """``stamps`` ``(nx, ny)`` with ``value`` scatter-maxed into the cells that the returned beams ``(K,)`` of one
-    scan at ``pose`` ``(3,)`` passed through: :data:`FREE_SPACE_SAMPLES` evenly spaced points along each beam, from
-    the sensor to :data:`FREE_SPACE_MARGIN` meters short of its endpoint (beams shorter than the margin mark
-    nothing); points outside the grid are skipped. Jittable."""
-    reach = jnp.maximum(readings - FREE_SPACE_MARGIN, 0.0)
-    fractions = (jnp.arange(FREE_SPACE_SAMPLES, dtype=reach.dtype) + 0.5) / FREE_SPACE_SAMPLES
-    points = scan_endpoints(pose, sensor_angles[:, None], reach[:, None] * fractions[None, :])  # (K, samples, 2)
-    cells, inside = _cells(grid, points.reshape(-1, 2))
-    ok = inside & jnp.repeat(returned & (reach > 0), FREE_SPACE_SAMPLES)
-    flat = jnp.where(ok, cells[:, 0] * grid.shape[1] + cells[:, 1], stamps.size)
-    return stamps.reshape(-1).at[flat].max(value, mode="drop").reshape(stamps.shape)
-
-
 @jax.tree_util.register_pytree_node_class
 class Lattices:
     """The search levels of :func:`search`: per level the candidate offsets ``(M, 3)`` (pytree leaves) and the index
@@ -279,7 +246,7 @@ def hit_fraction(fields: tuple, grid: Grid, pose, sensor_angles, readings, retur
 def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH_LEVELS,
                      window: float | None = LOCAL_MAP_DISTANCE,
                      half_width: float = MATCH_GRID_HALF_WIDTH,
-                     likelihood_power: float = 1.0, free_space_floor: float = FREE_SPACE_FLOOR) -> np.ndarray:
+                     likelihood_power: float = 1.0) -> np.ndarray:
     """Sequential correlative scan matching of every scan against the field of the scans before it.
 
     Args:
@@ -300,8 +267,7 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
 
     Raises:
         BayesmapError: if the shapes disagree, ``resolution`` or ``half_width`` is not a finite number > 0 or the
-            grid would have fewer than 8 cells a side, ``likelihood_power`` is not in (0, 1], or
-            ``free_space_floor`` is not in (0, :data:`FIELD_FLOOR`].
+            grid would have fewer than 8 cells a side, or ``likelihood_power`` is not in (0, 1].
     """
     s, k = data.readings.shape
     if data.sensor_angles.shape != (s, k) or data.returned.shape != (s, k) or data.increments.shape != (s - 1, 3):
@@ -312,8 +278,6 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
         if not (math.isfinite(float(value)) and value > 0):
             raise BayesmapError(f"{name} must be a finite number of meters > 0, got {value!r}")
     power = check_likelihood_power(likelihood_power)
-    if not (isinstance(free_space_floor, (int, float)) and 0 < free_space_floor <= FIELD_FLOOR):
-        raise BayesmapError(f"free_space_floor must be a number in (0, {FIELD_FLOOR}], got {free_space_floor!r}")
     n = int(math.ceil(2 * half_width / resolution))
     if n < 8:
         raise BayesmapError(f"half_width {half_width!r} m is under 4 cells of {resolution!r} m")
@@ -327,20 +291,16 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     arrays = ScanData(*(jnp.asarray(a, dtype=bool if a.dtype == bool else dtype) for a in map(np.asarray, data)))
     arrays = _Scans(*arrays, travelled=jnp.asarray(travelled, dtype))
     path = _correlative_run(jnp.asarray(first_pose, dtype), arrays, jnp.asarray(base, dtype), jnp.asarray(span, dtype),
-                            jnp.asarray(1.0 / power, dtype), jnp.asarray(free_space_floor - FIELD_FLOOR, dtype),
-                            steps, grid, float(half_width))
+                            jnp.asarray(1.0 / power, dtype), steps, grid, float(half_width))
     return np.asarray(path, np.float64)
 
 
 @functools.partial(jax.jit, static_argnames=("grid", "half_width"))
-def _correlative_run(first, d, base, span, prior_weight, free_shift, steps: Lattices, grid: Grid, half_width: float):
+def _correlative_run(first, d, base, span, prior_weight, steps: Lattices, grid: Grid, half_width: float):
     """The jitted loop of :func:`correlative_path` (module level, so that another run with the same shapes and
     settings reuses the compiled code): the path ``(S, 3)`` in world coordinates. ``steps`` are the search levels
     (:func:`lattices`); ``base`` the world position of the window's corner at offset 0; ``prior_weight`` the inverse
-    of the likelihood power (scaling the motion term instead of the field score leaves the argmax the same);
-    ``free_shift`` the free-space floor less :data:`FIELD_FLOOR` (<= 0), added to the fields in the cells the local
-    map's beams passed through, so that :func:`field_scores`' ``log(value + FIELD_FLOOR)`` there is ``log(field +
-    free-space floor)``."""
+    of the likelihood power (scaling the motion term instead of the field score leaves the argmax the same)."""
     s = d.readings.shape[0]
     n = grid.shape[0]
     resolution = grid.resolution
@@ -367,43 +327,31 @@ def _correlative_run(first, d, base, span, prior_weight, free_shift, steps: Latt
 
         return jax.lax.fori_loop(0, t, add, (empty_fields(grid), jnp.full(grid.shape, -jnp.inf, dtype)))
 
-    def rebuild_free(path, t, offset):
-        """The free-space stamps of the window at ``offset`` from every scan ``< t`` at its matched pose."""
-        def add(u, free):
-            return stamp_free(free, grid, local(path[u], offset), d.sensor_angles[u], d.readings[u], d.returned[u],
-                              d.travelled[u])
-
-        return jax.lax.fori_loop(0, t, add, jnp.full(grid.shape, -jnp.inf, dtype))
-
     path = jnp.zeros((s, 3), dtype).at[0].set(first)
     offset = jnp.zeros(2, jnp.int32)
     fields, stamps = rebuild(path, 1, offset)
-    free = rebuild_free(path, 1, offset)
 
     def body(t, carry):
-        path, fields, stamps, free, offset = carry
+        path, fields, stamps, offset = carry
         prev = path[t - 1]
         predicted = compose(prev, d.increments[t - 1])
         cells = jnp.round(local(predicted, offset)[:2] / resolution - n / 2).astype(jnp.int32)
         far = jnp.max(jnp.abs(cells)) * resolution > half_width / 4
         offset = jnp.where(far, offset + cells, offset)
-        fields, stamps, free = jax.lax.cond(far, lambda: (*rebuild(path, t, offset), rebuild_free(path, t, offset)),
-                                            lambda: (fields, stamps, free))
+        fields, stamps = jax.lax.cond(far, lambda: rebuild(path, t, offset), lambda: (fields, stamps))
 
         def log_prior(cands):
             return prior_weight * motion_logpdf(local(prev, offset), cands, d.increments[t - 1], d.covs[t - 1])
 
         recent = stamps >= d.travelled[t] - span
-        seen_free = jnp.where(free >= d.travelled[t] - span, free_shift, 0.0)
-        masked = tuple(jnp.where(recent, field, 0.0) + seen_free for field in fields)
+        masked = tuple(jnp.where(recent, field, 0.0) for field in fields)
         best, _ = search(masked, grid, local(predicted, offset), d.sensor_angles[t], d.readings[t],
                          d.returned[t], steps, log_prior)
         fields = add_to_fields(fields, grid, best, d.sensor_angles[t], d.readings[t], d.returned[t])
         world = best - local(jnp.zeros(3, dtype), offset)
-        free = stamp_free(free, grid, best, d.sensor_angles[t], d.readings[t], d.returned[t], d.travelled[t])
-        return path.at[t].set(world), fields, stamp(stamps, best, t), free, offset
+        return path.at[t].set(world), fields, stamp(stamps, best, t), offset
 
-    return jax.lax.fori_loop(1, s, body, (path, fields, stamps, free, offset))[0]
+    return jax.lax.fori_loop(1, s, body, (path, fields, stamps, offset))[0]
 
 
 class _Scans(NamedTuple):
