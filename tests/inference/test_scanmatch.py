@@ -8,7 +8,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import march_first_hit
 from bayesmap.inference import posegraph
-from bayesmap.inference.scanmatch import ScanData, correlative_path
+from bayesmap.inference.scanmatch import MIN_HIT_FRACTION, ScanData, correlative_path
 from bayesmap.model.motion import compose, make_motion_params, odometry_controls
 
 
@@ -139,7 +139,8 @@ def test_the_likelihood_power_weighs_the_scan_against_the_motion_model():
 
 def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch):
     """run_log_slam's front end scores scans at the problem's own likelihood power (the power its target gives the
-    readings; docs/slam.md), from the first odometry pose, on fields of FRONT_END_RESOLUTION: the call it makes."""
+    readings; docs/slam.md), from the first odometry pose, on fields of FRONT_END_RESOLUTION, trusting matches
+    above MIN_HIT_FRACTION: the call it makes."""
     from types import SimpleNamespace
 
     from bayesmap.inference import logslam
@@ -151,7 +152,28 @@ def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch)
     logslam.front_end(problem, "scans")
     (first, data, resolution, options), = calls
     assert np.array_equal(first, [1.0, 2.0, 0.3]) and data == "scans"
-    assert resolution == logslam.FRONT_END_RESOLUTION and options == {"likelihood_power": 0.25}
+    assert resolution == logslam.FRONT_END_RESOLUTION
+    assert options == {"likelihood_power": 0.25, "min_hit_fraction": MIN_HIT_FRACTION}
+
+
+def test_a_scan_that_misses_its_local_map_takes_the_odometrys_step():
+    """Scan 6 of the test room reads clutter 0.3-1 m from the sensor on every beam (someone stands at the laser), so
+    no pose puts its endpoints on the local map. With a least hit fraction of 0.3 its pose is the odometry's
+    prediction from pose 5 (to float32 rounding), and the scans after it match the room again (3 cm and 0.02 rad, as
+    in the test above: the odometry's step error is 3 cm, and scan 7 is matched against the scans before scan 6,
+    whose endpoints are in its local map); trusting every match (0), scan 6 goes wherever its clutter fits best."""
+    grid, truth, odometry, beams, readings = room_scans()
+    readings[6] = np.random.default_rng(3).uniform(0.3, 1.0, readings.shape[1])
+    inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
+    data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov))
+    guarded = correlative_path(odometry[0], data, grid.resolution, min_hit_fraction=0.3)
+    trusting = correlative_path(odometry[0], data, grid.resolution, min_hit_fraction=0.0)
+    followed = np.abs(posegraph.relative(guarded[5], guarded[6]) - inc[5])
+    assert followed.max() < 1e-4
+    assert np.abs(posegraph.relative(trusting[5], trusting[6]) - inc[5]).max() > 1e-3
+    later = np.r_[np.arange(6), np.arange(7, len(truth))]
+    assert np.abs(guarded - truth)[later, :2].max() < 0.03
+    assert np.abs(guarded - truth)[later, 2].max() < 0.02
 
 
 def test_correlative_path_checks_shapes():
@@ -160,6 +182,10 @@ def test_correlative_path_checks_shapes():
     with pytest.raises(BayesmapError, match="shapes disagree"):
         correlative_path(odometry[0], ScanData(beams[:, :10], readings, readings > 0, np.asarray(inc),
                                                np.asarray(cov)), grid.resolution)
+    data = ScanData(beams, readings, readings > 0, np.asarray(inc), np.asarray(cov))
+    for bad in (-0.1, 1.0, float("nan")):
+        with pytest.raises(BayesmapError, match=f"min_hit_fraction .*{bad!r}"):
+            correlative_path(odometry[0], data, grid.resolution, min_hit_fraction=bad)
 
 
 def test_relative_inverts_compose():

@@ -1,0 +1,168 @@
+"""Leave-one-log-out cross-validation of a front-end setting (issue 15: the path's error): the likelihood power or
+the least hit fraction of a trusted match.
+
+The front end (:func:`bayesmap.inference.scanmatch.correlative_path`) places each scan at the maximum of
+``p S + L``: ``S`` the scan's likelihood-field score, a sum over its beams of ``log(field + floor)``, and ``L`` the
+motion model's log-density. Two of its settings are chosen here:
+
+* ``power``, ``p``: at 1 every beam counts as independent evidence, and a scan's hundreds of correlated beams
+  outweigh the odometry wherever the field is nearly flat along one direction (a corridor), which is where the front
+  end slipped by 0.15-0.44 m (docs/slam.md);
+* ``min_hit_fraction``: a scan whose best match puts fewer of its returned endpoints on the local map takes the
+  odometry's prediction (:data:`bayesmap.inference.scanmatch.MIN_HIT_FRACTION`; 0 trusts every match).
+
+For each log and odometry seed (``seeded_logs.seeded_log``), each kept-scan set of ``--scans`` (``all``, or
+``heldout``: every 10th scan dropped, as the held-out map scores do, which is where the front end lost CSAIL's
+track) and each value of ``--values``, the script runs the start as ``run_log_slam`` does (the front end, then
+:func:`bayesmap.inference.posegraph.close_loops`) with the other setting at its default, and records the ATE of the
+path after loop closure (meters, after the best rigid 2-D alignment; within 0.003 m of the whole chain's ATE on the
+runs where both were measured, docs/slam.md), the front end's alone, its steps off by more than 0.15 m, and its steps
+equal to the odometry's (those that followed it).
+
+Then, for each log held out, the value with the lowest mean ATE over the runs of the other logs (a tie, which the
+fraction's runs that never take the odometry's step give, goes to the largest value: the most cautious setting the
+other logs show no cost for), and the held-out log's mean ATE at that value and at the default. The last line is
+the value chosen on every log.
+
+For ``min_hit_fraction`` the values run from the largest down, and a run in which no scan took the odometry's step
+stands for the same (log, seed, scans) at every smaller value (no scan's hit fraction fell below the larger one, so
+none falls below a smaller one, and the run is the same computation; its records say ``same_run_as``).
+
+Each run is appended to ``--records FILE`` (JSON lines) as soon as it is done, and runs already in the file are not
+repeated, so the grid can be split between processes and resumed.
+
+Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F [--parameter power|min_hit_fraction]
+           [--values 1,0.3,0.1,0.03] [--seeds 0-2] [--logs intel,aces,csail] [--scans all,heldout]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from karto_peer import parse_seeds  # noqa: E402
+from seeded_logs import add_log_seed_options, chosen_logs, seeded_log  # noqa: E402
+from slam_error_sources import count_slips  # noqa: E402
+
+from bayesmap import scenes  # noqa: E402
+from bayesmap.evaluation.heldout import heldout_split  # noqa: E402
+from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E402
+from bayesmap.inference import logslam, posegraph, scanmatch  # noqa: E402
+
+DEFAULTS = {"power": scenes.SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HIT_FRACTION}
+"""The settings this script can vary, and the value each takes while the other is varied (the defaults of
+:func:`bayesmap.inference.logslam.front_end`)."""
+
+SCAN_SETS = ("all", "heldout")
+"""``all``: every scan of the log; ``heldout``: the scans the held-out map scores keep (every 10th dropped)."""
+
+
+def start_path(log, truth, scans: str, parameter: str, value: float) -> dict:
+    """One run's figures: the start path of ``run_log_slam`` (:func:`bayesmap.inference.logslam.front_end`, then loop
+    closure) for the log's SLAM problem on the scans ``scans`` (:data:`SCAN_SETS`), with the front-end setting
+    ``parameter`` at ``value``. The power is passed as the problem's likelihood power, which only the front end
+    reads here."""
+    began = time.perf_counter()
+    kept = None if scans == "all" else heldout_split(len(log), 10)[0]
+    power = value if parameter == "power" else DEFAULTS["power"]
+    min_hit = value if parameter == "min_hit_fraction" else DEFAULTS["min_hit_fraction"]
+    problem = scenes.log_slam_problem(log, kept, likelihood_power=power)
+    data = logslam.scan_data(problem)
+    front = logslam.front_end(problem, data, min_hit_fraction=min_hit)
+    closed, edges = posegraph.close_loops(front, data)
+    truth = truth if kept is None else truth[kept]
+    return {"parameter": parameter, "value": value, "scans": scans,
+            "front_end_ate_m": absolute_trajectory_error(front, truth)["rmse_m"],
+            "start_ate_m": absolute_trajectory_error(closed, truth)["rmse_m"], "slips": count_slips(front, truth),
+            "odometry_steps": odometry_steps(front, np.asarray(data.increments)),
+            "loop_edges": int(len(edges.i) - (len(front) - 1)), "seconds": time.perf_counter() - began}
+
+
+def odometry_steps(path, increments, tolerance: float = 1e-4) -> int:
+    """How many steps of ``path`` ``(S, 3)`` equal the odometry's increments ``(S - 1, 3)`` to ``tolerance`` (meters
+    and radians): the scans that took the odometry's prediction (or whose match landed exactly on it)."""
+    steps = posegraph.relative(path[:-1], path[1:])
+    return int(np.sum(np.all(np.abs(steps - increments) < tolerance, axis=1)))
+
+
+def leave_one_log_out(records: list[dict], parameter: str, values: list[float]) -> list[str]:
+    """The markdown table of the module docstring from ``records`` (every log's runs at every value of
+    ``parameter``)."""
+    logs = list(dict.fromkeys(r["log"] for r in records))
+
+    def mean_ate(subset_logs, value):
+        ates = [r["start_ate_m"] for r in records if r["log"] in subset_logs and r["value"] == value]
+        return float(np.mean(ates)) if ates else float("nan")
+
+    default = DEFAULTS[parameter]
+    lines = [f"| held out | {parameter} chosen on the others (their mean ATE, m) | held-out mean ATE at it (m) | "
+             f"at {default:g}, the default (m) |", "|---|---|---|---|"]
+    for held in logs:
+        others = [name for name in logs if name != held]
+        chosen = min(values, key=lambda v: (round(mean_ate(others, v), 9), -v))
+        lines.append(f"| {held} | {chosen:g} ({mean_ate(others, chosen):.3f}) | {mean_ate([held], chosen):.3f} | "
+                     f"{mean_ate([held], default):.3f} |")
+    best = min(values, key=lambda v: (round(mean_ate(logs, v), 9), -v))
+    lines.append("")
+    means = ", ".join(f"{parameter} {v:g}: {mean_ate(logs, v):.3f} m" for v in values)
+    lines.append(f"mean ATE over every run: {means}; chosen on every log: {best:g}")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_log_seed_options(parser, json_option=False)  # the runs are in --records
+    parser.add_argument("--parameter", choices=sorted(DEFAULTS), default="power", help="the setting to choose")
+    parser.add_argument("--values", default="1,0.3,0.1,0.03", help="comma-separated values of the setting")
+    parser.add_argument("--scans", default="all", help=f"comma-separated subset of {','.join(SCAN_SETS)}")
+    parser.add_argument("--records", type=Path, required=True, help="JSON lines file of the runs (appended to)")
+    args = parser.parse_args(argv)
+    logs, seeds = chosen_logs(parser, args.logs), parse_seeds(args.seeds)
+    try:
+        values = [float(v) for v in args.values.split(",")]
+    except ValueError:
+        parser.error(f"--values must be numbers, got {args.values!r}")
+    scan_sets = [s.strip() for s in args.scans.split(",") if s.strip()]
+    if not scan_sets or set(scan_sets) - set(SCAN_SETS):
+        parser.error(f"--scans must be a subset of {','.join(SCAN_SETS)}, got {args.scans!r}")
+    done = ([json.loads(line) for line in args.records.read_text().splitlines() if line.strip()]
+            if args.records.exists() else [])
+    have = {(r["log"], r["seed"], r["scans"], r["parameter"], r["value"]) for r in done}
+    for name in logs:
+        for seed in seeds:
+            todo = [(s, v) for s in scan_sets for v in values if (name, seed, s, args.parameter, v) not in have]
+            if not todo:
+                continue
+            log, truth = seeded_log(name, seed)
+            if args.parameter == "min_hit_fraction":  # largest first, so that a run can stand for the smaller ones
+                todo.sort(key=lambda item: (item[0], -item[1]))
+            for scans, value in todo:
+                if (name, seed, scans, args.parameter, value) in have:
+                    continue
+                record = {"log": name, "seed": seed, **start_path(log, truth, scans, args.parameter, value)}
+                records = [record]
+                if args.parameter == "min_hit_fraction" and record["odometry_steps"] == 0:
+                    # no scan fell below this fraction, so none falls below a smaller one: the same run
+                    records += [{**record, "value": v, "same_run_as": value}
+                                for s, v in todo if s == scans and v < value]
+                for record in records:
+                    print(json.dumps(record), flush=True)
+                    with args.records.open("a") as out:
+                        out.write(json.dumps(record) + "\n")
+                    done.append(record)
+                    have.add((name, seed, scans, args.parameter, record["value"]))
+    chosen = [r for r in done if r["log"] in logs and r["seed"] in seeds and r["scans"] in scan_sets
+              and r["parameter"] == args.parameter and r["value"] in values]
+    print("\n".join(leave_one_log_out(chosen, args.parameter, values)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
