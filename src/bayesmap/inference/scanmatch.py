@@ -17,8 +17,9 @@ correlative scan matching", ICRA; the likelihood field of Thrun, Burgard & Fox, 
   centered on the previous level's best;
 * a match that puts fewer than :data:`MIN_HIT_FRACTION` of the scan's returned endpoints on the local map is not
   trusted: the scan then takes the odometry's prediction (a scan that sees mostly new space, where a few chance
-  coincidences with the local map can outscore the motion model; Karto's scan matcher likewise accepts a match only
-  above a minimum response).
+  coincidences with the local map can outscore the motion model; the loop closure's
+  :data:`bayesmap.inference.posegraph.LOOP_MIN_HIT_FRACTION` is the same test, as Karto's minimum responses are for
+  the matches that link chains and close loops, though Karto keeps every sequential match).
 
 Every cell also keeps the path length of the last scan that reached it, and a match sees only the cells reached
 within the window: the local map of a running buffer of scans (Karto's design). The fields cover a square of
