@@ -160,8 +160,9 @@ def test_a_scan_that_misses_its_local_map_takes_the_odometrys_step():
     """Scan 6 of the test room reads clutter 0.3-1 m from the sensor on every beam (someone stands at the laser), so
     no pose puts its endpoints on the local map. With a least hit fraction of 0.3 its pose is the odometry's
     prediction from pose 5 (to float32 rounding), and the scans after it match the room again (3 cm and 0.02 rad, as
-    in the test above: the odometry's step error is 3 cm, and scan 7 is matched against the scans before scan 6,
-    whose endpoints are in its local map); trusting every match (0), scan 6 goes wherever its clutter fits best."""
+    in the test above; scan 7's local map holds the room's walls from scans 0-5 beside scan 6's clutter, so pose 6's
+    3 cm odometry error does not carry over); trusting every match (0), scan 6 takes some other step, wherever its
+    clutter fits best."""
     grid, truth, odometry, beams, readings = room_scans()
     readings[6] = np.random.default_rng(3).uniform(0.3, 1.0, readings.shape[1])
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
