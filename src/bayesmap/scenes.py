@@ -125,7 +125,10 @@ of 1 and 2 m (2026-11-24). Chosen on all three logs: 0.7 readings per cell, run 
 0.1, pass probability 0.5, prior wall probability 0.3 (:data:`LOG_STRUCTURED_PRIOR`; mean AUC margin +0.034, at
 least +0.022 and an NLL below log-odds' on every log and resolution; README, "The likelihood power follows the
 data"; with the fixed power 0.1 before it: mean +0.030, at least +0.016; before passable walls: power 0.1, 2 m, mean
-margin +0.020, 0.003 below log-odds on CSAIL at 0.2 m)."""
+margin +0.020, 0.003 below log-odds on CSAIL at 0.2 m). Searched again around ``c`` 0.7 (2026-11-24: noise 0.05 and
+0.1 m, pass probability 0.3 and 0.5, prior 0.1 and 0.3), the rule prefers noise 0.05 m and prior 0.1 (mean margin
++0.0347 against +0.0337, NLL 0.2-0.5 nats per beam higher); not adopted yet (README, "A check of the other settings
+at c 0.7")."""
 
 LOG_SENSOR_NOISE = 0.1
 """Default ``sensor_noise`` of a log's map, meters: the hit component's standard deviation (a property of the laser
