@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from bayesmap import scenes
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.driver import run_inference, run_logodds, scene_summary
 from bayesmap.io.rosmap import read_rosmap
@@ -79,7 +80,7 @@ def test_infer_whole_log_logodds_and_rosmap(small_log, tmp_path, monkeypatch, ca
     assert 'id="fig-importance"' not in report  # importance sampling is the single-scan tutorial's
     summary = json.loads((tmp_path / "g" / "summary.json").read_text())
     assert summary["num_scans"] == 12 and summary["num_beams"] == 12 * 180 and summary["beam_model"] == "beam"
-    assert summary["prior_wall_prob"] == 0.3 and "12 scans" in out  # the structured prior's default at 0.2 m
+    assert summary["prior_wall_prob"] == scenes.LOG_STRUCTURED_PRIOR and "12 scans" in out  # (the structured prior's)
     plan = read_rosmap(tmp_path / "g" / "map.yaml")
     posterior = np.load(tmp_path / "g" / "posterior.npy")
     assert plan.grid.shape == posterior.shape and plan.grid.resolution == 0.2
