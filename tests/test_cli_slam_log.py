@@ -11,7 +11,14 @@ from PIL import Image
 
 from bayesmap import scenes
 from bayesmap.geometry.grid import Grid
-from bayesmap.inference.logslam import FINAL_MAP_SWEEPS, GRAPH_COV_SCALE, POSE_SWEEPS, final_map_power, scan_data
+from bayesmap.inference.logslam import (
+    FINAL_MAP_SWEEPS,
+    GRAPH_COV_SCALE,
+    POSE_SWEEPS,
+    final_map_noise,
+    final_map_power,
+    scan_data,
+)
 from bayesmap.inference.posegraph import SEQUENTIAL_STD
 from bayesmap.io.carmen import read_carmen
 from bayesmap.io.rosbag import read_bag
@@ -69,8 +76,11 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     # posterior.npy is the final map at the mean path, in the map model of a log at known poses (log_problem's)
     final, known = settings["final_map"], scenes.log_problem(read_carmen(aces_odom), np.arange(25), resolution=0.2)
     assert final["sweeps"] == FINAL_MAP_SWEEPS and final["geometry"] == "chord"
-    for name in ("sensor_noise", "coupling", "wall_pass_prob"):
+    for name in ("coupling", "wall_pass_prob"):
         assert final[name] == pytest.approx(float(getattr(known.params, name))) and final[name] > 0, name
+    # its noise is the model's widened by the path's mean position variance (pose_cov.npy, as written)
+    assert final["sensor_noise"] == pytest.approx(final_map_noise(float(known.params.sensor_noise), cov), rel=1e-9)
+    assert final["sensor_noise"] > float(known.params.sensor_noise)
     # its power follows the readings' density at the mean path (trajectory.tum, rounded to 1e-6: a few endpoints
     # may change cells, hence rel 1e-2), not at the odometry, whose endpoints smear over twice the cells here
     slam_problem = scenes.log_slam_problem(read_carmen(aces_odom), np.arange(25), resolution=0.2)

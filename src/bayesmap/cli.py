@@ -1014,7 +1014,7 @@ def _log_slam(carmen, path: Path, scans: Optional[str], resolution: Optional[flo
     final = problem.final_map_params
     if result.chain_posterior is not None:  # posterior.npy is the final map at the mean path (run_log_slam stage 6)
         settings["final_map"] = {"sweeps": FINAL_MAP_SWEEPS, "burn_in": FINAL_MAP_SWEEPS // 2,
-                                 "sensor_noise": float(final.sensor_noise), "geometry": final.geometry,
+                                 "sensor_noise": float(result.final_map_noise), "geometry": final.geometry,
                                  "coupling": float(final.coupling), "wall_pass_prob": float(final.wall_pass_prob),
                                  "likelihood_power": float(result.final_map_power)}
     return problem, result, chosen, settings

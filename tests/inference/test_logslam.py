@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from bayesmap.errors import BayesmapError
-from bayesmap.inference.logslam import run_log_slam
+from bayesmap.inference.logslam import final_map_noise, run_log_slam
 from bayesmap.io.carmen import read_carmen
 
 
@@ -21,13 +21,17 @@ RUN = {"rounds": 1, "burn_in": 0, "map_sweeps": 2, "pose_sweeps": 2, "seed": 5}
 
 def test_final_map_leaves_the_chain_alone_and_differs_from_its_map(slam_problem):
     """Same seed with and without the final map: the same path samples and the same chain map (the final map's key
-    is none of the chain's), and the reported map is another one, in the log's model (walls a beam can pass, 0.1 m
-    noise, the structured prior), with the walls of the chain's map where the chain is sure of them."""
+    is none of the chain's), and the reported map is another one, in the log's model (walls a beam can pass, the
+    structured prior; the model's noise widened by the path's uncertainty), with the walls of the chain's map where
+    the chain is sure of them."""
     without = run_log_slam(slam_problem, final_map_sweeps=0, **RUN)
     # 20 sweeps (10 kept): at this slice's power (0.06, 12 scans from nearly one place) 6 sweeps left 3 of the
     # chain's 30 sure walls below 0.5, 20 none (at power 0.1: 1 and none)
     with_final = run_log_slam(slam_problem, final_map_sweeps=20, **RUN)
-    assert without.chain_posterior is None
+    assert without.chain_posterior is None and without.final_map_noise is None
+    noise = float(slam_problem.final_map_params.sensor_noise)
+    assert with_final.final_map_noise == pytest.approx(final_map_noise(noise, with_final.pose_cov))
+    assert with_final.final_map_noise > noise
     np.testing.assert_array_equal(with_final.pose_samples, without.pose_samples)
     np.testing.assert_array_equal(with_final.chain_posterior, without.posterior)
     final = with_final.posterior
@@ -43,3 +47,23 @@ def test_final_map_leaves_the_chain_alone_and_differs_from_its_map(slam_problem)
 def test_bad_final_map_sweeps_refused_by_name(slam_problem, bad):
     with pytest.raises(BayesmapError, match="final_map_sweeps"):
         run_log_slam(slam_problem, final_map_sweeps=bad, **RUN)
+
+
+def test_the_final_maps_noise_adds_the_paths_mean_position_variance():
+    """sqrt(noise^2 + mean over scans of (Sigma_xx + Sigma_yy) / 2), by hand: position variances (0.01, 0.01) and
+    (0.03, 0.01) m^2 give a mean of 0.015 and sqrt(0.05^2 + 0.015) = sqrt(0.0175); headings do not count; a path
+    known exactly leaves the noise as it is; bad input is refused by name."""
+    cov = np.zeros((2, 3, 3))
+    cov[0, :2, :2] = np.diag([0.01, 0.01])
+    cov[1, :2, :2] = [[0.03, 0.005], [0.005, 0.01]]
+    cov[:, 2, 2] = 5.0
+    assert final_map_noise(0.05, cov) == pytest.approx(np.sqrt(0.0175), rel=1e-12)
+    assert final_map_noise(0.05, np.zeros((4, 3, 3))) == pytest.approx(0.05)
+    for bad in (0.0, -0.1, float("nan"), "0.05"):
+        with pytest.raises(BayesmapError, match="sensor_noise"):
+            final_map_noise(bad, cov)
+    bad_cov = cov.copy()
+    bad_cov[1, 0, 0] = -1.0
+    for wrong in (np.zeros((2, 2, 2)), np.zeros((0, 3, 3)), bad_cov):
+        with pytest.raises(BayesmapError, match="pose_cov"):
+            final_map_noise(0.05, wrong)

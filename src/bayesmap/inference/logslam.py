@@ -34,9 +34,10 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
    sample_deviations`), in antithetic pairs so that the samples' mean is the chain's mean path (docs/slam.md).
 6. **The final map** (with ``problem.final_map_params``, which :func:`bayesmap.scenes.log_slam_problem` sets): the
    walls given the readings at the mean path, in the map model of a log at known poses
-   (:func:`bayesmap.scenes.log_map_params`: 0.1 m sensor noise, the structured prior, wall cells a beam can pass,
-   a likelihood power that follows the readings' density at the path, :func:`final_map_power`; cross-validated
-   across logs), :data:`FINAL_MAP_SWEEPS` cellwise sweeps from the chain's last map. This is what
+   (:func:`bayesmap.scenes.log_map_params`: the structured prior, wall cells a beam can pass, a likelihood power
+   that follows the readings' density at the path, :func:`final_map_power`; cross-validated across logs), with the
+   model's 0.05 m sensor noise widened by the path's own position uncertainty (:func:`final_map_noise`),
+   :data:`FINAL_MAP_SWEEPS` cellwise sweeps from the chain's last map. This is what
    a SLAM system's map is, occupancy mapping at the estimated path, in bayesmap's best map model of known poses;
    the joint chain's own map (the SLAM model's, whose walls stop every beam as its pose moves need) stays in
    ``chain_posterior``. Scored at the true poses on held-out beams it ranks the cells better than the chain's
@@ -45,6 +46,7 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
 
 from __future__ import annotations
 
+import math
 import time
 
 import jax
@@ -175,6 +177,32 @@ def final_map_power(problem, data: ScanData, path, grid: Grid) -> float:
     return log_likelihood_power(endpoints_per_cell(_returned_endpoints(data, path), grid))
 
 
+def final_map_noise(sensor_noise: float, pose_cov) -> float:
+    """The sensor noise of the final map drawn at the posterior mean path, meters: ``sqrt(sensor_noise^2 + v)`` with
+    ``v`` the mean over the scans of the posterior variance of a pose's position per axis, ``(Sigma_xx + Sigma_yy) /
+    2`` of ``pose_cov`` ``(S, 3, 3)`` (m^2; the chain's spread plus the scaled pose graph's, whose 95 % ellipses
+    were fitted to hold 95 % of the true positions). A beam cast from the mean pose ends where the true pose's beam
+    ends plus the pose's position error, so at the mean path a reading's error is the sensor's plus the path's, the
+    usual propagation of a pose's uncertainty into a measurement's noise (*Probabilistic Robotics* sec. 10.2, the
+    EKF's ``Q + H Sigma H^T``, here isotropic and the same for every beam; the heading's lever arm, range times the
+    heading's deviation, is left out). Chosen over the map model's own noise, 0.1 m and the median instead of the
+    mean by leave-one-log-out on the held-out AUC at the true poses (docs/slam.md, "The final map's noise").
+
+    Raises:
+        BayesmapError: if ``sensor_noise`` is not a finite number > 0 or ``pose_cov`` is not ``(S, 3, 3)`` with
+            finite, non-negative position variances.
+    """
+    if not (isinstance(sensor_noise, (int, float)) and math.isfinite(sensor_noise) and sensor_noise > 0):
+        raise BayesmapError(f"sensor_noise must be a finite number of meters > 0, got {sensor_noise!r}")
+    cov = np.asarray(pose_cov, np.float64)
+    if cov.ndim != 3 or cov.shape[1:] != (3, 3) or len(cov) == 0:
+        raise BayesmapError(f"pose_cov must be (S, 3, 3) with S >= 1, got shape {cov.shape}")
+    variance = (cov[:, 0, 0] + cov[:, 1, 1]) / 2
+    if not np.all(np.isfinite(variance)) or np.any(variance < 0):
+        raise BayesmapError("pose_cov must have finite, non-negative position variances")
+    return float(math.sqrt(sensor_noise**2 + float(variance.mean())))
+
+
 def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_SCALE):
     """Stage 5 of the module docstring: the chain's pose samples with the pose graph's uncertainty (the graph's
     Laplace approximation, Lu & Milios 1997; antithetic pairs, Hammersley & Morton 1956; docs/slam.md).
@@ -282,8 +310,9 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
             bar.set_description("final map")
             key = jax.random.fold_in(jax.random.key(seed), 2 * rounds)  # none of the chain's keys
             final_power = final_map_power(problem, scans, mean, grid)
-            _, final_probs = _map_round(key, problem, with_grid(problem.final_map_params, grid), mean, walls,
-                                        final_map_sweeps, final_power)
+            final_noise = final_map_noise(float(problem.final_map_params.sensor_noise), cov)
+            final_params = replace_params(with_grid(problem.final_map_params, grid), sensor_noise=final_noise)
+            _, final_probs = _map_round(key, problem, final_params, mean, walls, final_map_sweeps, final_power)
             posterior = final_probs[final_map_sweeps // 2:].astype(np.float64).mean(axis=0)
             bar.update()
     acceptance = float(np.concatenate(accepted).mean()) if accepted[0].size else 1.0
@@ -292,4 +321,5 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
                       last_walls=np.asarray(walls, np.float32), grid=grid,
                       loop_edges=len(edges.i) - (len(path) - 1), graph_cov=graph_cov,
                       chain_posterior=chain_posterior if final else None,
-                      final_map_power=final_power if final else None)
+                      final_map_power=final_power if final else None,
+                      final_map_noise=final_noise if final else None)

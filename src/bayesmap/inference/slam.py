@@ -194,6 +194,8 @@ class SlamResult(NamedTuple):
             ``posterior`` is another map's (real logs: the final map at the mean path,
             :func:`bayesmap.inference.logslam.run_log_slam`), or None (``posterior`` is the chain's).
         final_map_power: the likelihood power of that other map (real logs), or None.
+        final_map_noise: its sensor noise, meters (real logs: the map model's plus the path's uncertainty,
+            :func:`bayesmap.inference.logslam.final_map_noise`), or None.
     """
 
     pose_samples: np.ndarray
@@ -208,6 +210,7 @@ class SlamResult(NamedTuple):
     graph_cov: np.ndarray | None = None
     chain_posterior: np.ndarray | None = None
     final_map_power: float | None = None
+    final_map_noise: float | None = None
 
 
 def check_counts(sweeps, burn_in, chains) -> tuple[int, int, int]:
