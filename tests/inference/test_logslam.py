@@ -59,7 +59,7 @@ def test_the_final_maps_noise_adds_the_paths_mean_position_variance():
     cov[:, 2, 2] = 5.0
     assert final_map_noise(0.05, cov) == pytest.approx(np.sqrt(0.0175), rel=1e-12)
     assert final_map_noise(0.05, np.zeros((4, 3, 3))) == pytest.approx(0.05)
-    for bad in (0.0, -0.1, float("nan"), "0.05"):
+    for bad in (0.0, -0.1, float("nan"), "0.05", True):
         with pytest.raises(BayesmapError, match="sensor_noise"):
             final_map_noise(bad, cov)
     bad_cov = cov.copy()

@@ -192,7 +192,8 @@ def final_map_noise(sensor_noise: float, pose_cov) -> float:
         BayesmapError: if ``sensor_noise`` is not a finite number > 0 or ``pose_cov`` is not ``(S, 3, 3)`` with
             finite, non-negative position variances.
     """
-    if not (isinstance(sensor_noise, (int, float)) and math.isfinite(sensor_noise) and sensor_noise > 0):
+    if (isinstance(sensor_noise, bool) or not isinstance(sensor_noise, (int, float))
+            or not math.isfinite(sensor_noise) or sensor_noise <= 0):
         raise BayesmapError(f"sensor_noise must be a finite number of meters > 0, got {sensor_noise!r}")
     cov = np.asarray(pose_cov, np.float64)
     if cov.ndim != 3 or cov.shape[1:] != (3, 3) or len(cov) == 0:
