@@ -184,7 +184,7 @@ def test_correlative_path_checks_shapes():
         correlative_path(odometry[0], ScanData(beams[:, :10], readings, readings > 0, np.asarray(inc),
                                                np.asarray(cov)), grid.resolution)
     data = ScanData(beams, readings, readings > 0, np.asarray(inc), np.asarray(cov))
-    for bad in (-0.1, 1.0, float("nan")):
+    for bad in (-0.1, 1.0, float("nan"), False):
         with pytest.raises(BayesmapError, match=f"min_hit_fraction .*{bad!r}"):
             correlative_path(odometry[0], data, grid.resolution, min_hit_fraction=bad)
 

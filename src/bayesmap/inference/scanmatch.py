@@ -296,7 +296,8 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
         if not (math.isfinite(float(value)) and value > 0):
             raise BayesmapError(f"{name} must be a finite number of meters > 0, got {value!r}")
     power = check_likelihood_power(likelihood_power)
-    if not (isinstance(min_hit_fraction, (int, float)) and 0 <= min_hit_fraction < 1):
+    if (isinstance(min_hit_fraction, bool) or not isinstance(min_hit_fraction, (int, float))
+            or not 0 <= min_hit_fraction < 1):
         raise BayesmapError(f"min_hit_fraction must be a number in [0, 1), got {min_hit_fraction!r}")
     n = int(math.ceil(2 * half_width / resolution))
     if n < 8:
