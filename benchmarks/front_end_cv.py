@@ -1,17 +1,18 @@
-"""Leave-one-log-out cross-validation of a front-end setting (issue 15: the path's error): the likelihood power,
-the least hit fraction of a trusted match or the motion term's outlier weight.
+"""Leave-one-log-out cross-validation of a front-end setting (issue 15: the path's error): the likelihood power or
+the least hit fraction of a trusted match.
 
 The front end (:func:`bayesmap.inference.scanmatch.correlative_path`) places each scan at the maximum of
 ``p S + L``: ``S`` the scan's likelihood-field score, a sum over its beams of ``log(field + floor)``, and ``L`` the
-motion model's log-density. Three of its settings are chosen here:
+motion model's log-density. Two of its settings are chosen here:
 
 * ``power``, ``p``: at 1 every beam counts as independent evidence, and a scan's hundreds of correlated beams
   outweigh the odometry wherever the field is nearly flat along one direction (a corridor), which is where the front
   end slipped by 0.15-0.44 m (docs/slam.md);
 * ``min_hit_fraction``: a scan whose best match puts fewer of its returned endpoints on the local map takes the
-  odometry's prediction (:data:`bayesmap.inference.scanmatch.MIN_HIT_FRACTION`; 0 trusts every match);
-* ``motion_outlier``, ``epsilon``: the weight of a uniform outlier component in a max-mixture with the motion model
-  (:data:`bayesmap.inference.scanmatch.MOTION_OUTLIER_WEIGHT`; 0 is the motion model alone).
+  odometry's prediction (:data:`bayesmap.inference.scanmatch.MIN_HIT_FRACTION`; 0 trusts every match).
+
+(A third, the weight of a uniform outlier component in a max-mixture with the motion model, was chosen here at commit
+a14f5a3 and removed: docs/slam.md, "Every other scan, and a robust motion term".)
 
 For each log and odometry seed (``seeded_logs.seeded_log``), each kept-scan set of ``--scans`` (``all``, or
 ``heldout``: every 10th scan dropped, as the held-out map scores do, which is where the front end lost CSAIL's
@@ -24,9 +25,8 @@ equal to the odometry's (those that followed it).
 
 Then, for each log held out, the value with the lowest mean ATE over the runs of the other logs (a tie, which the
 fraction's runs that never take the odometry's step give, goes to the largest value: the most cautious setting the
-other logs show no cost for; for the outlier weight, whose runs are the same wherever its component never wins, to
-the smallest: the motion model alone), and the held-out log's mean ATE at that value and at the default. The last
-line is the value chosen on every log.
+other logs show no cost for), and the held-out log's mean ATE at that value and at the default. The last line is the
+value chosen on every log.
 
 For ``min_hit_fraction`` the values run from the largest down, and a run in which no scan took the odometry's step
 stands for the same (log, seed, scans) at every smaller value (no scan's hit fraction fell below the larger one, so
@@ -35,7 +35,7 @@ none falls below a smaller one, and the run is the same computation; its records
 Each run is appended to ``--records FILE`` (JSON lines) as soon as it is done, and runs already in the file are not
 repeated, so the grid can be split between processes and resumed.
 
-Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F [--parameter power|min_hit_fraction|motion_outlier]
+Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F [--parameter power|min_hit_fraction]
            [--values 1,0.3,0.1,0.03] [--seeds 0-2] [--logs intel,aces,csail] [--scans all,heldout]
 """
 
@@ -60,8 +60,7 @@ from bayesmap.evaluation.heldout import heldout_split  # noqa: E402
 from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E402
 from bayesmap.inference import logslam, posegraph, scanmatch  # noqa: E402
 
-DEFAULTS = {"power": scenes.SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HIT_FRACTION,
-            "motion_outlier": scanmatch.MOTION_OUTLIER_WEIGHT}
+DEFAULTS = {"power": scenes.SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HIT_FRACTION}
 """The settings this script can vary, and the value each takes while the other is varied (the defaults of
 :func:`bayesmap.inference.logslam.front_end`)."""
 
@@ -81,8 +80,7 @@ def start_path(log, truth, scans: str, parameter: str, value: float) -> dict:
     setting = {**DEFAULTS, parameter: value}
     problem = scenes.log_slam_problem(log, kept, likelihood_power=setting["power"])
     data = logslam.scan_data(problem)
-    front = logslam.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"],
-                              motion_outlier=setting["motion_outlier"])
+    front = logslam.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"])
     closed, edges = posegraph.close_loops(front, data)
     truth = truth if kept is None else truth[kept]
     return {"parameter": parameter, "value": value, "scans": scans,
@@ -109,18 +107,14 @@ def leave_one_log_out(records: list[dict], parameter: str, values: list[float]) 
         return float(np.mean(ates)) if ates else float("nan")
 
     default = DEFAULTS[parameter]
-
-    def tie(value):  # equal means: the largest fraction, the smallest outlier weight (module docstring)
-        return value if parameter == "motion_outlier" else -value
-
     lines = [f"| held out | {parameter} chosen on the others (their mean ATE, m) | held-out mean ATE at it (m) | "
              f"at {default:g}, the default (m) |", "|---|---|---|---|"]
     for held in logs:
         others = [name for name in logs if name != held]
-        chosen = min(values, key=lambda v: (round(mean_ate(others, v), 9), tie(v)))
+        chosen = min(values, key=lambda v: (round(mean_ate(others, v), 9), -v))
         lines.append(f"| {held} | {chosen:g} ({mean_ate(others, chosen):.3f}) | {mean_ate([held], chosen):.3f} | "
                      f"{mean_ate([held], default):.3f} |")
-    best = min(values, key=lambda v: (round(mean_ate(logs, v), 9), tie(v)))
+    best = min(values, key=lambda v: (round(mean_ate(logs, v), 9), -v))
     lines.append("")
     means = ", ".join(f"{parameter} {v:g}: {mean_ate(logs, v):.3f} m" for v in values)
     lines.append(f"mean ATE over every run: {means}; chosen on every log: {best:g}")

@@ -8,14 +8,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import march_first_hit
 from bayesmap.inference import posegraph
-from bayesmap.inference.scanmatch import (
-    MATCH_LEVELS,
-    MIN_HIT_FRACTION,
-    MOTION_OUTLIER_WEIGHT,
-    ScanData,
-    correlative_path,
-    outlier_log_density,
-)
+from bayesmap.inference.scanmatch import MIN_HIT_FRACTION, ScanData, correlative_path
 from bayesmap.model.motion import compose, make_motion_params, odometry_controls
 
 
@@ -160,44 +153,7 @@ def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch)
     (first, data, resolution, options), = calls
     assert np.array_equal(first, [1.0, 2.0, 0.3]) and data == "scans"
     assert resolution == logslam.FRONT_END_RESOLUTION
-    assert options == {"likelihood_power": 0.25, "min_hit_fraction": MIN_HIT_FRACTION,
-                       "motion_outlier": MOTION_OUTLIER_WEIGHT}
-
-
-def test_an_odometry_outlier_is_matched_with_the_max_mixture():
-    """Step 6 of the test room carries a 0.6 rad heading error in its odometry (a backing-up jitter's error, composed
-    into a step when scans are dropped) where the motion model's standard deviation is 0.05 rad. At the log's power
-    0.1 the motion model alone holds the match 0.05 rad and 5 cm off the truth (its 12 standard deviations cost more
-    than the rest of the turn gains the scan). With the max-mixture's outlier component (weight 1e-3) the scan's own
-    fit wins and the path is the truth's to 3 cm and 0.02 rad, as in the first test. The steps before it are the same
-    computation either way (the outlier term is a floor far below the motion density where scan and odometry
-    agree)."""
-    grid, truth, odometry, beams, readings = room_scans()
-    inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
-    inc = np.asarray(inc).copy()
-    inc[5, 2] += 0.6
-    data = ScanData(beams, readings, readings < 19.9, inc, np.asarray(cov))
-    plain, robust = (correlative_path(odometry[0], data, grid.resolution, likelihood_power=0.1, motion_outlier=eps)
-                     for eps in (0.0, 1e-3))
-    assert np.sqrt(cov[5, 2, 2]) < 0.06
-    assert np.abs(plain - truth)[6, 2] > 0.04 and np.abs(plain - truth)[:, :2].max() > 0.04
-    assert np.abs(robust - truth)[:, :2].max() < 0.03
-    assert np.abs(robust - truth)[:, 2].max() < 0.02
-    np.testing.assert_allclose(robust[:6], plain[:6])
-
-
-def test_the_outlier_density_is_uniform_over_the_first_search_window():
-    """log(epsilon) minus the log-volume of the first level's window (0.8 m x 0.8 m x 1.6 rad for MATCH_LEVELS); off
-    (-inf) at 0; bad weights are refused by name."""
-    assert outlier_log_density(0.0) == -np.inf
-    np.testing.assert_allclose(outlier_log_density(1e-3), np.log(1e-3) - np.log(0.8 * 0.8 * 1.6))
-    assert MATCH_LEVELS[0][:4] == (0.1, 0.04, 4, 20)
-    grid, truth, odometry, beams, readings = room_scans(num_poses=3)
-    inc, cov = odometry_controls(odometry)
-    data = ScanData(beams, readings, readings > 0, np.asarray(inc), np.asarray(cov))
-    for bad in (-0.1, 1.0, float("nan"), True):
-        with pytest.raises(BayesmapError, match=f"motion_outlier .*{bad!r}"):
-            correlative_path(odometry[0], data, grid.resolution, motion_outlier=bad)
+    assert options == {"likelihood_power": 0.25, "min_hit_fraction": MIN_HIT_FRACTION}
 
 
 def test_a_scan_that_misses_its_local_map_takes_the_odometrys_step():

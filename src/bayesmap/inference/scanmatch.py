@@ -19,13 +19,7 @@ correlative scan matching", ICRA; the likelihood field of Thrun, Burgard & Fox, 
   trusted: the scan then takes the odometry's prediction (a scan that sees mostly new space, where a few chance
   coincidences with the local map can outscore the motion model; the loop closure's
   :data:`bayesmap.inference.posegraph.LOOP_MIN_HIT_FRACTION` is the same test, as Karto's minimum responses are for
-  the matches that link chains and close loops, though Karto keeps every sequential match);
-* with a motion outlier weight ``epsilon > 0`` (:data:`MOTION_OUTLIER_WEIGHT`), the motion term is a max-mixture
-  (Olson & Agarwal 2013, "Inference on networks of mixtures for robust robot mapping", IJRR): the larger of the motion
-  model's log-density and ``log epsilon`` minus the log-volume of the first level's search window, a uniform outlier
-  component over the window. A step whose odometry is off by many of the model's standard deviations (a backing-up
-  jitter's heading error, composed into a longer step when scans are dropped) can then be matched where the scan
-  fits, if the scan's score gains more than the outlier's cost, instead of being held near the wrong prediction.
+  the matches that link chains and close loops, though Karto keeps every sequential match).
 
 Every cell also keeps the path length of the last scan that reached it, and a match sees only the cells reached
 within the window: the local map of a running buffer of scans (Karto's design). The fields cover a square of
@@ -84,12 +78,6 @@ Robotics* Table 5.5: ``rot1`` and ``rot2`` near +-pi): 5 % of two half turns is 
 +-0.8 rad is 3.5 of them. The motion model's log-density is part of every candidate's score, so the wide window
 costs only time (and a 0.2 rad window lost the track on 40 steps of Intel's simulated odometry, whose heading error
 reached 33 degrees in one step)."""
-
-
-MOTION_OUTLIER_WEIGHT = 0.0
-"""``epsilon``, the weight of the front end's uniform outlier component of the motion term (a max-mixture; see the
-module docstring), a probability in [0, 1); 0 turns it off (the motion model alone). Measured by leave-one-log-out
-cross-validation of the start path's ATE (``benchmarks/front_end_cv.py --parameter motion_outlier``, docs/slam.md)."""
 
 
 LOCAL_MAP_DISTANCE = 10.0
@@ -275,8 +263,7 @@ def hit_fraction(fields: tuple, grid: Grid, pose, sensor_angles, readings, retur
 def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH_LEVELS,
                      window: float | None = LOCAL_MAP_DISTANCE,
                      half_width: float = MATCH_GRID_HALF_WIDTH,
-                     likelihood_power: float = 1.0, min_hit_fraction: float = MIN_HIT_FRACTION,
-                     motion_outlier: float = MOTION_OUTLIER_WEIGHT) -> np.ndarray:
+                     likelihood_power: float = 1.0, min_hit_fraction: float = MIN_HIT_FRACTION) -> np.ndarray:
     """Sequential correlative scan matching of every scan against the field of the scans before it.
 
     Args:
@@ -291,10 +278,6 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
         likelihood_power: ``p`` in (0, 1]: each candidate's score is ``p`` times the field score plus the motion
             model's log-density (1: every beam counts fully, Olson 2009's score; :func:`bayesmap.inference.logslam.
             front_end` passes the target's power, as the SLAM model tempers its readings).
-        min_hit_fraction: a match that puts fewer of the scan's returned endpoints on the local map takes the
-            odometry's prediction (:data:`MIN_HIT_FRACTION`; 0 trusts every match).
-        motion_outlier: ``epsilon`` in [0, 1), the max-mixture's outlier weight (:data:`MOTION_OUTLIER_WEIGHT`; 0:
-            the motion model alone).
 
     Returns:
         ``(S, 3)`` float64 path, row 0 ``first_pose``.
@@ -302,7 +285,7 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     Raises:
         BayesmapError: if the shapes disagree, ``resolution`` or ``half_width`` is not a finite number > 0 or the
             grid would have fewer than 8 cells a side, ``likelihood_power`` is not in (0, 1], or
-            ``min_hit_fraction`` or ``motion_outlier`` is not in [0, 1).
+            ``min_hit_fraction`` is not in [0, 1).
     """
     s, k = data.readings.shape
     if data.sensor_angles.shape != (s, k) or data.returned.shape != (s, k) or data.increments.shape != (s - 1, 3):
@@ -316,9 +299,6 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     if (isinstance(min_hit_fraction, bool) or not isinstance(min_hit_fraction, (int, float))
             or not 0 <= min_hit_fraction < 1):
         raise BayesmapError(f"min_hit_fraction must be a number in [0, 1), got {min_hit_fraction!r}")
-    if (isinstance(motion_outlier, bool) or not isinstance(motion_outlier, (int, float))
-            or not 0 <= motion_outlier < 1):
-        raise BayesmapError(f"motion_outlier must be a number in [0, 1), got {motion_outlier!r}")
     n = int(math.ceil(2 * half_width / resolution))
     if n < 8:
         raise BayesmapError(f"half_width {half_width!r} m is under 4 cells of {resolution!r} m")
@@ -332,30 +312,18 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     arrays = ScanData(*(jnp.asarray(a, dtype=bool if a.dtype == bool else dtype) for a in map(np.asarray, data)))
     arrays = _Scans(*arrays, travelled=jnp.asarray(travelled, dtype))
     path = _correlative_run(jnp.asarray(first_pose, dtype), arrays, jnp.asarray(base, dtype), jnp.asarray(span, dtype),
-                            jnp.asarray(1.0 / power, dtype), jnp.asarray(min_hit_fraction, dtype),
-                            jnp.asarray(outlier_log_density(motion_outlier, levels), dtype), steps, grid,
+                            jnp.asarray(1.0 / power, dtype), jnp.asarray(min_hit_fraction, dtype), steps, grid,
                             float(half_width))
     return np.asarray(path, np.float64)
 
 
-def outlier_log_density(weight: float, levels=MATCH_LEVELS) -> float:
-    """``log weight`` minus the log-volume (m^2 rad) of the first search level's window (``(2 w_xy h_xy)^2 (2 w_theta
-    h_theta)``, :data:`MATCH_LEVELS`): the log-density of the max-mixture's uniform outlier component over the poses
-    the search can reach; ``-inf`` for a weight of 0 (off). Never raises for a weight in [0, 1)."""
-    h_xy, h_theta, w_xy, w_theta, _ = levels[0]
-    volume = (2 * w_xy * h_xy) ** 2 * (2 * w_theta * h_theta)
-    return -math.inf if weight == 0 else math.log(weight) - math.log(volume)
-
-
 @functools.partial(jax.jit, static_argnames=("grid", "half_width"))
-def _correlative_run(first, d, base, span, prior_weight, min_hit, log_outlier, steps: Lattices, grid: Grid,
-                     half_width: float):
+def _correlative_run(first, d, base, span, prior_weight, min_hit, steps: Lattices, grid: Grid, half_width: float):
     """The jitted loop of :func:`correlative_path` (module level, so that another run with the same shapes and
     settings reuses the compiled code): the path ``(S, 3)`` in world coordinates. ``steps`` are the search levels
     (:func:`lattices`); ``base`` the world position of the window's corner at offset 0; ``prior_weight`` the inverse
     of the likelihood power (scaling the motion term instead of the field score leaves the argmax the same);
-    ``min_hit`` the least hit fraction of a trusted match; ``log_outlier`` the max-mixture's outlier log-density
-    (:func:`outlier_log_density`, ``-inf`` when off)."""
+    ``min_hit`` the least hit fraction of a trusted match."""
     s = d.readings.shape[0]
     n = grid.shape[0]
     resolution = grid.resolution
@@ -396,8 +364,7 @@ def _correlative_run(first, d, base, span, prior_weight, min_hit, log_outlier, s
         fields, stamps = jax.lax.cond(far, lambda: rebuild(path, t, offset), lambda: (fields, stamps))
 
         def log_prior(cands):
-            motion = motion_logpdf(local(prev, offset), cands, d.increments[t - 1], d.covs[t - 1])
-            return prior_weight * jnp.maximum(motion, log_outlier)
+            return prior_weight * motion_logpdf(local(prev, offset), cands, d.increments[t - 1], d.covs[t - 1])
 
         recent = stamps >= d.travelled[t] - span
         masked = tuple(jnp.where(recent, field, 0.0) for field in fields)
