@@ -75,8 +75,7 @@ def start_path(log, truth, scans: str, parameter: str, value: float) -> dict:
     ``parameter`` at ``value``. The power is passed as the problem's likelihood power, which only the front end
     reads here."""
     began = time.perf_counter()
-    kept = {"all": None, "every2": np.arange(0, len(log), 2)}.get(scans)
-    kept = heldout_split(len(log), 10)[0] if scans == "heldout" else kept
+    kept = {"all": None, "heldout": heldout_split(len(log), 10)[0], "every2": np.arange(0, len(log), 2)}[scans]
     setting = {**DEFAULTS, parameter: value}
     problem = scenes.log_slam_problem(log, kept, likelihood_power=setting["power"])
     data = logslam.scan_data(problem)
