@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Callable, NamedTuple
 
 import numpy as np
-from seeded_logs import CORRECTED_LOGS, NOISY_ODOMETRY, run_file, slam_run_arrays, write_seeded_log
+from seeded_logs import ALL_LOGS, CORRECTED_LOGS, NOISY_ODOMETRY, run_file, slam_run_arrays, write_seeded_log
 
 from bayesmap import scenes
 from bayesmap.errors import BayesmapError
@@ -299,7 +299,8 @@ def markdown_table(summary: dict) -> str:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="0-4", help="odometry noise seeds, e.g. 0-4 or 0,3 (default 0-4)")
-    parser.add_argument("--logs", default="intel,aces,csail", help="comma-separated subset of intel,aces,csail")
+    parser.add_argument("--logs", default="intel,aces,csail",
+                        help="comma-separated subset of intel,aces,csail,willow (willow: simulated, willow_log.py)")
     parser.add_argument("--methods", default="karto", help="comma-separated subset of karto,bayesmap")
     parser.add_argument("--beam-spacing", choices=BEAM_SPACINGS, default="bayesmap",
                         help="beam angles given to every method: bayesmap's rule (default) or pi/(n-1) for all n")
@@ -313,7 +314,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(str(exc))
     args.logs = [v.strip() for v in args.logs.split(",") if v.strip()]
     args.methods = [v.strip() for v in args.methods.split(",") if v.strip()]
-    for value, known, option in ((args.logs, CORRECTED_LOGS, "--logs"), (args.methods, METHODS, "--methods")):
+    for value, known, option in ((args.logs, ALL_LOGS, "--logs"), (args.methods, METHODS, "--methods")):
         bad = [v for v in value if v not in known]
         if bad or not value:
             parser.error(f"{option}: unknown or empty {bad or value!r}; choose from {', '.join(known)}")
@@ -322,7 +323,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    missing = [str(p) for p in (NOISY_ODOMETRY, *(CORRECTED_LOGS[n] for n in args.logs)) if not p.exists()]
+    missing = [str(p) for p in (NOISY_ODOMETRY, *(CORRECTED_LOGS[n] for n in args.logs if n in CORRECTED_LOGS))
+               if not p.exists()]
     if missing:
         print(f"shared data not found: {', '.join(missing)}", file=sys.stderr)
         return 2

@@ -21,18 +21,40 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"  # the project's data lives at ../shared/data (shared/data/README.md)
 CORRECTED_LOGS = {name: SHARED / "data" / "carmen" / f"{name}-corrected.log.gz" for name in ("intel", "aces", "csail")}
 NOISY_ODOMETRY = SHARED / "tools" / "noisy_odometry.py"
+SIMULATED_LOGS = ("willow",)  # made by benchmarks/willow_log.py from the floor plan; never in a default --logs
+ALL_LOGS = (*CORRECTED_LOGS, *SIMULATED_LOGS)
+
+
+def corrected_log(name: str, folder: Path) -> Path:
+    """The corrected log of ``name`` (a key of :data:`CORRECTED_LOGS`, or ``"willow"``, which is simulated into
+    ``folder/willow-corrected.log.gz`` by ``willow_log.write_willow_log`` unless it is there already).
+
+    Raises:
+        BayesmapError: ``name`` is neither.
+    """
+    if name in CORRECTED_LOGS:
+        return CORRECTED_LOGS[name]
+    if name not in SIMULATED_LOGS:
+        raise BayesmapError(f"unknown log {name!r}; choose from {', '.join(ALL_LOGS)}")
+    from willow_log import write_willow_log
+
+    path = Path(folder) / f"{name}-corrected.log.gz"
+    if not path.exists():
+        write_willow_log(path)
+    return path
 
 
 def write_seeded_log(name: str, seed: int, prefix: Path) -> tuple[CarmenLog, np.ndarray]:
-    """Write log ``name``'s (a key of :data:`CORRECTED_LOGS`) noisy-odometry problem for ``seed`` as ``PREFIX.log.gz``
-    and ``PREFIX.truth.tum`` and read it back: ``(the log, whose FLASER poses are the noisy odometry; its true poses
-    (S, 3), x y m, theta rad)``.
+    """Write log ``name``'s (one of :data:`ALL_LOGS`, :func:`corrected_log`) noisy-odometry problem for ``seed`` as
+    ``PREFIX.log.gz`` and ``PREFIX.truth.tum`` and read it back: ``(the log, whose FLASER poses are the noisy odometry;
+    its true poses (S, 3), x y m, theta rad)``.
 
     Raises:
         BayesmapError: noisy_odometry.py failed (its stderr's end in the message), or its outputs do not agree on the
             number of scans.
     """
-    cmd = [sys.executable, str(NOISY_ODOMETRY), str(CORRECTED_LOGS[name]), str(prefix), "--seed", str(seed)]
+    corrected = corrected_log(name, Path(prefix).parent)
+    cmd = [sys.executable, str(NOISY_ODOMETRY), str(corrected), str(prefix), "--seed", str(seed)]
     done = subprocess.run(cmd, capture_output=True, text=True)
     if done.returncode != 0:
         raise BayesmapError(f"noisy_odometry.py failed for log {name!r} seed {seed}: {done.stderr.strip()[-500:]}")
@@ -58,7 +80,8 @@ def add_log_seed_options(parser: argparse.ArgumentParser, json_option: bool = Tr
     :data:`CORRECTED_LOGS`) and, with ``json_option``, ``--json`` (a file for every run's figures)."""
     parser.add_argument("--seeds", default="0", help="odometry noise seeds, e.g. 0-4 or 0,3 (default 0)")
     parser.add_argument("--logs", default=",".join(CORRECTED_LOGS),
-                        help=f"comma-separated subset of {','.join(CORRECTED_LOGS)}")
+                        help=f"comma-separated subset of {','.join(ALL_LOGS)} (default {','.join(CORRECTED_LOGS)}; "
+                             "willow is simulated, benchmarks/willow_log.py)")
     if json_option:
         parser.add_argument("--json", type=Path, default=None, help="write every run's figures here")
 
@@ -80,9 +103,9 @@ def slam_run_arrays(result, truth: np.ndarray, graph_scale: float) -> dict:
 def chosen_logs(parser: argparse.ArgumentParser, text: str) -> list[str]:
     """The log names of a ``--logs`` value; an unknown name is a usage error of ``parser`` (exit code 2)."""
     logs = [name.strip() for name in text.split(",") if name.strip()]
-    unknown = sorted(set(logs) - set(CORRECTED_LOGS))
+    unknown = sorted(set(logs) - set(ALL_LOGS))
     if unknown or not logs:
-        parser.error(f"unknown or no log(s) {', '.join(unknown)}; choose from {', '.join(CORRECTED_LOGS)}")
+        parser.error(f"unknown or no log(s) {', '.join(unknown)}; choose from {', '.join(ALL_LOGS)}")
     return logs
 
 
