@@ -54,3 +54,22 @@ def test_the_willow_tour_stays_in_free_space_and_the_log_reads_back(tmp_path):
     again = willow_log.write_willow_log(tmp_path / "again.log.gz")
     assert np.array_equal(again, poses)
     assert np.array_equal(np.asarray(read_carmen(tmp_path / "again.log.gz").ranges), np.asarray(log.ranges))
+
+
+def test_the_seeded_benchmarks_know_willow_but_never_choose_it_by_default(tmp_path):
+    import argparse
+
+    import seeded_logs
+
+    from bayesmap.errors import BayesmapError
+
+    parser = argparse.ArgumentParser()
+    seeded_logs.add_log_seed_options(parser)
+    args = parser.parse_args([])
+    assert seeded_logs.chosen_logs(parser, args.logs) == ["intel", "aces", "csail"]
+    assert seeded_logs.chosen_logs(parser, "willow,aces") == ["willow", "aces"]
+    with pytest.raises(SystemExit):
+        seeded_logs.chosen_logs(parser, "wilow")
+    with pytest.raises(BayesmapError, match="wilow"):
+        seeded_logs.corrected_log("wilow", tmp_path)
+    assert seeded_logs.corrected_log("aces", tmp_path) == seeded_logs.CORRECTED_LOGS["aces"]
