@@ -8,7 +8,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import march_first_hit
 from bayesmap.inference import posegraph
-from bayesmap.inference.scanmatch import MIN_HIT_FRACTION, ScanData, correlative_path
+from bayesmap.inference.scanmatch import LOCAL_MAP_DISTANCE, MIN_HIT_FRACTION, ScanData, correlative_path
 from bayesmap.model.motion import compose, make_motion_params, odometry_controls
 
 
@@ -150,10 +150,12 @@ def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch)
                         lambda first, data, resolution, **options: calls.append((first, data, resolution, options)))
     problem = SimpleNamespace(odometry=np.array([[1.0, 2.0, 0.3], [1.5, 2.0, 0.3]]), likelihood_power=0.25)
     logslam.front_end(problem, "scans")
-    (first, data, resolution, options), = calls
+    logslam.front_end(problem, "scans", min_hit_fraction=0.3, window=20.0)  # front_end_cv.py's settings
+    (first, data, resolution, options), (_, _, _, chosen) = calls
     assert np.array_equal(first, [1.0, 2.0, 0.3]) and data == "scans"
     assert resolution == logslam.FRONT_END_RESOLUTION
-    assert options == {"likelihood_power": 0.25, "min_hit_fraction": MIN_HIT_FRACTION}
+    assert options == {"likelihood_power": 0.25, "min_hit_fraction": MIN_HIT_FRACTION, "window": LOCAL_MAP_DISTANCE}
+    assert chosen == {"likelihood_power": 0.25, "min_hit_fraction": 0.3, "window": 20.0}
 
 
 def test_a_scan_that_misses_its_local_map_takes_the_odometrys_step():

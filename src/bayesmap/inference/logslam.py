@@ -61,7 +61,13 @@ from bayesmap.inference.cellwise import cellwise_gibbs
 from bayesmap.inference.chains import run_chain, run_recorded_chains
 from bayesmap.inference.posegraph import close_loops, marginal_covariances, sample_deviations
 from bayesmap.inference.poses import PoseState, random_walk_pose_mh, slam_data
-from bayesmap.inference.scanmatch import MIN_HIT_FRACTION, ScanData, correlative_path, scan_endpoints
+from bayesmap.inference.scanmatch import (
+    LOCAL_MAP_DISTANCE,
+    MIN_HIT_FRACTION,
+    ScanData,
+    correlative_path,
+    scan_endpoints,
+)
 from bayesmap.inference.slam import SlamResult, check_counts, pose_summary
 from bayesmap.model.generative import replace_params
 from bayesmap.model.motion import odometry_controls
@@ -126,7 +132,8 @@ def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MAR
                          margin=margin)
 
 
-def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTION) -> np.ndarray:
+def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTION,
+              window: float = LOCAL_MAP_DISTANCE) -> np.ndarray:
     """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad): correlative scan matching from the first
     odometry pose on fields of :data:`FRONT_END_RESOLUTION` meters that follow the robot
     (:data:`bayesmap.inference.scanmatch.MATCH_GRID_HALF_WIDTH`), each scan's field score raised to the problem's
@@ -134,13 +141,14 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
     scans' correlated beams outweigh the odometry along corridors, where the front end slipped; chosen by
     leave-one-log-out cross-validation, ``benchmarks/front_end_cv.py``); a scan whose match puts fewer than
     ``min_hit_fraction`` of its endpoints on the local map takes the odometry's prediction
-    (:data:`bayesmap.inference.scanmatch.MIN_HIT_FRACTION`, chosen the same way).
+    (:data:`bayesmap.inference.scanmatch.MIN_HIT_FRACTION`, chosen the same way). The local map holds the scans of
+    the last ``window`` meters of travel (:data:`bayesmap.inference.scanmatch.LOCAL_MAP_DISTANCE`).
 
     Raises:
         BayesmapError: as :func:`bayesmap.inference.scanmatch.correlative_path`."""
     odometry = np.asarray(problem.odometry, np.float64)
     return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, likelihood_power=problem.likelihood_power,
-                            min_hit_fraction=min_hit_fraction)
+                            min_hit_fraction=min_hit_fraction, window=window)
 
 
 def with_grid(params, grid: Grid):

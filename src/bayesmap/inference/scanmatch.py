@@ -87,8 +87,10 @@ not against the whole map. A map of every earlier scan closes small loops by its
 after a drift it snaps the new scan onto the old, displaced walls, a jump of up to half a meter that the loop
 closure then treats as a measured step; the local map leaves the loops to :mod:`bayesmap.inference.posegraph`.
 Measured on the three shared logs (seed-0 odometry, start path after loop closure, ATE): Intel 0.157 -> 0.119 m,
-ACES 0.299 -> 0.115 m, CSAIL 0.098 -> 0.241 m (sum 0.554 -> 0.475 m, worst 0.299 -> 0.241 m). Not tuned: 10 m is
-the peer's default, the only value tried."""
+ACES 0.299 -> 0.115 m, CSAIL 0.098 -> 0.241 m (sum 0.554 -> 0.475 m, worst 0.299 -> 0.241 m). 10 m is the peer's
+default. 20 m was tried against it (``benchmarks/front_end_cv.py --parameter window``, seeds 0-2, whole logs and
+every other scan; docs/slam.md) and not adopted: on whole logs every fold chose 20 m, but the held-out change was
+-0.003 to +0.002 m; with every other scan the folds disagreed, and 20 m cost CSAIL 0.38 -> 0.63 m held out."""
 
 
 MATCH_GRID_HALF_WIDTH = 40.0
