@@ -300,7 +300,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="0-4", help="odometry noise seeds, e.g. 0-4 or 0,3 (default 0-4)")
     parser.add_argument("--logs", default="intel,aces,csail",
-                        help="comma-separated subset of intel,aces,csail,willow (willow: simulated, willow_log.py)")
+                        help=f"comma-separated subset of {','.join(ALL_LOGS)} (willow: simulated, willow_log.py)")
     parser.add_argument("--methods", default="karto", help="comma-separated subset of karto,bayesmap")
     parser.add_argument("--beam-spacing", choices=BEAM_SPACINGS, default="bayesmap",
                         help="beam angles given to every method: bayesmap's rule (default) or pi/(n-1) for all n")

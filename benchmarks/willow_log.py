@@ -26,9 +26,7 @@ from __future__ import annotations
 import argparse
 import gzip
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +39,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from bayesmap.errors import BayesmapError  # noqa: E402
 from bayesmap.io.carmen import beam_offsets  # noqa: E402
+from bayesmap.io.files import write_atomic  # noqa: E402
 from bayesmap.io.rosmap import read_rosmap  # noqa: E402
 
 WILLOW_PLAN = ROOT.parent / "shared" / "data" / "maps" / "willow-full.pgm"
@@ -104,12 +103,13 @@ def tour(free: np.ndarray, resolution: float, waypoints: np.ndarray = WAYPOINTS)
     for x, y in waypoints:
         ci, cj = int(round(x / resolution)), int(round(y / resolution))
         r = int(round(1.5 / resolution))
-        window = clearance[max(ci - r, 0): ci + r + 1, max(cj - r, 0): cj + r + 1] * ok[
-            max(ci - r, 0): ci + r + 1, max(cj - r, 0): cj + r + 1]
+        i0, j0 = max(ci - r, 0), max(cj - r, 0)
+        near = (slice(i0, ci + r + 1), slice(j0, cj + r + 1))
+        window = clearance[near] * ok[near]
         if window.max() <= 0:
             raise BayesmapError(f"waypoint ({x}, {y}) m has no pixel with {MIN_CLEARANCE} m of clearance within 1.5 m")
         wi, wj = np.unravel_index(int(np.argmax(window)), window.shape)
-        snapped.append(index[max(ci - r, 0) + wi, max(cj - r, 0) + wj])
+        snapped.append(index[i0 + wi, j0 + wj])
     route = [snapped[0]]
     for start, goal in zip(snapped[:-1], snapped[1:]):
         _, pred = dijkstra(graph, indices=start, return_predecessors=True)
@@ -176,17 +176,9 @@ def write_willow_log(out: Path, png: Path | None = None) -> np.ndarray:
     walls, free, resolution = plan_cells()
     poses = scan_poses(tour(free, resolution))
     ranges = simulate_ranges(walls, resolution, poses, np.random.default_rng(20261124))
-    out = Path(out)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".tmp")
-    os.close(fd)
-    try:
-        with gzip.open(tmp, "wt") as f:
-            f.write("# simulated in shared/data/maps/willow-full.pgm by bayesmap benchmarks/willow_log.py\n")
-            f.write("\n".join(flaser_lines(ranges, poses)) + "\n")
-        os.replace(tmp, out)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    text = ("# simulated in shared/data/maps/willow-full.pgm by bayesmap benchmarks/willow_log.py\n"
+            + "\n".join(flaser_lines(ranges, poses)) + "\n")
+    write_atomic(out, gzip.compress(text.encode("utf-8")), overwrite=True)
     if png is not None:
         import matplotlib
 

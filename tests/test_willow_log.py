@@ -50,7 +50,7 @@ def test_the_willow_tour_stays_in_free_space_and_the_log_reads_back(tmp_path):
     assert len(log) == len(poses) and log.ranges.shape[1] == willow_log.NUM_BEAMS
     assert np.allclose(np.asarray(log.poses), poses, atol=1e-5)
     assert log.max_range == pytest.approx(willow_log.MAX_RANGE)
-    # the same log on every run, and an existing file is replaced only as a whole
+    # the same log on every run
     again = willow_log.write_willow_log(tmp_path / "again.log.gz")
     assert np.array_equal(again, poses)
     assert np.array_equal(np.asarray(read_carmen(tmp_path / "again.log.gz").ranges), np.asarray(log.ranges))
