@@ -1,7 +1,7 @@
 """Leave-one-log-out cross-validation of a front-end setting (issue 15: the path's error): the likelihood power, the
 least hit fraction of a trusted match, or the local map's length.
 
-The front end (:func:`bayesmap.inference.scanmatch.correlative_path`) places each scan at the maximum of
+The front end (:func:`bayesmap.slam.scanmatch.correlative_path`) places each scan at the maximum of
 ``p S + L``: ``S`` the scan's likelihood-field score, a sum over its beams of ``log(field + floor)``, and ``L`` the
 motion model's log-density. Two of its settings are chosen here:
 
@@ -9,9 +9,9 @@ motion model's log-density. Two of its settings are chosen here:
   outweigh the odometry wherever the field is nearly flat along one direction (a corridor), which is where the front
   end slipped by 0.15-0.44 m (docs/slam.md);
 * ``min_hit_fraction``: a scan whose best match puts fewer of its returned endpoints on the local map takes the
-  odometry's prediction (:data:`bayesmap.inference.scanmatch.MIN_HIT_FRACTION`; 0 trusts every match);
+  odometry's prediction (:data:`bayesmap.slam.scanmatch.MIN_HIT_FRACTION`; 0 trusts every match);
 * ``window``: the meters of travel whose scans make the local map
-  (:data:`bayesmap.inference.scanmatch.LOCAL_MAP_DISTANCE`; 20 m was tried against the default 10 m and not adopted,
+  (:data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`; 20 m was tried against the default 10 m and not adopted,
   docs/slam.md, "A longer local map").
 
 (A third, the weight of a uniform outlier component in a max-mixture with the motion model, was chosen here at commit
@@ -21,7 +21,7 @@ For each log and odometry seed (``seeded_logs.seeded_log``), each kept-scan set 
 ``heldout``: every 10th scan dropped, as the held-out map scores do, which is where the front end lost CSAIL's
 track; ``every2``: every other scan, steps of about twice the logs' median 0.7-1 m) and each value of ``--values``,
 the script runs the start as ``run_log_slam`` does (the front end, then
-:func:`bayesmap.inference.posegraph.close_loops`) with the other settings at their defaults, and records the ATE of the
+:func:`bayesmap.slam.posegraph.close_loops`) with the other settings at their defaults, and records the ATE of the
 path after loop closure (meters, after the best rigid 2-D alignment; within 0.003 m of the whole chain's ATE on the
 runs where both were measured, docs/slam.md), the front end's alone, its steps off by more than 0.15 m, and its steps
 equal to the odometry's (those that followed it).
@@ -58,15 +58,15 @@ from karto_peer import parse_seeds  # noqa: E402
 from seeded_logs import add_log_seed_options, chosen_logs, seeded_log  # noqa: E402
 from slam_error_sources import count_slips  # noqa: E402
 
-from bayesmap import scenes  # noqa: E402
 from bayesmap.evaluation.heldout import heldout_split  # noqa: E402
 from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E402
-from bayesmap.inference import logslam, posegraph, scanmatch  # noqa: E402
+from bayesmap.slam import pipeline, posegraph, scanmatch  # noqa: E402
+from bayesmap.slam.problem import SLAM_LIKELIHOOD_POWER, log_slam_problem  # noqa: E402
 
-DEFAULTS = {"power": scenes.SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HIT_FRACTION,
+DEFAULTS = {"power": SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HIT_FRACTION,
             "window": scanmatch.LOCAL_MAP_DISTANCE}
 """The settings this script can vary, and the value each takes while the other is varied (the defaults of
-:func:`bayesmap.inference.logslam.front_end`)."""
+:func:`bayesmap.slam.pipeline.front_end`)."""
 
 SCAN_SETS = ("all", "heldout", "every2")
 """``all``: every scan of the log; ``heldout``: the scans the held-out map scores keep (every 10th dropped);
@@ -74,16 +74,16 @@ SCAN_SETS = ("all", "heldout", "every2")
 
 
 def start_path(log, truth, scans: str, parameter: str, value: float) -> dict:
-    """One run's figures: the start path of ``run_log_slam`` (:func:`bayesmap.inference.logslam.front_end`, then loop
+    """One run's figures: the start path of ``run_log_slam`` (:func:`bayesmap.slam.pipeline.front_end`, then loop
     closure) for the log's SLAM problem on the scans ``scans`` (:data:`SCAN_SETS`), with the front-end setting
     ``parameter`` at ``value``. The power is passed as the problem's likelihood power, which only the front end
     reads here."""
     began = time.perf_counter()
     kept = {"all": None, "heldout": heldout_split(len(log), 10)[0], "every2": np.arange(0, len(log), 2)}[scans]
     setting = {**DEFAULTS, parameter: value}
-    problem = scenes.log_slam_problem(log, kept, likelihood_power=setting["power"])
-    data = logslam.scan_data(problem)
-    front = logslam.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"], window=setting["window"])
+    problem = log_slam_problem(log, kept, likelihood_power=setting["power"])
+    data = pipeline.scan_data(problem)
+    front = pipeline.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"], window=setting["window"])
     closed, edges = posegraph.close_loops(front, data)
     truth = truth if kept is None else truth[kept]
     return {"parameter": parameter, "value": value, "scans": scans,

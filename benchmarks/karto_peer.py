@@ -46,12 +46,12 @@ from typing import Callable, NamedTuple
 import numpy as np
 from seeded_logs import ALL_LOGS, CORRECTED_LOGS, NOISY_ODOMETRY, run_file, slam_run_arrays, write_seeded_log
 
-from bayesmap import scenes
 from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage
-from bayesmap.inference.logslam import GRAPH_COV_SCALE, run_log_slam
 from bayesmap.io.carmen import beam_offsets, read_carmen
 from bayesmap.io.rosbag import compose_poses, invert_pose
+from bayesmap.slam.pipeline import GRAPH_COV_SCALE, run_log_slam
+from bayesmap.slam.problem import log_slam_problem
 
 ROOT = Path(__file__).resolve().parents[1]
 KARTO_VENV = ROOT / "benchmarks" / ".venv-karto"
@@ -205,11 +205,11 @@ def run_karto(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
 
 
 def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
-    """bayesmap's SLAM: the posterior mean pose of every scan (``bayesmap.inference.logslam.run_log_slam`` at its
+    """bayesmap's SLAM: the posterior mean pose of every scan (``bayesmap.slam.pipeline.run_log_slam`` at its
     defaults, in this process, the same code as ``bayesmap slam --log``). ``extra`` gets the 95 % ellipse coverage
     of the truth and the posterior's median position standard deviation. Runtime: the whole run, compilation
     included."""
-    slam_problem = scenes.log_slam_problem(read_carmen(problem.log_path))
+    slam_problem = log_slam_problem(read_carmen(problem.log_path))
     result = run_log_slam(slam_problem, seed=problem.seed, final_map_sweeps=0)  # the path is scored, not the map
     extra["coverage"] = ellipse_coverage(result.mean_path, result.pose_cov, problem.truth)
     extra["position_sd_median_m"] = float(np.median(np.sqrt(result.pose_cov[:, 0, 0] + result.pose_cov[:, 1, 1])))

@@ -18,10 +18,10 @@ import numpy as np
 from karto_peer import parse_seeds
 from seeded_logs import seeded_log
 
-from bayesmap import scenes
 from bayesmap.evaluation.trajectory import absolute_trajectory_error
-from bayesmap.inference import posegraph
-from bayesmap.inference.logslam import front_end, scan_data
+from bayesmap.slam import posegraph
+from bayesmap.slam.pipeline import front_end, scan_data
+from bayesmap.slam.problem import log_slam_problem
 
 BASE = (0.05, 0.05, 0.02)
 """The factors multiply these (x m, y m, theta rad)."""
@@ -30,7 +30,7 @@ BASE = (0.05, 0.05, 0.02)
 def ates(name: str, seed: int, factors: list[float]) -> list[float]:
     """The ATE (m) after loop closure of one log and seed, per factor."""
     log, truth = seeded_log(name, seed)
-    problem = scenes.log_slam_problem(log)
+    problem = log_slam_problem(log)
     data = scan_data(problem)
     start = front_end(problem, data)
     out = []

@@ -1,5 +1,5 @@
 """Leave-one-log-out cross-validation of ``GRAPH_COV_SCALE``: the factor on the pose graph's standard deviations in
-bayesmap's reported path uncertainty (``bayesmap.inference.logslam``, stage 5).
+bayesmap's reported path uncertainty (``bayesmap.slam.pipeline``, stage 5).
 
 For each log (intel, aces, csail) and each odometry noise seed, the script makes the SLAM problem with
 ``shared/tools/noisy_odometry.py`` (``benchmarks/seeded_logs.py``), runs ``run_log_slam`` at its defaults and
@@ -24,9 +24,9 @@ import numpy as np
 from karto_peer import parse_seeds
 from seeded_logs import run_file, seeded_log, slam_run_arrays
 
-from bayesmap import scenes
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage
-from bayesmap.inference.logslam import GRAPH_COV_SCALE, run_log_slam
+from bayesmap.slam.pipeline import GRAPH_COV_SCALE, run_log_slam
+from bayesmap.slam.problem import log_slam_problem
 
 LEVEL = 0.95
 
@@ -36,7 +36,7 @@ def run_one(name: str, seed: int, cache: Path) -> dict:
     out = run_file(cache, name, seed, "npz")
     if not out.exists():
         log, truth = seeded_log(name, seed)
-        result = run_log_slam(scenes.log_slam_problem(log), progress=True, graph_scale=0.0,  # pose_cov: the chain's
+        result = run_log_slam(log_slam_problem(log), progress=True, graph_scale=0.0,  # pose_cov: the chain's
                               final_map_sweeps=0)  # (and no final map: the path is scored)
         np.savez(out, **slam_run_arrays(result, truth, 0.0))
         print(f"{name} seed {seed}: ATE {absolute_trajectory_error(result.mean_path, truth)['rmse_m']:.3f} m, "

@@ -1,8 +1,8 @@
 """Where a real-log SLAM path's error comes from: the front end, the loop edges or the graph (docs/slam.md).
 
 For each log and odometry seed (``seeded_logs.seeded_log``: the real scans, odometry from ``noisy_odometry.py``), the
-script runs bayesmap's start (:func:`bayesmap.inference.logslam.front_end`, then
-:func:`bayesmap.inference.posegraph.close_loops`) and prints one row of ATEs (meters, after the best rigid 2-D
+script runs bayesmap's start (:func:`bayesmap.slam.pipeline.front_end`, then
+:func:`bayesmap.slam.posegraph.close_loops`) and prints one row of ATEs (meters, after the best rigid 2-D
 alignment):
 
 * ``front end`` and ``loop closure``: the two stages as bayesmap runs them (the joint chain after them moves the ATE
@@ -29,10 +29,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from karto_peer import parse_seeds  # noqa: E402
 from seeded_logs import table_main  # noqa: E402
 
-from bayesmap import scenes  # noqa: E402
 from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E402
-from bayesmap.inference import logslam, posegraph  # noqa: E402
 from bayesmap.model.motion import wrap_angle  # noqa: E402
+from bayesmap.slam import pipeline, posegraph  # noqa: E402
+from bayesmap.slam.problem import log_slam_problem  # noqa: E402
 
 SLIP = 0.15
 """Meters: a sequential step of the front end off the true relative pose by more is a slip (``--slip``'s default)."""
@@ -48,9 +48,9 @@ def count_slips(path, truth, slip: float = SLIP) -> int:
 def error_sources(log, truth, slip: float) -> dict:
     """The row of the module docstring for one SLAM problem: ``log`` a CARMEN log whose poses are odometry,
     ``truth`` ``(S, 3)`` its true poses."""
-    problem = scenes.log_slam_problem(log)
-    scans = logslam.scan_data(problem)
-    front = logslam.front_end(problem, scans)
+    problem = log_slam_problem(log)
+    scans = pipeline.scan_data(problem)
+    front = pipeline.front_end(problem, scans)
     closed, edges = posegraph.close_loops(front, scans)
     loop = np.arange(len(edges.i)) >= len(front) - 1  # close_loops puts the sequential edges first
     sequential = posegraph.Edges(*(a[~loop] for a in edges))

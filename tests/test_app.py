@@ -181,7 +181,7 @@ def test_slam_scene_needs_two_poses_and_uses_the_settings():
     ex.set_setting("num_angles", 24)
     ex.set_setting("sensor_noise", 0.2)
     pb = ex.slam_problem()
-    from bayesmap.scenes import SLAM_ODOMETRY_ALPHAS, simulate_odometry
+    from bayesmap.slam.problem import SLAM_ODOMETRY_ALPHAS, simulate_odometry
 
     assert pb.readings.shape == pb.sensor_angles.shape == (2, 24)
     assert pb.params.sensor_noise == pytest.approx(0.2)

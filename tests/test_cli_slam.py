@@ -11,7 +11,7 @@ from helpers import run_cli
 
 @pytest.mark.xdist_group("tutorial_slam")
 def test_slam_writes_all_outputs(tmp_path, monkeypatch, capsys):
-    """A short run (5 poses, 12 sweeps, 4 burn-in: the joint chain of tests/inference/test_slam.py's tutorial_slam,
+    """A short run (5 poses, 12 sweeps, 4 burn-in: the joint chain of tests/slam/test_joint.py's tutorial_slam,
     compiled once on their shared xdist worker) writes every output, consistent with each other, whole, and refuses
     to overwrite them without --force."""
     out = tmp_path / "run"

@@ -11,7 +11,10 @@ from PIL import Image
 
 from bayesmap import scenes
 from bayesmap.geometry.grid import Grid
-from bayesmap.inference.logslam import (
+from bayesmap.io.carmen import read_carmen
+from bayesmap.io.rosbag import read_bag
+from bayesmap.io.tum import read_tum, tum_stamps, write_tum
+from bayesmap.slam.pipeline import (
     FINAL_MAP_SWEEPS,
     GRAPH_COV_SCALE,
     POSE_SWEEPS,
@@ -19,10 +22,8 @@ from bayesmap.inference.logslam import (
     final_map_power,
     scan_data,
 )
-from bayesmap.inference.posegraph import SEQUENTIAL_STD
-from bayesmap.io.carmen import read_carmen
-from bayesmap.io.rosbag import read_bag
-from bayesmap.io.tum import read_tum, tum_stamps, write_tum
+from bayesmap.slam.posegraph import SEQUENTIAL_STD
+from bayesmap.slam.problem import log_slam_problem
 from helpers import SHARED_DATA, run_cli, run_main
 
 SLICE = ("--scans", "0:25", "--resolution", "0.2", "--sweeps", "2", "--seed", "3")
@@ -83,7 +84,7 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert final["sensor_noise"] > float(known.params.sensor_noise)
     # its power follows the readings' density at the mean path (trajectory.tum, rounded to 1e-6: a few endpoints
     # may change cells, hence rel 1e-2), not at the odometry, whose endpoints smear over twice the cells here
-    slam_problem = scenes.log_slam_problem(read_carmen(aces_odom), np.arange(25), resolution=0.2)
+    slam_problem = log_slam_problem(read_carmen(aces_odom), np.arange(25), resolution=0.2)
     wide = Grid((2000, 2000), resolution=0.2, origin=(-200.0, -200.0))
     data = scan_data(slam_problem)
     at_mean = final_map_power(slam_problem, data, poses, wide)

@@ -12,6 +12,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.inference.driver import run_logodds
 from bayesmap.model.generative import log_joint_scans
 from bayesmap.scenes import Observations, Problem, log_problem, scan_problem
+from bayesmap.slam.problem import log_slam_problem
 from helpers import room_scans
 
 
@@ -119,15 +120,14 @@ def test_log_defaults_come_from_the_scene_defaults(small_log, monkeypatch):
 def test_slam_problem_keeps_the_slam_map_model(small_log):
     """``bayesmap slam --log`` keeps the map model its defaults were cross-validated with (0.05 m noise, power 0.1,
     independent prior), whatever the map defaults of logs are, in the chord geometry with no range offset."""
-    from bayesmap import scenes
     from bayesmap.io.carmen import read_carmen
 
     log = read_carmen(small_log)
-    slam = scenes.log_slam_problem(log, resolution=0.2)
+    slam = log_slam_problem(log, resolution=0.2)
     assert slam.params.geometry == "chord" and slam.range_offset == 0.0
     assert slam.params.sensor_noise == pytest.approx(0.05) and slam.likelihood_power == pytest.approx(0.1)
     assert slam.params.coupling == 0.0
-    given = scenes.log_slam_problem(log, resolution=0.2, range_offset=0.1, likelihood_power=1.0, sensor_noise=0.02)
+    given = log_slam_problem(log, resolution=0.2, range_offset=0.1, likelihood_power=1.0, sensor_noise=0.02)
     assert given.range_offset == 0.1 and given.likelihood_power == 1.0 and given.params.sensor_noise == 0.02
 
 
@@ -135,12 +135,12 @@ def test_slam_problem_final_map_is_the_log_map_model(small_log):
     """The final map of ``slam --log`` (run_log_slam's stage 6) is drawn in exactly the map model ``infer --log``
     uses at known poses (log_problem's defaults), on the SLAM problem's grid and beam model."""
     from bayesmap import scenes
-    from bayesmap.inference.logslam import final_map_power, scan_data
     from bayesmap.io.carmen import read_carmen
+    from bayesmap.slam.pipeline import final_map_power, scan_data
 
     log = read_carmen(small_log)
     for resolution in (0.1, 0.2):
-        slam = scenes.log_slam_problem(log, resolution=resolution)
+        slam = log_slam_problem(log, resolution=resolution)
         known = scenes.log_problem(log, resolution=resolution)
         final = slam.final_map_params
         for name in ("sensor_noise", "coupling", "wall_pass_prob", "geometry", "neighbourhood", "prior_wall_prob",

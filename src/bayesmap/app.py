@@ -14,8 +14,8 @@ It does what the tutorial's final interactive widget does, offline and without J
 * after a run, a sample slider and a "show average" switch; the inferred walls drawn as cell opacity (the tutorial's
   style) or as a heatmap;
 * a path mode (issue 15): clicks on free cells append sensor poses to a path (headings towards the next pose); Run
-  SLAM simulates odometry (:func:`bayesmap.scenes.simulate_odometry`) and readings along it and runs the joint chain
-  (:func:`bayesmap.inference.slam.run_slam`), then draws the posterior map, the odometry, the pose samples, the
+  SLAM simulates odometry (:func:`bayesmap.slam.problem.simulate_odometry`) and readings along it and runs the
+  joint chain (:func:`bayesmap.slam.joint.run_slam`), then draws the posterior map, the odometry, the pose samples, the
   posterior mean path and the ATE of the mean and of the odometry.
 
 Each browser tab gets its own :class:`Explorer`, so tabs are independent sessions. The page's scripts and styles are
@@ -39,10 +39,11 @@ from bayesmap.evaluation.trajectory import score_trajectory
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import sensor_distances
 from bayesmap.inference.driver import DEFAULT_SWEEPS, InferenceResult, run_inference
-from bayesmap.inference.slam import run_slam
 from bayesmap.io.ascii import format_map, parse_map, tutorial_map
 from bayesmap.model.generative import make_params
-from bayesmap.scenes import TUTORIAL_POS, Problem, SlamProblem, tutorial_problem
+from bayesmap.scenes import TUTORIAL_POS, Problem, tutorial_problem
+from bayesmap.slam.joint import run_slam
+from bayesmap.slam.problem import SlamProblem, simulated_slam_problem
 
 SAMPLER = "block"
 
@@ -86,8 +87,8 @@ class SlamRun:
     rigid alignment: :func:`bayesmap.evaluation.trajectory.absolute_trajectory_error`).
 
     Attributes:
-        problem: the :class:`~bayesmap.scenes.SlamProblem` (true path, odometry ``(S, 3)``, readings ``(S, K)``).
-        result: the :class:`~bayesmap.inference.slam.SlamResult` (pose samples ``(N, S, 3)``, mean path ``(S, 3)``,
+        problem: the :class:`~bayesmap.slam.problem.SlamProblem` (true path, odometry ``(S, 3)``, readings ``(S, K)``).
+        result: the :class:`~bayesmap.slam.joint.SlamResult` (pose samples ``(N, S, 3)``, mean path ``(S, 3)``,
             posterior map ``(nx, ny)``).
         sweeps: joint sweeps run (the first third burn-in).
         ate_mean: ATE of the posterior mean path, meters.
@@ -272,10 +273,10 @@ class Explorer:
 
     def slam_problem(self) -> SlamProblem:
         """The SLAM scene of the drawn walls and path: odometry simulated from the path by
-        :func:`bayesmap.scenes.simulate_odometry` (:data:`bayesmap.scenes.SLAM_ODOMETRY_ALPHAS`, this session's
-        seed), readings simulated at the true poses with the current ``num_angles`` beams (relative to the heading),
-        ``sensor_noise`` and ``prior_wall_prob``, by :func:`bayesmap.scenes.simulated_slam_problem` (as the
-        tutorial SLAM scene).
+        :func:`bayesmap.slam.problem.simulate_odometry` (:data:`bayesmap.slam.problem.SLAM_ODOMETRY_ALPHAS`, this
+        session's seed), readings simulated at the true poses with the current ``num_angles`` beams (relative to the
+        heading), ``sensor_noise`` and ``prior_wall_prob``, by :func:`bayesmap.slam.problem.simulated_slam_problem`
+        (as the tutorial SLAM scene).
 
         Raises:
             BayesmapError: if the path has fewer than 2 poses.
@@ -286,7 +287,7 @@ class Explorer:
                                 "poses")
         true_poses = self.true_path()
         params = make_params(self.prior_wall_prob, self.sensor_noise, self.num_angles, self.grid)
-        return scenes.simulated_slam_problem(self.walls, true_poses, params, self.seed,
+        return simulated_slam_problem(self.walls, true_poses, params, self.seed,
                                              source=f"app: path of {len(true_poses)} poses, seed {self.seed}")
 
     def _slam_scene(self) -> tuple:

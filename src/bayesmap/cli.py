@@ -23,9 +23,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.heldout import evaluate_log, evaluate_truth
 from bayesmap.evaluation.trajectory import score_trajectory
 from bayesmap.inference.driver import run_inference, run_logodds
-from bayesmap.inference.logslam import BURN_IN_ROUNDS, FINAL_MAP_SWEEPS, GRAPH_COV_SCALE, ROUNDS, run_log_slam
 from bayesmap.inference.registry import SAMPLERS
-from bayesmap.inference.slam import run_slam
 from bayesmap.inference.traces import chain_traces
 from bayesmap.io.ascii import load_map, tutorial_map
 from bayesmap.io.carmen import CarmenLog, read_carmen
@@ -44,6 +42,9 @@ from bayesmap.io.tum import encode_tum, match_stamps, read_tum, tum_stamps
 from bayesmap.model import prior
 from bayesmap.model.prior import check_coupling, coupling_for_run_length
 from bayesmap.scenes import log_problem, scan_problem, tutorial_problem
+from bayesmap.slam.joint import run_slam
+from bayesmap.slam.pipeline import BURN_IN_ROUNDS, FINAL_MAP_SWEEPS, GRAPH_COV_SCALE, ROUNDS, run_log_slam
+from bayesmap.slam.problem import SLAM_ODOMETRY_ALPHAS, log_slam_problem, slam_tutorial_problem
 from bayesmap.viz.common import figure_bytes
 from bayesmap.viz.maps import plot_posterior, plot_posterior_path
 from bayesmap.viz.paths import plot_slam, slam_report
@@ -924,7 +925,7 @@ LOG_SLAM_DEFAULTS = {"sweeps": ROUNDS, "burn_in": BURN_IN_ROUNDS}
 SLAM_LOG_HELP = "a CARMEN log whose pose fields hold odometry (a raw log): infer its path and map"
 SLAM_SWEEPS_HELP = (f"joint sweeps (pose moves, then a map sweep); default {TUTORIAL_SLAM_SWEEPS} on the tutorial "
                     "scene; on --log / --bag the joint chain's rounds (map sweeps, then pose sweeps), default "
-                    "the runner's (bayesmap.inference.logslam)")
+                    "the runner's (bayesmap.slam.pipeline)")
 SLAM_BURN_IN_HELP = ("sweeps dropped before averaging (default: a third of --sweeps; on --log / --bag without "
                      "--sweeps, the runner's)")
 
@@ -997,7 +998,7 @@ def _log_slam(carmen, path: Path, scans: Optional[str], resolution: Optional[flo
     chosen = parse_scans(scans, len(carmen))
     resolution = scenes.RESOLUTION if resolution is None else resolution
     sweeps, burn_in = _slam_counts(sweeps, burn_in, LOG_SLAM_DEFAULTS)
-    problem = scenes.log_slam_problem(carmen, chosen, resolution=resolution)
+    problem = log_slam_problem(carmen, chosen, resolution=resolution)
     _check_slam_size(problem)
     typer.echo(f"bayesmap slam: {path.name}, {len(chosen)} scans, {sweeps} sweeps ...", err=True)
     result = run_log_slam(problem, rounds=sweeps, burn_in=burn_in, seed=seed, progress=True,
@@ -1068,11 +1069,11 @@ def slam(
     if carmen is None:
         num_poses = TUTORIAL_SLAM_POSES if num_poses is None else num_poses
         sweeps, burn_in = _slam_counts(sweeps, burn_in, {"sweeps": TUTORIAL_SLAM_SWEEPS, "burn_in": None})
-        problem = scenes.slam_tutorial_problem(seed=seed, num_poses=num_poses)
+        problem = slam_tutorial_problem(seed=seed, num_poses=num_poses)
         result = run_slam(problem, sweeps=sweeps, burn_in=burn_in, seed=seed)
         settings = {"sweeps": sweeps, "burn_in": burn_in, "seed": seed, "num_poses": num_poses,
                     "num_angles": problem.params.num_angles, "prior_wall_prob": problem.params.prior_wall_prob,
-                    "sensor_noise": problem.params.sensor_noise, "odometry_alphas": list(scenes.SLAM_ODOMETRY_ALPHAS),
+                    "sensor_noise": problem.params.sensor_noise, "odometry_alphas": list(SLAM_ODOMETRY_ALPHAS),
                     "pose_kernel": "lattice_pose_mh", "map_kernel": "dense single-site Gibbs, raster order"}
         summary = {
             "source": problem.source,

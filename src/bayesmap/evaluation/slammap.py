@@ -3,7 +3,7 @@
 Protocol (issue 15's map-quality target):
 
 1. Every ``every``-th scan is held out (:func:`bayesmap.evaluation.heldout.heldout_split`); SLAM
-   (:func:`bayesmap.inference.logslam.run_log_slam`) maps the other scans from their odometry alone.
+   (:func:`bayesmap.slam.pipeline.run_log_slam`) maps the other scans from their odometry alone.
 2. The SLAM map lives in the frame of its own path, which is anchored at the first odometry pose. The rigid 2-D
    alignment of that path onto the true poses of the same scans (:func:`bayesmap.evaluation.trajectory.frame_of`, the
    inverse of the ATE's) carries the held-out scans' true poses into the map's frame: ``p = R^T (g - t)``,
@@ -12,8 +12,8 @@ Protocol (issue 15's map-quality target):
    (:func:`bayesmap.inference.driver.run_inference`, the cellwise sampler, as ``bayesmap evaluate --log`` does on a
    corrected log), in the map model of the SLAM run's map: the map model of a log at known poses (the defaults of
    :func:`bayesmap.scenes.log_problem`) when the run drew a final map at its mean path (stage 6 of
-   :func:`bayesmap.inference.logslam.run_log_slam`, the default), the SLAM model's own
-   (:func:`bayesmap.scenes.slam_map_settings`) otherwise; so the two maps differ only in their poses.
+   :func:`bayesmap.slam.pipeline.run_log_slam`, the default), the SLAM model's own
+   (:func:`bayesmap.slam.problem.slam_map_settings`) otherwise; so the two maps differ only in their poses.
 4. Both maps are scored on the held-out beams at their true poses with the occupancy AUC and the predictive NLL of
    :func:`bayesmap.evaluation.heldout.score_maps`, each map as independent wall probabilities (the SLAM run keeps
    its posterior marginals, not map samples, so the reference is scored the same way), each in its own map model.
@@ -23,7 +23,7 @@ Protocol (issue 15's map-quality target):
    is matched, from the pose step 2 gives it (for the reference, its true pose), against the local map of the
    :data:`REGISTER_NEIGHBOURS` mapped scans on each side of it in the log at that map's poses (the SLAM run's mean
    path, or the true poses), by the loop closure's correlative matcher
-   (:func:`bayesmap.inference.posegraph.match_to_local_maps`, window :data:`REGISTER_LEVELS`). Each entry adds
+   (:func:`bayesmap.slam.posegraph.match_to_local_maps`, window :data:`REGISTER_LEVELS`). Each entry adds
    ``shift_rms_m``, the RMS distance the held-out positions moved. Step 4 scores a map together with the error of
    its frame: a path warped by 0.1 m puts the held-out beams 0.1 m off walls that are right relative to the path (the
    truth's held-out scans move by 3-5 cm when registered into the map of their neighbours' true poses: the truth's
@@ -41,16 +41,17 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.heldout import heldout_split, score_maps
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, frame_of
 from bayesmap.inference.driver import run_inference
-from bayesmap.inference.logslam import run_log_slam, scan_data
-from bayesmap.inference.posegraph import match_to_local_maps
-from bayesmap.scenes import RESOLUTION, log_problem, log_slam_problem, slam_map_settings
+from bayesmap.scenes import RESOLUTION, log_problem
+from bayesmap.slam.pipeline import run_log_slam, scan_data
+from bayesmap.slam.posegraph import match_to_local_maps
+from bayesmap.slam.problem import log_slam_problem, slam_map_settings
 
 REGISTER_NEIGHBOURS = 10
 """Mapped scans on each side of a held-out scan (nearest in the log's order) whose endpoints make the local map it is
-registered against (the loop closure's :data:`bayesmap.inference.posegraph.LOOP_NEIGHBOURS`)."""
+registered against (the loop closure's :data:`bayesmap.slam.posegraph.LOOP_NEIGHBOURS`)."""
 
 REGISTER_LEVELS = ((0.1, 0.02, 3, 5, 1), (0.03, 0.007, 3, 3, 0), (0.01, 0.0025, 2, 2, 0), (0.003, 0.0008, 2, 2, 0))
-"""The registration's search (as :data:`bayesmap.inference.scanmatch.MATCH_LEVELS`): +-0.3 m and +-0.1 rad around
+"""The registration's search (as :data:`bayesmap.slam.scanmatch.MATCH_LEVELS`): +-0.3 m and +-0.1 rad around
 the starting pose, down to 3 mm and 0.05 degrees. Narrower than the loop closure's +-1.5 m: a path whose ATE is
 0.1-0.2 m is off by less than 0.3 m almost everywhere, and a wide window lets a scan in a corridor slide along it
 to wherever it scores best."""
@@ -64,7 +65,7 @@ def register_heldout(path, data, train, test, starts) -> np.ndarray:
 
     Args:
         path: ``(S, 3)`` poses of every scan of ``data`` in the map's frame; only the rows of ``train`` are read.
-        data: the log's scans (:func:`bayesmap.inference.logslam.scan_data`).
+        data: the log's scans (:func:`bayesmap.slam.pipeline.scan_data`).
         train: ``(M,)`` sorted indices of the mapped scans.
         test: ``(T,)`` indices of the held-out scans.
         starts: ``(T, 3)`` where each held-out scan's search starts, in the map's frame.
@@ -73,7 +74,7 @@ def register_heldout(path, data, train, test, starts) -> np.ndarray:
         ``(T, 3)`` float64 registered poses (x m, y m, theta rad).
 
     Raises:
-        BayesmapError: as :func:`bayesmap.inference.posegraph.match_to_local_maps`, or if ``train`` is empty.
+        BayesmapError: as :func:`bayesmap.slam.posegraph.match_to_local_maps`, or if ``train`` is empty.
     """
     train, test = np.asarray(train, np.int64), np.asarray(test, np.int64)
     if len(train) == 0:
@@ -94,7 +95,7 @@ def evaluate_slam_map(log, truth, every: int = 10, resolution: float = RESOLUTIO
         resolution: meters per cell of both maps.
         seed: the random seed of both runs.
         reference_sweeps: cellwise sweeps of the reference map.
-        slam_options: keywords of :func:`bayesmap.inference.logslam.run_log_slam` (rounds, sweeps).
+        slam_options: keywords of :func:`bayesmap.slam.pipeline.run_log_slam` (rounds, sweeps).
 
     Returns:
         ``{"slam": {"auc", "nll", ...}, "true_poses": {...}, "setup": {...}}`` (JSON-serializable), and

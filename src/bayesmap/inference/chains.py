@@ -57,7 +57,7 @@ def _join(arrays, static):
 def scan_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, record):
     """``num_sweeps`` steps of ``algorithm`` from ``initial_state`` by ``jax.lax.scan``, one key per sweep split
     from ``key``; ``record(state, info)`` picks what each sweep keeps (a pytree). Pure and jittable; the loop every
-    chain of bayesmap runs (the map chains here, the joint chain of :mod:`bayesmap.inference.slam`).
+    chain of bayesmap runs (the map chains here, the joint chain of :mod:`bayesmap.slam.joint`).
 
     Returns:
         ``(final_state, records)``, each leaf of ``records`` with a leading ``(num_sweeps,)`` axis.

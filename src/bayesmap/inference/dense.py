@@ -2,7 +2,7 @@
 
 The samplers of :mod:`bayesmap.inference.fast` and :mod:`bayesmap.inference.cellwise` read a sparse ray-cell table
 built on the host (numpy) for fixed poses: moving a pose changes the table's shapes and compiles the sweep anew.
-A SLAM chain moves the poses every sweep (:mod:`bayesmap.inference.slam`), so this kernel keeps a *dense* table
+A SLAM chain moves the poses every sweep (:mod:`bayesmap.slam.joint`), so this kernel keeps a *dense* table
 instead, computed from the poses inside the compiled code: for every ray ``r`` (``R = S K`` rays: ``K`` beams of
 each of ``S`` scans) and every cell ``c`` (``N = nx ny`` cells), ``D[r, c]`` is the distance (meters) at which the
 ray would stop if ``c`` were its first wall: :func:`bayesmap.geometry.raycast.cell_hit_distance` (the arithmetic of

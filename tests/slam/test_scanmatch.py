@@ -7,9 +7,9 @@ import pytest
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import march_first_hit
-from bayesmap.inference import posegraph
-from bayesmap.inference.scanmatch import LOCAL_MAP_DISTANCE, MIN_HIT_FRACTION, ScanData, correlative_path
 from bayesmap.model.motion import compose, make_motion_params, odometry_controls
+from bayesmap.slam import posegraph
+from bayesmap.slam.scanmatch import LOCAL_MAP_DISTANCE, MIN_HIT_FRACTION, ScanData, correlative_path
 
 
 def room_scans(num_poses=12, seed=0):
@@ -143,17 +143,17 @@ def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch)
     above MIN_HIT_FRACTION: the call it makes."""
     from types import SimpleNamespace
 
-    from bayesmap.inference import logslam
+    from bayesmap.slam import pipeline
 
     calls = []
-    monkeypatch.setattr(logslam, "correlative_path",
+    monkeypatch.setattr(pipeline, "correlative_path",
                         lambda first, data, resolution, **options: calls.append((first, data, resolution, options)))
     problem = SimpleNamespace(odometry=np.array([[1.0, 2.0, 0.3], [1.5, 2.0, 0.3]]), likelihood_power=0.25)
-    logslam.front_end(problem, "scans")
-    logslam.front_end(problem, "scans", min_hit_fraction=0.3, window=20.0)  # front_end_cv.py's settings
+    pipeline.front_end(problem, "scans")
+    pipeline.front_end(problem, "scans", min_hit_fraction=0.3, window=20.0)  # front_end_cv.py's settings
     (first, data, resolution, options), (_, _, _, chosen) = calls
     assert np.array_equal(first, [1.0, 2.0, 0.3]) and data == "scans"
-    assert resolution == logslam.FRONT_END_RESOLUTION
+    assert resolution == pipeline.FRONT_END_RESOLUTION
     assert options == {"likelihood_power": 0.25, "min_hit_fraction": MIN_HIT_FRACTION, "window": LOCAL_MAP_DISTANCE}
     assert chosen == {"likelihood_power": 0.25, "min_hit_fraction": 0.3, "window": 20.0}
 

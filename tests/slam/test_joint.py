@@ -1,4 +1,4 @@
-"""The joint SLAM chain (bayesmap.inference.slam) and the tutorial SLAM scene (scenes.slam_tutorial_problem)."""
+"""The joint SLAM chain (bayesmap.slam.joint) and the tutorial SLAM scene (slam_tutorial_problem)."""
 
 
 import jax
@@ -10,11 +10,11 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.trajectory import absolute_trajectory_error
 from bayesmap.geometry.grid import Grid
 from bayesmap.inference.chains import compiled_chain_count
-from bayesmap.inference.poses import discrete_pose_gibbs, slam_data
-from bayesmap.inference.slam import pose_summary, run_slam, slam_kernel
 from bayesmap.model import motion
 from bayesmap.model.generative import make_params, simulate_scan_readings
-from bayesmap.scenes import simulate_odometry, slam_tutorial_problem
+from bayesmap.slam.joint import pose_summary, run_slam, slam_kernel
+from bayesmap.slam.poses import discrete_pose_gibbs, slam_data
+from bayesmap.slam.problem import simulate_odometry, slam_tutorial_problem
 from helpers import exact_slam_marginals
 
 GRID = Grid((2, 3))  # 6 unit cells: 64 maps

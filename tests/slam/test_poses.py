@@ -1,4 +1,4 @@
-"""Pose conditionals and pose kernels (bayesmap.inference.poses) against the SLAM model's assess and enumeration."""
+"""Pose conditionals and pose kernels (bayesmap.slam.poses) against the SLAM model's assess and enumeration."""
 
 import dataclasses
 import functools
@@ -11,15 +11,6 @@ from jax.experimental import enable_x64
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.inference.poses import (
-    discrete_pose_gibbs,
-    lattice_offsets,
-    lattice_pose_mh,
-    pose_log_conditional,
-    random_walk_pose_mh,
-    scan_log_likelihood,
-    slam_data,
-)
 from bayesmap.model import motion
 from bayesmap.model.generative import (
     log_joint_scans,
@@ -28,6 +19,15 @@ from bayesmap.model.generative import (
     slam_args,
     slam_choices,
     slam_model,
+)
+from bayesmap.slam.poses import (
+    discrete_pose_gibbs,
+    lattice_offsets,
+    lattice_pose_mh,
+    pose_log_conditional,
+    random_walk_pose_mh,
+    scan_log_likelihood,
+    slam_data,
 )
 from helpers import exact_slam_marginals, random_scene
 

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from bayesmap.errors import BayesmapError
-from bayesmap.inference.logslam import graph_uncertainty
-from bayesmap.inference.posegraph import (
+from bayesmap.slam.joint import pose_summary
+from bayesmap.slam.pipeline import graph_uncertainty
+from bayesmap.slam.posegraph import (
     Edges,
     edge_jacobians,
     edge_residuals,
@@ -16,7 +17,6 @@ from bayesmap.inference.posegraph import (
     relative,
     sample_deviations,
 )
-from bayesmap.inference.slam import pose_summary
 
 
 def _graph(seed=0, count=9):

@@ -4,7 +4,7 @@ consistent start for the joint chain (graph SLAM: Lu & Milios 1997, "Globally co
 
 * **Edges.** Each consecutive pair of the front end's path gives a sequential edge (the relative pose between
   them). A scan ``t`` whose estimate lies within :data:`LOOP_RADIUS` meters of an older scan ``s``
-  (``t - s >= LOOP_GAP``) is matched (correlative scan matching, :func:`bayesmap.inference.scanmatch.search`, with
+  (``t - s >= LOOP_GAP``) is matched (correlative scan matching, :func:`bayesmap.slam.scanmatch.search`, with
   the wide window :data:`LOOP_LEVELS`) against a local map of the scans ``s - LOOP_NEIGHBOURS .. s +
   LOOP_NEIGHBOURS`` at their estimates; if at least :data:`LOOP_MIN_HIT_FRACTION` of its returned beams land on that
   map, the match gives a loop edge ``s -> t``.
@@ -36,7 +36,8 @@ import scipy.sparse.linalg
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.inference.scanmatch import (
+from bayesmap.model.motion import wrap_angle
+from bayesmap.slam.scanmatch import (
     Lattices,
     ScanData,
     add_to_fields,
@@ -45,7 +46,6 @@ from bayesmap.inference.scanmatch import (
     lattices,
     search,
 )
-from bayesmap.model.motion import wrap_angle
 
 LOOP_GAP = 30
 """Fewest scans between the two ends of a loop edge (closer scans are the sequential edges' business)."""
@@ -66,7 +66,7 @@ LOOP_STRIDE = 3
 several scans, each of which would give almost the same edge."""
 
 LOOP_LEVELS = ((0.1, 0.03, 15, 7, 1), (0.03, 0.01, 3, 3, 0), (0.01, 0.0033, 2, 2, 0), (0.003, 0.001, 2, 2, 0))
-"""The loop search (as :data:`bayesmap.inference.scanmatch.MATCH_LEVELS`): +-1.5 m and +-0.21 rad (12 degrees)
+"""The loop search (as :data:`bayesmap.slam.scanmatch.MATCH_LEVELS`): +-1.5 m and +-0.21 rad (12 degrees)
 around the current estimate, down to 3 mm and 0.06 degrees."""
 
 LOOP_MIN_HIT_FRACTION = 0.6
@@ -161,7 +161,7 @@ def match_loops(path, data: ScanData, pairs) -> tuple[np.ndarray, np.ndarray]:
 
     Returns:
         ``(poses (P, 3), hit_fraction (P,))``: scan ``t``'s matched world pose and its match quality
-        (:func:`bayesmap.inference.scanmatch.hit_fraction`).
+        (:func:`bayesmap.slam.scanmatch.hit_fraction`).
     """
     path = np.asarray(path, np.float64)
     pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
@@ -174,25 +174,25 @@ def match_to_local_maps(path, data: ScanData, scans, neighbours, starts, centers
                         levels=LOOP_LEVELS) -> tuple[np.ndarray, np.ndarray]:
     """Match each scan of ``scans`` against the local map of its ``neighbours`` at their poses in ``path``.
 
-    The local map of scan ``scans[k]`` is the likelihood fields (:func:`bayesmap.inference.scanmatch.add_to_fields`)
+    The local map of scan ``scans[k]`` is the likelihood fields (:func:`bayesmap.slam.scanmatch.add_to_fields`)
     of the scans ``neighbours[k]`` at ``path[neighbours[k]]``, on a square grid of +-:data:`LOCAL_MAP_HALF_WIDTH`
-    meters around ``centers[k]``; the scan is searched (:func:`bayesmap.inference.scanmatch.search`, no prior) from
+    meters around ``centers[k]``; the scan is searched (:func:`bayesmap.slam.scanmatch.search`, no prior) from
     ``starts[k]`` over ``levels``. The loop closure's matcher (:func:`match_loops`), and what
     :mod:`bayesmap.evaluation.slammap` registers a held-out scan into a map's frame with.
 
     Args:
         path: ``(S, 3)`` poses of the scans of ``data`` (x m, y m, theta rad); only the neighbours' rows are read.
-        data: the scans (:class:`bayesmap.inference.scanmatch.ScanData`; its odometry is not used).
+        data: the scans (:class:`bayesmap.slam.scanmatch.ScanData`; its odometry is not used).
         scans: ``(P,)`` int indices into ``data`` of the scans to match.
         neighbours: ``(P, N)`` int indices into ``data`` of each one's local map (a scan may be its own neighbour
             only if the caller wants it to).
         starts: ``(P, 3)`` where each search starts (world frame).
         centers: ``(P, 2)`` the local maps' centers (meters); default the starts' positions.
-        levels: the coarse-to-fine search (as :data:`bayesmap.inference.scanmatch.MATCH_LEVELS`).
+        levels: the coarse-to-fine search (as :data:`bayesmap.slam.scanmatch.MATCH_LEVELS`).
 
     Returns:
         ``(poses (P, 3), hit_fraction (P,))`` float64: each scan's matched world pose and the fraction of its returned
-        beams that land on the local map (:func:`bayesmap.inference.scanmatch.hit_fraction`).
+        beams that land on the local map (:func:`bayesmap.slam.scanmatch.hit_fraction`).
 
     Raises:
         BayesmapError: if the shapes disagree or an index is outside ``data``.

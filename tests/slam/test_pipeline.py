@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 
 from bayesmap.errors import BayesmapError
-from bayesmap.inference.logslam import final_map_noise, run_log_slam
 from bayesmap.io.carmen import read_carmen
+from bayesmap.slam.pipeline import final_map_noise, run_log_slam
 
 
 @pytest.fixture(scope="module")
 def slam_problem(small_log):
-    from bayesmap.scenes import log_slam_problem
+    from bayesmap.slam.problem import log_slam_problem
 
     return log_slam_problem(read_carmen(small_log), resolution=0.2)
 

@@ -5,9 +5,9 @@ The target is the SLAM model's posterior ``p(poses, walls | readings, odometry)`
 One step of :func:`slam_kernel` updates two blocks in turn (Gibbs over blocks, e.g. Robert & Casella, *Monte Carlo
 Statistical Methods*, 2nd ed., sec. 10.1):
 
-1. the poses given the walls: one pass of a pose kernel of :mod:`bayesmap.inference.poses`
-   (:func:`~bayesmap.inference.poses.lattice_pose_mh`, multiple-try Metropolis, or
-   :func:`~bayesmap.inference.poses.discrete_pose_gibbs` on finite candidate sets), each of which leaves
+1. the poses given the walls: one pass of a pose kernel of :mod:`bayesmap.slam.poses`
+   (:func:`~bayesmap.slam.poses.lattice_pose_mh`, multiple-try Metropolis, or
+   :func:`~bayesmap.slam.poses.discrete_pose_gibbs` on finite candidate sets), each of which leaves
    ``p(poses | walls, readings, odometry)`` invariant;
 2. the walls given the new poses: one raster sweep of the dense single-site Gibbs kernel
    (:func:`bayesmap.inference.dense.dense_sweep`), its ray-cell distances recomputed in JAX from the new poses
@@ -16,7 +16,7 @@ Statistical Methods*, 2nd ed., sec. 10.1):
 Each block's kernel leaves the joint posterior invariant, so their composition does too (docs/slam.md). The shapes
 never depend on the poses' values: the whole chain is one compiled ``lax.scan`` (chains by ``vmap``).
 
-:func:`run_slam` runs it on a :class:`bayesmap.scenes.SlamProblem` and summarizes the kept sweeps
+:func:`run_slam` runs it on a :class:`bayesmap.slam.problem.SlamProblem` and summarizes the kept sweeps
 (:class:`SlamResult`): pose samples, the posterior mean path (circular mean of the heading), per-pose covariances,
 the posterior map (the mean of the conditional wall probabilities, Rao-Blackwellized) and the pose kernel's
 acceptance rate.
@@ -36,7 +36,9 @@ from bayesmap.errors import BayesmapError
 from bayesmap.inference.base import SamplingAlgorithm
 from bayesmap.inference.chains import run_recorded_chains
 from bayesmap.inference.dense import dense_readings, dense_state, dense_sweep
-from bayesmap.inference.poses import (
+from bayesmap.model.generative import check_likelihood_power, make_params, prior_log_odds
+from bayesmap.model.motion import compose, motion_logpdf, odometry_controls, wrap_angle
+from bayesmap.slam.poses import (
     PoseState,
     SlamData,
     lattice_offsets,
@@ -44,8 +46,6 @@ from bayesmap.inference.poses import (
     scan_log_likelihood,
     slam_data,
 )
-from bayesmap.model.generative import check_likelihood_power, make_params, prior_log_odds
-from bayesmap.model.motion import compose, motion_logpdf, odometry_controls, wrap_angle
 
 LATTICE_STEP_CELLS = 0.1
 """Default lattice step of the pose kernel in x and y, in cells (0.1 m on the tutorial's 1 m cells)."""
@@ -87,10 +87,10 @@ def slam_kernel(data: SlamData, pose_kernel: SamplingAlgorithm, likelihood_power
 
     Args:
         data: the odometry, sensor angles ``(S, K)``, readings ``(S, K)`` and parameters
-            (:func:`bayesmap.inference.poses.slam_data`).
-        pose_kernel: a pose kernel over :class:`~bayesmap.inference.poses.PoseState` built on the same ``data``
-            and likelihood power (:func:`~bayesmap.inference.poses.lattice_pose_mh` or
-            :func:`~bayesmap.inference.poses.discrete_pose_gibbs`).
+            (:func:`bayesmap.slam.poses.slam_data`).
+        pose_kernel: a pose kernel over :class:`~bayesmap.slam.poses.PoseState` built on the same ``data``
+            and likelihood power (:func:`~bayesmap.slam.poses.lattice_pose_mh` or
+            :func:`~bayesmap.slam.poses.discrete_pose_gibbs`).
         likelihood_power: ``eta`` in (0, 1] of the map sweep (use the pose kernel's).
 
     Returns:
@@ -189,13 +189,13 @@ class SlamResult(NamedTuple):
         grid: the grid of ``posterior`` (a real log's is fitted to the inferred path), or None: the problem's.
         loop_edges: loop edges of the start path's pose graph (real logs), or None.
         graph_cov: ``(S, 3, 3)`` float64 the pose graph's Laplace covariances at unit scale (real logs;
-            :func:`bayesmap.inference.logslam.graph_uncertainty`), or None.
+            :func:`bayesmap.slam.pipeline.graph_uncertainty`), or None.
         chain_posterior: ``(nx, ny)`` float64 the joint chain's own posterior wall probabilities where
             ``posterior`` is another map's (real logs: the final map at the mean path,
-            :func:`bayesmap.inference.logslam.run_log_slam`), or None (``posterior`` is the chain's).
+            :func:`bayesmap.slam.pipeline.run_log_slam`), or None (``posterior`` is the chain's).
         final_map_power: the likelihood power of that other map (real logs), or None.
         final_map_noise: its sensor noise, meters (real logs: the map model's plus the path's uncertainty,
-            :func:`bayesmap.inference.logslam.final_map_noise`), or None.
+            :func:`bayesmap.slam.pipeline.final_map_noise`), or None.
     """
 
     pose_samples: np.ndarray
@@ -233,13 +233,13 @@ def run_slam(problem, sweeps: int = 100, burn_in: int = 20, seed: int = 0, chain
     odometry, the map fits the scans at the wrong poses and holds them there.
 
     Args:
-        problem: a :class:`bayesmap.scenes.SlamProblem` (params, motion, odometry ``(S, 3)``, sensor angles and
+        problem: a :class:`bayesmap.slam.problem.SlamProblem` (params, motion, odometry ``(S, 3)``, sensor angles and
             readings ``(S, K)``, likelihood power).
         sweeps: joint steps per chain, >= 1.
         burn_in: steps dropped, ``0 <= burn_in < sweeps``.
         seed: the random seed (``jax.random.key(seed)``).
         chains: independent chains (``vmap``), >= 1.
-        pose_kernel: the pose kernel; default :func:`~bayesmap.inference.poses.lattice_pose_mh` with steps
+        pose_kernel: the pose kernel; default :func:`~bayesmap.slam.poses.lattice_pose_mh` with steps
             :data:`LATTICE_STEP_CELLS` cells and :data:`LATTICE_STEP_THETA` rad, half width
             :data:`LATTICE_HALF_WIDTH`.
 

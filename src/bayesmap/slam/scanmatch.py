@@ -18,14 +18,14 @@ correlative scan matching", ICRA; the likelihood field of Thrun, Burgard & Fox, 
 * a match that puts fewer than :data:`MIN_HIT_FRACTION` of the scan's returned endpoints on the local map is not
   trusted: the scan then takes the odometry's prediction (a scan that sees mostly new space, where a few chance
   coincidences with the local map can outscore the motion model; the loop closure's
-  :data:`bayesmap.inference.posegraph.LOOP_MIN_HIT_FRACTION` is the same test, as Karto's minimum responses are for
+  :data:`bayesmap.slam.posegraph.LOOP_MIN_HIT_FRACTION` is the same test, as Karto's minimum responses are for
   the matches that link chains and close loops, though Karto keeps every sequential match).
 
 Every cell also keeps the path length of the last scan that reached it, and a match sees only the cells reached
 within the window: the local map of a running buffer of scans (Karto's design). The fields cover a square of
 :data:`MATCH_GRID_HALF_WIDTH` around the robot and follow it: when the robot nears their edge they are rebuilt around
 it from every earlier scan, so the grid never depends on where the odometry says the robot went. The path drifts
-slowly; :mod:`bayesmap.inference.posegraph` closes the loops, and :func:`correlative_path` is only a start for the joint
+slowly; :mod:`bayesmap.slam.posegraph` closes the loops, and :func:`correlative_path` is only a start for the joint
 chain, which does not depend on it for its target.
 
 Everything is one jitted ``lax.fori_loop`` over the scans (shapes fixed by the grid and the scan size).
@@ -85,7 +85,7 @@ LOCAL_MAP_DISTANCE = 10.0
 travelled before it (slam_toolbox's, i.e. Karto's, default running buffer, ``scan_buffer_maximum_scan_distance``),
 not against the whole map. A map of every earlier scan closes small loops by itself, but when the robot comes back
 after a drift it snaps the new scan onto the old, displaced walls, a jump of up to half a meter that the loop
-closure then treats as a measured step; the local map leaves the loops to :mod:`bayesmap.inference.posegraph`.
+closure then treats as a measured step; the local map leaves the loops to :mod:`bayesmap.slam.posegraph`.
 Measured on the three shared logs (seed-0 odometry, start path after loop closure, ATE): Intel 0.157 -> 0.119 m,
 ACES 0.299 -> 0.115 m, CSAIL 0.098 -> 0.241 m (sum 0.554 -> 0.475 m, worst 0.299 -> 0.241 m). 10 m is the peer's
 default. 20 m was tried against it (``benchmarks/front_end_cv.py --parameter window``, seeds 0-2, whole logs and
@@ -278,7 +278,7 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
         half_width: meters (:data:`MATCH_GRID_HALF_WIDTH`): the fields cover +-``half_width`` around a center that
             follows the robot; endpoints outside are ignored.
         likelihood_power: ``p`` in (0, 1]: each candidate's score is ``p`` times the field score plus the motion
-            model's log-density (1: every beam counts fully, Olson 2009's score; :func:`bayesmap.inference.logslam.
+            model's log-density (1: every beam counts fully, Olson 2009's score; :func:`bayesmap.slam.pipeline.
             front_end` passes the target's power, as the SLAM model tempers its readings).
 
     Returns:

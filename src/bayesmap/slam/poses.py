@@ -64,7 +64,7 @@ def slam_data(odometry_increments, odometry_covs, sensor_angles, readings, param
         BayesmapError: if ``sensor_angles`` is not ``(S, K)`` with ``S >= 2`` (there is no pose to infer with one
             scan), ``readings`` not ``(S, K)``, the increments not ``(S - 1, 3)``, the covariances not
             ``(S - 1, 3, 3)``, or a value is not finite. Either wall geometry (``params.geometry``) is supported by
-            the pose moves; the dense map sweep of :mod:`bayesmap.inference.slam` supports only ``"entry"``.
+            the pose moves; the dense map sweep of :mod:`bayesmap.slam.joint` supports only ``"entry"``.
     """
     dtype = jnp.result_type(float)
     arrays = [np.asarray(a, dtype=np.float64) for a in (odometry_increments, odometry_covs, sensor_angles, readings)]

@@ -4,9 +4,9 @@ The target is the SLAM model's posterior ``p(poses, walls | readings, odometry)`
 (:data:`bayesmap.model.generative.slam_model`, the readings' likelihood tempered by the problem's power as for
 mapping at known poses). :func:`run_log_slam` finds a start, then runs a blocked Gibbs chain on it:
 
-1. **Front end**: sequential correlative scan matching (:func:`bayesmap.inference.scanmatch.correlative_path`), the
+1. **Front end**: sequential correlative scan matching (:func:`bayesmap.slam.scanmatch.correlative_path`), the
    scans' field scores at the problem's likelihood power against the motion model (:func:`front_end`).
-2. **Back end**: loop closure and pose-graph optimization (:func:`bayesmap.inference.posegraph.close_loops`).
+2. **Back end**: loop closure and pose-graph optimization (:func:`bayesmap.slam.posegraph.close_loops`).
    Stages 1 and 2 only choose where the chain starts; they do not enter its target.
 3. **The grid**: fitted to the beam endpoints at that path, plus :data:`MAP_MARGIN` meters.
 4. **The joint chain**, :data:`ROUNDS` rounds of two blocks (Gibbs over blocks; docs/slam.md):
@@ -15,7 +15,7 @@ mapping at known poses). :func:`run_log_slam` finds a start, then runs a blocked
      (:func:`bayesmap.geometry.raytable.build_ray_table`) and :data:`MAP_SWEEPS` sweeps of the cellwise Gibbs
      sampler run on it (:mod:`bayesmap.inference.cellwise`), continuing from the current walls;
    * the poses given the walls: :data:`POSE_SWEEPS` sweeps of random-walk Metropolis over each pose
-     (:func:`bayesmap.inference.poses.random_walk_pose_mh`, exact ray casts by grid traversal).
+     (:func:`bayesmap.slam.poses.random_walk_pose_mh`, exact ray casts by grid traversal).
 
    Each block's kernel leaves the joint posterior invariant, so the chain does. The first :data:`BURN_IN_ROUNDS`
    rounds are dropped; the pose samples of the others give the mean path and the covariances, and the map sweeps'
@@ -27,14 +27,14 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
 5. **The path's uncertainty.** Single-pose moves given the map measure each pose's conditional spread given the map
    and its neighbours (about 1 cm on the three logs), not how far the path as a whole can bend with the map: the
    chain cannot move hundreds of poses together. That spread comes from the pose graph of stage 2, the Laplace
-   approximation of the path's posterior with the map marginalized (:func:`bayesmap.inference.posegraph.
+   approximation of the path's posterior with the map marginalized (:func:`bayesmap.slam.posegraph.
    marginal_covariances`), linearized at the chain's mean path, its covariance scaled by :data:`GRAPH_COV_SCALE`
    squared. The reported covariance of a pose is the chain's plus the graph's; each pose sample is a chain sample
-   plus a draw of the graph's correlated deviation of the whole path (:func:`bayesmap.inference.posegraph.
+   plus a draw of the graph's correlated deviation of the whole path (:func:`bayesmap.slam.posegraph.
    sample_deviations`), in antithetic pairs so that the samples' mean is the chain's mean path (docs/slam.md).
-6. **The final map** (with ``problem.final_map_params``, which :func:`bayesmap.scenes.log_slam_problem` sets): the
+6. **The final map** (with ``problem.final_map_params``, which :func:`bayesmap.slam.problem.log_slam_problem` sets): the
    walls given the readings at the mean path, in the map model of a log at known poses
-   (:func:`bayesmap.scenes.log_map_params`: the structured prior, wall cells a beam can pass, a likelihood power
+   (:func:`bayesmap.slam.problem.log_map_params`: the structured prior, wall cells a beam can pass, a likelihood power
    that follows the readings' density at the path, :func:`final_map_power`; cross-validated across logs), with the
    model's 0.05 m sensor noise widened by the path's own position uncertainty (:func:`final_map_noise`),
    :data:`FINAL_MAP_SWEEPS` cellwise sweeps from the chain's last map. This is what
@@ -59,19 +59,19 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.inference.cellwise import cellwise_gibbs
 from bayesmap.inference.chains import run_chain, run_recorded_chains
-from bayesmap.inference.posegraph import close_loops, marginal_covariances, sample_deviations
-from bayesmap.inference.poses import PoseState, random_walk_pose_mh, slam_data
-from bayesmap.inference.scanmatch import (
+from bayesmap.model.generative import replace_params
+from bayesmap.model.motion import odometry_controls
+from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
+from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
+from bayesmap.slam.posegraph import close_loops, marginal_covariances, sample_deviations
+from bayesmap.slam.poses import PoseState, random_walk_pose_mh, slam_data
+from bayesmap.slam.scanmatch import (
     LOCAL_MAP_DISTANCE,
     MIN_HIT_FRACTION,
     ScanData,
     correlative_path,
     scan_endpoints,
 )
-from bayesmap.inference.slam import SlamResult, check_counts, pose_summary
-from bayesmap.model.generative import replace_params
-from bayesmap.model.motion import odometry_controls
-from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
 
 FRONT_END_RESOLUTION = 0.05
 """Cell size of the front end's likelihood fields, meters (finer than the map: the fields resolve sub-cell
@@ -98,7 +98,7 @@ at known poses was cross-validated (README, "Map defaults of logs")."""
 
 GRAPH_COV_SCALE = 0.36
 """The factor on the pose graph's standard deviations in the reported uncertainty (module docstring, stage 5): its
-edges' standard deviations (:data:`bayesmap.inference.posegraph.SEQUENTIAL_STD`, ``LOOP_STD``) are the front end's
+edges' standard deviations (:data:`bayesmap.slam.posegraph.SEQUENTIAL_STD`, ``LOOP_STD``) are the front end's
 error scale, not a calibrated noise model. Chosen by ``benchmarks/pose_cov_cv.py``: the factor whose 95 % ellipses
 hold 95 % of the true positions over Intel, ACES and CSAIL with odometry seeds 0 and 1 (0.364). Its rule was
 cross-validated leaving one log out: fitted on the other two logs (0.362-0.366), the held-out log's coverage was
@@ -106,7 +106,7 @@ cross-validated leaving one log out: fitted on the other two logs (0.362-0.366),
 
 
 def scan_data(problem) -> ScanData:
-    """The :class:`~bayesmap.inference.scanmatch.ScanData` of a :class:`bayesmap.scenes.SlamProblem` (odometry
+    """The :class:`~bayesmap.slam.scanmatch.ScanData` of a :class:`bayesmap.slam.problem.SlamProblem` (odometry
     controls under the problem's motion model; max-range beams marked as not returned). The readings are what the
     sensor read: the model's readings plus the problem's ``range_offset``, so that scan matching aligns the scans'
     true endpoints (the offset belongs to the map's cell geometry; subtracted, it shrinks every scan towards its pose
@@ -136,16 +136,16 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
               window: float = LOCAL_MAP_DISTANCE) -> np.ndarray:
     """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad): correlative scan matching from the first
     odometry pose on fields of :data:`FRONT_END_RESOLUTION` meters that follow the robot
-    (:data:`bayesmap.inference.scanmatch.MATCH_GRID_HALF_WIDTH`), each scan's field score raised to the problem's
+    (:data:`bayesmap.slam.scanmatch.MATCH_GRID_HALF_WIDTH`), each scan's field score raised to the problem's
     likelihood power against the motion model, as the target tempers the readings (docs/slam.md: at power 1 the
     scans' correlated beams outweigh the odometry along corridors, where the front end slipped; chosen by
     leave-one-log-out cross-validation, ``benchmarks/front_end_cv.py``); a scan whose match puts fewer than
     ``min_hit_fraction`` of its endpoints on the local map takes the odometry's prediction
-    (:data:`bayesmap.inference.scanmatch.MIN_HIT_FRACTION`, chosen the same way). The local map holds the scans of
-    the last ``window`` meters of travel (:data:`bayesmap.inference.scanmatch.LOCAL_MAP_DISTANCE`).
+    (:data:`bayesmap.slam.scanmatch.MIN_HIT_FRACTION`, chosen the same way). The local map holds the scans of
+    the last ``window`` meters of travel (:data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`).
 
     Raises:
-        BayesmapError: as :func:`bayesmap.inference.scanmatch.correlative_path`."""
+        BayesmapError: as :func:`bayesmap.slam.scanmatch.correlative_path`."""
     odometry = np.asarray(problem.odometry, np.float64)
     return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, likelihood_power=problem.likelihood_power,
                             min_hit_fraction=min_hit_fraction, window=window)
@@ -219,20 +219,20 @@ def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_
     Args:
         seed: seed of the graph's draws (``numpy.random.default_rng``).
         chain_samples: ``(N, S, 3)`` pose samples of the joint chain (x m, y m, theta rad), ``N >= 1``.
-        edges: the pose graph (:func:`bayesmap.inference.posegraph.close_loops`), every pose after the first on an
+        edges: the pose graph (:func:`bayesmap.slam.posegraph.close_loops`), every pose after the first on an
             edge.
         scale: the factor on the graph's standard deviations, ``>= 0`` (:data:`GRAPH_COV_SCALE`).
 
     Returns:
         ``(mean (S, 3), cov (S, 3, 3), samples (N, S, 3), graph_cov (S, 3, 3))`` float64: the chain's mean path
-        (:func:`bayesmap.inference.slam.pose_summary`), the chain's covariance plus ``scale ** 2`` times the graph's
-        (:func:`bayesmap.inference.posegraph.marginal_covariances` at the mean path), each chain sample plus
+        (:func:`bayesmap.slam.joint.pose_summary`), the chain's covariance plus ``scale ** 2`` times the graph's
+        (:func:`bayesmap.slam.posegraph.marginal_covariances` at the mean path), each chain sample plus
         ``scale`` times a graph deviation (``ceil(N / 2)`` draws and their negatives, so for even ``N`` the samples'
         mean position is the chain's; a single sample gets none), and the graph's covariance at unit scale.
 
     Raises:
         BayesmapError: on a negative or non-finite ``scale``, or a graph that leaves a pose without edges or is in
-            pieces (:func:`bayesmap.inference.posegraph.marginal_covariances`).
+            pieces (:func:`bayesmap.slam.posegraph.marginal_covariances`).
     """
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale < 0:
         raise BayesmapError(f"scale must be a finite number >= 0, got {scale!r}")
@@ -248,11 +248,11 @@ def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_
 def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, seed: int = 0, progress: bool = False,
                  map_sweeps: int = MAP_SWEEPS, pose_sweeps: int = POSE_SWEEPS,
                  graph_scale: float = GRAPH_COV_SCALE, final_map_sweeps: int = FINAL_MAP_SWEEPS) -> SlamResult:
-    """Infer the path and the map of a real log (:func:`bayesmap.scenes.log_slam_problem`) with the pipeline of the
-    module docstring.
+    """Infer the path and the map of a real log (:func:`bayesmap.slam.problem.log_slam_problem`) with the pipeline
+    of the module docstring.
 
     Args:
-        problem: a :class:`bayesmap.scenes.SlamProblem` from a log.
+        problem: a :class:`bayesmap.slam.problem.SlamProblem` from a log.
         rounds: rounds of the joint chain, >= 1.
         burn_in: rounds dropped, ``0 <= burn_in < rounds``.
         seed: the random seed (``jax.random.key(seed)``).
@@ -266,7 +266,7 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
             no final map.
 
     Returns:
-        A :class:`bayesmap.inference.slam.SlamResult`: ``pose_samples`` ``(N, S, 3)`` with ``N = (rounds - burn_in)
+        A :class:`bayesmap.slam.joint.SlamResult`: ``pose_samples`` ``(N, S, 3)`` with ``N = (rounds - burn_in)
         pose_sweeps`` and ``pose_cov`` with the graph's uncertainty (:func:`graph_uncertainty`), ``posterior`` on
         ``grid``, the grid fitted to the start path (the final map's, or the chain's without one; the chain's is
         ``chain_posterior``), ``graph_cov`` the graph's covariance at unit scale.
