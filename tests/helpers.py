@@ -139,8 +139,8 @@ def run_cli(monkeypatch, capsys, *args):
 
 def room_scans(beam_model: str, seed: int = 0):
     """A 12 x 9 unit-cell room with an inner wall, seen by 3 scans of 24 beams from different positions: a
-    :class:`bayesmap.scenes.Problem` with the true map and readings simulated from the model (max distance 15 m)."""
-    from bayesmap.scenes import Problem
+    :class:`bayesmap.problem.Problem` with the true map and readings simulated from the model (max distance 15 m)."""
+    from bayesmap.problem import Problem
 
     walls = np.zeros((12, 9), np.float32)
     walls[0, :] = walls[-1, :] = walls[:, 0] = walls[:, -1] = 1
@@ -182,7 +182,7 @@ def exact_slam_marginals(params, inc, cov, candidates, angles, y):
     model's assess."""
     import itertools
 
-    from bayesmap.model.generative import slam_args, slam_choices, slam_model
+    from bayesmap.model.slam import slam_args, slam_choices, slam_model
 
     args = slam_args(candidates[0, 0], inc, cov, params, angles)
     maps = np.array(list(itertools.product([0.0, 1.0], repeat=6))).reshape((-1,) + params.grid.shape)

@@ -7,11 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from bayesmap.cli import parse_scans
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.driver import run_logodds
 from bayesmap.model.generative import log_joint_scans
-from bayesmap.scenes import Observations, Problem, log_problem, scan_problem
+from bayesmap.problem import Observations, Problem
+from bayesmap.runs.inputs import parse_scans
+from bayesmap.scenes import log_problem, scan_problem
 from bayesmap.slam.problem import log_slam_problem
 from helpers import room_scans
 

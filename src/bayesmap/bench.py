@@ -29,7 +29,8 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.chains import compile_chain, run_chain_from
 from bayesmap.inference.registry import SAMPLERS, make_sampler
-from bayesmap.scenes import Problem, tutorial_problem
+from bayesmap.problem import Problem
+from bayesmap.scenes import tutorial_problem
 
 # fast sampler -> (reference sampler, tutorial baseline seconds per sweep or None, note)
 PAIRS: dict[str, tuple[str, float | None, str]] = {

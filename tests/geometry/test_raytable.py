@@ -22,7 +22,8 @@ from hypothesis import strategies as st
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import angles, cell_hit_distance, sensor_distances, unit_dir
-from bayesmap.geometry.raytable import RayTable, build_ray_table, build_ray_table_reference
+from bayesmap.geometry.raytable import RayTable, build_ray_table
+from bayesmap.geometry.reference import build_ray_table_reference
 from bayesmap.io.ascii import tutorial_map
 from helpers import random_scene
 

@@ -104,7 +104,7 @@ def test_marginals_match_exact_enumeration(sampler, prior, pos):
     Tolerance: each marginal estimate averages 64 independent chains of 250 kept sweeps; its Monte Carlo standard
     error is at most sqrt(0.25 / n_eff) with n_eff >= 64 * 20 even for slowly mixing cells (autocorrelation time
     <= 12), i.e. <= 0.014; we allow 0.06 (above 4 standard errors) for all 12 cells at once."""
-    from bayesmap.scenes import Problem
+    from bayesmap.problem import Problem
 
     grid = Grid((3, 4))
     params = make_params(prior_wall_prob=prior, sensor_noise=0.4, num_angles=7, grid=grid)

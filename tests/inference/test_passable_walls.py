@@ -25,7 +25,6 @@ from bayesmap.inference import cellwise
 from bayesmap.inference.cellwise import CellwiseGibbs
 from bayesmap.inference.chains import run_chains
 from bayesmap.inference.fast import fast_gibbs
-from bayesmap.model import sensor
 from bayesmap.model.generative import (
     log_joint_scans,
     make_params,
@@ -34,6 +33,7 @@ from bayesmap.model.generative import (
     simulate_scan_readings,
     walls_log_likelihood,
 )
+from bayesmap.model.passable import check_wall_pass_prob
 from helpers import POSES, assess_cell_differences, beam_enumeration_scene, scenes, sweeps_keep_ray_rows
 
 PASS = 0.3
@@ -196,4 +196,4 @@ def test_samplers_without_a_second_wall_refuse_passable_walls():
     for bad in (1.0, -0.1, float("nan"), "x"):
         with pytest.raises(BayesmapError, match="wall_pass_prob"):
             make_params(wall_pass_prob=bad)
-    assert sensor.check_wall_pass_prob(0) == 0.0
+    assert check_wall_pass_prob(0) == 0.0

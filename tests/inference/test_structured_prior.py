@@ -251,7 +251,7 @@ def test_cellwise_and_dense_conditionals_equal_assess():
 def enumeration_scene():
     """3 x 4 grid (4,096 maps), one scan of 7 beams, J = COUPLING: the problem and its exact marginals by
     enumerating every map with the model's assess (connections observed)."""
-    from bayesmap.scenes import Problem
+    from bayesmap.problem import Problem
 
     grid = Grid((3, 4))
     params = make_params(prior_wall_prob=0.3, sensor_noise=0.4, num_angles=7, grid=grid, coupling=COUPLING)

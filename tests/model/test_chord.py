@@ -250,7 +250,7 @@ def test_block_samplers_match_the_model_in_the_chord_geometry(beam_model, block_
 
 @pytest.mark.parametrize("beam_model", ["normal", "beam"])
 def test_table_log_joint_and_heldout_density_in_the_chord_geometry(beam_model):
-    """The table's log joint (scenes.Problem.table_log_joint) equals the model's assess in the chord geometry
+    """The table's log joint (bayesmap.problem.Problem.table_log_joint) equals the model's assess in the chord geometry
     (1e-6 relative), and the held-out predictive density of a map with certain cells (0/1 probabilities) equals the
     model's per-beam density in both of the held-out evaluator's forms (1e-9)."""
     from bayesmap.evaluation.heldout import (
@@ -258,7 +258,7 @@ def test_table_log_joint_and_heldout_density_in_the_chord_geometry(beam_model):
         predictive_log_density_samples,
         sensor_logpdf,
     )
-    from bayesmap.scenes import Problem
+    from bayesmap.problem import Problem
 
     with enable_x64():
         grid, params, angles, truth, y, table = scenes(beam_model, 5, geometry="chord")

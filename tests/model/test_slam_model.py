@@ -1,4 +1,4 @@
-"""The SLAM model (bayesmap.model.generative.slam_model): poses as random choices, the known-pose special case."""
+"""The SLAM model (bayesmap.model.slam.slam_model): poses as random choices, the known-pose special case."""
 
 import jax
 import jax.numpy as jnp
@@ -9,15 +9,8 @@ from jax.experimental import enable_x64
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.model import motion
-from bayesmap.model.generative import (
-    log_joint_scans,
-    log_joint_slam,
-    make_params,
-    simulate_slam,
-    slam_args,
-    slam_choices,
-    slam_model,
-)
+from bayesmap.model.generative import log_joint_scans, make_params
+from bayesmap.model.slam import log_joint_slam, simulate_slam, slam_args, slam_choices, slam_model
 
 ODOMETRY = np.array([[1.2, 1.1, 0.2], [2.0, 1.6, 0.7], [2.6, 2.9, 1.5], [2.5, 4.0, 2.2]])  # inside a 6 x 7 grid
 

@@ -12,14 +12,8 @@ from jax.experimental import enable_x64
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.model import motion
-from bayesmap.model.generative import (
-    log_joint_scans,
-    make_params,
-    simulate_scan_readings,
-    slam_args,
-    slam_choices,
-    slam_model,
-)
+from bayesmap.model.generative import log_joint_scans, make_params, simulate_scan_readings
+from bayesmap.model.slam import slam_args, slam_choices, slam_model
 from bayesmap.slam.poses import (
     discrete_pose_gibbs,
     lattice_offsets,

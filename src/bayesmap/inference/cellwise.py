@@ -42,7 +42,7 @@ draws as without the structured prior.
 
 Wall cells a beam can pass (``params.wall_pass_prob`` ``pi > 0``; :mod:`bayesmap.model.generative`): a reading
 depends on its ray's first two walls, ``log p(y) = log((1 - pi) p(y | w1) + pi (1 - pi) p(y | w2) + pi^2 p(y | none))``
-(:func:`bayesmap.model.sensor.pass_mixture`). A cell's term for a ray compares this mixture with the cell a wall and
+(:func:`bayesmap.model.passable.pass_mixture`). A cell's term for a ray compares this mixture with the cell a wall and
 free: with the cell before the ray's first wall, ``(cell, w1)`` against ``(w1, w2)``; the cell the first wall,
 ``(w1, w2)`` against ``(w2, w3)``; between the first and second, ``(w1, cell)`` against ``(w1, w2)``; the second
 wall, ``(w1, w2)`` against ``(w1, w3)``; behind the second wall, nothing. So the rows keep each ray's first *three*
@@ -86,8 +86,8 @@ from bayesmap.model.likelihood import (
     pair_log_likelihoods,
     tempered,
 )
+from bayesmap.model.passable import pass_log_weights
 from bayesmap.model.prior import neighbour_field, neighbour_indices
-from bayesmap.model.sensor import pass_log_weights
 
 NO_WALL = float(1 << 22)  # "no such wall": a position beyond every ray (exact in float32)
 SEARCH_CHUNK = 32  # cells read per step of the walk along a ray to its next wall
@@ -222,7 +222,7 @@ class CellwiseKernel(KernelFields):
     ``_coupling`` is the structured prior's ``J`` (a scalar array), None for the independent prior; ``_free_cells``
     the cells no ray crosses (int32, ascending), None for the independent prior. With wall cells a beam can pass
     (``_penetrable``), ``_eta`` is the likelihood power and ``_pass_weights`` the ``(3,)`` log-weights of
-    :func:`bayesmap.model.sensor.pass_log_weights` (both None otherwise: the tables are tempered already)."""
+    :func:`bayesmap.model.passable.pass_log_weights` (both None otherwise: the tables are tempered already)."""
 
     _ARRAYS = ("_lanes", "_free", "_rank", "_pair_cells", "_pair_ll", "_ray_start", "_ray_length", "_max_ll",
                "_prior_log_odds", "_coupling", "_free_cells", "_eta", "_pass_weights")
@@ -297,7 +297,7 @@ class CellwiseKernel(KernelFields):
     def _ray_mixtures(self, ll_first, ll_second, ll_third, ll_none):
         """The per-ray columns 7-11 of a row with passable walls: ``log p(y)`` with first and second walls (1, 2),
         (2, 3) and (1, 3), and ``log(w1 p(y | 1) + w2 p(y | none))``, ``log(w0 p(y | 1) + w2 p(y | none))`` (``w``
-        the weights of :func:`bayesmap.model.sensor.pass_log_weights`): with them a lane's term needs one
+        the weights of :func:`bayesmap.model.passable.pass_log_weights`): with them a lane's term needs one
         ``logaddexp`` (:meth:`_pass_terms`). A list of arrays shaped like the arguments."""
         w = self._pass_weights
 

@@ -7,12 +7,12 @@ from bayesmap.inference.cellwise import cellwise_gibbs
 from bayesmap.inference.chains import SamplingAlgorithm
 from bayesmap.inference.fast import fast_gibbs
 from bayesmap.inference.reference import reference_gibbs, reference_incremental_gibbs
-from bayesmap.scenes import Problem
+from bayesmap.problem import Problem
 
 MAX_FAST_PAIRS = 8_000_000
 """Most (beam, cell) pairs the level-based fast samplers (:data:`LEVEL_SAMPLERS`) take: they need about 1.9 KB per
-pair (measured: 11.4 GB peak for CSAIL's 6.1 million pairs), so a whole log at 0.1 m (Intel: 42 million pairs) would
-exhaust memory. The ``cellwise`` sampler needs about 22 bytes per pair and has no limit."""
+pair (measured on CSAIL), so a whole log at 0.1 m (Intel: 42 million pairs) would exhaust memory. The ``cellwise``
+sampler needs about 22 bytes per pair and has no limit ([validation](../validation/defaults.md#max_fast_pairs))."""
 
 LEVEL_SAMPLERS = ("block", "raster", "outward", "chromatic", "chromatic-block")
 """The samplers of :mod:`bayesmap.inference.fast` (levels of blocks updated at once)."""

@@ -45,7 +45,7 @@ class ChainTraces(NamedTuple):
 
 def chain_log_joints(problem, samples) -> np.ndarray:
     """Log joint (GenJAX ``assess``) of every sample: ``samples`` ``(T, nx, ny)`` or ``(C, T, nx, ny)`` ->
-    ``(T,)`` or ``(C, T)`` float64. For several scans: :meth:`~bayesmap.scenes.Problem.log_joint` (``assess``, or
+    ``(T,)`` or ``(C, T)`` float64. For several scans: :meth:`~bayesmap.problem.Problem.log_joint` (``assess``, or
     the ray-cell table's equal sum on large problems), one sample at a time."""
     arr = np.asarray(samples, dtype=np.float32)
     flat = arr.reshape((-1,) + arr.shape[-2:])
@@ -73,7 +73,7 @@ def chain_traces(problem, result, *, seed: int = 0, importance: bool | None = No
     report.
 
     Args:
-        problem: the :class:`~bayesmap.scenes.Problem` that was solved.
+        problem: the :class:`~bayesmap.problem.Problem` that was solved.
         result: its inference result (``samples`` ``(T, nx, ny)`` or ``(C, T, nx, ny)``).
         seed: key of the importance-sampling run (``jax.random.key(seed)``).
         importance: run importance sampling with :data:`IMPORTANCE_PARTICLES` particles; default: for grids of at

@@ -15,7 +15,7 @@
   ``params.wall_pass_prob`` ``pi`` (default 0: every wall cell stops the beam, the tutorial's model) lets a beam pass
   through a wall cell: the reading comes from the ray's first wall cell with probability ``1 - pi``, from its second
   with ``pi (1 - pi)``, and is read as if there were no wall with ``pi^2``
-  (:func:`bayesmap.model.sensor.pass_reading`, the two walls from :func:`bayesmap.geometry.raycast.wall_hit_chords`).
+  (:func:`bayesmap.model.passable.pass_reading`, the two walls from :func:`bayesmap.geometry.raycast.wall_hit_chords`).
 
 :data:`full_model` is the tutorial's single scan; its arguments are ``(pos, params, beam_angles)``: the sensor
 position (world meters; the tutorial's unit cells by default), the :class:`ModelParams` and the beam angles
@@ -28,11 +28,7 @@ logs give world-frame angles; otherwise pass ``theta + angles_in_sensor_frame``)
 of beams ``K``; scans with different numbers of beams are not supported (resample them to a common ``K``).
 :func:`scan_args` builds and checks the arguments. The max distance ``params.max_range`` is also the sensor's max range.
 
-:data:`slam_model` adds the robot's poses as random choices (issue 15): poses ``1..S-1`` at ``"poses"`` from the
-odometry motion model (:mod:`bayesmap.model.motion`; pose 0 is fixed), then the same walls prior and the readings
-of each scan at its pose, with beam angles relative to the heading. With zero motion noise it is
-:data:`multi_scan_model` at the odometry path. :func:`slam_args`, :func:`slam_choices`, :func:`log_joint_slam` and
-:func:`simulate_slam` go with it; docs/slam.md derives the pose conditionals.
+:data:`bayesmap.model.slam.slam_model` adds the robot's poses as random choices (:mod:`bayesmap.model.slam`).
 """
 
 from __future__ import annotations
@@ -50,7 +46,7 @@ from genjax import Pytree
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import angles, first_hit_chords, first_hit_distances, wall_hit_chords
-from bayesmap.model import motion, prior, sensor
+from bayesmap.model import passable, prior, sensor
 
 
 @Pytree.dataclass
@@ -84,7 +80,7 @@ class ModelParams(Pytree):
         wall_pass_prob: the probability ``pi`` in ``[0, 1)`` that a beam passes through a wall cell it meets
             (static); default 0, every wall cell stops the beam (the tutorial's model). With ``pi > 0`` a reading
             comes from the ray's first wall cell, its second, or no wall (module docstring;
-            :func:`bayesmap.model.sensor.pass_reading`).
+            :func:`bayesmap.model.passable.pass_reading`).
     """
 
     prior_wall_prob: float = 0.5
@@ -200,7 +196,7 @@ def make_params(
         raise BayesmapError(f"max_distance must be a finite number > 0 (meters), got {max_distance!r}")
     weights = sensor.check_sensor_params(beam_model, z_hit, z_short, z_max, z_rand, lambda_short)
     sensor.check_geometry(geometry)
-    wall_pass_prob = sensor.check_wall_pass_prob(wall_pass_prob)
+    wall_pass_prob = passable.check_wall_pass_prob(wall_pass_prob)
     coupling = prior.check_coupling(coupling)
     neighbourhood = (4 if coupling > 0 else 0) if neighbourhood is None else prior.check_neighbourhood(neighbourhood)
     if coupling > 0 and neighbourhood == 0:
@@ -252,11 +248,11 @@ def sensor_model_single(pos, walls, params: ModelParams, angle):
     distances ``(a, b)`` of the first wall cell (:func:`bayesmap.geometry.raycast.first_hit_chords`) and
     :data:`~bayesmap.model.sensor.chord_normal_reading` or :data:`~bayesmap.model.sensor.chord_beam_reading`.
     With ``params.wall_pass_prob > 0``, the chords of the first two wall cells and no wall
-    (:func:`bayesmap.geometry.raycast.wall_hit_chords`) and :func:`~bayesmap.model.sensor.pass_reading`."""
+    (:func:`bayesmap.geometry.raycast.wall_hit_chords`) and :func:`~bayesmap.model.passable.pass_reading`."""
     if params.penetrable:
-        walls2 = wall_hit_chords(walls, pos, angle[None], params.grid, params.max_range, sensor.PASS_WALLS)[0]
+        walls2 = wall_hit_chords(walls, pos, angle[None], params.grid, params.max_range, passable.PASS_WALLS)[0]
         chords = jnp.concatenate([walls2, jnp.full((1, 2), params.max_range, walls2.dtype)])
-        reading = sensor.pass_reading(params.beam_model, params.geometry)
+        reading = passable.pass_reading(params.beam_model, params.geometry)
         return reading(chords, params.wall_pass_prob, *params.sensor_args) @ ()
     if params.geometry == "chord":
         chord = first_hit_chords(walls, pos, angle[None], params.grid, params.max_range)[0]
@@ -405,7 +401,7 @@ def walls_log_likelihood(readings, chords, params: ModelParams):
     """Per-beam log-likelihood of readings ``y`` ``(...,)`` given the chords ``(..., 2, 2)`` (meters: entry and exit
     distance) of each ray's first and second wall cell (both the max distance for a wall that does not exist), for
     any ``params``: the first wall's :func:`reading_log_likelihood` when every wall cell stops the beam, the
-    mixture :func:`bayesmap.model.sensor.pass_mixture` over the first wall, the second and no wall when
+    mixture :func:`bayesmap.model.passable.pass_mixture` over the first wall, the second and no wall when
     ``params.wall_pass_prob > 0`` (what the model's ``assess`` scores per beam). The entry geometry ignores the
     exits. Never raises for matching shapes."""
     y, chords = jnp.asarray(readings), jnp.asarray(chords)
@@ -417,7 +413,7 @@ def walls_log_likelihood(readings, chords, params: ModelParams):
              for a, b in ((chords[..., 0, 0], None if exits is None else exits[..., 0]),
                           (chords[..., 1, 0], None if exits is None else exits[..., 1]),
                           (none, None if exits is None else none))]
-    return sensor.pass_mixture(*parts, params.wall_pass_prob)
+    return passable.pass_mixture(*parts, params.wall_pass_prob)
 
 
 def check_opaque_walls(params: ModelParams, what: str) -> None:
@@ -510,117 +506,3 @@ def prior_log_odds(prior_wall_prob: float) -> float:
 def as_numpy_walls(walls) -> np.ndarray:
     """``walls`` as a float32 numpy array of 0.0 / 1.0."""
     return (np.asarray(walls) > 0).astype(np.float32)
-
-
-# --- The SLAM model: the robot's poses as random choices (issue 15) -------------------------------------------------
-
-
-@genjax.gen
-def slam_model(first_pose, odometry_increments, odometry_covs, params: ModelParams, sensor_angles):
-    """Path and map together: poses from the odometry motion model, walls from the prior, readings at the poses.
-
-    Poses ``1..S-1`` at ``"poses"`` ``(S - 1, 3)`` from :data:`bayesmap.model.motion.odometry_path` (PR sec. 5.4;
-    the first pose is fixed: it anchors the frame), walls at ``"walls"`` (the prior of :data:`multi_scan_model`),
-    readings ``(S, K)`` at ``"readings"`` from :data:`scan_sensor_model` at the positions ``poses[:, :2]`` with
-    world-frame angles ``poses[:, 2:3] + sensor_angles``. With zero motion noise (zero covariances) it is the
-    known-pose :data:`multi_scan_model` at the composed odometry path.
-
-    Args (see :func:`slam_args`):
-        first_pose: ``(3,)`` the first pose (x m, y m, theta rad).
-        odometry_increments: ``(S - 1, 3)`` the motion model's steps
-            (:func:`bayesmap.model.motion.odometry_controls`).
-        odometry_covs: ``(S - 1, 3, 3)`` their covariances.
-        params: the map and sensor parameters.
-        sensor_angles: ``(S, K)`` beam angles relative to the robot's heading, radians.
-
-    Returns ``(poses (S, 3)`` with the first pose prepended, ``walls (nx, ny)`` bool, ``readings (S, K))``.
-    """
-    later = motion.odometry_path(first_pose, odometry_increments, odometry_covs) @ "poses"
-    poses = jnp.concatenate([first_pose[None], later], axis=0)
-    walls = walls_prior(params.grid.shape)(params.prior_wall_prob) @ "walls"
-    readings = scan_sensor_model(poses[:, :2], walls, params, poses[:, 2:3] + sensor_angles) @ "readings"
-    if params.structured:  # as in full_model
-        prior.connections(walls, params.coupling) @ "connections"
-    return poses, walls, readings
-
-
-def slam_args(first_pose, odometry_increments, odometry_covs, params: ModelParams, sensor_angles) -> tuple:
-    """The argument tuple of :data:`slam_model` as JAX arrays of the default float dtype (shapes as there).
-
-    Raises:
-        BayesmapError: if ``first_pose`` is not ``(3,)``, the increments not ``(S - 1, 3)``, the covariances not
-            ``(S - 1, 3, 3)``, ``sensor_angles`` not ``(S, K)`` with ``K >= 1``, or a value is not finite.
-    """
-    dtype = jnp.result_type(float)
-    first_pose = np.asarray(first_pose, dtype=np.float64)
-    sensor_angles = np.asarray(sensor_angles, dtype=np.float64)
-    increments = np.asarray(odometry_increments, dtype=np.float64)
-    covs = np.asarray(odometry_covs, dtype=np.float64)
-    if first_pose.shape != (3,):
-        raise BayesmapError(f"first_pose must have shape (3,) (x m, y m, theta rad), got {first_pose.shape}")
-    if sensor_angles.ndim != 2 or sensor_angles.shape[0] < 1 or sensor_angles.shape[1] < 1:
-        raise BayesmapError(f"sensor_angles must have shape (S, K) with S, K >= 1, got {sensor_angles.shape}")
-    steps = sensor_angles.shape[0] - 1
-    if increments.shape != (steps, 3):
-        raise BayesmapError(f"odometry_increments must have shape (S - 1, 3) = ({steps}, 3), got {increments.shape}")
-    if covs.shape != (steps, 3, 3):
-        raise BayesmapError(f"odometry_covs must have shape (S - 1, 3, 3) = ({steps}, 3, 3), got {covs.shape}")
-    if not all(np.all(np.isfinite(a)) for a in (first_pose, sensor_angles, increments, covs)):
-        raise BayesmapError("first_pose, odometry and sensor angles must be finite")
-    return (jnp.asarray(first_pose, dtype=dtype), jnp.asarray(increments, dtype=dtype),
-            jnp.asarray(covs, dtype=dtype), params, jnp.asarray(sensor_angles, dtype=dtype))
-
-
-def slam_choices(poses, walls, readings, params: ModelParams | None = None):
-    """The choice map of :data:`slam_model`: ``{"poses": poses[1:], "walls": walls, "readings": readings}`` from the
-    whole path ``poses`` ``(S, 3)`` (its first pose is the model's argument, not a choice); with ``params`` of a
-    structured prior also the observed ``"connections"`` (:func:`choices`)."""
-    return C["poses"].set(jnp.asarray(poses)[1:]) | choices(walls, readings, params)
-
-
-@jax.jit
-def _assess_slam(poses, walls, readings, args):
-    return slam_model.assess(slam_choices(poses, walls, readings, args[3]), args)[0]
-
-
-def log_joint_slam(poses, walls, readings, odometry_increments, odometry_covs, params: ModelParams, sensor_angles):
-    """``log p(poses, walls, readings)`` under :data:`slam_model`: exactly its ``assess`` score.
-
-    Args:
-        poses: ``(S, 3)`` the path (x m, y m, theta rad); ``poses[0]`` is the fixed first pose (the model's
-            argument).
-        walls: ``(nx, ny)`` array of 0/1 (float or bool).
-        readings: ``(S, K)`` range readings, meters.
-        odometry_increments: ``(S - 1, 3)`` (:func:`bayesmap.model.motion.odometry_controls`).
-        odometry_covs: ``(S - 1, 3, 3)``.
-        params: the model parameters.
-        sensor_angles: ``(S, K)`` beam angles relative to the heading, radians.
-
-    Returns:
-        A scalar JAX float.
-
-    Raises:
-        BayesmapError: on shapes that do not match (:func:`slam_args`), ``poses`` not ``(S, 3)`` or readings not
-            ``(S, K)``.
-    """
-    poses = jnp.asarray(poses, dtype=jnp.result_type(float))
-    if poses.ndim != 2 or poses.shape[0] < 1 or poses.shape[1] != 3:
-        raise BayesmapError(f"poses must have shape (S, 3) (x m, y m, theta rad), got {tuple(poses.shape)}")
-    args = slam_args(poses[0], odometry_increments, odometry_covs, params, sensor_angles)
-    if poses.shape != (args[4].shape[0], 3):
-        raise BayesmapError(f"poses must have shape (S, 3) = ({args[4].shape[0]}, 3), got {tuple(poses.shape)}")
-    readings = jnp.asarray(readings)
-    if readings.shape != args[4].shape:
-        raise BayesmapError(f"readings must have shape {tuple(args[4].shape)} (S, K), got {tuple(readings.shape)}")
-    return _assess_slam(poses, jnp.asarray(walls, dtype=jnp.float32), readings, args)
-
-
-def simulate_slam(key, first_pose, odometry_increments, odometry_covs, params: ModelParams, sensor_angles):
-    """Sample ``(poses (S, 3), walls (nx, ny) bool, readings (S, K))`` from :data:`slam_model` with ``key``
-    (arguments as :func:`slam_args`).
-
-    Raises:
-        BayesmapError: on shapes that do not match.
-    """
-    trace = slam_model.simulate(key, slam_args(first_pose, odometry_increments, odometry_covs, params, sensor_angles))
-    return trace.get_retval()

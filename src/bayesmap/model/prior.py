@@ -31,8 +31,8 @@ differ with probability ``1 / (1 + e^J)``, so runs of equal cells are geometric 
 ``J = log(L / resolution - 1)`` makes that mean ``L`` meters at any resolution. The coupling then *depends on the
 resolution* (finer cells need a stronger coupling for the same run in meters): the rule is stated in meters, never
 as a count of cells. The maps of logs default to ``L =`` :data:`bayesmap.scenes.LOG_RUN_LENGTH` meters
-(:func:`bayesmap.scenes.log_coupling`), chosen by leave-one-log-out cross-validation (README); every other scene
-keeps ``J = 0``.
+(:func:`bayesmap.scenes.log_coupling`), chosen by leave-one-log-out cross-validation
+([validation](../validation/defaults.md#log_run_length)); every other scene keeps ``J = 0``.
 
 **In the GenJAX model, exactly.** The MRF's normalizing constant is intractable, so the model does not sample the
 MRF directly. It keeps the independent prior at ``"walls"`` and adds an *observed* auxiliary choice at

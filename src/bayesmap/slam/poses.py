@@ -1,6 +1,6 @@
 """Exact pose conditionals given the map, and two MCMC kernels over the robot's poses (the SLAM model's path).
 
-The target is :data:`bayesmap.model.generative.slam_model`'s posterior over the poses given the walls: for a pose
+The target is :data:`bayesmap.model.slam.slam_model`'s posterior over the poses given the walls: for a pose
 ``t >= 1`` (pose 0 is fixed), everything in the model's ``assess`` score that depends on ``pose_t`` is
 
     log p(pose_t | pose_{t-1})  +  log p(pose_{t+1} | pose_t)  (if t < S - 1)  +  eta log p(readings_t | walls, pose_t)

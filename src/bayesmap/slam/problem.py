@@ -3,7 +3,7 @@
 :class:`SlamProblem` is what the SLAM samplers take: the map model, the motion model, the odometry and the scans.
 It is built from the tutorial's room (:func:`slam_tutorial_problem`), from any known map and path
 (:func:`simulated_slam_problem`), or from a raw log whose pose fields hold odometry (:func:`log_slam_problem`).
-The mapping problem of known poses is :class:`bayesmap.scenes.Problem`.
+The mapping problem of known poses is :class:`bayesmap.problem.Problem`.
 """
 
 from __future__ import annotations
@@ -43,18 +43,21 @@ from bayesmap.scenes import (
 SLAM_GEOMETRY = "chord"
 """Wall geometry of ``bayesmap slam --log`` (:func:`log_slam_problem`), maps and pose moves alike (the pose moves cast
 each beam's first wall cell and its chord by grid traversal, :func:`bayesmap.geometry.raycast.march_first_chord`):
-the chord geometry with no range offset. It replaced the entry geometry with a 0.1 m offset (one cell chosen on Intel
-validation scans) at equal ATE: 0.069 / 0.093 / 0.098 m against 0.069 / 0.094 / 0.100 m on Intel / ACES / CSAIL,
-odometry seed 0 (README, "Real logs and bags")."""
+the chord geometry with no range offset. Chosen as a log's map geometry (:data:`bayesmap.scenes.LOG_GEOMETRY`); it
+replaced the entry geometry with a range offset at equal ATE on Intel, ACES and CSAIL
+([validation](../validation/defaults.md#slam_geometry))."""
 
 SLAM_SENSOR_NOISE = 0.05
-"""``sensor_noise`` of ``bayesmap slam --log``, meters (:func:`slam_map_settings`)."""
+"""``sensor_noise`` of ``bayesmap slam --log``, meters (:func:`slam_map_settings`): a log's map noise when the SLAM
+pipeline's other defaults were cross-validated with it
+([validation](../validation/defaults.md#slam_likelihood_power))."""
 
 SLAM_LIKELIHOOD_POWER = 0.1
 """Likelihood power of ``bayesmap slam --log``'s chain (maps and poses; :func:`slam_map_settings`) and front end: the
-value its front end, motion noise, loop edges and path uncertainty were cross-validated with (README, SLAM section),
-the map power of logs at the time. The final map at the mean path follows the log default (:func:`log_map_params`)."""
-
+value its front end, motion noise, loop edges and path uncertainty were cross-validated with, and the front end's
+power chosen by leave-one-log-out cross-validation of the start path's ATE over Intel, ACES and CSAIL
+([validation](../validation/defaults.md#slam_likelihood_power)). The final map at the mean path follows the log
+default (:func:`log_map_params`)."""
 
 
 def slam_map_settings() -> dict:
@@ -63,8 +66,6 @@ def slam_map_settings() -> dict:
     that stop every beam (its pose moves cast to the first wall only)."""
     return {"geometry": SLAM_GEOMETRY, "range_offset": 0.0, "sensor_noise": SLAM_SENSOR_NOISE,
             "likelihood_power": SLAM_LIKELIHOOD_POWER, "coupling": 0.0, "wall_pass_prob": 0.0}
-
-
 
 
 # ---------------------------------------------------------------------------------------------------------------
