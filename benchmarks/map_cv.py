@@ -84,7 +84,7 @@ def run_one(log, setting: dict) -> dict:
                        likelihood_power=None if by_density else setting["power"],
                        readings_per_cell=setting["readings_per_cell"] if by_density else None,
                        sensor_params=sensor_params(setting["z_rand"]), wall_pass_prob=setting["pass_prob"],
-                       prior_wall_prob=setting["prior"], progress=False)
+                       prior_wall_prob=setting["prior"])
     row = dict(setting, coupling=coupling, fitted_power=out["setup"]["likelihood_power"],
                auc=out["bayesmap"]["auc"], nll=out["bayesmap"]["nll"],
                logodds_auc=out["logodds"]["auc"], logodds_nll=out["logodds"]["nll"],

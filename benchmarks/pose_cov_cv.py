@@ -25,6 +25,7 @@ from karto_peer import parse_seeds
 from seeded_logs import run_file, seeded_log, slam_run_arrays
 
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage
+from bayesmap.progress import ProgressBar
 from bayesmap.slam.pipeline import GRAPH_COV_SCALE, run_log_slam
 from bayesmap.slam.problem import log_slam_problem
 
@@ -36,8 +37,9 @@ def run_one(name: str, seed: int, cache: Path) -> dict:
     out = run_file(cache, name, seed, "npz")
     if not out.exists():
         log, truth = seeded_log(name, seed)
-        result = run_log_slam(log_slam_problem(log), progress=True, graph_scale=0.0,  # pose_cov: the chain's
-                              final_map_sweeps=0)  # (and no final map: the path is scored)
+        with ProgressBar() as bar:
+            result = run_log_slam(log_slam_problem(log), progress=bar, graph_scale=0.0,  # pose_cov: the chain's
+                                  final_map_sweeps=0)  # (and no final map: the path is scored)
         np.savez(out, **slam_run_arrays(result, truth, 0.0))
         print(f"{name} seed {seed}: ATE {absolute_trajectory_error(result.mean_path, truth)['rmse_m']:.3f} m, "
               f"{result.runtime_s:.0f} s", flush=True)

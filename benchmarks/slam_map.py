@@ -26,6 +26,13 @@ from karto_peer import parse_seeds  # noqa: E402
 from seeded_logs import table_main  # noqa: E402
 
 from bayesmap.evaluation.slammap import evaluate_slam_map  # noqa: E402
+from bayesmap.progress import ProgressBar  # noqa: E402
+
+
+def scores_with_bars(log, truth, resolution: float) -> dict:
+    """:func:`bayesmap.evaluation.slammap.evaluate_slam_map` of one run, its stages drawn on stderr."""
+    with ProgressBar() as bar:
+        return evaluate_slam_map(log, truth, resolution=resolution, progress=bar)
 
 
 def table_row(name: str, seed: int, scores: dict) -> str:
@@ -49,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         "registered AUC gap | the chain's own map: AUC / NLL |\n"
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
         lambda parser: parser.add_argument("--resolution", type=float, default=0.1, help="meters per cell (0.1)"),
-        lambda args: lambda log, truth: evaluate_slam_map(log, truth, resolution=args.resolution), table_row,
+        lambda args: lambda log, truth: scores_with_bars(log, truth, args.resolution), table_row,
         parse_seeds)
 
 

@@ -29,6 +29,6 @@ def test_import_bayesmap_loads_no_heavy_dependency():
 def test_the_quick_path_of_a_notebook_runs():
     """The module docstring's example: tutorial map -> scene -> inference -> figure."""
     problem = bayesmap.tutorial_problem(bayesmap.tutorial_map())
-    result = bayesmap.run_inference(problem, "block", sweeps=20, progress=False)
+    result = bayesmap.run_inference(problem, "block", sweeps=20)
     assert result.posterior.shape == problem.grid.shape == (21, 21)
     assert problem.wrong_visible_cells(result.posterior) <= 10

@@ -40,7 +40,7 @@ def test_tutorial_chains_agree(tutorial):
     """4 chains of fast 2x2 block Gibbs (100 sweeps, 50 kept) on the tutorial scene: every cell that changes has
     split R-hat below 1.1 (the usual threshold; Vehtari et al. 2021 recommend 1.01 for final results, which
     needs longer chains), and the chains' joint posterior mean is as accurate as one chain's."""
-    result = run_inference(tutorial, "block", sweeps=100, chains=4, progress=False)
+    result = run_inference(tutorial, "block", sweeps=100, chains=4)
     assert result.samples.shape == (4, 100, 21, 21)
     assert result.summary["r_hat_max"] < 1.1
     assert result.summary["ess_min"] > 20
@@ -131,3 +131,41 @@ def test_every_sampler_steps_to_state_and_info():
         assert np.abs(prob[~free] - 0.3).max() > 0.1  # the readings moved the crossed cells
         assert np.asarray(chain.wall_probs).shape == (3,) + grid.shape
         np.testing.assert_allclose(np.asarray(chain.wall_probs[0]), prob, rtol=1e-6, atol=1e-7)
+
+
+def test_a_chain_run_with_progress_is_the_chain_run_in_one_scan(tutorial):
+    """A progress callback runs a chain one sweep per compiled call over the keys the whole chain uses: the same
+    samples, conditional probabilities and final state, bit for bit, as one ``lax.scan`` (one chain from walls, and
+    several at once from one state); one report before the first sweep and one after each; and every number of
+    sweeps runs on the one compiled sweep (no compilation after the first run)."""
+    import jax
+    import jax.numpy as jnp
+
+    from bayesmap.inference.chains import compiled_chain_count, run_chain, run_recorded_chains
+    from bayesmap.inference.registry import make_sampler
+    from bayesmap.progress import Progress
+
+    algorithm = make_sampler(tutorial, "cellwise")
+    walls = jnp.zeros(tutorial.grid.shape)
+    seen = []
+    pieces = run_chain(jax.random.key(4), algorithm, walls, 9, progress=seen.append, stage="map")
+    whole = run_chain(jax.random.key(4), algorithm, walls, 9)
+    np.testing.assert_array_equal(pieces.samples, whole.samples)
+    np.testing.assert_array_equal(pieces.wall_probs, whole.wall_probs)
+    np.testing.assert_array_equal(pieces.final_state.walls, whole.final_state.walls)
+    assert seen == [Progress("map", done, 9, "sweep") for done in range(10)]
+
+    def record(state, info):  # what a caller of run_recorded_chains keeps: the map and the probabilities
+        return state.walls, info.wall_prob
+
+    state = algorithm.init(walls)
+    seen.clear()
+    several = run_recorded_chains(jax.random.key(5), state, algorithm, 4, record, num_chains=3, progress=seen.append)
+    at_once = run_recorded_chains(jax.random.key(5), state, algorithm, 4, record, num_chains=3)
+    assert several[0].shape == (3, 4) + tutorial.grid.shape
+    for got, want in zip(several, at_once):
+        np.testing.assert_array_equal(got, want)
+    assert [p.done for p in seen] == [0, 1, 2, 3, 4]
+    size = compiled_chain_count()
+    run_chain(jax.random.key(6), algorithm, walls, 13, progress=seen.append)
+    assert compiled_chain_count() == size

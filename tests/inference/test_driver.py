@@ -11,12 +11,13 @@ from bayesmap import scenes
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.driver import run_inference, run_logodds, scene_summary
 from bayesmap.io.rosmap import read_rosmap
+from bayesmap.progress import Progress
 from helpers import room_scans, run_cli
 
 
 def test_block_gibbs_on_three_scans():
     pb = room_scans("beam")
-    result = run_inference(pb, "block", 60, progress=False)
+    result = run_inference(pb, "block", 60)
     assert result.summary["num_scans"] == 3 and result.summary["beam_model"] == "beam"
     assert result.summary["init"] == "logodds"
     # three viewpoints see the room's 99 visible cells; about 20% of the beam model's readings are outliers (short,
@@ -24,7 +25,7 @@ def test_block_gibbs_on_three_scans():
     # seeds 0-2 (and 0-3 with the Normal model's readings, which have no outliers)
     assert result.summary["visible_cells"] == 99 and result.summary["wrong_visible_cells"] <= 8, result.summary
     with pytest.raises(BayesmapError, match="unknown chain start 'magic'"):
-        run_inference(pb, "block", 10, init="magic", progress=False)
+        run_inference(pb, "block", 10, init="magic")
 
 
 @pytest.mark.parametrize("kwargs, match", [
@@ -35,14 +36,14 @@ def test_block_gibbs_on_three_scans():
 ])
 def test_run_inference_refuses_bad_settings(kwargs, match):
     with pytest.raises(BayesmapError, match=match):
-        run_inference(room_scans("normal"), "block", progress=False, **kwargs)
+        run_inference(room_scans("normal"), "block", **kwargs)
 
 
 def test_both_drivers_share_the_scene_part_of_the_summary():
     """run_inference and run_logodds report the scene alike (scene_summary): same keys and values for the source,
     beams, scans, grid, max distance and truth; only the model's settings and the run's results differ."""
     pb = room_scans("normal")
-    gibbs = run_inference(pb, "block", 6, progress=False).summary
+    gibbs = run_inference(pb, "block", 6).summary
     logodds = run_logodds(pb).summary
     for key in ("source", "num_angles", "num_scans", "num_beams", "grid", "max_distance", "visible_cells"):
         assert gibbs[key] == logodds[key], key
@@ -100,28 +101,41 @@ def test_fast_samplers_refuse_problems_too_large_for_memory(monkeypatch):
     pb = room_scans("normal")
     monkeypatch.setattr(registry, "MAX_FAST_PAIRS", pb.table.num_pairs - 1)
     with pytest.raises(BayesmapError, match=f"{pb.table.num_pairs:,} \\(beam, cell\\) pairs.*--sampler cellwise"):
-        run_inference(pb, "chromatic", 4, progress=False)
-    assert run_inference(pb, "cellwise", 4, progress=False).samples.shape == (4, 12, 9)  # no limit
+        run_inference(pb, "chromatic", 4)
+    assert run_inference(pb, "cellwise", 4).samples.shape == (4, 12, 9)  # no limit
     monkeypatch.setattr(registry, "MAX_FAST_PAIRS", pb.table.num_pairs)
-    assert run_inference(pb, "chromatic", 4, progress=False).samples.shape == (4, 12, 9)
+    assert run_inference(pb, "chromatic", 4).samples.shape == (4, 12, 9)
 
 
 def test_cellwise_chains_run_one_after_another_with_the_keys_of_chains_at_once(monkeypatch):
     """Several cellwise chains run one by one (vmap would turn their conditional writes into always-run selects);
     chain c gets the keys it would get at once, so the samples equal those of the vmap path, and progress reaches
-    the total of all chains."""
+    the total of all chains (one stage, reported at its start and after every chunk of 10 sweeps)."""
     import bayesmap.inference.driver as driver
 
     pb = room_scans("beam")
     seen = []
-    one_by_one = run_inference(pb, "cellwise", 20, chains=2, progress=False,  # two chunks of 10 sweeps
-                               on_progress=lambda d, t: seen.append((d, t)))
+    one_by_one = run_inference(pb, "cellwise", 20, chains=2, progress=seen.append)  # two chunks of 10 sweeps
     assert one_by_one.samples.shape == (2, 20, 12, 9)
-    assert seen == [(10, 40), (20, 40), (30, 40), (40, 40)]
+    assert seen == [Progress("sweeps", done, 40, "sweep") for done in (0, 10, 20, 30, 40)]
     monkeypatch.setattr(driver, "SEQUENTIAL_CHAINS", ())
-    at_once = run_inference(pb, "cellwise", 20, chains=2, progress=False)
+    seen.clear()
+    at_once = run_inference(pb, "cellwise", 20, chains=2, progress=seen.append)
+    assert [(p.done, p.total) for p in seen] == [(0, 20), (10, 20), (20, 20)]
     np.testing.assert_array_equal(one_by_one.samples, at_once.samples)
     assert not np.array_equal(one_by_one.samples[0], one_by_one.samples[1])
+
+
+def test_progress_reports_do_not_change_the_chain():
+    """The same seed with and without a progress callback: the same samples and posterior, bit for bit (reporting
+    only reads the chunks' results); 25 sweeps are reported after chunks of 10, 10 and 5."""
+    pb = room_scans("beam")
+    seen = []
+    reported = run_inference(pb, "cellwise", 25, seed=3, progress=seen.append)
+    silent = run_inference(pb, "cellwise", 25, seed=3)
+    np.testing.assert_array_equal(reported.samples, silent.samples)
+    np.testing.assert_array_equal(reported.posterior, silent.posterior)
+    assert [p.done for p in seen] == [0, 10, 20, 25] and {(p.stage, p.total) for p in seen} == {("sweeps", 25)}
 
 
 def test_beam_weights_reach_the_model_and_the_summary(tmp_path, monkeypatch, capsys):
@@ -145,6 +159,6 @@ def test_likelihood_power_in_the_summary_and_refused_by_reference_samplers(small
     with pytest.raises(BayesmapError, match=r"likelihood power 0\.1\)"):
         make_sampler(log_problem(log, resolution=0.2, likelihood_power=0.1), "reference-raster")
     problem = log_problem(log, resolution=0.2)
-    summary = run_inference(problem, "cellwise", 4, progress=False).summary
+    summary = run_inference(problem, "cellwise", 4).summary
     assert summary["likelihood_power"] == problem.likelihood_power < 1
     assert summary["posterior_estimate"] == "rao-blackwellized"

@@ -1,5 +1,5 @@
 """run_log_slam's final map (stage 6): drawn after the joint chain without changing it, in the log's map model at
-the mean path, and refused counts named."""
+the mean path, and refused counts named; its progress reports, stage by stage, which do not change the result."""
 
 import numpy as np
 import pytest
@@ -19,15 +19,19 @@ def slam_problem(small_log):
 RUN = {"rounds": 1, "burn_in": 0, "map_sweeps": 2, "pose_sweeps": 2, "seed": 5}
 
 
-def test_final_map_leaves_the_chain_alone_and_differs_from_its_map(slam_problem):
+@pytest.fixture(scope="module")
+def with_final(slam_problem):
+    # 20 sweeps (10 kept): at this slice's power (0.06, 12 scans from nearly one place) 6 sweeps left 3 of the
+    # chain's 30 sure walls below 0.5, 20 none (at power 0.1: 1 and none)
+    return run_log_slam(slam_problem, final_map_sweeps=20, **RUN)
+
+
+def test_final_map_leaves_the_chain_alone_and_differs_from_its_map(slam_problem, with_final):
     """Same seed with and without the final map: the same path samples and the same chain map (the final map's key
     is none of the chain's), and the reported map is another one, in the log's model (walls a beam can pass, the
     structured prior; the model's noise widened by the path's uncertainty), with the walls of the chain's map where
     the chain is sure of them."""
     without = run_log_slam(slam_problem, final_map_sweeps=0, **RUN)
-    # 20 sweeps (10 kept): at this slice's power (0.06, 12 scans from nearly one place) 6 sweeps left 3 of the
-    # chain's 30 sure walls below 0.5, 20 none (at power 0.1: 1 and none)
-    with_final = run_log_slam(slam_problem, final_map_sweeps=20, **RUN)
     assert without.chain_posterior is None and without.final_map_noise is None
     noise = float(slam_problem.final_map_params.sensor_noise)
     assert with_final.final_map_noise == pytest.approx(final_map_noise(noise, with_final.pose_cov))
@@ -41,6 +45,29 @@ def test_final_map_leaves_the_chain_alone_and_differs_from_its_map(slam_problem)
     sure_wall, sure_free = without.posterior > 0.99, without.posterior < 0.01
     assert sure_wall.sum() > 20 and sure_free.sum() > 100
     assert np.mean(final[sure_wall] > 0.5) > 0.9 and np.mean(final[sure_free] < 0.5) > 0.9
+
+
+def test_progress_reports_every_stage_and_leaves_the_result_alone(slam_problem, with_final):
+    """With a progress callback: the stages in the pipeline's order (12 scans close no loop: no loop closure stage),
+    each reported from 0 up to its total without going back, the final map once per sweep (after a report at its
+    start, before its table is built); and the same result, bit for bit, as without one (the chains then run one
+    sweep per call over the same keys; the front end one scan per call)."""
+    seen = []
+    reported = run_log_slam(slam_problem, final_map_sweeps=20, progress=seen.append, **RUN)
+    for name in ("pose_samples", "mean_path", "pose_cov", "posterior", "chain_posterior", "last_walls"):
+        np.testing.assert_array_equal(getattr(reported, name), getattr(with_final, name), err_msg=name)
+    stages = list(dict.fromkeys(p.stage for p in seen))
+    assert stages == ["front end", "round 1/1: map", "round 1/1: poses", "final map"]
+    assert [p.stage for p in seen] == sorted((p.stage for p in seen), key=stages.index)  # one run of each stage
+    totals = {"front end": (11, "scan"), "round 1/1: map": (2, "sweep"), "round 1/1: poses": (2, "sweep"),
+              "final map": (20, "sweep")}
+    for stage in stages:
+        reports = [p for p in seen if p.stage == stage]
+        assert {(p.total, p.unit) for p in reports} == {totals[stage]}
+        done = [p.done for p in reports]
+        assert done[0] == 0 and done[-1] == totals[stage][0] and done == sorted(done)
+    final = [p.done for p in seen if p.stage == "final map"]
+    assert [d for d in final if d > 0] == list(range(1, 21))
 
 
 @pytest.mark.parametrize("bad", [1, -2, 2.5, True])

@@ -8,6 +8,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import march_first_hit
 from bayesmap.model.motion import compose, make_motion_params, odometry_controls
+from bayesmap.progress import Progress
 from bayesmap.slam import posegraph
 from bayesmap.slam.scanmatch import LOCAL_MAP_DISTANCE, MIN_HIT_FRACTION, ScanData, correlative_path
 
@@ -71,7 +72,8 @@ def test_the_fields_follow_the_robot_down_a_corridor():
     one step of the finest lattice (3 mm, 0.8 mrad), by which float32 coordinates shifted by whole cells can break a
     near-tie differently. Fields that stayed at the first pose would hold no wall beyond x = 4 m. Both paths are
     closer to the truth than half the odometry's error (the corridor leaves the along-track position to the
-    recesses; the room test above measures accuracy)."""
+    recesses; the room test above measures accuracy). Run one scan per call, reporting each (a progress callback),
+    the +-3 m fields give the same path, bit for bit: the window's moves carry over from call to call."""
     grid = Grid(shape=(440, 66), resolution=0.05, origin=(0.0, 0.0))
     walls = np.zeros(grid.shape, np.float32)
     walls[[0, -1], :] = 1
@@ -91,6 +93,10 @@ def test_the_fields_follow_the_robot_down_a_corridor():
     small = correlative_path(odometry[0], data, grid.resolution, half_width=3.0)
     large = correlative_path(odometry[0], data, grid.resolution, half_width=30.0)
     assert np.all(np.abs(small - large) <= np.array([0.003, 0.003, 0.0008]) + 1e-5)
+    seen = []
+    np.testing.assert_array_equal(correlative_path(odometry[0], data, grid.resolution, half_width=3.0,
+                                                   progress=seen.append), small)
+    assert seen == [Progress("front end", done, 30, "scan") for done in range(31)]
     odometry_error = np.abs(odometry - truth)[:, :2].max()
     assert odometry_error > 0.4
     assert np.abs(small - truth)[:, :2].max() < odometry_error / 2
@@ -154,8 +160,9 @@ def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch)
     (first, data, resolution, options), (_, _, _, chosen) = calls
     assert np.array_equal(first, [1.0, 2.0, 0.3]) and data == "scans"
     assert resolution == pipeline.FRONT_END_RESOLUTION
-    assert options == {"likelihood_power": 0.25, "min_hit_fraction": MIN_HIT_FRACTION, "window": LOCAL_MAP_DISTANCE}
-    assert chosen == {"likelihood_power": 0.25, "min_hit_fraction": 0.3, "window": 20.0}
+    assert options == {"likelihood_power": 0.25, "min_hit_fraction": MIN_HIT_FRACTION, "window": LOCAL_MAP_DISTANCE,
+                       "progress": None}
+    assert chosen == {"likelihood_power": 0.25, "min_hit_fraction": 0.3, "window": 20.0, "progress": None}
 
 
 def test_a_scan_that_misses_its_local_map_takes_the_odometrys_step():
@@ -297,6 +304,23 @@ def test_a_second_run_of_the_same_shapes_compiles_nothing(caplog):
     assert not np.array_equal(first, second)
 
 
+def test_loop_closure_reports_each_rounds_candidates(monkeypatch):
+    """``close_loops`` with a progress callback: each round that has loop candidates is a stage ``"loop closure
+    r/R"`` counting its candidates (here, with loops allowed 4 scans apart, scans 4, 7 and 10 of the room are
+    matched in every round), from 0 up to the total; the result is that of a run without reports."""
+    monkeypatch.setattr(posegraph, "LOOP_GAP", 4)
+    grid, truth, odometry, beams, readings = room_scans()
+    inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
+    data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov))
+    seen = []
+    path, edges = posegraph.close_loops(odometry, data, rounds=2, progress=seen.append)
+    quiet_path, quiet_edges = posegraph.close_loops(odometry, data, rounds=2)
+    np.testing.assert_array_equal(path, quiet_path)
+    np.testing.assert_array_equal(edges.j, quiet_edges.j)
+    assert len(edges.i) > len(odometry) - 1  # loop edges were found, so both rounds ran
+    assert seen == [Progress(f"loop closure {r}/2", done, 3, "scan") for r in (1, 2) for done in range(4)]
+
+
 @pytest.mark.parametrize("angle, move", [(0.3, (2.0, -1.0)), (-1.0, (5.0, 3.0))])
 def test_a_held_out_scan_is_registered_into_the_frame_of_the_map_it_is_scored_on(angle, move):
     """``evaluation.slammap.register_heldout`` (the registered columns of issue 15's map benchmark): held-out scans of
@@ -315,7 +339,9 @@ def test_a_held_out_scan_is_registered_into_the_frame_of_the_map_it_is_scored_on
     for held in (3, 5, 8):
         train, test = np.delete(np.arange(12), held), np.array([held])
         start = frame[test] + np.array([0.12, -0.07, 0.04])
-        registered = register_heldout(frame, data, train, test, start)
+        seen = []
+        registered = register_heldout(frame, data, train, test, start, progress=seen.append)
+        assert seen == [Progress("registration", done, 1, "scan") for done in (0, 1)]
         assert np.hypot(*(registered[0, :2] - frame[held, :2])) < 0.01
         assert abs(registered[0, 2] - frame[held, 2]) < 0.005
     with pytest.raises(BayesmapError, match=r"path must be \(12, 3\)"):

@@ -37,8 +37,10 @@ from bayesmap.inference.driver import run_inference, run_logodds
 from bayesmap.inference.logodds import beam_hits_and_misses
 from bayesmap.io.rosmap import read_rosmap
 from bayesmap.model.generative import make_params, reading_log_likelihood, walls_log_likelihood
+from bayesmap.model.passable import PASS_WALLS
 from bayesmap.model.prior import DEFAULT_COUPLING
-from bayesmap.model.sensor import PASS_WALLS, beam_sample
+from bayesmap.model.sensor import beam_sample
+from bayesmap.progress import ProgressCallback
 from bayesmap.scenes import (
     LOG_BEAM_MODEL,
     LOG_GEOMETRY,
@@ -316,7 +318,7 @@ def sensor_logpdf(params):
 
 
 def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, float]]:
-    """Score maps on the beams of ``test`` (a :class:`~bayesmap.scenes.Problem` on the maps' grid).
+    """Score maps on the beams of ``test`` (a :class:`~bayesmap.problem.Problem` on the maps' grid).
 
     Args:
         test: the held-out beams.
@@ -351,7 +353,8 @@ def score_maps(test, maps: dict, max_samples: int = 50) -> dict[str, dict[str, f
 
 def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTION, sampler: str = "cellwise",
                  sweeps: int = 100, seed: int = 0, prior_wall_prob: float | None = None,
-                 sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL, progress: bool = True,
+                 sensor_noise: float | None = None, beam_model: str = LOG_BEAM_MODEL,
+                 progress: ProgressCallback | None = None,
                  range_offset: float | None = None, sensor_params: dict | None = None,
                  likelihood_power: float | None = None, geometry: str = LOG_GEOMETRY,
                  coupling: float | None = None, wall_pass_prob: float | None = None,
@@ -365,7 +368,8 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
     coupling), ``wall_pass_prob`` (None: :func:`bayesmap.scenes.log_wall_pass_prob` of ``sampler``) and
     ``readings_per_cell`` (None: :data:`bayesmap.scenes.LOG_READINGS_PER_CELL`): see
     :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses the measured ranges); the other defaults are
-    the scene defaults of :mod:`bayesmap.scenes`.
+    the scene defaults of :mod:`bayesmap.scenes`. ``progress`` gets the chain's sweeps
+    (:func:`bayesmap.inference.driver.run_inference`).
 
     Returns:
         ``{"bayesmap": {...}, "logodds": {...}, "setup": {...}}`` (JSON-serializable).
@@ -436,7 +440,7 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
                    sampler: str = "cellwise", sweeps: int = 100, seed: int = 0, sensor_noise: float | None = None,
                    beam_model: str = LOG_BEAM_MODEL, prior_wall_prob: float | None = None,
                    clearance: float = SIMULATED_CLEARANCE, sensor_params: dict | None = None,
-                   coupling: float | None = None) -> dict:
+                   coupling: float | None = None, progress: ProgressCallback | None = None) -> dict:
     """Map synthetic scans of a known floor plan and score the maps against it.
 
     ``num_poses`` positions are drawn (seed ``seed``) uniformly among the known-free cells at least ``clearance``
@@ -453,6 +457,7 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
         coupling: the structured prior's ``J`` (:mod:`bayesmap.model.prior`); None: 0.
         prior_wall_prob: None: :data:`bayesmap.scenes.LOG_PRIOR`, whatever the coupling (the floor plan's prior
             was not cross-validated). The other defaults are the scene defaults of :mod:`bayesmap.scenes`.
+        progress: gets the chain's sweeps (:func:`bayesmap.inference.driver.run_inference`); None: no reports.
 
     Returns:
         ``{"bayesmap": {"accuracy", "auc", "brier", "cells"}, "logodds": {...}, "setup": {...}}``.
@@ -503,7 +508,7 @@ def evaluate_truth(path, resolution: float = RESOLUTION, num_poses: int = SIMULA
     problem = Problem(params=params, observations=observations, poses=poses, ray_table=table,
                       source=f"{path} ({num_poses} simulated scans)")
     start = time.perf_counter()
-    gibbs = run_inference(problem, sampler, sweeps, seed=seed, progress=True)
+    gibbs = run_inference(problem, sampler, sweeps, seed=seed, progress=progress)
     gibbs_s = time.perf_counter() - start
     logodds = run_logodds(problem)
     seen = visible_cells(table, walls) & known

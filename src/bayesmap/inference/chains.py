@@ -6,6 +6,10 @@ that performs one sweep; a state exposes the current map as ``state.walls``, and
 :class:`~bayesmap.inference.base.GibbsInfo`) the conditional wall probabilities of the sweep as ``info.wall_prob`` if
 the sampler records them (for Rao-Blackwellized posterior marginals). Keys are passed explicitly; there is no global
 state.
+
+A chain given a progress callback (:mod:`bayesmap.progress`) runs one compiled sweep per call over the keys the
+whole chain would use, reporting after each (:func:`run_recorded_chains`): the same samples, bit for bit, as one
+compiled loop.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.base import SamplingAlgorithm
+from bayesmap.progress import ProgressCallback, report
 
 
 class ChainResult(NamedTuple):
@@ -56,18 +61,30 @@ def _join(arrays, static):
 
 def scan_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, record):
     """``num_sweeps`` steps of ``algorithm`` from ``initial_state`` by ``jax.lax.scan``, one key per sweep split
-    from ``key``; ``record(state, info)`` picks what each sweep keeps (a pytree). Pure and jittable; the loop every
-    chain of bayesmap runs (the map chains here, the joint chain of :mod:`bayesmap.slam.joint`).
+    from ``key`` (:func:`scan_sweeps` of ``jax.random.split(key, num_sweeps)``); ``record(state, info)`` picks what
+    each sweep keeps (a pytree). Pure and jittable; the loop every chain of bayesmap runs (the map chains here, the
+    joint chain of :mod:`bayesmap.slam.joint`).
 
     Returns:
         ``(final_state, records)``, each leaf of ``records`` with a leading ``(num_sweeps,)`` axis.
+    """
+    return scan_sweeps(jax.random.split(key, num_sweeps), initial_state, algorithm, record)
+
+
+def scan_sweeps(sweep_keys, initial_state, algorithm: SamplingAlgorithm, record):
+    """One step of ``algorithm`` per key of ``sweep_keys`` ``(n,)`` from ``initial_state``, by ``jax.lax.scan``:
+    :func:`scan_chain` with its keys given, so that a chain can run in pieces (the keys ``[a:b]`` continue from the
+    state after the keys ``[:a]``). Pure and jittable.
+
+    Returns:
+        ``(final_state, records)``, each leaf of ``records`` with a leading ``(n,)`` axis.
     """
 
     def body(state, k):
         state, info = algorithm.step(k, state)
         return state, record(state, info)
 
-    return jax.lax.scan(body, initial_state, jax.random.split(key, num_sweeps))
+    return jax.lax.scan(body, initial_state, sweep_keys)
 
 
 def _map_record(state, info):
@@ -91,13 +108,56 @@ def _run_jit(key, initial_state, arrays, static, num_sweeps: int, record, batch)
     return jax.vmap(one, in_axes=(0, 0 if batch == "states" else None))(key, initial_state)
 
 
-def _map_chain(arrays, static, key, initial_state, num_sweeps: int, batch) -> ChainResult:
-    final, (samples, wall_probs) = _run_jit(key, initial_state, arrays, static, int(num_sweeps), _map_record, batch)
+@partial(jax.jit, static_argnames=("static", "record", "batch"))
+def _sweeps_jit(sweep_keys, initial_state, arrays, static, record, batch):
+    """:func:`scan_sweeps` of the algorithm ``_join(arrays, static)`` over ``sweep_keys`` ``(n,)`` (``(C, n)``
+    with ``batch``, as :func:`_run_jit`): one piece of a chain run in pieces."""
+    algorithm = _join(arrays, static)
+
+    def one(keys, state):
+        return scan_sweeps(keys, state, algorithm, record)
+
+    if batch is None:
+        return one(sweep_keys, initial_state)
+    return jax.vmap(one, in_axes=(0, 0 if batch == "states" else None))(sweep_keys, initial_state)
+
+
+def _run(key, initial_state, arrays, static, num_sweeps: int, record, batch, progress: ProgressCallback | None,
+         stage: str):
+    """``_run_jit(key, initial_state, arrays, static, num_sweeps, record, batch)``; with ``progress``, the same
+    numbers one sweep per compiled call (:func:`_sweeps_jit` over the keys ``_run_jit`` splits, one compilation
+    whatever ``num_sweeps``), reporting ``Progress(stage, done, num_sweeps, "sweep")`` before the first sweep and
+    after each."""
+    num_sweeps = int(num_sweeps)
+    if progress is None or num_sweeps < 1:
+        return _run_jit(key, initial_state, arrays, static, num_sweeps, record, batch)
+    if batch is None:
+        sweep_keys = jax.random.split(key, num_sweeps)
+    else:  # (C, num_sweeps): chain c's keys, as scan_chain splits them under vmap
+        sweep_keys = jax.vmap(lambda k: jax.random.split(k, num_sweeps))(key)
+    arrays = [jnp.asarray(a) for a in arrays]  # (copied to the device once, not once per sweep)
+    state, pieces = initial_state, []
+    report(progress, stage, 0, num_sweeps)
+    for t in range(num_sweeps):
+        keys = sweep_keys[t:t + 1] if batch is None else sweep_keys[:, t:t + 1]
+        state, records = _sweeps_jit(keys, state, arrays, static, record, batch)
+        batch = "states" if batch == "keys" else batch  # the chains' states part after their first sweep
+        pieces.append(jax.block_until_ready(records))
+        report(progress, stage, t + 1, num_sweeps)
+    axis = 0 if batch is None else 1
+    return state, jax.tree.map(lambda *parts: jnp.concatenate(parts, axis=axis), *pieces)
+
+
+def _map_chain(arrays, static, key, initial_state, num_sweeps: int, batch, progress: ProgressCallback | None = None,
+               stage: str = "sweeps") -> ChainResult:
+    final, (samples, wall_probs) = _run(key, initial_state, arrays, static, num_sweeps, _map_record, batch, progress,
+                                        stage)
     return ChainResult(samples, final, wall_probs)
 
 
 def run_recorded_chains(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, record,
-                        num_chains: int | None = None):
+                        num_chains: int | None = None, progress: ProgressCallback | None = None,
+                        stage: str = "sweeps"):
     """Run a chain of ``num_sweeps`` steps of any kernel (:func:`scan_chain`) and return what ``record(state, info)``
     keeps per step; with ``num_chains``, that many independent chains from the same state (``key`` split into
     ``num_chains`` keys, ``vmap``). Compiled once per static part of ``algorithm``, shape of the state, ``record``
@@ -105,27 +165,33 @@ def run_recorded_chains(key, initial_state, algorithm: SamplingAlgorithm, num_sw
     and ``step`` are pytrees (``jax.tree_util.Partial`` of module functions and arrays, as the pose and joint kernels
     are) reuses the compiled chain when only its arrays' values change; an algorithm of closures compiles anew.
 
+    With ``progress`` (:mod:`bayesmap.progress`), the chain runs one sweep per compiled call over the same keys
+    (the same records, bit for bit; one compilation for every ``num_sweeps``) and reports
+    ``Progress(stage, done, num_sweeps, "sweep")`` before the first sweep and after each.
+
     Returns:
         ``record``'s pytree, each leaf with a leading ``(num_sweeps,)`` axis (``(num_chains, num_sweeps)`` with
         ``num_chains``).
     """
     arrays, static = _split(algorithm)
     if num_chains is None:
-        return _run_jit(key, initial_state, arrays, static, int(num_sweeps), record, None)[1]
+        return _run(key, initial_state, arrays, static, num_sweeps, record, None, progress, stage)[1]
     keys = jax.random.split(key, int(num_chains))
-    return _run_jit(keys, initial_state, arrays, static, int(num_sweeps), record, "keys")[1]
+    return _run(keys, initial_state, arrays, static, num_sweeps, record, "keys", progress, stage)[1]
 
 
 def compiled_chain_count() -> int:
     """How many chains are compiled and kept so far (by :func:`run_chain_from`, :func:`run_chains_from`,
-    :func:`compile_chain` and :func:`run_recorded_chains`): one per distinct static part of a sampler (geometry,
-    schedule, sensor model name), shape of the state, record function, number of sweeps and of chains. Samplers that
-    differ only in array values (readings, prior, noise; for the pose and joint kernels also the odometry) share a
-    compiled chain, so running them does not change this count."""
-    return int(_run_jit._cache_size())
+    :func:`compile_chain` and :func:`run_recorded_chains`, whole or one sweep per call): one per distinct static part
+    of a sampler (geometry, schedule, sensor model name), shape of the state, record function, number of sweeps (a
+    chain run with progress: one) and of chains. Samplers that differ only in array values (readings, prior, noise;
+    for the pose and joint kernels also the odometry) share a compiled chain, so running them does not change this
+    count."""
+    return int(_run_jit._cache_size()) + int(_sweeps_jit._cache_size())
 
 
-def run_chain_from(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int) -> ChainResult:
+def run_chain_from(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int,
+                   progress: ProgressCallback | None = None, stage: str = "sweeps") -> ChainResult:
     """Run ``num_sweeps`` sweeps of ``algorithm`` from a sampler state (``algorithm.init(walls)``, or the
     ``final_state`` of an earlier run, to continue a chain), compiled with ``jax.lax.scan``.
 
@@ -134,13 +200,17 @@ def run_chain_from(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps:
         initial_state: the sampler's state.
         algorithm: the sampler.
         num_sweeps: number of sweeps (an int >= 1; not checked here, see :func:`run_chain`).
+        progress: called with ``Progress(stage, done, num_sweeps, "sweep")`` before the first sweep and after each
+            (the chain then runs one sweep per compiled call, with the same keys: the same samples, bit for bit);
+            None: one compiled loop, no reports.
+        stage: the stage the reports name.
 
     Returns:
         :class:`ChainResult`: ``samples`` ``(num_sweeps, nx, ny)`` bool, the final state, and ``wall_probs``
         ``(num_sweeps, nx, ny)`` float32 or None.
     """
     arrays, static = _split(algorithm)
-    return _map_chain(arrays, static, key, initial_state, num_sweeps, None)
+    return _map_chain(arrays, static, key, initial_state, num_sweeps, None, progress, stage)
 
 
 def compile_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, num_chains: int | None = None):
@@ -160,7 +230,8 @@ def compile_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: 
     return run
 
 
-def run_chain(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int) -> ChainResult:
+def run_chain(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int,
+              progress: ProgressCallback | None = None, stage: str = "sweeps") -> ChainResult:
     """Run ``num_sweeps`` sweeps of ``algorithm`` from ``initial_walls`` with ``jax.lax.scan``.
 
     Args:
@@ -168,6 +239,8 @@ def run_chain(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int)
         algorithm: the sampler.
         initial_walls: ``(nx, ny)`` starting map (the tutorial starts from all free).
         num_sweeps: number of sweeps (>= 1).
+        progress: as :func:`run_chain_from`.
+        stage: as :func:`run_chain_from`.
 
     Returns:
         :class:`ChainResult` with ``samples[t]`` the map after sweep ``t + 1``. (The tutorial's chain records the
@@ -180,7 +253,7 @@ def run_chain(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int)
     if int(num_sweeps) != num_sweeps or num_sweeps < 1:
         raise BayesmapError(f"number of sweeps must be an integer >= 1, got {num_sweeps!r}")
     state = algorithm.init(jnp.asarray(initial_walls, dtype=jnp.float32))
-    return run_chain_from(key, state, algorithm, int(num_sweeps))
+    return run_chain_from(key, state, algorithm, int(num_sweeps), progress, stage)
 
 
 def run_chains_from(keys, initial_states, algorithm: SamplingAlgorithm, num_sweeps: int) -> ChainResult:

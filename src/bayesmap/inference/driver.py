@@ -13,13 +13,13 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tqdm import tqdm
 
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.chains import cell_diagnostics, compile_chain, posterior_mean, run_chain_from, run_chains_from
 from bayesmap.inference.logodds import LogOddsParams, logodds_map, occupancy
 from bayesmap.inference.registry import SAMPLERS, SEQUENTIAL_CHAINS, make_sampler
 from bayesmap.model.sensor import BEAM_DEFAULTS
+from bayesmap.progress import ProgressCallback, report
 from bayesmap.scenes import Problem
 
 DEFAULT_SWEEPS = 100
@@ -138,24 +138,22 @@ def _run_chunks(algorithm, keys, state, chains: int, sweeps: int, chunk: int, ti
     return np.concatenate(pieces, axis=-3), np.concatenate(prob_pieces, axis=-3) if prob_pieces else None
 
 
-def _run_all_chains(algorithm, state0, plan: _Chunks, chains: int, sweeps: int, progress: bool, on_progress) -> tuple:
-    """``(samples, wall_probs or None)`` of all chains (chain axis first with several), showing progress."""
-
+def _run_all_chains(algorithm, state0, plan: _Chunks, chains: int, sweeps: int,
+                    progress: ProgressCallback | None) -> tuple:
+    """``(samples, wall_probs or None)`` of all chains (chain axis first with several), reporting the sweeps done
+    (of every chain, when they run one after another) as stage ``"sweeps"`` after every chunk."""
     total = sweeps * chains if plan.one_by_one else sweeps
-    with tqdm(total=total, unit="sweep", delay=1.0, disable=not progress, leave=False) as bar:
-        finished = [0]  # sweeps run so far, all chains (a disabled tqdm does not count)
+    finished = [0]  # sweeps run so far, all chains
 
-        def tick(n):
-            finished[0] += n
-            bar.update(n)
-            if on_progress is not None:
-                on_progress(finished[0], total)
+    def tick(n):
+        finished[0] += n
+        report(progress, "sweeps", finished[0], total)
 
-        if not plan.one_by_one:
-            return _run_chunks(algorithm, plan.keys, state0, chains, sweeps, plan.chunk, tick)
-        # chain c uses the keys chain c would get at once (split of each chunk's key)
-        per_chain = jnp.stack([jax.random.split(key, chains) for key in plan.keys])  # (chunks, chains)
-        runs = [_run_chunks(algorithm, per_chain[:, c], state0, 1, sweeps, plan.chunk, tick) for c in range(chains)]
+    if not plan.one_by_one:
+        return _run_chunks(algorithm, plan.keys, state0, chains, sweeps, plan.chunk, tick)
+    # chain c uses the keys chain c would get at once (split of each chunk's key)
+    per_chain = jnp.stack([jax.random.split(key, chains) for key in plan.keys])  # (chunks, chains)
+    runs = [_run_chunks(algorithm, per_chain[:, c], state0, 1, sweeps, plan.chunk, tick) for c in range(chains)]
     samples = np.stack([r[0] for r in runs])
     return samples, None if runs[0][1] is None else np.stack([r[1] for r in runs])
 
@@ -214,8 +212,8 @@ def _chain_summary(problem: Problem, samples, wall_probs, diagnostics, posterior
 
 
 def run_inference(problem: Problem, sampler: str = "block", sweeps: int = DEFAULT_SWEEPS, burn_in: int | None = None,
-                  seed: int = 0, progress: bool = True, chains: int = 1,
-                  on_progress=None, init: str | None = None) -> InferenceResult:
+                  seed: int = 0, progress: ProgressCallback | None = None, chains: int = 1,
+                  init: str | None = None) -> InferenceResult:
     """Run ``chains`` chains of ``sampler`` and summarize them: at once (``vmap``), or one after another for the
     samplers in :data:`SEQUENTIAL_CHAINS` (with the keys they would get at once, so the samples are the same).
 
@@ -228,7 +226,10 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = DEFAUL
         sweeps: number of sweeps (>= 1).
         burn_in: sweeps dropped before averaging; default half of them.
         seed: the chain's PRNG seed.
-        progress: show a progress bar (tqdm, on stderr) when the run takes longer than a second.
+        progress: a :data:`bayesmap.progress.ProgressCallback`, called with ``Progress("sweeps", done, total,
+            "sweep")`` once the settings are checked (``done`` 0) and after every chunk of at most 10 sweeps, from the
+            thread that runs the chain; ``total`` is ``sweeps``, or ``sweeps * chains`` for the samplers whose
+            chains run one after another (:data:`SEQUENTIAL_CHAINS`). None: no reports.
         chains: number of independent chains (keys split from ``seed``); with 2 or more the summary reports the
             worst split R-hat and the smallest effective sample size over the cells that change.
         init: the chains' first map: ``"free"`` (no walls; the tutorial's, default for one scan) or ``"logodds"``
@@ -236,8 +237,6 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = DEFAUL
             chain starts does not change its stationary distribution; with the robust beam model a chain started
             from the empty map can take very long to clear the spurious walls it draws first (a reading far beyond a
             wrong wall is only "random" under the mixture, so wrong walls on a beam hold each other in place).
-        on_progress: called as ``on_progress(done, total)`` after every chunk of at most 10 sweeps (from the
-            thread that runs the chain), for a progress display such as the app's.
 
     Raises:
         BayesmapError: on an unknown sampler, or a bad number of sweeps, burn-in or chains; with several chains,
@@ -246,12 +245,13 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = DEFAUL
     burn_in, init = _check_settings(problem, sweeps, burn_in, chains, init)
     start = time.perf_counter()
     plan = _plan_chunks(sampler, sweeps, seed, chains)
+    report(progress, "sweeps", 0, sweeps * chains if plan.one_by_one else sweeps)
     with ThreadPoolExecutor(max_workers=1) as pool:
         algorithm, walls0, state0 = _prepare_chain(pool, problem, sampler, init, chains, plan)
         # while the chain runs (on one core), the summary's log joint, evaluated op by op, compiles its small XLA
         # programs on the start map (the calls in the summary then find them compiled)
         warm = pool.submit(problem.log_joint, np.asarray(walls0) > 0.5)  # (bool, as the samples)
-        samples, wall_probs = _run_all_chains(algorithm, state0, plan, chains, sweeps, progress, on_progress)
+        samples, wall_probs = _run_all_chains(algorithm, state0, plan, chains, sweeps, progress)
         runtime = time.perf_counter() - start
         warm.result()
     # the posterior marginals: Rao-Blackwellized (mean of the conditional probabilities) where the sampler records

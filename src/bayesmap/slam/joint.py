@@ -1,7 +1,7 @@
 """Joint SLAM at the tutorial's scale: a Gibbs chain over the path and the map together.
 
 The target is the SLAM model's posterior ``p(poses, walls | readings, odometry)``
-(:data:`bayesmap.model.generative.slam_model`; the readings' likelihood tempered by ``eta``, 1 for the posterior).
+(:data:`bayesmap.model.slam.slam_model`; the readings' likelihood tempered by ``eta``, 1 for the posterior).
 One step of :func:`slam_kernel` updates two blocks in turn (Gibbs over blocks, e.g. Robert & Casella, *Monte Carlo
 Statistical Methods*, 2nd ed., sec. 10.1):
 
@@ -38,6 +38,7 @@ from bayesmap.inference.chains import run_recorded_chains
 from bayesmap.inference.dense import dense_readings, dense_state, dense_sweep
 from bayesmap.model.generative import check_likelihood_power, make_params, prior_log_odds
 from bayesmap.model.motion import compose, motion_logpdf, odometry_controls, wrap_angle
+from bayesmap.progress import ProgressCallback
 from bayesmap.slam.poses import (
     PoseState,
     SlamData,
@@ -132,14 +133,17 @@ def _joint_record(state: SlamState, info: SlamInfo):
     return state.poses, state.walls, info.accepted, info.wall_prob
 
 
-def run_slam_chains(key, algorithm: SamplingAlgorithm, initial: SlamState, num_sweeps: int, num_chains: int = 1):
-    """Run ``num_chains`` independent joint chains (``vmap`` of a ``lax.scan``) from the same initial state.
+def run_slam_chains(key, algorithm: SamplingAlgorithm, initial: SlamState, num_sweeps: int, num_chains: int = 1,
+                    progress: ProgressCallback | None = None):
+    """Run ``num_chains`` independent joint chains (``vmap`` of a ``lax.scan``) from the same initial state;
+    ``progress`` (:mod:`bayesmap.progress`) is told of each sweep (stage ``"joint chain"``), the same chains either way.
 
     Returns:
         ``(poses (C, T, S, 3), walls (C, T, nx, ny), accepted (C, T, S - 1), wall_prob (C, T, nx, ny))`` as JAX
         arrays, ``C = num_chains``, ``T = num_sweeps``.
     """
-    return run_recorded_chains(key, initial, algorithm, num_sweeps, _joint_record, num_chains)
+    return run_recorded_chains(key, initial, algorithm, num_sweeps, _joint_record, num_chains, progress,
+                               "joint chain")
 
 
 def circular_mean(theta, axis=0):
@@ -224,7 +228,7 @@ def check_counts(sweeps, burn_in, chains) -> tuple[int, int, int]:
 
 
 def run_slam(problem, sweeps: int = 100, burn_in: int = 20, seed: int = 0, chains: int = 1,
-             pose_kernel: SamplingAlgorithm | None = None) -> SlamResult:
+             pose_kernel: SamplingAlgorithm | None = None, progress: ProgressCallback | None = None) -> SlamResult:
     """Infer the path and the map of a SLAM problem with the joint chain (:func:`slam_kernel`).
 
     The chains start at the path found by scan matching (:func:`scan_matching_path`) with the map after
@@ -242,6 +246,8 @@ def run_slam(problem, sweeps: int = 100, burn_in: int = 20, seed: int = 0, chain
         pose_kernel: the pose kernel; default :func:`~bayesmap.slam.poses.lattice_pose_mh` with steps
             :data:`LATTICE_STEP_CELLS` cells and :data:`LATTICE_STEP_THETA` rad, half width
             :data:`LATTICE_HALF_WIDTH`.
+        progress: a :data:`bayesmap.progress.ProgressCallback`, told of each joint sweep (stage ``"joint chain"``,
+            unit sweep); None reports nothing. The chain is the same either way.
 
     Returns:
         A :class:`SlamResult`.
@@ -261,7 +267,8 @@ def run_slam(problem, sweeps: int = 100, burn_in: int = 20, seed: int = 0, chain
     key_init, key_run = jax.random.split(jax.random.key(seed))
     path = scan_matching_path(problem.odometry[0], data, eta)
     walls = initial_map(key_init, path, data, eta)
-    poses, walls_run, accepted, wall_prob = run_slam_chains(key_run, kernel, kernel.init(path, walls), sweeps, chains)
+    poses, walls_run, accepted, wall_prob = run_slam_chains(key_run, kernel, kernel.init(path, walls), sweeps, chains,
+                                                         progress)
     samples = np.asarray(poses[:, burn_in:], np.float64).reshape(-1, *poses.shape[2:])
     mean, cov = pose_summary(samples)
     posterior = np.asarray(wall_prob[:, burn_in:], np.float64).mean(axis=(0, 1))

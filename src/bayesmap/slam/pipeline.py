@@ -1,7 +1,7 @@
 """SLAM on a real log: the path and the map of hundreds of scans of a real building.
 
 The target is the SLAM model's posterior ``p(poses, walls | readings, odometry)``
-(:data:`bayesmap.model.generative.slam_model`, the readings' likelihood tempered by the problem's power as for
+(:data:`bayesmap.model.slam.slam_model`, the readings' likelihood tempered by the problem's power as for
 mapping at known poses). :func:`run_log_slam` finds a start, then runs a blocked Gibbs chain on it:
 
 1. **Front end**: sequential correlative scan matching (:func:`bayesmap.slam.scanmatch.correlative_path`), the
@@ -41,7 +41,7 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
    a SLAM system's map is, occupancy mapping at the estimated path, in bayesmap's best map model of known poses;
    the joint chain's own map (the SLAM model's, whose walls stop every beam as its pose moves need) stays in
    ``chain_posterior``. Scored at the true poses on held-out beams it ranks the cells better than the chain's
-   (README, "Real logs and bags").
+   ([validation](../validation/slam.md)).
 """
 
 from __future__ import annotations
@@ -52,7 +52,6 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tqdm import tqdm
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
@@ -61,6 +60,7 @@ from bayesmap.inference.cellwise import cellwise_gibbs
 from bayesmap.inference.chains import run_chain, run_recorded_chains
 from bayesmap.model.generative import replace_params
 from bayesmap.model.motion import odometry_controls
+from bayesmap.progress import ProgressCallback, report
 from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
 from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
 from bayesmap.slam.posegraph import close_loops, marginal_covariances, sample_deviations
@@ -81,10 +81,12 @@ MAP_MARGIN = 2.0
 """Meters around the matched path's endpoints for the final grid (room for the chain's pose moves)."""
 
 ROUNDS = 3
-"""Default rounds of the joint chain (each: the walls given the poses, then the poses given the walls)."""
+"""Default rounds of the joint chain (each: the walls given the poses, then the poses given the walls): the
+configuration every SLAM figure was measured with
+([validation](../validation/defaults.md#rounds-and-burn_in_rounds))."""
 
 BURN_IN_ROUNDS = 1
-"""Default rounds dropped before the posterior is averaged."""
+"""Default rounds dropped before the posterior is averaged (with :data:`ROUNDS`, the measured configuration)."""
 
 MAP_SWEEPS = 4
 """Cellwise map sweeps per round."""
@@ -94,15 +96,14 @@ POSE_SWEEPS = 8
 
 FINAL_MAP_SWEEPS = 40
 """Cellwise sweeps of the final map (stage 6; the first half burn-in): the sweeps with which the map model of a log
-at known poses was cross-validated (README, "Map defaults of logs")."""
+at known poses was cross-validated ([validation](../validation/defaults.md#final_map_sweeps))."""
 
 GRAPH_COV_SCALE = 0.36
 """The factor on the pose graph's standard deviations in the reported uncertainty (module docstring, stage 5): its
 edges' standard deviations (:data:`bayesmap.slam.posegraph.SEQUENTIAL_STD`, ``LOOP_STD``) are the front end's
-error scale, not a calibrated noise model. Chosen by ``benchmarks/pose_cov_cv.py``: the factor whose 95 % ellipses
-hold 95 % of the true positions over Intel, ACES and CSAIL with odometry seeds 0 and 1 (0.364). Its rule was
-cross-validated leaving one log out: fitted on the other two logs (0.362-0.366), the held-out log's coverage was
-0.93 / 0.96 (Intel), 0.95 / 0.96 (ACES), 0.92 / 0.98 (CSAIL) for seeds 0 / 1 (benchmarks/README.md)."""
+error scale, not a calibrated noise model. Chosen as the factor whose 95 % ellipses hold 95 % of the true positions
+over Intel, ACES and CSAIL with odometry seeds 0 and 1, a rule cross-validated leaving one log out
+(``benchmarks/pose_cov_cv.py``; [validation](../validation/defaults.md#graph_cov_scale))."""
 
 
 def scan_data(problem) -> ScanData:
@@ -133,7 +134,7 @@ def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MAR
 
 
 def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTION,
-              window: float = LOCAL_MAP_DISTANCE) -> np.ndarray:
+              window: float = LOCAL_MAP_DISTANCE, progress: ProgressCallback | None = None) -> np.ndarray:
     """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad): correlative scan matching from the first
     odometry pose on fields of :data:`FRONT_END_RESOLUTION` meters that follow the robot
     (:data:`bayesmap.slam.scanmatch.MATCH_GRID_HALF_WIDTH`), each scan's field score raised to the problem's
@@ -142,13 +143,14 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
     leave-one-log-out cross-validation, ``benchmarks/front_end_cv.py``); a scan whose match puts fewer than
     ``min_hit_fraction`` of its endpoints on the local map takes the odometry's prediction
     (:data:`bayesmap.slam.scanmatch.MIN_HIT_FRACTION`, chosen the same way). The local map holds the scans of
-    the last ``window`` meters of travel (:data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`).
+    the last ``window`` meters of travel (:data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`). ``progress`` gets
+    ``Progress("front end", done, S - 1, "scan")`` per scan matched.
 
     Raises:
         BayesmapError: as :func:`bayesmap.slam.scanmatch.correlative_path`."""
     odometry = np.asarray(problem.odometry, np.float64)
     return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, likelihood_power=problem.likelihood_power,
-                            min_hit_fraction=min_hit_fraction, window=window)
+                            min_hit_fraction=min_hit_fraction, window=window, progress=progress)
 
 
 def with_grid(params, grid: Grid):
@@ -162,16 +164,19 @@ def _pose_record(state, info):
     return state.poses, info.accepted
 
 
-def _map_round(key, problem, params, poses, walls, sweeps: int, power: float | None = None):
+def _map_round(key, problem, params, poses, walls, sweeps: int, power: float | None = None,
+               progress: ProgressCallback | None = None, stage: str = "map"):
     """One map block: the table at ``poses`` and ``sweeps`` cellwise sweeps from ``walls`` (likelihood power
     ``power``, default the problem's); returns the chain's ``(last walls (nx, ny) float32, wall probabilities
-    (sweeps, nx, ny))``."""
+    (sweeps, nx, ny))``. ``progress`` gets ``Progress(stage, done, sweeps, "sweep")`` from before the table is
+    built and after every sweep."""
+    report(progress, stage, 0, sweeps)
     theta = poses[:, 2:3] + problem.sensor_angles
     origins = np.repeat(poses[:, :2], problem.sensor_angles.shape[1], axis=0)
     table = build_ray_table(params.grid, origins, theta.reshape(-1), params.max_range)
     sampler = cellwise_gibbs(table, problem.readings.reshape(-1), params,
                              problem.likelihood_power if power is None else power)
-    chain = run_chain(key, sampler, walls, sweeps)
+    chain = run_chain(key, sampler, walls, sweeps, progress, stage)
     return jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs)
 
 
@@ -245,8 +250,61 @@ def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_
     return mean, chain_cov + scale**2 * graph_cov, chain_samples + scale * deviations, graph_cov
 
 
-def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, seed: int = 0, progress: bool = False,
-                 map_sweeps: int = MAP_SWEEPS, pose_sweeps: int = POSE_SWEEPS,
+def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tuple[int, int, int, int],
+                 progress: ProgressCallback | None) -> tuple:
+    """Stage 4 of the module docstring: the joint chain from ``path`` ``(S, 3)`` and an empty map on ``params``'s
+    grid, ``counts`` = ``(rounds, burn_in, map_sweeps, pose_sweeps)``, reporting each round's map and pose sweeps
+    (stages ``"round r/R: map"`` and ``"round r/R: poses"``).
+
+    Returns:
+        ``(last walls (nx, ny) float32, pose samples (N, S, 3) float64, wall probabilities (M, nx, ny),
+        acceptances (N, S - 1) bool)`` of the rounds after the burn-in (the last walls: of the last round).
+    """
+    rounds, burn_in, map_sweeps, pose_sweeps = counts
+    data = slam_data(scans.increments, scans.covs, problem.sensor_angles, problem.readings, params)
+    pose_kernel = random_walk_pose_mh(data, likelihood_power=problem.likelihood_power)
+    walls = jnp.zeros(params.grid.shape, jnp.float32)
+    poses = jnp.asarray(path, data.increments.dtype)
+    keys = jax.random.split(jax.random.key(seed), 2 * rounds)
+    samples, probs, accepted = [], [], []
+    for r in range(rounds):
+        walls, wall_probs = _map_round(keys[2 * r], problem, params, np.asarray(poses, np.float64), walls,
+                                       map_sweeps, progress=progress, stage=f"round {r + 1}/{rounds}: map")
+        pose_samples, acc = run_recorded_chains(keys[2 * r + 1], PoseState(poses=poses, walls=walls),
+                                                pose_kernel, pose_sweeps, _pose_record, progress=progress,
+                                                stage=f"round {r + 1}/{rounds}: poses")
+        poses = pose_samples[-1]
+        if r >= burn_in:
+            samples.append(np.asarray(pose_samples, np.float64))
+            probs.append(wall_probs)
+            accepted.append(np.asarray(acc))
+    return walls, np.concatenate(samples), np.concatenate(probs), np.concatenate(accepted)
+
+
+def _final_map(problem, scans: ScanData, grid: Grid, mean, cov, walls, key, sweeps: int,
+               progress: ProgressCallback | None) -> tuple[np.ndarray, float, float]:
+    """Stage 6 of the module docstring: ``sweeps`` cellwise sweeps (the first half burn-in) at the mean path
+    ``mean`` ``(S, 3)`` from the chain's last ``walls``, in the map model of ``problem.final_map_params`` with the
+    noise widened by the path's covariance ``cov`` ``(S, 3, 3)``, reported as stage ``"final map"`` per sweep.
+
+    Returns:
+        ``(posterior (nx, ny) float64, likelihood power, sensor noise m)``.
+    """
+    power = final_map_power(problem, scans, mean, grid)
+    noise = final_map_noise(float(problem.final_map_params.sensor_noise), cov)
+    params = replace_params(with_grid(problem.final_map_params, grid), sensor_noise=noise)
+    _, probs = _map_round(key, problem, params, mean, walls, sweeps, power, progress, "final map")
+    return probs[sweeps // 2:].astype(np.float64).mean(axis=0), power, noise
+
+
+def _check_final_map_sweeps(final_map_sweeps) -> None:
+    if (isinstance(final_map_sweeps, bool) or not isinstance(final_map_sweeps, (int, np.integer))
+            or final_map_sweeps < 0 or final_map_sweeps == 1):
+        raise BayesmapError(f"final_map_sweeps must be 0 or an integer >= 2, got {final_map_sweeps!r}")
+
+
+def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, seed: int = 0,
+                 progress: ProgressCallback | None = None, map_sweeps: int = MAP_SWEEPS, pose_sweeps: int = POSE_SWEEPS,
                  graph_scale: float = GRAPH_COV_SCALE, final_map_sweeps: int = FINAL_MAP_SWEEPS) -> SlamResult:
     """Infer the path and the map of a real log (:func:`bayesmap.slam.problem.log_slam_problem`) with the pipeline
     of the module docstring.
@@ -256,7 +314,12 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         rounds: rounds of the joint chain, >= 1.
         burn_in: rounds dropped, ``0 <= burn_in < rounds``.
         seed: the random seed (``jax.random.key(seed)``).
-        progress: show a progress bar (tqdm, on stderr) over the stages.
+        progress: a :data:`bayesmap.progress.ProgressCallback`, called stage after stage (each from ``done`` 0 up
+            to its ``total``): ``"front end"`` per scan matched, ``"loop closure r/3"`` per loop candidate of each
+            round of :func:`bayesmap.slam.posegraph.close_loops` that has any (unit ``"scan"``), then per sweep
+            ``"round r/R: map"`` and ``"round r/R: poses"`` for each round of the joint chain and ``"final map"``.
+            The chains then run one sweep per compiled call, with the same keys: the result is the same, bit for
+            bit. None: no reports.
         map_sweeps: cellwise map sweeps per round, >= 1.
         pose_sweeps: pose sweeps per round, >= 1.
         graph_scale: the factor on the pose graph's standard deviations (:data:`GRAPH_COV_SCALE`; 0: the chain's
@@ -274,61 +337,27 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     Raises:
         BayesmapError: on bad counts, a bad ``graph_scale`` or ``final_map_sweeps`` (the message names the value).
     """
-    if (isinstance(final_map_sweeps, bool) or not isinstance(final_map_sweeps, (int, np.integer))
-            or final_map_sweeps < 0 or final_map_sweeps == 1):
-        raise BayesmapError(f"final_map_sweeps must be 0 or an integer >= 2, got {final_map_sweeps!r}")
+    _check_final_map_sweeps(final_map_sweeps)
     final = problem.final_map_params is not None and final_map_sweeps > 0
     rounds, burn_in, _ = check_counts(rounds, burn_in, 1)
     map_sweeps, _, _ = check_counts(map_sweeps, 0, 1)
     pose_sweeps, _, _ = check_counts(pose_sweeps, 0, 1)
     start = time.perf_counter()
-    with tqdm(total=2 + 2 * rounds + final, unit="stage", delay=1.0, disable=not progress, leave=False) as bar:
-        bar.set_description("front end")
-        scans = scan_data(problem)
-        path = front_end(problem, scans)
-        bar.update()
-        bar.set_description("loop closure")
-        path, edges = close_loops(path, scans)
-        bar.update()
-        grid = fitted_grid(scans, path, problem.params.grid.resolution)
-        params = with_grid(problem.params, grid)
-        data = slam_data(scans.increments, scans.covs, problem.sensor_angles, problem.readings, params)
-        pose_kernel = random_walk_pose_mh(data, likelihood_power=problem.likelihood_power)
-        walls = jnp.zeros(grid.shape, jnp.float32)
-        poses = jnp.asarray(path, data.increments.dtype)
-        keys = jax.random.split(jax.random.key(seed), 2 * rounds)
-        samples, probs, accepted = [], [], []
-        for r in range(rounds):
-            bar.set_description(f"round {r + 1}/{rounds}: map")
-            walls, wall_probs = _map_round(keys[2 * r], problem, params, np.asarray(poses, np.float64), walls,
-                                           map_sweeps)
-            bar.update()
-            bar.set_description(f"round {r + 1}/{rounds}: poses")
-            pose_samples, acc = run_recorded_chains(keys[2 * r + 1], PoseState(poses=poses, walls=walls),
-                                                    pose_kernel, pose_sweeps, _pose_record)
-            poses = pose_samples[-1]
-            bar.update()
-            if r >= burn_in:
-                samples.append(np.asarray(pose_samples, np.float64))
-                probs.append(wall_probs)
-                accepted.append(np.asarray(acc))
-        mean, cov, samples, graph_cov = graph_uncertainty(seed, np.concatenate(samples), edges, graph_scale)
-        chain_posterior = np.concatenate(probs).astype(np.float64).mean(axis=0)
-        posterior = chain_posterior
-        if final:
-            bar.set_description("final map")
-            key = jax.random.fold_in(jax.random.key(seed), 2 * rounds)  # none of the chain's keys
-            final_power = final_map_power(problem, scans, mean, grid)
-            final_noise = final_map_noise(float(problem.final_map_params.sensor_noise), cov)
-            final_params = replace_params(with_grid(problem.final_map_params, grid), sensor_noise=final_noise)
-            _, final_probs = _map_round(key, problem, final_params, mean, walls, final_map_sweeps, final_power)
-            posterior = final_probs[final_map_sweeps // 2:].astype(np.float64).mean(axis=0)
-            bar.update()
-    acceptance = float(np.concatenate(accepted).mean()) if accepted[0].size else 1.0
+    scans = scan_data(problem)
+    path, edges = close_loops(front_end(problem, scans, progress=progress), scans, progress=progress)
+    grid = fitted_grid(scans, path, problem.params.grid.resolution)
+    walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, grid), path, seed,
+                                                   (rounds, burn_in, map_sweeps, pose_sweeps), progress)
+    mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, graph_scale)
+    chain_posterior = probs.astype(np.float64).mean(axis=0)
+    posterior, final_power, final_noise = chain_posterior, None, None
+    if final:
+        key = jax.random.fold_in(jax.random.key(seed), 2 * rounds)  # none of the chain's keys
+        posterior, final_power, final_noise = _final_map(problem, scans, grid, mean, cov, walls, key,
+                                                         final_map_sweeps, progress)
     return SlamResult(pose_samples=samples, mean_path=mean, pose_cov=cov, posterior=posterior,
-                      acceptance_rate=acceptance, runtime_s=time.perf_counter() - start,
-                      last_walls=np.asarray(walls, np.float32), grid=grid,
+                      acceptance_rate=float(accepted.mean()) if accepted.size else 1.0,
+                      runtime_s=time.perf_counter() - start, last_walls=np.asarray(walls, np.float32), grid=grid,
                       loop_edges=len(edges.i) - (len(path) - 1), graph_cov=graph_cov,
-                      chain_posterior=chain_posterior if final else None,
-                      final_map_power=final_power if final else None,
-                      final_map_noise=final_noise if final else None)
+                      chain_posterior=chain_posterior if final else None, final_map_power=final_power,
+                      final_map_noise=final_noise)

@@ -37,6 +37,7 @@ import scipy.sparse.linalg
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.model.motion import wrap_angle
+from bayesmap.progress import ProgressCallback, report
 from bayesmap.slam.scanmatch import (
     Lattices,
     ScanData,
@@ -82,11 +83,9 @@ SEQUENTIAL_STD = (0.03, 0.03, 0.01)
 """Standard deviations of a sequential edge (x m, y m, theta rad): the front end's error per scan."""
 
 LOOP_STD = (0.1, 0.1, 0.04)
-"""Standard deviations of a loop edge (x m, y m, theta rad). Chosen among 1, 2 and 4 times (0.05 m, 0.05 m,
-0.02 rad) by leave-one-log-out cross-validation of the start path's ATE after loop closure (Intel, ACES and CSAIL,
-odometry seeds 0 and 1; benchmarks/README.md): twice was best on every pair of logs, and on each held-out log it
-gave 0.072 / 0.056 (Intel), 0.094 / 0.118 (ACES), 0.099 / 0.067 m (CSAIL) against 0.082 / 0.062, 0.096 / 0.123,
-0.090 / 0.079 m at once."""
+"""Standard deviations of a loop edge (x m, y m, theta rad): twice (0.05 m, 0.05 m, 0.02 rad), chosen among 1, 2 and 4
+times that by leave-one-log-out cross-validation of the start path's ATE after loop closure over Intel, ACES and
+CSAIL (``benchmarks/loop_std_cv.py``; [validation](../validation/defaults.md#loop_std))."""
 
 CAUCHY_SCALE = 30.0
 """The Cauchy loss's scale, in standard deviations: residuals beyond it count less and less. Large, because a true
@@ -154,10 +153,12 @@ def _local_grid() -> Grid:
     return Grid(shape=(n, n), resolution=LOCAL_MAP_RESOLUTION, origin=(-LOCAL_MAP_HALF_WIDTH, -LOCAL_MAP_HALF_WIDTH))
 
 
-def match_loops(path, data: ScanData, pairs) -> tuple[np.ndarray, np.ndarray]:
+def match_loops(path, data: ScanData, pairs, progress: ProgressCallback | None = None,
+                stage: str = "loop closure") -> tuple[np.ndarray, np.ndarray]:
     """Match scan ``t`` against the local map around scan ``s`` for each pair of ``pairs`` ``(P, 2)``
     (:func:`match_to_local_maps` with :data:`LOOP_LEVELS`, from ``t``'s estimate, the local map of the scans
-    ``s - LOOP_NEIGHBOURS .. s + LOOP_NEIGHBOURS``, every :data:`LOCAL_MAP_STEP`-th, centered on ``s``).
+    ``s - LOOP_NEIGHBOURS .. s + LOOP_NEIGHBOURS``, every :data:`LOCAL_MAP_STEP`-th, centered on ``s``), reporting
+    to ``progress`` per pair as :func:`match_to_local_maps`.
 
     Returns:
         ``(poses (P, 3), hit_fraction (P,))``: scan ``t``'s matched world pose and its match quality
@@ -167,11 +168,13 @@ def match_loops(path, data: ScanData, pairs) -> tuple[np.ndarray, np.ndarray]:
     pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
     offsets = np.arange(-LOOP_NEIGHBOURS, LOOP_NEIGHBOURS + 1, LOCAL_MAP_STEP)
     neighbours = np.clip(pairs[:, :1] + offsets, 0, len(path) - 1)
-    return match_to_local_maps(path, data, pairs[:, 1], neighbours, path[pairs[:, 1]], path[pairs[:, 0], :2])
+    return match_to_local_maps(path, data, pairs[:, 1], neighbours, path[pairs[:, 1]], path[pairs[:, 0], :2],
+                               progress=progress, stage=stage)
 
 
-def match_to_local_maps(path, data: ScanData, scans, neighbours, starts, centers=None,
-                        levels=LOOP_LEVELS) -> tuple[np.ndarray, np.ndarray]:
+def match_to_local_maps(path, data: ScanData, scans, neighbours, starts, centers=None, levels=LOOP_LEVELS,
+                        progress: ProgressCallback | None = None,
+                        stage: str = "scan matches") -> tuple[np.ndarray, np.ndarray]:
     """Match each scan of ``scans`` against the local map of its ``neighbours`` at their poses in ``path``.
 
     The local map of scan ``scans[k]`` is the likelihood fields (:func:`bayesmap.slam.scanmatch.add_to_fields`)
@@ -189,6 +192,9 @@ def match_to_local_maps(path, data: ScanData, scans, neighbours, starts, centers
         starts: ``(P, 3)`` where each search starts (world frame).
         centers: ``(P, 2)`` the local maps' centers (meters); default the starts' positions.
         levels: the coarse-to-fine search (as :data:`bayesmap.slam.scanmatch.MATCH_LEVELS`).
+        progress: called with ``Progress(stage, done, P, "scan")`` before the first match and after each (nothing
+            when ``P`` is 0); None: no reports.
+        stage: the stage the reports name.
 
     Returns:
         ``(poses (P, 3), hit_fraction (P,))`` float64: each scan's matched world pose and the fraction of its returned
@@ -216,11 +222,14 @@ def match_to_local_maps(path, data: ScanData, scans, neighbours, starts, centers
     angles, readings, returned = (jnp.asarray(np.asarray(a)) for a in (data.sensor_angles, data.readings,
                                                                        data.returned))
     poses, quality = np.zeros((len(scans), 3)), np.zeros(len(scans))
+    if len(scans):
+        report(progress, stage, 0, len(scans), "scan")
     for k, t in enumerate(scans):
         shift = np.array([centers[k, 0], centers[k, 1], 0.0])  # local frame: the center at the origin
         best, q = _match_one(jnp.asarray(neighbours[k]), int(t), jnp.asarray(path[neighbours[k]] - shift),
                              jnp.asarray(starts[k] - shift), angles, readings, returned, steps, grid)
         poses[k], quality[k] = np.asarray(best, np.float64) + shift, float(q)
+        report(progress, stage, k + 1, len(scans), "scan")
     return poses, quality
 
 
@@ -235,13 +244,14 @@ def _match_one(neighbours, t, local_poses, center, angles, readings, returned, s
     return best, hit_fraction(fields, grid, best, angles[t], readings[t], returned[t])
 
 
-def loop_edges(path, data: ScanData) -> Edges:
+def loop_edges(path, data: ScanData, progress: ProgressCallback | None = None, stage: str = "loop closure") -> Edges:
     """The accepted loop edges of ``path`` (:func:`loop_candidates`, :func:`match_loops`, quality at least
-    :data:`LOOP_MIN_HIT_FRACTION`), with :data:`LOOP_STD`."""
+    :data:`LOOP_MIN_HIT_FRACTION`), with :data:`LOOP_STD`; ``progress`` gets ``Progress(stage, done, P, "scan")``
+    per candidate matched (:func:`match_to_local_maps`)."""
     pairs = loop_candidates(path)
     if len(pairs) == 0:
         return Edges(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
-    poses, quality = match_loops(path, data, pairs)
+    poses, quality = match_loops(path, data, pairs, progress, stage)
     ok = quality >= LOOP_MIN_HIT_FRACTION
     s, t = pairs[ok, 0], pairs[ok, 1]
     return Edges(s, t, relative(np.asarray(path)[s], poses[ok]), np.tile(np.asarray(LOOP_STD), (int(ok.sum()), 1)))
@@ -291,9 +301,12 @@ def optimize_with_loop_gate(path, sequential: Edges, loops: Edges) -> tuple[np.n
     return optimize_pose_graph(path, concat_edges(sequential, loops)), loops
 
 
-def close_loops(path, data: ScanData, rounds: int = ROUNDS) -> tuple[np.ndarray, Edges]:
+def close_loops(path, data: ScanData, rounds: int = ROUNDS,
+                progress: ProgressCallback | None = None) -> tuple[np.ndarray, Edges]:
     """Alternate loop detection (:func:`loop_edges`) and gated pose-graph optimization
-    (:func:`optimize_with_loop_gate`) ``rounds`` times from the front end's ``path``.
+    (:func:`optimize_with_loop_gate`) ``rounds`` times from the front end's ``path`` (fewer if a round finds no loop
+    edge). ``progress`` gets ``Progress("loop closure r/rounds", done, P, "scan")`` per loop candidate matched in
+    round ``r`` (``P`` its candidates; nothing for a round without any).
 
     Returns:
         ``(path (S, 3) float64, the graph's edges)``: the sequential edges of the front end's ``path``
@@ -302,8 +315,8 @@ def close_loops(path, data: ScanData, rounds: int = ROUNDS) -> tuple[np.ndarray,
     path = np.asarray(path, np.float64)
     sequential = sequential_edges(path)
     kept = Edges(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
-    for _ in range(rounds):
-        loops = loop_edges(path, data)
+    for r in range(rounds):
+        loops = loop_edges(path, data, progress, f"loop closure {r + 1}/{rounds}")
         if len(loops.i) == 0:
             break
         path, kept = optimize_with_loop_gate(path, sequential, loops)

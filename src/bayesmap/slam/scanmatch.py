@@ -28,7 +28,9 @@ it from every earlier scan, so the grid never depends on where the odometry says
 slowly; :mod:`bayesmap.slam.posegraph` closes the loops, and :func:`correlative_path` is only a start for the joint
 chain, which does not depend on it for its target.
 
-Everything is one jitted ``lax.fori_loop`` over the scans (shapes fixed by the grid and the scan size).
+Everything is one jitted ``lax.fori_loop`` over the scans (shapes fixed by the grid and the scan size), whose bounds
+are arguments: given a progress callback (:mod:`bayesmap.progress`), :func:`correlative_path` runs it one scan per
+call, the same path, and reports after each.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.model.generative import check_likelihood_power
 from bayesmap.model.motion import compose, motion_logpdf
+from bayesmap.progress import ProgressCallback, report
 
 FIELDS = ((0.05, 0.15), (0.2, 0.5))
 """The two likelihood fields, as (standard deviation, radius) in meters: the fine one (a laser's range noise is 1-3
@@ -60,50 +63,38 @@ MIN_HIT_FRACTION = 0.2
 """The least fraction of a scan's returned endpoints that its match must put on the local map (:func:`hit_fraction`
 at the matched pose: within about 6 cm of a mapped endpoint); below it the scan takes the odometry's prediction
 (0 trusts every match). A scan that sees mostly space its local map has not seen is matched by chance
-coincidences: on CSAIL with every 10th scan dropped (seed 1), the step that lost the track put 32-40 of 244
-endpoints (13-16 %) on the map at both the wrong and the true heading, while the matches of whole logs put at least
-42 % there. Chosen by leave-one-log-out cross-validation of the start path's ATE among 0, 0.2 and 0.35
-(``benchmarks/front_end_cv.py``, Intel, ACES and CSAIL, seeds 0-2, whole logs and every 10th scan dropped: 18 runs a
-value; docs/slam.md): 0.2 on every log, mean ATE 0.174 m at 0, 0.101 at 0.2, 0.122 at 0.35. At 0.2 no scan of a
-whole log takes the odometry's step; at 0.35 a correct match of ACES's seed-0 dropped-scan run did (0.112 -> 0.605
-m)."""
+coincidences, which put fewer of its endpoints on the map than a true match does. Chosen by leave-one-log-out
+cross-validation of the start path's ATE among 0, 0.2 and 0.35 over Intel, ACES and CSAIL
+(``benchmarks/front_end_cv.py``; [validation](../validation/defaults.md#min_hit_fraction))."""
 
 MATCH_LEVELS = ((0.1, 0.04, 4, 20, 1), (0.03, 0.007, 3, 3, 0), (0.01, 0.0025, 2, 2, 0), (0.003, 0.0008, 2, 2, 0))
 """The coarse-to-fine search: per level the lattice step in x and y (meters) and in theta (radians), the half widths
 ``w_xy`` and ``w_theta`` (``(2 w_xy + 1)^2 (2 w_theta + 1)`` candidates) and the field it scores against (index into
 :data:`FIELDS`): the first level covers +-0.4 m and +-0.8 rad (46 degrees) around the odometry's prediction, the last
-resolves 3 mm and 0.05 degrees. The heading window is wide because wheel odometry's heading error is proportional
-to the turn, and the turn of a step that backs up is about pi under the odometry model's decomposition (*Probabilistic
-Robotics* Table 5.5: ``rot1`` and ``rot2`` near +-pi): 5 % of two half turns is 0.22 rad of standard deviation, so
-+-0.8 rad is 3.5 of them. The motion model's log-density is part of every candidate's score, so the wide window
-costs only time (and a 0.2 rad window lost the track on 40 steps of Intel's simulated odometry, whose heading error
-reached 33 degrees in one step)."""
+resolves 3 mm and 0.05 degrees. The heading window is 3.5 standard deviations of the odometry's heading error on a
+step that backs up (a turn of about pi under *Probabilistic Robotics* Table 5.5's decomposition); the motion model's
+log-density is part of every candidate's score, so the wide window costs only time
+([validation](../validation/defaults.md#match_levels))."""
 
 
 LOCAL_MAP_DISTANCE = 10.0
 """Meters of path length: :func:`correlative_path` matches each scan against the scans taken within this distance
 travelled before it (slam_toolbox's, i.e. Karto's, default running buffer, ``scan_buffer_maximum_scan_distance``),
-not against the whole map. A map of every earlier scan closes small loops by itself, but when the robot comes back
-after a drift it snaps the new scan onto the old, displaced walls, a jump of up to half a meter that the loop
-closure then treats as a measured step; the local map leaves the loops to :mod:`bayesmap.slam.posegraph`.
-Measured on the three shared logs (seed-0 odometry, start path after loop closure, ATE): Intel 0.157 -> 0.119 m,
-ACES 0.299 -> 0.115 m, CSAIL 0.098 -> 0.241 m (sum 0.554 -> 0.475 m, worst 0.299 -> 0.241 m). 10 m is the peer's
-default. 20 m was tried against it (``benchmarks/front_end_cv.py --parameter window``, seeds 0-2, whole logs and
-every other scan; docs/slam.md) and not adopted: on whole logs every fold chose 20 m, but the held-out change was
--0.003 to +0.002 m; with every other scan the folds disagreed, and 20 m cost CSAIL 0.38 -> 0.63 m held out."""
+not against the whole map. A map of every earlier scan snaps a scan taken after a drift onto the old, displaced
+walls, a jump that the loop closure then treats as a measured step; the local map leaves the loops to
+:mod:`bayesmap.slam.posegraph`. Karto's default; 20 m was tried against it by leave-one-log-out cross-validation
+and not adopted (``benchmarks/front_end_cv.py --parameter window``;
+[validation](../validation/defaults.md#local_map_distance))."""
 
 
 MATCH_GRID_HALF_WIDTH = 40.0
 """Meters: the front end's likelihood fields live on a square grid of +-40 m that follows the robot (recentred on the
 predicted pose, by whole cells, whenever that pose is more than a quarter of the half width from the grid's center), so
 the robot always has at least 30 m of grid on every side, more than the local map's 10 m of travel and the beams of an
-indoor laser (CSAIL's longest return is 35 m, its 99th percentile 14 m). A grid fitted to the odometry's extent instead
-(the earlier design) does not contain the true path wherever the odometry drifted away from it: on CSAIL with the seed-1
-odometry the path left that grid at scan 155, every later scan slid along the grid's edge, and the ATE was 9.6 m. The
-fields and stamps of a 0.05 m grid of this size take 41 MB. When the grid moves, its fields and stamps are rebuilt from
-every earlier scan at its matched pose, so they are those of a grid covering everything, restricted to the window (a
-rebuild from the local map's scans alone, tried first, dropped the older scans' share of the field in the local map's
-cells: CSAIL's seed-0 start after loop closure, 0.107 m with no rebuild, became 0.147 m)."""
+indoor laser (CSAIL's longest return is 35 m, its 99th percentile 14 m). The fields and stamps of a 0.05 m grid of
+this size take 41 MB. When the grid moves, its fields and stamps are rebuilt from every earlier scan at its matched
+pose, so they are those of a grid covering everything, restricted to the window
+([validation](../validation/defaults.md#match_grid_half_width))."""
 
 
 class ScanData(NamedTuple):
@@ -265,7 +256,8 @@ def hit_fraction(fields: tuple, grid: Grid, pose, sensor_angles, readings, retur
 def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH_LEVELS,
                      window: float | None = LOCAL_MAP_DISTANCE,
                      half_width: float = MATCH_GRID_HALF_WIDTH,
-                     likelihood_power: float = 1.0, min_hit_fraction: float = MIN_HIT_FRACTION) -> np.ndarray:
+                     likelihood_power: float = 1.0, min_hit_fraction: float = MIN_HIT_FRACTION,
+                     progress: ProgressCallback | None = None) -> np.ndarray:
     """Sequential correlative scan matching of every scan against the field of the scans before it.
 
     Args:
@@ -280,6 +272,10 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
         likelihood_power: ``p`` in (0, 1]: each candidate's score is ``p`` times the field score plus the motion
             model's log-density (1: every beam counts fully, Olson 2009's score; :func:`bayesmap.slam.pipeline.
             front_end` passes the target's power, as the SLAM model tempers its readings).
+        min_hit_fraction: a match that puts fewer of the scan's returned endpoints on the local map is replaced by
+            the odometry's prediction (:data:`MIN_HIT_FRACTION`).
+        progress: called with ``Progress("front end", done, S - 1, "scan")`` before the first match and after each
+            (the loop then runs one scan per compiled call: the same path); None: one call, no reports.
 
     Returns:
         ``(S, 3)`` float64 path, row 0 ``first_pose``.
@@ -313,48 +309,78 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     span = np.inf if window is None else float(window)
     arrays = ScanData(*(jnp.asarray(a, dtype=bool if a.dtype == bool else dtype) for a in map(np.asarray, data)))
     arrays = _Scans(*arrays, travelled=jnp.asarray(travelled, dtype))
-    path = _correlative_run(jnp.asarray(first_pose, dtype), arrays, jnp.asarray(base, dtype), jnp.asarray(span, dtype),
-                            jnp.asarray(1.0 / power, dtype), jnp.asarray(min_hit_fraction, dtype), steps, grid,
-                            float(half_width))
-    return np.asarray(path, np.float64)
+    base = jnp.asarray(base, dtype)
+    run = functools.partial(_correlative_steps, d=arrays, base=base, span=jnp.asarray(span, dtype),
+                            prior_weight=jnp.asarray(1.0 / power, dtype), min_hit=jnp.asarray(min_hit_fraction, dtype),
+                            steps=steps, grid=grid, half_width=float(half_width))
+    start = functools.partial(_correlative_start, jnp.asarray(first_pose, dtype), arrays, base, grid)
+    return np.asarray(_run_in_steps(run, start, s, progress)[0], np.float64)
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "half_width"))
-def _correlative_run(first, d, base, span, prior_weight, min_hit, steps: Lattices, grid: Grid, half_width: float):
-    """The jitted loop of :func:`correlative_path` (module level, so that another run with the same shapes and
-    settings reuses the compiled code): the path ``(S, 3)`` in world coordinates. ``steps`` are the search levels
-    (:func:`lattices`); ``base`` the world position of the window's corner at offset 0; ``prior_weight`` the inverse
-    of the likelihood power (scaling the motion term instead of the field score leaves the argmax the same);
-    ``min_hit`` the least hit fraction of a trusted match."""
-    s = d.readings.shape[0]
+def _run_in_steps(run, start, count: int, progress: ProgressCallback | None):
+    """``run(start(), 1, count)``, the front end's loop over the scans ``1 .. count - 1`` from the carry ``start()``
+    makes; with ``progress``, one scan per call (the same carry: the loop's bounds are arguments, one compilation),
+    reporting the scans matched."""
+    if progress is None or count < 2:
+        return run(start(), 1, count)
+    report(progress, "front end", 0, count - 1, "scan")
+    carry = start()
+    for t in range(1, count):
+        carry = jax.block_until_ready(run(carry, t, t + 1))
+        report(progress, "front end", t, count - 1, "scan")
+    return carry
+
+
+def _local(pose, offset, base, resolution: float):
+    """A world pose in the front end's window's frame (the window's corner at ``base + offset * resolution``)."""
+    return pose - jnp.concatenate([base + offset * resolution, jnp.zeros(1, pose.dtype)])
+
+
+def _stamp(d, grid: Grid, stamps, pose, t):
+    """Scatter-max the path length of scan ``t`` of ``d`` into the cells its endpoints' fine field reaches."""
+    marks = add_scan(jnp.zeros_like(stamps), grid, pose, d.sensor_angles[t], d.readings[t], d.returned[t],
+                     *FIELDS[-1])
+    return jnp.where(marks > 0, jnp.maximum(stamps, d.travelled[t]), stamps)
+
+
+def _rebuild(d, grid: Grid, base, path, t, offset):
+    """The fields and stamps of the window at ``offset`` from every scan ``< t`` of ``d`` at its matched pose in
+    ``path``: those of a grid covering everything, restricted to the window (the stamps mask all but the local
+    map)."""
+    def add(u, carry):
+        fields, stamps = carry
+        pose = _local(path[u], offset, base, grid.resolution)
+        fields = add_to_fields(fields, grid, pose, d.sensor_angles[u], d.readings[u], d.returned[u])
+        return fields, _stamp(d, grid, stamps, pose, u)
+
+    return jax.lax.fori_loop(0, t, add, (empty_fields(grid), jnp.full(grid.shape, -jnp.inf, base.dtype)))
+
+
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _correlative_start(first, d, base, grid: Grid):
+    """The carry of the front end's loop before scan 1: ``(path (S, 3)`` with row 0 ``first``, the fields and stamps
+    of scan 0 at it, the window's offset 0)."""
+    path = jnp.zeros((d.readings.shape[0], 3), first.dtype).at[0].set(first)
+    offset = jnp.zeros(2, jnp.int32)
+    fields, stamps = _rebuild(d, grid, base, path, 1, offset)
+    return path, fields, stamps, offset
+
+
+@functools.partial(jax.jit, static_argnames=("grid", "half_width"), donate_argnames=("carry",))
+def _correlative_steps(carry, lo, hi, d, base, span, prior_weight, min_hit, steps: Lattices, grid: Grid,
+                       half_width: float):
+    """The jitted loop of :func:`correlative_path` over the scans ``lo <= t < hi`` from ``carry`` (module level, so
+    that another run with the same shapes and settings reuses the compiled code; the bounds are arguments, so runs in
+    pieces share it): the carry ``(path (S, 3)`` in world coordinates, fields, stamps, window offset) after scan
+    ``hi - 1``. ``steps`` are the search levels (:func:`lattices`); ``base`` the world position of the window's
+    corner at offset 0; ``prior_weight`` the inverse of the likelihood power (scaling the motion term instead of the
+    field score leaves the argmax the same); ``min_hit`` the least hit fraction of a trusted match."""
     n = grid.shape[0]
     resolution = grid.resolution
-    dtype = first.dtype
-
-    def stamp(stamps, pose, t):
-        """Scatter-max the path length of scan ``t`` into the cells its endpoints' fine field reaches."""
-        marks = add_scan(jnp.zeros_like(stamps), grid, pose, d.sensor_angles[t], d.readings[t], d.returned[t],
-                         *FIELDS[-1])
-        return jnp.where(marks > 0, jnp.maximum(stamps, d.travelled[t]), stamps)
+    dtype = base.dtype
 
     def local(pose, offset):
-        """A world pose in the window's frame (the window's corner at ``base + offset * resolution``)."""
-        return pose - jnp.concatenate([base + offset * resolution, jnp.zeros(1, dtype)])
-
-    def rebuild(path, t, offset):
-        """The fields and stamps of the window at ``offset`` from every scan ``< t`` at its matched pose: those
-        of a grid covering everything, restricted to the window (the stamps mask all but the local map)."""
-        def add(u, carry):
-            fields, stamps = carry
-            pose = local(path[u], offset)
-            fields = add_to_fields(fields, grid, pose, d.sensor_angles[u], d.readings[u], d.returned[u])
-            return fields, stamp(stamps, pose, u)
-
-        return jax.lax.fori_loop(0, t, add, (empty_fields(grid), jnp.full(grid.shape, -jnp.inf, dtype)))
-
-    path = jnp.zeros((s, 3), dtype).at[0].set(first)
-    offset = jnp.zeros(2, jnp.int32)
-    fields, stamps = rebuild(path, 1, offset)
+        return _local(pose, offset, base, resolution)
 
     def body(t, carry):
         path, fields, stamps, offset = carry
@@ -363,7 +389,7 @@ def _correlative_run(first, d, base, span, prior_weight, min_hit, steps: Lattice
         cells = jnp.round(local(predicted, offset)[:2] / resolution - n / 2).astype(jnp.int32)
         far = jnp.max(jnp.abs(cells)) * resolution > half_width / 4
         offset = jnp.where(far, offset + cells, offset)
-        fields, stamps = jax.lax.cond(far, lambda: rebuild(path, t, offset), lambda: (fields, stamps))
+        fields, stamps = jax.lax.cond(far, lambda: _rebuild(d, grid, base, path, t, offset), lambda: (fields, stamps))
 
         def log_prior(cands):
             return prior_weight * motion_logpdf(local(prev, offset), cands, d.increments[t - 1], d.covs[t - 1])
@@ -376,9 +402,9 @@ def _correlative_run(first, d, base, span, prior_weight, min_hit, steps: Lattice
         best = jnp.where(hits < min_hit, local(predicted, offset), best)
         fields = add_to_fields(fields, grid, best, d.sensor_angles[t], d.readings[t], d.returned[t])
         world = best - local(jnp.zeros(3, dtype), offset)
-        return path.at[t].set(world), fields, stamp(stamps, best, t), offset
+        return path.at[t].set(world), fields, _stamp(d, grid, stamps, best, t), offset
 
-    return jax.lax.fori_loop(1, s, body, (path, fields, stamps, offset))[0]
+    return jax.lax.fori_loop(lo, hi, body, carry)
 
 
 class _Scans(NamedTuple):
