@@ -11,7 +11,7 @@ from matplotlib.image import AxesImage
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import angles, sensor_distances
-from bayesmap.viz.maps import plot_map, plot_posterior, plot_posterior_path, plot_prior_samples
+from bayesmap.viz.maps import plot_map, plot_occupancy_map, plot_posterior, plot_posterior_path, plot_prior_samples
 from helpers import POS, blurred, by_gid
 
 
@@ -235,6 +235,67 @@ def test_posterior_accepts_jax_arrays(grid, walls):
 
     fig = plot_posterior(grid, jnp.asarray(blurred(walls), dtype=jnp.float32), truth=jnp.asarray(walls))
     assert np.asarray(by_gid(fig.axes[0], "posterior").get_array()).shape == (21, 21)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The crop to the seen cells, the occupancy grid alone
+# ---------------------------------------------------------------------------------------------------------------
+
+# A log's grid sized for the laser's reach: 40 m x 30 m of 0.2 m cells, x from -20 to 20, y from -10 to 20.
+LOG_GRID = Grid((200, 150), resolution=0.2, origin=(-20.0, -10.0))
+
+
+def building():
+    """``(posterior, seen)`` of a 10 m x 6 m building in the grid's lower left: walls (P = 0.95) round free cells
+    (P = 0.02), seen cells the building and a metre beyond its left wall (x from -18 to -7 m, y from -9 to -3 m);
+    the rest of the grid unseen at the prior 0.1."""
+    post = np.full(LOG_GRID.shape, 0.1)
+    seen = np.zeros(LOG_GRID.shape, dtype=bool)
+    seen[10:65, 5:35] = True
+    post[15:65, 5:35] = 0.95
+    post[16:64, 6:34] = 0.02
+    return post, seen
+
+
+EXPECTED_CROP = (-19.5, -5.5, -10.0, -1.5)  # the seen box grown by 1.5 m, clipped at the grid's bottom (y = -10)
+
+
+def test_occupancy_map_is_the_map_alone_cropped_to_the_seen_cells():
+    post, seen = building()
+    fig = plot_occupancy_map(LOG_GRID, post, seen=seen, title="occupancy grid")
+    assert len(fig.axes) == 2  # the map and its colour bar, nothing else
+    ax = fig.axes[0]
+    assert (*ax.get_xlim(), *ax.get_ylim()) == pytest.approx(EXPECTED_CROP)
+    assert ax.get_xlabel() == "x (m)" and ax.get_ylabel() == "y (m)" and ax.get_title() == "occupancy grid"
+    image = by_gid(ax, "posterior")  # the cells 2 to 72 along x, 0 to 42 along y cover the crop
+    assert image.get_extent() == pytest.approx((-19.6, -5.4, -10.0, -1.4))
+    np.testing.assert_array_equal(np.ma.getdata(image.get_array()), post[2:73, :43].T)
+    np.testing.assert_array_equal(np.ma.getmaskarray(image.get_array()), ~seen[2:73, :43].T)  # unseen: neutral
+    assert image.get_clim() == (0.0, 1.0)
+    assert image.colorbar.ax is fig.axes[1] and image.colorbar.ax.get_ylabel() == "P(wall)"
+    assert image.colorbar.ax.get_ylim() == pytest.approx((0.0, 1.0))
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["unseen cells"]
+    # the colour bar is as tall as the map as drawn
+    ax.apply_aspect()
+    assert fig.axes[1].get_position().height == pytest.approx(ax.get_position().height)
+    whole = plot_occupancy_map(LOG_GRID, post).axes[0]
+    assert (*whole.get_xlim(), *whole.get_ylim()) == pytest.approx(LOG_GRID.extent)
+    assert whole.get_legend() is None and whole.get_title() == ""
+    assert not np.ma.is_masked(by_gid(whole, "posterior").get_array())
+
+
+def test_posterior_path_is_cropped_and_drawn_above_the_map():
+    post, seen = building()
+    path = np.array([[-17.0, -8.0], [-10.0, -8.0], [-10.0, -4.0]])
+    fig = plot_posterior_path(LOG_GRID, post, path, std=True, seen=seen)
+    for ax, gid in zip(fig.axes[:2], ("posterior", "std")):
+        assert (*ax.get_xlim(), *ax.get_ylim()) == pytest.approx(EXPECTED_CROP)
+        line = by_gid(ax, "sensor_path")
+        assert line.get_zorder() > by_gid(ax, gid).get_zorder()  # the path on top of the map
+        assert line.get_alpha() < 1.0 and line.get_linewidth() < 1.0  # thin and see-through: never hides a wall
+        np.testing.assert_array_equal(np.ma.getmaskarray(by_gid(ax, gid).get_array()), ~seen[2:73, :43].T)
+    with pytest.raises(BayesmapError, match="seen has shape"):
+        plot_posterior_path(LOG_GRID, post, path, seen=seen.T)
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -4,6 +4,7 @@ import contextlib
 import io
 import re
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -77,3 +78,25 @@ def test_report_opens_offline_in_chromium(report):
         finally:
             browser.close()
     assert attempted == []  # nothing tried to reach the network
+
+
+def test_a_logs_posterior_figure_is_cropped_to_the_cells_its_beams_crossed(monkeypatch, small_log):
+    """A real log's grid reaches as far as its longest beam: the report's posterior figure gets the cells the beams
+    crossed (``seen``), so it shows those."""
+    import numpy as np
+
+    import bayesmap.viz.report as report
+    from bayesmap.io.carmen import read_carmen
+    from bayesmap.io.maps_out import seen_cells
+    from bayesmap.scenes import log_problem
+
+    problem = log_problem(read_carmen(small_log), resolution=0.2)
+    given = []
+    draw = report.plot_posterior
+    monkeypatch.setattr(report, "plot_posterior", lambda *a, **k: given.append(k["seen"]) or draw(*a, **k))
+    result = SimpleNamespace(posterior=np.full(problem.grid.shape, 0.1), summary={"burn_in": 1, "sweeps": 2},
+                             samples=np.zeros((2, *problem.grid.shape), dtype=bool))
+    report._map_figures(problem, result)
+    expected = seen_cells(problem.table, problem.ray_readings)
+    assert expected.any() and not expected.all()
+    np.testing.assert_array_equal(given[0], expected)

@@ -14,14 +14,11 @@ render in about a second, whatever the number of wall edges outlined.
 
 :func:`chain_gif` and :func:`chain_html` (or both at once, rendered once: :func:`chain_animation`) store the frames
 with one shared palette (192 greys plus 64 colours): greys within one level of the rendered frame, only antialiased
-edges of the red marks a few levels off.
+edges of the red marks a few levels off. The HTML page itself is :func:`bayesmap.viz.player.player_page`.
 """
 
 from __future__ import annotations
 
-import base64
-import html
-import json
 import math
 import operator
 from io import BytesIO
@@ -46,6 +43,7 @@ from bayesmap.viz.common import (
     image_interpolation,
     is_unit_grid,
 )
+from bayesmap.viz.player import player_page
 
 __all__ = ["chain_animation", "chain_frames", "chain_gif", "chain_html", "frame_sweeps"]
 
@@ -479,89 +477,6 @@ def _gif_bytes(paletted: list[Image.Image], duration: int, last: int) -> bytes:
     return buffer.getvalue()
 
 
-_HTML_TEMPLATE = """<!DOCTYPE html>
-<html lang="en">
-<head>
-<meta charset="utf-8">
-<meta name="viewport" content="width=device-width, initial-scale=1">
-<title>{title}</title>
-<style>
-  body {{ font-family: system-ui, -apple-system, "Segoe UI", Helvetica, Arial, sans-serif; margin: 1.5em;
-         color: #222; background: #fff; }}
-  h1 {{ font-size: 1.3em; font-weight: 600; margin: 0 0 0.6em 0; }}
-  #chain-frame {{ display: block; max-width: 100%; height: auto; border: 1px solid #ddd;
-                  image-rendering: auto; }}
-  .controls {{ display: flex; align-items: center; gap: 0.8em; margin-top: 0.6em; max-width: {width}px; }}
-  #chain-slider {{ flex: 1; }}
-  #chain-play {{ min-width: 5em; padding: 0.25em 0.8em; font-size: 1em; cursor: pointer; }}
-  .sweep {{ font-variant-numeric: tabular-nums; white-space: nowrap; }}
-  .hint {{ color: #777; font-size: 0.85em; margin-top: 0.4em; }}
-</style>
-</head>
-<body>
-<h1>{title}</h1>
-<img id="chain-frame" width="{width}" height="{height}" alt="frame of the Gibbs chain animation">
-<noscript><p>This page needs JavaScript to show the frames.</p></noscript>
-<div class="controls">
-  <button id="chain-play" type="button">Play</button>
-  <input id="chain-slider" type="range" min="0" max="{last_index}" step="1" value="0" aria-label="frame">
-  <span class="sweep">sweep <output id="chain-sweep" for="chain-slider">{first_sweep}</output> of {num_sweeps}</span>
-</div>
-<p class="hint">{num_frames} frames. Drag the slider or use the arrow keys; space plays and pauses.</p>
-<script>
-(function () {{
-  "use strict";
-  var frames = {frames};
-  var sweeps = {sweeps};
-  var delay = {delay};
-  var img = document.getElementById("chain-frame");
-  var slider = document.getElementById("chain-slider");
-  var sweep = document.getElementById("chain-sweep");
-  var button = document.getElementById("chain-play");
-  var timer = null;
-  function show(k) {{
-    k = Math.max(0, Math.min(frames.length - 1, k));
-    slider.value = String(k);
-    img.src = frames[k];
-    sweep.textContent = String(sweeps[k]);
-  }}
-  function pause() {{
-    if (timer !== null) {{ clearInterval(timer); timer = null; }}
-    button.textContent = "Play";
-  }}
-  function play() {{
-    if (frames.length < 2) {{ return; }}
-    if (Number(slider.value) >= frames.length - 1) {{ show(0); }}
-    button.textContent = "Pause";
-    timer = setInterval(function () {{
-      var k = Number(slider.value) + 1;
-      show(k);
-      if (k >= frames.length - 1) {{ pause(); }}
-    }}, delay);
-  }}
-  button.addEventListener("click", function () {{ if (timer === null) {{ play(); }} else {{ pause(); }} }});
-  slider.addEventListener("input", function () {{ pause(); show(Number(slider.value)); }});
-  document.addEventListener("keydown", function (event) {{
-    if (event.target === slider || event.target === button) {{ return; }}
-    if (event.key === "ArrowRight") {{ pause(); show(Number(slider.value) + 1); event.preventDefault(); }}
-    else if (event.key === "ArrowLeft") {{ pause(); show(Number(slider.value) - 1); event.preventDefault(); }}
-    else if (event.key === " ") {{ if (timer === null) {{ play(); }} else {{ pause(); }} event.preventDefault(); }}
-  }});
-  show(0);
-}})();
-</script>
-</body>
-</html>
-"""
-
-
-def _png_data_uri(frame: Image.Image) -> str:
-    """A frame (RGB or palette image) as a PNG data URI."""
-    buffer = BytesIO()
-    frame.save(buffer, format="PNG")
-    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
-
-
 def chain_html(
     grid,
     samples,
@@ -597,7 +512,7 @@ def chain_html(
         raise BayesmapError(f"title must be a str, got {type(title).__name__}: {title!r}")
     delay = _check_count(duration_ms, "duration_ms")
     frames, sweeps, total = _render(grid, samples, **kw)
-    return _html_page(_paletted(frames), sweeps, total, title, delay)
+    return player_page(_paletted(frames), sweeps, total, title, delay)
 
 
 def chain_animation(
@@ -621,21 +536,4 @@ def chain_animation(
     last = _check_count(last_duration_ms, "last_duration_ms")
     frames, sweeps, total = _render(grid, samples, **kw)
     paletted = _paletted(frames)
-    return _gif_bytes(paletted, duration, last), _html_page(paletted, sweeps, total, title, duration)
-
-
-def _html_page(frames: list[Image.Image], sweeps: np.ndarray, total: int, title: str, delay: int) -> str:
-    width, height = frames[0].size
-    uris = [_png_data_uri(frame) for frame in frames]
-    return _HTML_TEMPLATE.format(
-        title=html.escape(title, quote=True),
-        width=width,
-        height=height,
-        last_index=len(frames) - 1,
-        first_sweep=int(sweeps[0]),
-        num_sweeps=total,
-        num_frames=len(frames),
-        frames="[\n" + ",\n".join(json.dumps(uri) for uri in uris) + "\n]",
-        sweeps=json.dumps([int(s) for s in sweeps]),
-        delay=delay,
-    )
+    return _gif_bytes(paletted, duration, last), player_page(paletted, sweeps, total, title, duration)

@@ -1,9 +1,17 @@
-"""What every figure shares: validation of grids and per-cell arrays, the map-drawing helpers (axes in world
-coordinates, grid lines, true walls, their outline, the legend) and the output (:func:`figure_bytes`,
-:func:`save_figure`).
+"""What every figure shares: validation of grids and per-cell arrays, the crop of a map to the cells the beams saw
+(:func:`crop_extent`), the map-drawing helpers (axes in world coordinates, the wall-probability image, grid lines,
+true walls, their outline, the legend, colour bars) and the output (:func:`figure_bytes`, :func:`save_figure`).
 
 Everything is drawn on a :class:`matplotlib.figure.Figure` with the Agg canvas (never ``pyplot``), so it works
 headless, in threads and in tests. :func:`save_figure` writes a figure as PNG or SVG, whole or not at all.
+
+A real log's grid is sized for the laser's reach (80 m down a corridor), so its building can fill a small corner
+of it: every map figure of a posterior takes the cells some beam crossed (``seen``, ``(nx, ny)`` bool, e.g. from
+:func:`bayesmap.io.maps_out.seen_cells_along`) and shows only their bounding box plus :data:`CROP_MARGIN`
+(:func:`crop_extent`), the cells outside ``seen`` ("unseen cells") in a neutral blue-grey (:data:`UNSEEN_COLOR`)
+apart from the grey scale of P(wall). A map of more than :data:`MAX_IMAGE_BLOCKS` cells per side (a log's, with
+about as many cells as the figure has pixels) is drawn in blocks, each as dark as its darkest cell
+(:func:`draw_cell_image`), so that one-cell walls stay black.
 
 Conventions: ``walls[i, j]`` / ``posterior[i, j]`` is cell ``(i, j)`` with ``i`` along x and ``j`` along y, so
 images are drawn transposed (``imshow(P.T, origin="lower", extent=grid.extent)``): x horizontal, y vertical, in
@@ -17,16 +25,19 @@ draws the chain's frames with the same helpers.
 
 from __future__ import annotations
 
+import math
 from io import BytesIO
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection, PatchCollection
 from matplotlib.figure import Figure
-from matplotlib.patches import PathPatch, Rectangle
+from matplotlib.patches import Patch, PathPatch, Rectangle
 from matplotlib.path import Path as MplPath
 from matplotlib.ticker import MaxNLocator
+from matplotlib.transforms import offset_copy
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
@@ -36,16 +47,23 @@ __all__ = [
     "check_cells",
     "check_grid",
     "check_point",
+    "check_seen",
+    "crop_cells",
+    "crop_extent",
+    "draw_cell_image",
     "draw_gridlines",
     "draw_legend",
     "draw_truth",
     "draw_walls",
     "figure_bytes",
+    "fit_colorbars",
     "image_interpolation",
     "is_unit_grid",
+    "map_figsize",
     "new_figure",
     "save_figure",
     "setup_map_axes",
+    "unseen_handle",
 ]
 
 # Grid lines are drawn when neither side of the grid has more cells than this.
@@ -55,12 +73,24 @@ MAX_WALL_PATCHES = 2000
 # Images with at most this many cells per side are drawn with "nearest" (crisp cells); larger ones are
 # antialiased so that one-cell walls do not vanish when the image is downsampled to screen pixels.
 MAX_NEAREST_CELLS = 256
+# Maps of the probability per cell (draw_cell_image) with more cells per side than this are drawn in blocks of
+# k x k cells, each its largest value: at 150 dpi a map 6.5 inches wide then has about 3 pixels per block.
+MAX_IMAGE_BLOCKS = 320
 
 WALL_COLOR = "#2b2b2b"
 WALL_EDGE_COLOR = "#8c8c8c"
 TRUTH_COLOR = "#d62728"
 SENSOR_COLOR = "#e31a1c"
 GRIDLINE_COLOR = "#c8c8c8"
+UNSEEN_COLOR = "#cdd6e0"
+"""Cells no beam crossed: a light blue-grey, apart from the grey scale of P(wall) (white free, black wall)."""
+CROP_MARGIN = 1.5
+"""The margin around the bounding box of the seen cells, in world units (meters; cells on the unit grid)."""
+COLORBAR_GAP_INCHES = 0.15
+LEGEND_DROP_POINTS = 32.0
+"""How far below the axes a legend starts: the ticks, the tick labels and the x label at the default font sizes."""
+MAP_WIDTH_INCHES = 6.5
+"""The width of a figure's map when the map is the figure (the occupancy grid, the SLAM figure)."""
 
 SAVE_FORMATS = {".png": "png", ".svg": "svg"}
 
@@ -126,6 +156,56 @@ def check_point(xy, what: str) -> np.ndarray:
     return arr
 
 
+def check_seen(seen, grid: Grid) -> np.ndarray | None:
+    """``seen`` (the cells some beam crossed) as an ``(nx, ny)`` bool array, or None for None.
+
+    Raises:
+        BayesmapError: if it is not a bool array of shape ``grid.shape``.
+    """
+    if seen is None:
+        return None
+    arr = np.asarray(seen)
+    if arr.shape != grid.shape:
+        raise BayesmapError(f"seen has shape {arr.shape}, but the grid has shape {grid.shape}")
+    if arr.dtype != bool:
+        raise BayesmapError(f"seen must be a bool array (the cells some beam crossed), got dtype {arr.dtype}")
+    return arr
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The crop
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def crop_extent(grid: Grid, seen=None, margin: float = CROP_MARGIN) -> tuple[float, float, float, float]:
+    """The part of the grid a map figure shows: the bounding box of the cells some beam crossed, ``margin`` wider on
+    every side, clipped to the grid.
+
+    Args:
+        grid: the :class:`~bayesmap.geometry.grid.Grid`.
+        seen: ``(nx, ny)`` bool, the cells some beam crossed; None (or no True cell) for the whole grid.
+        margin: world units (meters; cells on the unit grid) added on each side, >= 0.
+
+    Returns:
+        ``(xmin, xmax, ymin, ymax)`` in world units, within ``grid.extent`` (equal to it for ``seen=None``).
+
+    Raises:
+        BayesmapError: if ``seen`` is not an ``(nx, ny)`` bool array or ``margin`` is negative.
+    """
+    seen = check_seen(seen, grid)
+    if not margin >= 0:
+        raise BayesmapError(f"the crop margin must be >= 0, got {margin!r}")
+    if seen is None or not seen.any():
+        return grid.extent
+    xs = np.flatnonzero(seen.any(axis=1))
+    ys = np.flatnonzero(seen.any(axis=0))
+    ox, oy = grid.origin
+    res = grid.resolution
+    gx0, gx1, gy0, gy1 = grid.extent
+    return (max(gx0, ox + xs[0] * res - margin), min(gx1, ox + (xs[-1] + 1) * res + margin),
+            max(gy0, oy + ys[0] * res - margin), min(gy1, oy + (ys[-1] + 1) * res + margin))
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Drawing helpers
 # ---------------------------------------------------------------------------------------------------------------
@@ -145,11 +225,12 @@ def is_unit_grid(grid: Grid) -> bool:
     return grid.resolution == 1.0 and grid.origin == (-0.5, -0.5)
 
 
-def setup_map_axes(ax, grid: Grid, title: str) -> None:
-    """Make ``ax`` show the whole grid in world coordinates: limits ``grid.extent``, equal aspect, axis labels in
-    cells (unit grid, with integer ticks) or meters, and ``title``."""
+def setup_map_axes(ax, grid: Grid, title: str, extent=None) -> None:
+    """Make ``ax`` show the grid in world coordinates: limits ``extent`` (``(xmin, xmax, ymin, ymax)``, e.g. from
+    :func:`crop_extent`; default ``grid.extent``), equal aspect, axis labels in cells (unit grid, with integer
+    ticks) or meters, and ``title``."""
     unit = "cells" if is_unit_grid(grid) else "m"
-    xmin, xmax, ymin, ymax = grid.extent
+    xmin, xmax, ymin, ymax = grid.extent if extent is None else extent
     ax.set_xlim(xmin, xmax)
     ax.set_ylim(ymin, ymax)
     ax.set_aspect("equal")
@@ -165,6 +246,87 @@ def image_interpolation(grid: Grid) -> str:
     """The ``imshow`` interpolation for a per-cell image of ``grid``: ``"nearest"`` (crisp cells) up to
     :data:`MAX_NEAREST_CELLS` cells per side, ``"auto"`` (antialiased, so that one-cell walls do not vanish) above."""
     return "nearest" if max(grid.shape) <= MAX_NEAREST_CELLS else "auto"
+
+
+def crop_cells(grid: Grid, extent) -> tuple[slice, slice]:
+    """The cells ``(rows along x, columns along y)`` that cover ``extent`` (``(xmin, xmax, ymin, ymax)`` within
+    the grid), as slices of an ``(nx, ny)`` array."""
+    ox, oy = grid.origin
+    res = grid.resolution
+    nx, ny = grid.shape
+    i0 = max(0, int(np.floor((extent[0] - ox) / res + 1e-9)))
+    i1 = min(nx, int(np.ceil((extent[1] - ox) / res - 1e-9)))
+    j0 = max(0, int(np.floor((extent[2] - oy) / res + 1e-9)))
+    j1 = min(ny, int(np.ceil((extent[3] - oy) / res - 1e-9)))
+    return slice(i0, max(i1, i0 + 1)), slice(j0, max(j1, j0 + 1))
+
+
+def _max_pool(values: np.ndarray, seen: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(values, seen)`` of ``k x k`` blocks of cells (the last ones padded): each block's largest value over its
+    seen cells (0 where none), and whether it has a seen cell."""
+    pad = ((0, -values.shape[0] % k), (0, -values.shape[1] % k))
+    vals = np.pad(np.where(seen, values, 0.0), pad)
+    mask = np.pad(seen, pad)
+    bx, by = vals.shape[0] // k, vals.shape[1] // k
+    return vals.reshape(bx, k, by, k).max(axis=(1, 3)), mask.reshape(bx, k, by, k).any(axis=(1, 3))
+
+
+def draw_cell_image(ax, grid: Grid, values: np.ndarray, *, gid: str, seen=None, cmap: str = "Greys",
+                    vmax: float = 1.0, extent=None):
+    """A per-cell image of the cells that cover ``extent`` (``(xmin, xmax, ymin, ymax)``, the part of the grid the
+    axes show; default the whole grid): ``values`` ``(nx, ny)`` float, 0 to ``vmax`` on ``cmap``, in world
+    coordinates at zorder 1, with ``"nearest"`` interpolation; cells outside ``seen`` (``(nx, ny)`` bool, or None for
+    none) in :data:`UNSEEN_COLOR`.
+
+    Above :data:`MAX_IMAGE_BLOCKS` cells per side the image shows blocks of ``k x k`` cells (the smallest ``k`` that
+    brings it within the limit), each the largest value of its seen cells: a one-cell wall stays as dark as it is
+    instead of being averaged away where the figure has about as many pixels as the map has cells (a 60 m crop of
+    0.1 m cells), at the cost of drawing walls ``k`` cells thick.
+
+    Returns:
+        The AxesImage, with gid ``gid``, data the (pooled) values transposed (masked where unseen if ``seen`` is
+        given) and extent the cells (blocks) it covers.
+    """
+    rows, cols = crop_cells(grid, grid.extent if extent is None else extent)
+    part = values[rows, cols]
+    part_seen = np.ones(part.shape, dtype=bool) if seen is None else seen[rows, cols]
+    k = max(1, math.ceil(max(part.shape) / MAX_IMAGE_BLOCKS))
+    if k > 1:
+        part, part_seen = _max_pool(part, part_seen, k)
+    data = part.T if seen is None else np.ma.masked_array(part.T, mask=~part_seen.T)
+    ox, oy = grid.origin
+    res = grid.resolution
+    x0, y0 = ox + rows.start * res, oy + cols.start * res
+    box = (x0, x0 + part.shape[0] * k * res, y0, y0 + part.shape[1] * k * res)
+    colormap = matplotlib.colormaps[cmap].with_extremes(bad=UNSEEN_COLOR)
+    return ax.imshow(data, origin="lower", extent=box, cmap=colormap, vmin=0.0, vmax=vmax,
+                     interpolation="nearest", zorder=1, gid=gid)
+
+
+def map_figsize(extent, panels: int, colorbar: bool, width: float = 5.0) -> tuple[float, float]:
+    """A figure size ``(width, height)`` in inches for ``panels`` maps side by side, each showing ``extent``
+    (``(xmin, xmax, ymin, ymax)``) about ``width`` inches wide (at most 1.3 ``width`` tall), that roughly follows the
+    maps' aspect ratio (so colour bars match the axes)."""
+    aspect = min(max((extent[3] - extent[2]) / (extent[1] - extent[0]), 0.35), 2.5)  # height / width of one map
+    height = width * aspect
+    if height > 1.3 * width:
+        width, height = width * 1.3 * width / height, 1.3 * width
+    extra_w = 1.2 if colorbar else 0.4
+    return (panels * (width + extra_w) + 0.4, height + 1.5)
+
+
+def fit_colorbars(fig: Figure, pairs) -> None:
+    """Lay ``fig`` out once (constrained layout), then freeze the layout and give each colour bar of ``pairs``
+    (``(map axes, Colorbar)``) the height of its map axes as drawn (with equal aspect the map is often shorter than
+    the slot the layout gave it)."""
+    fig.draw_without_rendering()
+    slots = [cbar.ax.get_position(original=True) for _, cbar in pairs]
+    fig.set_layout_engine("none")
+    for (ax, cbar), cpos in zip(pairs, slots):
+        ax.apply_aspect()
+        drawn = ax.get_position(original=False)
+        gap = COLORBAR_GAP_INCHES / fig.get_figwidth()
+        cbar.ax.set_position([drawn.x1 + gap, drawn.y0, cpos.width, drawn.height])
 
 
 def draw_gridlines(ax, grid: Grid, alpha: float = 1.0) -> None:
@@ -270,21 +432,36 @@ def draw_truth(ax, truth: np.ndarray, grid: Grid) -> None:
     )
 
 
+def unseen_handle() -> Patch:
+    """The legend entry "unseen cells" of the cells drawn in :data:`UNSEEN_COLOR`."""
+    return Patch(facecolor=UNSEEN_COLOR, edgecolor=WALL_EDGE_COLOR, linewidth=0.5, label="unseen cells")
+
+
 def draw_legend(ax, handles) -> None:
-    """A frameless legend of ``handles`` centred below the axes (up to 4 in a row, else 3); nothing without
+    """A frameless legend of ``handles`` centred below the axes, :data:`LEGEND_DROP_POINTS` under their bottom edge
+    (below the tick labels and the x label, whatever the axes' height): up to 4 in a row, else 3, fewer where the
+    row would be wider than the axes (constrained layout would shrink the map to make room); nothing without
     handles."""
     if not handles:
         return
-    ax.legend(
-        handles=handles,
-        loc="upper center",
-        bbox_to_anchor=(0.5, -0.1),
-        ncol=len(handles) if len(handles) <= 4 else 3,
-        fontsize="small",
-        frameon=False,
-        handlelength=1.5,
-        columnspacing=1.2,
-    )
+    fig = ax.get_figure(root=True)
+    # a figure of ours has an Agg canvas; one given without (a bare Figure) gets the widest rows, unmeasured
+    renderer = fig.canvas.get_renderer() if hasattr(fig.canvas, "get_renderer") else None
+    room = ax.get_position().width * fig.get_figwidth() * fig.dpi  # the axes' slot, in display pixels
+    for ncol in range(len(handles) if len(handles) <= 4 else 3, 0, -1):
+        legend = ax.legend(
+            handles=handles,
+            loc="upper center",
+            bbox_to_anchor=(0.5, 0.0),
+            bbox_transform=offset_copy(ax.transAxes, fig=fig, y=-LEGEND_DROP_POINTS, units="points"),
+            ncol=ncol,
+            fontsize="small",
+            frameon=False,
+            handlelength=1.5,
+            columnspacing=1.2,
+        )
+        if renderer is None or legend.get_window_extent(renderer).width <= room:
+            return
 
 
 # ---------------------------------------------------------------------------------------------------------------

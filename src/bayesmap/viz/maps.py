@@ -1,6 +1,9 @@
-"""Map figures: the true map with a scan (:func:`plot_map`), and the posterior wall probability, optionally with its
-standard deviation and the robot's path (:func:`plot_posterior`, :func:`plot_posterior_path`), and maps drawn from a
-prior side by side (:func:`plot_prior_samples`).
+"""Map figures: the true map with a scan (:func:`plot_map`), the posterior wall probability alone (the occupancy grid,
+:func:`plot_occupancy_map`) or optionally with its standard deviation and the robot's path (:func:`plot_posterior`,
+:func:`plot_posterior_path`), and maps drawn from a prior side by side (:func:`plot_prior_samples`).
+
+The posterior figures take ``seen``, the cells some beam crossed, and then show only those (their bounding box plus
+a margin, the unseen cells in a neutral blue-grey): see :func:`bayesmap.viz.common.crop_extent`.
 
 Every function returns a :class:`matplotlib.figure.Figure` (Agg canvas, never ``pyplot``); render it with
 :func:`bayesmap.viz.common.figure_bytes` or save it with :func:`bayesmap.viz.common.save_figure`. The grid
@@ -29,6 +32,7 @@ from matplotlib.patches import Patch
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.viz.common import (
+    MAP_WIDTH_INCHES,
     SENSOR_COLOR,
     TRUTH_COLOR,
     WALL_COLOR,
@@ -36,16 +40,21 @@ from bayesmap.viz.common import (
     check_cells,
     check_grid,
     check_point,
+    check_seen,
+    crop_extent,
+    draw_cell_image,
     draw_gridlines,
     draw_legend,
     draw_truth,
     draw_walls,
-    image_interpolation,
+    fit_colorbars,
+    map_figsize,
     new_figure,
     setup_map_axes,
+    unseen_handle,
 )
 
-__all__ = ["plot_map", "plot_posterior", "plot_posterior_path", "plot_prior_samples"]
+__all__ = ["plot_map", "plot_occupancy_map", "plot_posterior", "plot_posterior_path", "plot_prior_samples"]
 
 RAY_COLOR = "#1f78b4"
 READING_COLOR = "#1f78b4"
@@ -53,7 +62,6 @@ MAX_RANGE_COLOR = "#7f7f7f"
 PATH_COLOR = "tab:blue"
 # Above this many rays, rays are faded and reading dots shrunk in proportion.
 CROWDED_RAYS = 400
-COLORBAR_GAP_INCHES = 0.15
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -126,107 +134,74 @@ def _check_scan(pos, beam_angles, readings, origins, max_range_mask):
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def _draw_scan(ax, grid: Grid, pos, starts, endpoints, mask, *, faint: bool) -> list:
-    """Rays, reading endpoints and the sensor; returns legend handles."""
-    handles = []
-    many = endpoints is not None and len(endpoints) > CROWDED_RAYS
-    if endpoints is not None:
-        # with many rays (scans from many poses) fade the rays and shrink the dots so the map stays visible
-        crowd = min(1.0, CROWDED_RAYS / max(len(endpoints), 1))
-        ray_alpha = (0.25 if faint else 0.45) * max(crowd, 0.1)
-        ax.add_collection(
-            LineCollection(
-                np.stack([starts, endpoints], axis=1),
-                colors=RAY_COLOR,
-                linewidths=0.5 if faint else 0.7,
-                alpha=ray_alpha,
-                zorder=4,
-                gid="rays",
-            ),
-            autolim=False,
-        )
-        handles.append(Line2D([], [], color=RAY_COLOR, lw=0.8, alpha=0.6, label="ray"))
-        hit = endpoints[~mask]
-        size = (10.0 if faint else 14.0) * max(np.sqrt(crowd), 0.15)
-        ax.scatter(
-            hit[:, 0],
-            hit[:, 1],
-            s=size,
-            c=READING_COLOR,
-            edgecolors="white" if not many else "none",
-            linewidths=0.3,
-            alpha=(0.8 if faint else 1.0) * (0.6 if many else 1.0),
-            zorder=5,
-            gid="readings",
-            label="reading",
-        )
+def _draw_rays(ax, starts, endpoints, mask, *, faint: bool) -> list:
+    """The rays (gid ``"rays"``), their endpoints (``"readings"``) and the max-range ones (``"max_range_readings"``);
+    returns legend handles. With many rays (scans from many poses) the rays fade and the dots shrink so the map
+    stays visible."""
+    many = len(endpoints) > CROWDED_RAYS
+    crowd = min(1.0, CROWDED_RAYS / max(len(endpoints), 1))
+    ray_alpha = (0.25 if faint else 0.45) * max(crowd, 0.1)
+    ax.add_collection(
+        LineCollection(np.stack([starts, endpoints], axis=1), colors=RAY_COLOR, linewidths=0.5 if faint else 0.7,
+                       alpha=ray_alpha, zorder=4, gid="rays"),
+        autolim=False,
+    )
+    handles = [Line2D([], [], color=RAY_COLOR, lw=0.8, alpha=0.6, label="ray")]
+    hit = endpoints[~mask]
+    size = (10.0 if faint else 14.0) * max(np.sqrt(crowd), 0.15)
+    ax.scatter(hit[:, 0], hit[:, 1], s=size, c=READING_COLOR, edgecolors="white" if not many else "none",
+               linewidths=0.3, alpha=(0.8 if faint else 1.0) * (0.6 if many else 1.0), zorder=5, gid="readings",
+               label="reading")
+    handles.append(
+        Line2D([], [], ls="none", marker="o", ms=4, color=READING_COLOR, mec="white", mew=0.3, label="reading")
+    )
+    if mask.any():
+        far = endpoints[mask]
+        ax.scatter(far[:, 0], far[:, 1], s=size * 1.6, facecolors="none", edgecolors=MAX_RANGE_COLOR,
+                   linewidths=0.4 if many else 0.8, zorder=5, gid="max_range_readings", label="max-range reading")
         handles.append(
-            Line2D([], [], ls="none", marker="o", ms=4, color=READING_COLOR, mec="white", mew=0.3, label="reading")
-        )
-        if mask.any():
-            far = endpoints[mask]
-            ax.scatter(
-                far[:, 0],
-                far[:, 1],
-                s=size * 1.6,
-                facecolors="none",
-                edgecolors=MAX_RANGE_COLOR,
-                linewidths=0.4 if many else 0.8,
-                zorder=5,
-                gid="max_range_readings",
-                label="max-range reading",
-            )
-            handles.append(
-                Line2D([], [], ls="none", marker="o", ms=5, mfc="none", mec=MAX_RANGE_COLOR, label="max-range reading")
-            )
-    sensors = []
-    if pos is not None:
-        sensors.append(pos[None, :])
-    elif starts is not None:
-        sensors.append(np.unique(starts, axis=0))
-    if sensors:
-        pts = np.concatenate(sensors, axis=0)
-        label = "sensor" if len(pts) == 1 else "sensor poses"
-        ax.scatter(
-            pts[:, 0],
-            pts[:, 1],
-            s=60 if len(pts) == 1 else 12,
-            c=SENSOR_COLOR,
-            edgecolors="white",
-            linewidths=0.8 if len(pts) == 1 else 0.3,
-            zorder=6,
-            gid="sensor",
-            label=label,
-        )
-        handles.insert(
-            0, Line2D([], [], ls="none", marker="o", ms=7, color=SENSOR_COLOR, mec="white", mew=0.8, label=label)
+            Line2D([], [], ls="none", marker="o", ms=5, mfc="none", mec=MAX_RANGE_COLOR, label="max-range reading")
         )
     return handles
 
 
-def _fit_colorbars(fig: Figure, pairs) -> None:
-    """Lay the figure out once (constrained layout), then freeze the layout and give each colour bar the height
-    of its map axes as drawn (with equal aspect the map is often shorter than the slot the layout gave it)."""
-    fig.draw_without_rendering()
-    slots = [cbar.ax.get_position(original=True) for _, cbar in pairs]
-    fig.set_layout_engine("none")
-    for (ax, cbar), cpos in zip(pairs, slots):
-        ax.apply_aspect()
-        drawn = ax.get_position(original=False)
-        gap = COLORBAR_GAP_INCHES / fig.get_figwidth()
-        cbar.ax.set_position([drawn.x1 + gap, drawn.y0, cpos.width, drawn.height])
+def _draw_sensors(ax, pos, starts) -> list:
+    """The sensor (``pos``) or the distinct ray origins (``starts``) as red dots (gid ``"sensor"``); returns the
+    legend handles (none when there is neither)."""
+    if pos is not None:
+        pts = pos[None, :]
+    elif starts is not None:
+        pts = np.unique(starts, axis=0)
+    else:
+        return []
+    one = len(pts) == 1
+    label = "sensor" if one else "sensor poses"
+    ax.scatter(pts[:, 0], pts[:, 1], s=60 if one else 12, c=SENSOR_COLOR, edgecolors="white",
+               linewidths=0.8 if one else 0.3, zorder=6, gid="sensor", label=label)
+    return [Line2D([], [], ls="none", marker="o", ms=7, color=SENSOR_COLOR, mec="white", mew=0.8, label=label)]
 
 
-def _figsize(grid: Grid, panels: int, colorbar: bool) -> tuple[float, float]:
-    """A figure size whose panels roughly follow the grid's aspect ratio (so colour bars match the axes)."""
-    nx, ny = grid.shape
-    aspect = min(max(ny / nx, 0.35), 2.5)  # height / width of one map
-    width = 5.0
-    height = width * aspect
-    if height > 6.5:
-        width, height = width * 6.5 / height, 6.5
-    extra_w = 1.2 if colorbar else 0.4
-    return (panels * (width + extra_w) + 0.4, height + 1.5)
+def _draw_scan(ax, pos, starts, endpoints, mask, *, faint: bool) -> list:
+    """Rays, reading endpoints and the sensor; returns legend handles (the sensor's first)."""
+    handles = [] if endpoints is None else _draw_rays(ax, starts, endpoints, mask, faint=faint)
+    return _draw_sensors(ax, pos, starts) + handles
+
+
+def _map_panels(grid: Grid, panels, seen, extent, *, width: float = 5.0):
+    """A figure of probability panels side by side, each ``width`` inches wide, an image of ``(gid, values, cmap,
+    vmax, label, title)`` shown within ``extent`` with its colour bar; returns ``(fig, [(axes, colour bar), ...])``.
+    The caller draws its overlays and legends, then calls :func:`~bayesmap.viz.common.fit_colorbars`."""
+    fig = new_figure(map_figsize(extent, len(panels), colorbar=True, width=width))
+    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    pairs = []
+    for ax, (gid, values, cmap, vmax, label, panel_title) in zip(axes, panels):
+        setup_map_axes(ax, grid, panel_title, extent)
+        image = draw_cell_image(ax, grid, values, gid=gid, seen=seen, cmap=cmap, vmax=vmax, extent=extent)
+        colorbar = fig.colorbar(image, ax=ax, label=label)
+        colorbar.ax.set_ylim(0.0, vmax)
+        pairs.append((ax, colorbar))
+        draw_gridlines(ax, grid, alpha=0.35)
+    return fig, pairs
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -272,7 +247,7 @@ def plot_map(
     walls = None if walls is None else check_cells(walls, grid, "walls")
     pos, starts, endpoints, mask = _check_scan(pos, beam_angles, readings, origins, max_range_mask)
     if ax is None:
-        fig = new_figure(_figsize(grid, 1, colorbar=False))
+        fig = new_figure(map_figsize(grid.extent, 1, colorbar=False))
         ax = fig.add_subplot()
     else:
         fig = ax.get_figure(root=True)
@@ -284,7 +259,7 @@ def plot_map(
     if walls is not None:
         draw_walls(ax, walls, grid)
         handles.append(Patch(facecolor=WALL_COLOR, edgecolor=WALL_EDGE_COLOR, label="wall"))
-    handles += _draw_scan(ax, grid, pos, starts, endpoints, mask, faint=False)
+    handles += _draw_scan(ax, pos, starts, endpoints, mask, faint=False)
     draw_legend(ax, handles)
     return fig
 
@@ -301,6 +276,7 @@ def plot_posterior(
     max_range_mask=None,
     title=None,
     std=False,
+    seen=None,
 ) -> Figure:
     """Draw the posterior wall probability per cell as a heatmap (white = free, black = wall).
 
@@ -316,6 +292,10 @@ def plot_posterior(
         max_range_mask: which readings were max-range, as in :func:`plot_map`.
         title: the title of the probability panel; default "Posterior P(wall)".
         std: also draw a second panel with the posterior standard deviation ``sqrt(p (1 - p))`` (0 to 0.5).
+        seen: ``(nx, ny)`` bool, the cells some beam crossed: every panel shows only their bounding box plus
+            :data:`~bayesmap.viz.common.CROP_MARGIN` (clipped to the grid, see
+            :func:`~bayesmap.viz.common.crop_extent`), the other cells in
+            :data:`~bayesmap.viz.common.UNSEEN_COLOR`; None shows the whole grid.
 
     Returns:
         The Figure: ``fig.axes`` is ``[map, colour bar]`` (``[map, std map, colour bar, std colour bar]`` with
@@ -324,56 +304,65 @@ def plot_posterior(
         its map); resizing the figure afterwards keeps the relative positions.
 
     Raises:
-        BayesmapError: if ``posterior`` or ``truth`` does not have ``grid.shape``, ``posterior`` has a value
-            outside [0, 1], or the scan is malformed (see :func:`plot_map`).
+        BayesmapError: if ``posterior``, ``truth`` or ``seen`` does not have ``grid.shape``, ``posterior`` has a
+            value outside [0, 1], ``seen`` is not bool, or the scan is malformed (see :func:`plot_map`).
     """
     grid = check_grid(grid)
     prob = check_cells(posterior, grid, "posterior", unit_interval=True)
     truth = None if truth is None else check_cells(truth, grid, "truth")
+    seen = check_seen(seen, grid)
     pos, starts, endpoints, mask = _check_scan(pos, beam_angles, readings, origins, max_range_mask)
     panels = [("posterior", prob, "Greys", 1.0, "P(wall)", title or "Posterior P(wall)")]
     if std:
-        panels.append(
-            (
-                "std",
-                np.sqrt(prob * (1.0 - prob)),
-                "viridis",
-                0.5,
-                "std. dev. sqrt(p(1 - p))",
-                "Posterior standard deviation",
-            )
-        )
-    fig = new_figure(_figsize(grid, len(panels), colorbar=True))
-    axes = fig.subplots(1, len(panels), squeeze=False)[0]
-    pairs = []
-    for ax, (gid, values, cmap, vmax, label, panel_title) in zip(axes, panels):
-        setup_map_axes(ax, grid, panel_title)
-        image = ax.imshow(
-            values.T,
-            origin="lower",
-            extent=grid.extent,
-            cmap=cmap,
-            vmin=0.0,
-            vmax=vmax,
-            interpolation=image_interpolation(grid),
-            zorder=1,
-            gid=gid,
-        )
-        colorbar = fig.colorbar(image, ax=ax, label=label)
-        colorbar.ax.set_ylim(0.0, vmax)
-        pairs.append((ax, colorbar))
-        draw_gridlines(ax, grid, alpha=0.35)
+        panels.append(("std", np.sqrt(prob * (1.0 - prob)), "viridis", 0.5, "std. dev. sqrt(p(1 - p))",
+                       "Posterior standard deviation"))
+    fig, pairs = _map_panels(grid, panels, seen, crop_extent(grid, seen))
+    for ax, _ in pairs:
         handles = []
         if truth is not None:
             draw_truth(ax, truth, grid)
             handles.append(Line2D([], [], color=TRUTH_COLOR, lw=1.4, label="true wall outline"))
-        handles += _draw_scan(ax, grid, pos, starts, endpoints, mask, faint=True)
+        handles += _draw_scan(ax, pos, starts, endpoints, mask, faint=True)
+        if seen is not None:
+            handles.append(unseen_handle())
         draw_legend(ax, handles)
-    _fit_colorbars(fig, pairs)
+    fit_colorbars(fig, pairs)
     return fig
 
 
-def plot_posterior_path(grid, posterior, path, *, title=None, std=False) -> Figure:
+def plot_occupancy_map(grid, posterior, seen=None, title: str = "") -> Figure:
+    """The occupancy grid alone: the posterior wall probability per cell (white = free, black = wall), cropped to
+    the cells some beam crossed.
+
+    Args:
+        grid: the :class:`~bayesmap.geometry.grid.Grid`.
+        posterior: ``(nx, ny)`` posterior probability that each cell is a wall, in [0, 1].
+        seen: ``(nx, ny)`` bool, the cells some beam crossed (e.g.
+            :func:`bayesmap.io.maps_out.seen_cells_along`): the axes show their bounding box plus
+            :data:`~bayesmap.viz.common.CROP_MARGIN`, clipped to the grid, and the cells outside ``seen`` are drawn
+            in :data:`~bayesmap.viz.common.UNSEEN_COLOR` (a legend entry says so); None shows the whole grid.
+        title: the axes title ("" for none).
+
+    Returns:
+        The Figure: ``fig.axes`` is ``[map, colour bar]``; axes in meters (cells on the unit grid); the image has
+        gid ``"posterior"``, its colour bar is labelled "P(wall)" and spans 0 to 1, as tall as the map.
+
+    Raises:
+        BayesmapError: if ``posterior`` or ``seen`` does not have ``grid.shape``, ``posterior`` has a value outside
+            [0, 1], or ``seen`` is not bool.
+    """
+    grid = check_grid(grid)
+    prob = check_cells(posterior, grid, "posterior", unit_interval=True)
+    seen = check_seen(seen, grid)
+    fig, pairs = _map_panels(grid, [("posterior", prob, "Greys", 1.0, "P(wall)", title)], seen,
+                             crop_extent(grid, seen), width=MAP_WIDTH_INCHES)
+    if seen is not None:
+        draw_legend(pairs[0][0], [unseen_handle()])
+    fit_colorbars(fig, pairs)
+    return fig
+
+
+def plot_posterior_path(grid, posterior, path, *, title=None, std=False, seen=None) -> Figure:
     """Draw the posterior of a whole log (:func:`plot_posterior` without a scan: a log has too many beams to draw)
     with the robot's path over every map panel.
 
@@ -384,10 +373,12 @@ def plot_posterior_path(grid, posterior, path, *, title=None, std=False) -> Figu
             ``2 S`` numbers (reshaped to ``(S, 2)``, e.g. ``Problem.pos`` of a log).
         title: the title of the probability panel; default "Posterior P(wall)".
         std: also draw the posterior standard deviation panel (with the path too).
+        seen: ``(nx, ny)`` bool, the cells some beam crossed: the panels are cropped to them, as in
+            :func:`plot_posterior`; None shows the whole grid.
 
     Returns:
-        The Figure of :func:`plot_posterior`; on each map panel the path is a thin line with gid ``"sensor_path"``
-        (drawn after the legend, so not in it).
+        The Figure of :func:`plot_posterior`; on each map panel the path is a thin, semi-transparent line above the
+        map (zorder 4) with gid ``"sensor_path"`` (drawn after the legend, so not in it).
 
     Raises:
         BayesmapError: as :func:`plot_posterior`; or if ``path`` is not an even number of finite numbers.
@@ -399,9 +390,9 @@ def plot_posterior_path(grid, posterior, path, *, title=None, std=False) -> Figu
     if not np.all(np.isfinite(points)):
         k = int(np.argwhere(~np.isfinite(points))[0, 0])
         raise BayesmapError(f"path[{k}] is {points[k].tolist()!r}: sensor positions must be finite")
-    fig = plot_posterior(grid, posterior, title=title, std=std)
+    fig = plot_posterior(grid, posterior, title=title, std=std, seen=seen)
     for ax in fig.axes[: 2 if std else 1]:  # the map panels (the colour bars come after them)
-        ax.plot(points[:, 0], points[:, 1], color=PATH_COLOR, lw=0.6, alpha=0.7, label="sensor path",
+        ax.plot(points[:, 0], points[:, 1], color=PATH_COLOR, lw=0.6, alpha=0.6, zorder=4, label="sensor path",
                 gid="sensor_path")
     return fig
 
@@ -433,7 +424,7 @@ def plot_prior_samples(grid, samples, titles=None, *, suptitle=None) -> Figure:
         titles = [f"sample {k}: {float(np.mean(m > 0.5)):.2f} walls" for k, m in enumerate(maps)]
     if len(titles) != len(maps):
         raise BayesmapError(f"{len(maps)} samples need {len(maps)} titles, got {len(titles)}")
-    width, height = _figsize(grid, 1, colorbar=False)
+    width, height = map_figsize(grid.extent, 1, colorbar=False)
     fig = new_figure((min(len(maps) * (width - 0.4) * 0.75 + 0.4, 18.0), height * 0.75))
     for k, (walls, title) in enumerate(zip(maps, titles)):
         ax = fig.add_subplot(1, len(maps), k + 1)
