@@ -93,7 +93,7 @@ def test_pixels_and_world_agree():
     s = ex.cell_px()
     # the center of cell (i, j) is at pixel ((i + 0.5) s, (ny - 1 - j + 0.5) s): y grows up in the world, down on screen
     np.testing.assert_allclose(ex.to_world(3.5 * s, (21 - 1 - 7 + 0.5) * s), [3.0, 7.0])
-    px, py = ex._to_px(np.array([3.0, 7.0]))
+    px, py = ex.to_px(np.array([3.0, 7.0]))
     assert (px, py) == (3.5 * s, 13.5 * s)
 
 
@@ -145,7 +145,7 @@ def test_cli_app_rejects_bad_port_in_one_line():
             assert words in out.stderr
 
 
-# -- path mode (issue 15): a drawn path, simulated odometry and readings, joint SLAM --------------------------------
+# -- path mode: a drawn path, simulated odometry and readings, joint SLAM -----------------------------------------
 
 
 def test_path_building_refuses_walls_and_repeats():

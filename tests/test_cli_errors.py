@@ -1,4 +1,4 @@
-"""Every command-line user error is ONE line on stderr and exit code 2 (issue 14): usage errors of every command and
+"""Every command-line user error is ONE line on stderr and exit code 2: usage errors of every command and
 option, enumerated from the typer app (a new option is covered without editing this file), and the refusals of
 bad values, sizes that cannot fit, and a sensor in a wall."""
 
@@ -123,34 +123,34 @@ def _rosmap_yaml(tmp_path: Path, resolution: str) -> Path:
 
 
 @pytest.mark.parametrize("make_args, match", [
-    # item 7: validated before computing (no numpy warnings first)
+    # values are validated before computing (no numpy warnings first)
     (lambda t, log: ["infer", "--resolution", "0"], r"--resolution.*> ?0|\(0, 100\]"),
     (lambda t, log: ["infer", "--resolution", "nan"], "got nan"),
     (lambda t, log: ["infer", "--pos", "1e308", "2"], "got 1e\\+308"),
-    # item 3: sizes that cannot fit are refused up front, naming the figure and the way out
+    # sizes that cannot fit are refused up front, naming the figure and the way out
     (lambda t, log: ["infer", "--sweeps", "9223372036854775808"], "--sweeps"),
     (lambda t, log: ["infer", "--log", log, "--resolution", "1e-6"], "cells of 1e-06 m .*coarser --resolution"),
     (lambda t, log: ["infer", "--log", _far_pose_log(log), "--method", "logodds"], "far-away pose"),
     (lambda t, log: ["infer", "--log", INTEL, "--resolution", "0.01"], r"ray-cell table would take about \d+ GB"),
     (lambda t, log: ["evaluate", "--truth", _rosmap_yaml(t, "1e-9")], "finer than 0.01 m"),
     (lambda t, log: ["evaluate", "--log", log, "--resolution", "1e-5"], "cells of 1e-05 m .*coarser --resolution"),
-    # item 4
+    # a scene that cannot be simulated
     (lambda t, log: ["evaluate", "--truth", _rosmap_yaml(t, "0.05"), "--num-poses", "0"], "--num-poses"),
     (lambda t, log: ["evaluate", "--truth", _rosmap_yaml(t, "1e9")], "shorter than one cell"),
-    # item 5: the app refuses a sensor in a wall; so does the CLI, naming the cell
+    # the app refuses a sensor in a wall; so does the CLI, naming the cell
     (lambda t, log: ["infer", "--map", t / "room.txt", "--pos", "1", "1"], r"in wall cell \(1, 1\)"),
-    # item 2: an implausible reading names the file, the line and the value
+    # an implausible reading names the file, the line and the value
     (lambda t, log: ["infer", "--log", t / "outlier.log"], r"outlier.log:2: range 9 of 180 is 1e\+26"),
     (lambda t, log: ["infer", "--log", log, "--max-range", "-3"], "--max-range"),
     (lambda t, log: ["infer", "--max-range", "50"], "need --log"),
-    # issue 16: walls a beam can pass: a probability below 1, several scans of a log, a sampler that keeps two walls
+    # walls a beam can pass: a probability below 1, several scans of a log, a sampler that keeps two walls
     (lambda t, log: ["infer", "--log", log, "--wall-pass-prob", "1"], "wall_pass_prob must be in \\[0, 1\\)"),
     (lambda t, log: ["infer", "--wall-pass-prob", "0.2"], "--wall-pass-prob apply to several scans"),
     (lambda t, log: ["infer", "--log", log, "--wall-pass-prob", "0.2", "--sampler", "raster"],
      "wall_pass_prob = 0.2; the cellwise sampler supports it"),
-    # item 7: --scan and --scans agree on negative indexes; out of range is refused by both alike
+    # --scan and --scans agree on negative indexes; out of range is refused by both alike
     (lambda t, log: ["infer", "--log", log, "--scan", "-6"], "scan -6 is out of range"),
-    # item 6: a folder with folders of its own is not swapped as a whole
+    # a folder with folders of its own is not swapped as a whole
     (lambda t, log: ["infer", "--out", t, "--force"], "holds a folder of its own"),
 ])
 def test_bad_values_are_refused_in_one_line(tmp_path, monkeypatch, capsys, small_log, make_args, match):
@@ -173,7 +173,7 @@ def test_bad_values_are_refused_in_one_line(tmp_path, monkeypatch, capsys, small
 
 
 def test_scan_minus_one_is_the_last_scan(tmp_path, monkeypatch, capsys, small_log):
-    """Issue 14, item 7: --scan -1 was refused while --scans -1 was accepted; both mean the last scan."""
+    """--scan -1 and --scans -1 both mean the last scan (a negative index counts from the end in both)."""
     code, out, err = run_cli(monkeypatch, capsys, "infer", "--log", small_log, "--scan", "-1", "--method", "logodds",
                              "--out", tmp_path / "o")
     assert code == 0, err
@@ -194,7 +194,7 @@ def test_max_range_option_reaches_the_reader(tmp_path, monkeypatch, capsys, smal
 
 
 # ------------------------------------------------------------------------------------------------------------------
-# item 6: the output folder is replaced as a whole
+# the output folder is replaced as a whole
 # ------------------------------------------------------------------------------------------------------------------
 
 
@@ -251,8 +251,8 @@ def test_output_folder_mode_follows_the_umask(tmp_path, umask):
 def test_the_whole_intel_log_at_10_cm_fits(intel_log):
     """The size limits leave room for the README's whole-log run (42.4 million pairs, 2.9 GB peak) and refuse the
     same log at 1 cm (about 4 billion pairs)."""
-    from bayesmap.cli import check_problem_size
     from bayesmap.io.carmen import read_carmen
+    from bayesmap.runs.inputs import check_problem_size
     from bayesmap.scenes import log_problem
 
     log = read_carmen(intel_log)

@@ -58,8 +58,8 @@ def log_run(aces_odom, tmp_path_factory):
 @ONE_RUN
 def test_slam_log_writes_every_output(log_run, aces_odom):
     names = {"trajectory.tum", "trajectory_samples.npy", "pose_cov.npy", "posterior.npy", "posterior.png",
-             "summary.json", "report.html", "map.pgm", "map.yaml", "posterior.npz", "probability.png",
-             "probability.yaml", "std.png", "std.yaml"}
+             "occupancy.png", "summary.json", "report.html", "map.pgm", "map.yaml", "posterior.npz",
+             "probability.png", "probability.yaml", "std.png", "std.yaml"}
     assert {p.name for p in log_run.iterdir()} == names
     stamps, poses = read_tum(log_run / "trajectory.tum")
     log = read_carmen(aces_odom)
@@ -103,8 +103,9 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     maps = np.load(log_run / "posterior.npz")
     assert maps["probability"].shape == posterior.shape and maps["seen"].any() and not maps["seen"].all()
     assert np.allclose(maps["origin"], summary["grid"]["origin"])
-    with Image.open(log_run / "posterior.png") as png:
-        png.verify()
+    for name in ("posterior.png", "occupancy.png"):
+        with Image.open(log_run / name) as png:
+            png.verify()
     assert "data:image/png;base64," in (log_run / "report.html").read_text()
 
 

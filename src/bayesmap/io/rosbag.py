@@ -57,7 +57,6 @@ from __future__ import annotations
 import math
 import os
 import shutil
-import tempfile
 from pathlib import Path
 from typing import NamedTuple
 
@@ -66,9 +65,10 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.io.carmen import CarmenLog
+from bayesmap.io.files import check_own_folder, check_regular, make_staging, read_bytes
 
 __all__ = ["read_bag", "write_log_bag", "write_occupancy_grid_bag", "read_occupancy_grid_bag", "compose_poses",
-           "invert_pose", "occupancy_grid_data", "DEFAULT_POSE_TOLERANCE", "STORAGES"]
+           "invert_pose", "occupancy_grid_data", "check_bag_path", "DEFAULT_POSE_TOLERANCE", "STORAGES"]
 
 DEFAULT_POSE_TOLERANCE = 0.1
 """Seconds: a scan whose nearest pose (odometry or tf) is farther away in time than this is refused."""
@@ -162,6 +162,7 @@ def _open(path: Path, name: str):
 
     if not path.exists():
         raise BayesmapError(f"ROS bag {name!r} does not exist")
+    check_regular(path, "ROS bag", folder=True)  # a device would be read without end, a FIFO would block
     if path.is_file() and path.suffix != ".bag":
         raise BayesmapError(f"ROS bag {name!r}: a ROS 1 bag is a '.bag' file, a ROS 2 bag a folder "
                             "(metadata.yaml and its .db3 or .mcap files)")
@@ -479,7 +480,22 @@ class _BagWriter:
         self.writer.write(conn, int(ns), data)
 
 
-def _check_bag_path(path: Path, ros2: bool, storage: str, overwrite: bool) -> None:
+ROS2_BAG_FILES = (".db3", ".mcap", ".db3-wal", ".db3-shm", ".db3-journal")
+"""Name endings of the storage files a ROS 2 bag folder holds beside its ``metadata.yaml`` (sqlite3's database and
+its journal files, or MCAP): with ``metadata.yaml``, all that a folder may hold for ``overwrite`` to replace it."""
+
+
+def check_bag_path(path, ros2: bool, storage: str = "sqlite3", overwrite: bool = False) -> Path:
+    """Check, before any work, that a bag can be written at ``path``: a ``.bag`` name for ROS 1; with
+    ``overwrite``, an existing ``path`` of the right kind (a file for ROS 1, a folder for ROS 2) and, for a folder,
+    an empty one or one that holds a ROS 2 bag (a rosbag2 ``metadata.yaml``) and nothing else
+    (:data:`ROS2_BAG_FILES`); a folder to write in.
+
+    Raises:
+        BayesmapError: naming ``path``: an unknown ``storage``, a bad name, an existing path without ``overwrite``,
+            a file where a folder is needed (or the reverse), a folder that is not only a bag, no folder to write in.
+    """
+    path = Path(path)
     if storage not in STORAGES:
         raise BayesmapError(f"unknown ROS 2 storage {storage!r}; choose one of {', '.join(STORAGES)}")
     if not ros2 and path.suffix != ".bag":
@@ -489,15 +505,26 @@ def _check_bag_path(path: Path, ros2: bool, storage: str, overwrite: bool) -> No
     if path.exists() and ros2 != path.is_dir():
         raise BayesmapError(f"{str(path)!r} is a {'file' if path.is_file() else 'folder'}; a ROS "
                             f"{'2 bag is a folder' if ros2 else '1 bag is a file'}")
+    if ros2 and path.is_dir():  # replacing it removes all it holds: a user's files must stay
+        check_own_folder(path, "metadata.yaml", ROS2_BAG_FILES, "a ROS 2 bag")
+        metadata = read_bytes(path / "metadata.yaml", "bag metadata")[1] if any(path.iterdir()) else None
+        if metadata is not None and b"rosbag2_bagfile_information" not in metadata:
+            raise BayesmapError(f"{str(path)!r} is not a ROS 2 bag (its metadata.yaml is not a rosbag2 one); "
+                                "bayesmap replaces only a bag: choose another name, or remove the folder yourself")
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
         raise BayesmapError(f"{str(path)!r} cannot be written (no folder {str(parent)!r} to write in)")
+    return path
 
 
 def _write_whole(path: Path, ros2: bool, storage: str, overwrite: bool, fill) -> Path:
-    """Write a bag with ``fill(writer)`` beside ``path`` and move it in: whole or not at all."""
-    _check_bag_path(path, ros2, storage, overwrite)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    """Write a bag with ``fill(writer)`` beside ``path`` (:func:`bayesmap.io.files.make_staging`) and move it in:
+    whole or not at all."""
+    check_bag_path(path, ros2, storage, overwrite)
+    try:
+        tmp = make_staging(path, folder=True)
+    except OSError as err:
+        raise BayesmapError(f"cannot write {str(path)!r}: {err.strerror}") from None
     try:
         staged = tmp / path.name
         with _BagWriter(staged, ros2, storage) as writer:

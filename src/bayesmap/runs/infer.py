@@ -1,0 +1,335 @@
+"""The mapping job (``bayesmap infer`` and ``demo``, the app's Run inference): a scene from a map file or a log, its
+posterior by Gibbs sampling (or log-odds mapping), and the output folder.
+
+In data-flow order: :func:`infer_scene` (the problem an :class:`InferRequest` describes), :func:`run_infer` (the
+job: result and summary), :func:`infer_files` (the output files' bytes), :func:`write_infer` (the folder and the
+``--out-bag`` bag); :func:`infer` does all four after checking the outputs.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple, Optional
+
+import numpy as np
+
+from bayesmap import scenes
+from bayesmap.errors import BayesmapError
+from bayesmap.inference.driver import InferenceResult, run_inference, run_logodds
+from bayesmap.inference.traces import chain_traces
+from bayesmap.io.ascii import load_map, tutorial_map
+from bayesmap.io.maps_out import seen_cells
+from bayesmap.io.rosbag import write_occupancy_grid_bag
+from bayesmap.io.rosmap import encode_rosmap
+from bayesmap.model import prior
+from bayesmap.progress import ProgressCallback
+from bayesmap.runs.inputs import (
+    check_free_cell,
+    check_problem_size,
+    coupling_option,
+    parse_scans,
+    read_source,
+    sensor_params,
+)
+from bayesmap.runs.outputs import (
+    DIAGNOSTICS_FILE,
+    REPORT_FILE,
+    ROSMAP_STEM,
+    check_out_bag,
+    check_output_dir,
+    json_bytes,
+    map_files,
+    npy_bytes,
+    write_outputs,
+)
+from bayesmap.scenes import log_problem, scan_problem, tutorial_problem
+from bayesmap.viz.common import figure_bytes
+from bayesmap.viz.maps import plot_posterior, plot_posterior_path
+from bayesmap.viz.report import build_report
+
+
+@dataclass(frozen=True)
+class InferRequest:
+    """What ``bayesmap infer`` was asked: its options, named as they are (``--map`` is ``map_file``); None where
+    an option was not given (its default then depends on the scene, see ``bayesmap infer --help``)."""
+
+    map_file: Optional[Path] = None
+    log: Optional[Path] = None
+    bag: Optional[Path] = None
+    scan_topic: str = "/scan"
+    odom_topic: str = "/odom"
+    tf: bool = False
+    scan: Optional[int] = None
+    scans: Optional[str] = None
+    resolution: float = scenes.RESOLUTION
+    max_range: Optional[float] = None
+    method: str = "gibbs"
+    beam_model: Optional[str] = None
+    range_offset: Optional[float] = None
+    geometry: Optional[str] = None
+    wall_pass_prob: Optional[float] = None
+    beam_weights: Optional[str] = None
+    lambda_short: Optional[float] = None
+    likelihood_power: Optional[float] = None
+    coupling: Optional[float] = None
+    run_length: Optional[float] = None
+    sampler: Optional[str] = None
+    sweeps: int = 100
+    burn_in: Optional[int] = None
+    prior_wall_prob: Optional[float] = None
+    sensor_noise: Optional[float] = None
+    num_angles: int = scenes.TUTORIAL_NUM_ANGLES
+    pos: Optional[tuple[float, float]] = None
+    seed: int = 0
+    chains: int = 1
+    report: bool = False
+    rosmap: bool = False
+    maps: bool = False
+    out_bag: Optional[Path] = None
+    out: Path = Path("bayesmap-out")
+    force: bool = False
+
+
+class InferRun(NamedTuple):
+    """A mapping run: its ``result`` (posterior ``(nx, ny)``, samples, diagnostics) and ``summary`` (the settings
+    and figures summary.json holds)."""
+
+    result: InferenceResult
+    summary: dict
+
+
+class InferOutcome(NamedTuple):
+    """What :func:`infer` did: the ``problem`` mapped, the :class:`InferRun`, and the names ``written`` (the
+    output folder's files, then the ``--out-bag`` path)."""
+
+    problem: scenes.Problem
+    run: InferRun
+    written: list
+
+
+def check_infer_request(req: InferRequest) -> None:
+    """Refuse, before any work, contradictory options and outputs that cannot be written (the folder, the bag).
+
+    Raises:
+        BayesmapError: naming the option or the path.
+    """
+    if req.method not in ("gibbs", "logodds"):
+        raise BayesmapError(f"unknown method {req.method!r}; choose gibbs or logodds")
+    if req.method == "logodds" and (req.report or req.chains != 1):
+        raise BayesmapError("--report and --chains need --method gibbs (log-odds mapping has no chain)")
+    if req.log is None and req.bag is None:
+        if req.scan is not None or req.scans is not None or req.likelihood_power is not None \
+                or req.max_range is not None:
+            raise BayesmapError("--scan, --scans, --likelihood-power and --max-range need --log FILE (or --bag)")
+        if req.geometry is not None or req.wall_pass_prob is not None:
+            raise BayesmapError("--geometry and --wall-pass-prob apply to several scans of --log FILE (or --bag); "
+                                "maps keep the tutorial's entry geometry and walls")
+    elif req.map_file is not None:
+        raise BayesmapError("give either --map or --log / --bag, not both")
+    check_output_dir(req.out, req.force)
+    if req.out_bag is not None:
+        check_out_bag(req.out_bag, req.force)
+
+
+def infer_scene(req: InferRequest) -> tuple[scenes.Problem, str]:
+    """``(problem, title)`` of a request: a log's scans (``--log`` / ``--bag``) or a map file's simulated readings.
+
+    Raises:
+        BayesmapError: on a bad option value or input file (named).
+    """
+    params = sensor_params(req.beam_weights, req.lambda_short)
+    carmen_like = req.log is not None or req.bag is not None
+    coupling = coupling_option(req.coupling, req.run_length, req.resolution if carmen_like else 1.0)
+    carmen = read_source(req.log, req.bag, req.scan_topic, req.odom_topic, req.tf, req.max_range)
+    if carmen is not None:
+        problem, title = _log_scene(carmen, req, params, coupling)
+    else:
+        problem = _map_scene(req, params, coupling)
+        title = problem.source
+    return problem, ("Log-odds occupancy, " if req.method == "logodds" else "Posterior wall probability, ") + title
+
+
+def _log_scene(carmen, req: InferRequest, params: dict, coupling):
+    """``(problem, title)`` of ``infer --log/--bag``: one scan (``--scan N``, the single-scan model and the tutorial's
+    defaults) or several (``--scans``, the log defaults of :mod:`bayesmap.scenes`). Walls a beam can pass
+    (``wall_pass_prob`` > 0) need the cellwise sampler, so with another sampler the default is 0 (opaque walls)."""
+    name = (req.log if req.log is not None else req.bag).name
+    if req.scan is not None and req.scans is not None:
+        raise BayesmapError("give either --scan N or --scans SPEC, not both")
+    if req.scan is not None:
+        if req.range_offset is not None or req.likelihood_power is not None:
+            raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), "
+                                "not to --scan N")
+        if req.geometry is not None or req.wall_pass_prob is not None:
+            raise BayesmapError("--geometry and --wall-pass-prob apply to several scans (--scans), not to --scan N")
+        scan = int(parse_scans(str(req.scan), len(carmen))[0])  # a negative index counts from the end, as in --scans
+        problem = scan_problem(
+            carmen, scan, resolution=req.resolution,
+            prior_wall_prob=scenes.TUTORIAL_PRIOR if req.prior_wall_prob is None else req.prior_wall_prob,
+            sensor_noise=scenes.SCAN_SENSOR_NOISE if req.sensor_noise is None else req.sensor_noise,
+            beam_model=req.beam_model or scenes.TUTORIAL_BEAM_MODEL, sensor_params=params,
+            coupling=prior.DEFAULT_COUPLING if coupling is None else coupling)
+        return problem, f"{name} scan {scan}"
+    chosen = parse_scans(req.scans, len(carmen))
+    wall_pass_prob = scenes.log_wall_pass_prob(req.sampler) if req.wall_pass_prob is None else req.wall_pass_prob
+    problem = log_problem(carmen, chosen, resolution=req.resolution, prior_wall_prob=req.prior_wall_prob,
+                          sensor_noise=req.sensor_noise, beam_model=req.beam_model or scenes.LOG_BEAM_MODEL,
+                          range_offset=req.range_offset, sensor_params=params, likelihood_power=req.likelihood_power,
+                          geometry=scenes.LOG_GEOMETRY if req.geometry is None else req.geometry, coupling=coupling,
+                          wall_pass_prob=wall_pass_prob)
+    return problem, f"{name}, {len(chosen)} scans"
+
+
+def _map_scene(req: InferRequest, params: dict, coupling):
+    """The problem of ``infer --map`` (or the tutorial map): readings simulated from the sensor at ``pos`` (default
+    the map's center, the tutorial's ``GRID_SIZE // 2``), which must be a free cell."""
+    walls = load_map(req.map_file) if req.map_file is not None else tutorial_map()
+    source = str(req.map_file) if req.map_file else "tutorial map"
+    center = (float(walls.shape[0] // 2), float(walls.shape[1] // 2))
+    if req.pos is not None:
+        check_free_cell(walls, req.pos, str(req.map_file) if req.map_file else "the tutorial map")
+    return tutorial_problem(
+        walls, pos=req.pos if req.pos is not None else center, seed=req.seed,
+        prior_wall_prob=scenes.TUTORIAL_PRIOR if req.prior_wall_prob is None else req.prior_wall_prob,
+        sensor_noise=scenes.TUTORIAL_SENSOR_NOISE if req.sensor_noise is None else req.sensor_noise,
+        num_angles=req.num_angles, source=source, beam_model=req.beam_model or scenes.TUTORIAL_BEAM_MODEL,
+        sensor_params=params, coupling=prior.DEFAULT_COUPLING if coupling is None else coupling)
+
+
+def run_infer(problem: scenes.Problem, method: str = "gibbs", sampler: str = "block", sweeps: int = 100,
+              burn_in: Optional[int] = None, seed: int = 0, chains: int = 1,
+              progress: Optional[ProgressCallback] = None) -> InferRun:
+    """Map ``problem``: its posterior by Gibbs sampling (:func:`bayesmap.inference.driver.run_inference`), or with
+    ``method="logodds"`` classic log-odds mapping (:func:`~bayesmap.inference.driver.run_logodds`), after refusing
+    a problem too large to fit (:func:`bayesmap.runs.inputs.check_problem_size`).
+
+    Args:
+        problem: the scene.
+        method: ``"gibbs"`` or ``"logodds"``.
+        sampler: the sampler's name (:data:`bayesmap.inference.registry.SAMPLERS`).
+        sweeps: sweeps per chain, >= 1.
+        burn_in: sweeps dropped before averaging; default half.
+        seed: the chain's seed.
+        chains: chains run at once, >= 1.
+        progress: called with a :class:`bayesmap.progress.Progress` after each chunk of sweeps.
+
+    Raises:
+        BayesmapError: on a problem too large, or bad settings (named).
+    """
+    check_problem_size(problem, chains=chains)
+    if method == "logodds":
+        result = run_logodds(problem)
+    else:
+        result = run_inference(problem, sampler=sampler, sweeps=sweeps, burn_in=burn_in, seed=seed, chains=chains,
+                               progress=progress)
+    return InferRun(result, result.summary)
+
+
+def infer_seen(problem: scenes.Problem) -> np.ndarray:
+    """``(nx, ny)`` bool, the cells some beam of ``problem`` crossed (:func:`bayesmap.io.maps_out.seen_cells`)."""
+    return seen_cells(problem.table, problem.ray_readings)
+
+
+def infer_files(problem: scenes.Problem, run: InferRun, title: str, seed: int = 0, method: str = "gibbs",
+                report: bool = False, rosmap: bool = False, maps: bool = False,
+                seen: Optional[np.ndarray] = None) -> dict[str, bytes]:
+    """The output folder of a mapping run, ``{name: bytes}``: posterior.npy, readings.npy, posterior.png and
+    summary.json; diagnostics.npz with several chains; map.pgm / map.yaml with ``rosmap``; posterior.npz and the
+    16-bit maps with ``maps``; report.html with ``report`` (its chain's traces replayed with ``seed``). ``seen``:
+    ``(nx, ny)`` bool, the cells some beam crossed (:func:`infer_seen`, computed here if None and needed): the
+    figure of several scans is cropped to them, and ``maps`` records them."""
+    result = run.result
+    if problem.multi_scan:  # a whole log: the posterior with its standard deviation and the path (too many beams)
+        fig = plot_posterior_path(problem.grid, result.posterior, problem.pos, title=title, std=method != "logodds",
+                                  seen=infer_seen(problem) if seen is None else seen)
+    else:
+        fig = plot_posterior(problem.grid, result.posterior, truth=problem.truth, pos=problem.pos,
+                             beam_angles=problem.beam_angles, readings=problem.readings,
+                             max_range_mask=problem.max_range_mask, title=title)
+    files = {"posterior.npy": npy_bytes(result.posterior.astype("float32")),
+             "readings.npy": npy_bytes(problem.readings.astype("float32")),
+             "posterior.png": figure_bytes(fig, "png"),
+             "summary.json": json_bytes(run.summary)}
+    if result.diagnostics is not None:
+        buf = io.BytesIO()
+        np.savez(buf, r_hat=result.diagnostics["r_hat"], ess=result.diagnostics["ess"])
+        files[DIAGNOSTICS_FILE] = buf.getvalue()
+    if rosmap:
+        files.update(encode_rosmap(ROSMAP_STEM, result.posterior, problem.grid))
+    if maps:
+        files.update(map_files(result.posterior, problem.grid, infer_seen(problem) if seen is None else seen))
+    if report:
+        traces = chain_traces(problem, result, seed=seed)
+        files[REPORT_FILE] = build_report(problem, result, traces, title=title).encode("utf-8")
+    return files
+
+
+def write_infer(out: Path, files: dict[str, bytes], problem: scenes.Problem, run: InferRun,
+                out_bag: Optional[Path] = None, force: bool = False, seen: Optional[np.ndarray] = None) -> list[str]:
+    """Write the output folder ``out`` (whole, :func:`bayesmap.runs.outputs.write_outputs`), then the posterior as
+    an OccupancyGrid into ``out_bag`` (replacing one there with ``force``); returns the names written.
+
+    Raises:
+        BayesmapError: naming a path that cannot be written.
+    """
+    written = write_outputs(out, files)
+    if out_bag is not None:
+        seen = infer_seen(problem) if seen is None else seen
+        write_occupancy_grid_bag(out_bag, np.clip(run.result.posterior, 0.0, 1.0), problem.grid, seen,
+                                 overwrite=force)
+        written.append(str(out_bag))
+    return written
+
+
+def infer(req: InferRequest, progress: Optional[ProgressCallback] = None) -> InferOutcome:
+    """``bayesmap infer``: check the request and its outputs, build the scene, map it, write the outputs.
+
+    Raises:
+        BayesmapError: on a bad option, input or output (named), before any work where it can be told.
+    """
+    check_infer_request(req)
+    problem, title = infer_scene(req)
+    sampler = req.sampler or ("cellwise" if problem.multi_scan else "block")
+    return map_and_write(problem, title, req, sampler, progress)
+
+
+def map_and_write(problem: scenes.Problem, title: str, req: InferRequest, sampler: str,
+                  progress: Optional[ProgressCallback] = None) -> InferOutcome:
+    """Map ``problem`` with the request's settings and write its outputs (:func:`run_infer`, :func:`infer_files`,
+    :func:`write_infer`); ``demo`` calls it on the tutorial scene.
+
+    Raises:
+        BayesmapError: as those functions.
+    """
+    check_output_dir(req.out, req.force)
+    run = run_infer(problem, req.method, sampler, req.sweeps, req.burn_in, req.seed, req.chains, progress)
+    seen = infer_seen(problem) if (req.maps or req.out_bag is not None or problem.multi_scan) else None
+    files = infer_files(problem, run, title, seed=req.seed, method=req.method, report=req.report, rosmap=req.rosmap,
+                        maps=req.maps, seen=seen)
+    written = write_infer(req.out, files, problem, run, out_bag=req.out_bag, force=req.force, seen=seen)
+    return InferOutcome(problem, run, written)
+
+
+def summary_lines(summary: dict, out: Path, written: list[str]) -> list[str]:
+    """The lines ``bayesmap infer`` and ``demo`` print: sampler, data, sweeps, runtime, accuracy (a scene with a
+    truth), chains (with several), outputs."""
+    beams = (f"{summary['num_scans']} scans, {summary['num_beams']} beams" if "num_scans" in summary
+             else f"{summary['num_angles']} beams")
+    shape = summary["grid"]["shape"]
+    lines = [f"sampler:  {summary['sampler']} ({summary['sampler_description']})",
+             f"data:     {summary['source']}, {beams}, grid {shape[0]} x {shape[1]} cells of "
+             f"{summary['grid']['resolution']:g} m"]
+    if "sweeps" in summary:
+        lines.append(f"sweeps:   {summary['sweeps']} (posterior mean over the last "
+                     f"{summary['sweeps'] - summary['burn_in']})")
+    lines.append(f"runtime:  {summary['runtime_s']:.2f} s (compilation included)")
+    if "wrong_visible_cells" in summary:
+        lines.append(f"accuracy: {summary['wrong_visible_cells']} of {summary['visible_cells']} visible cells wrong")
+    if summary.get("chains", 1) > 1 and summary.get("r_hat_max") is not None:
+        lines.append(f"chains:   {summary['chains']}; over the {summary['cells_varying']} cells that change: worst "
+                     f"split R-hat {summary['r_hat_max']:.3f}, smallest effective sample size "
+                     f"{summary['ess_min']:.0f}")
+    lines.append(f"outputs:  {out}/ ({', '.join(written)})")
+    return lines
