@@ -1,4 +1,4 @@
-"""``bayesmap bench`` runs and reports every figure the issue names (no timing is asserted: benchmarks only)."""
+"""``bayesmap bench`` runs and reports every figure of its table (no timing is asserted: benchmarks only)."""
 
 import json
 

@@ -1,4 +1,4 @@
-"""A package a user can install (issue 17): the project builds as a wheel, the wheel carries the package data and the
+"""A package a user can install: the project builds as a wheel, the wheel carries the package data and the
 `bayesmap` console script, it installs into a fresh virtual environment next to the lock's packages with `pip check`
 passing, and its `bayesmap` command runs the demo with the tutorial's numbers, from a folder outside the source tree.
 

@@ -64,6 +64,19 @@ def test_log_scenes_keep_the_logs_world_angles_bit_for_bit(small_log):
     assert not one.multi_scan and np.array_equal(one.beam_angles, log.angles[5]) and one.pos.shape == (2,)
 
 
+def test_returned_endpoints_are_the_logs_endpoints_of_the_readings_that_returned(small_log):
+    """Problem.returned_endpoints (what a figure's crop follows) holds the log's own endpoints of every returned
+    beam of the chosen scans, in scan order, and none of a max-range beam."""
+    from bayesmap.io.carmen import read_carmen
+
+    log = read_carmen(small_log)
+    chosen = [2, 5, 7]
+    expected = np.vstack([log.endpoints(i)[~log.is_max_range[i]] for i in chosen])
+    assert 0 < len(expected) < 3 * 180  # some beams of these scans returned nothing
+    np.testing.assert_allclose(log_problem(log, chosen, resolution=0.2).returned_endpoints, expected, rtol=0,
+                               atol=1e-9)
+
+
 def test_scan_and_log_scenes_share_max_range_and_grid(small_log):
     """One helper fits both: a single scan gets the same max-range readings and covering grid either way."""
     from bayesmap.io.carmen import read_carmen
@@ -101,7 +114,7 @@ def test_log_defaults_come_from_the_scene_defaults(small_log, monkeypatch):
     assert log_problem(log, resolution=0.2, coupling=0.0).params.prior_wall_prob == pytest.approx(0.13)
     monkeypatch.undo()
     assert log_problem(log, resolution=0.2, prior_wall_prob=0.2).params.prior_wall_prob == pytest.approx(0.2)
-    # issue 16: every map default of a log is in meters (or a probability), the same at every resolution
+    # every map default of a log is in meters (or a probability), the same at every resolution
     for res in (0.1, 0.2):
         pb = log_problem(log, resolution=res)
         assert pb.params.sensor_noise == pytest.approx(scenes.LOG_SENSOR_NOISE)

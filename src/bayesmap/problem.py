@@ -42,6 +42,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
+from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.geometry.raytable import RayTable, build_ray_table, visible_cells
 from bayesmap.model.generative import ModelParams, log_joint, log_joint_scans, walls_log_likelihood
 from bayesmap.model.passable import PASS_WALLS
@@ -223,6 +224,14 @@ class Problem:
     def max_range_mask(self) -> np.ndarray | None:
         """bool, the shape of :attr:`readings`: readings that were max-range (no return); or None."""
         return self._view(self.observations.max_range_mask)
+
+    @cached_property
+    def returned_endpoints(self) -> np.ndarray:
+        """``(N, 2)`` float64 world endpoints of the readings that returned (not max-range), meters: where the
+        sensor saw a surface."""
+        ends = scan_endpoints(self.poses, self.observations.beam_angles, self.observations.readings, xp=np)
+        mask = self.observations.max_range_mask
+        return ends.reshape(-1, 2) if mask is None else ends[~mask]
 
     @cached_property
     def ray_origins(self) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The structured prior (bayesmap.model.prior, issue 16 item 2): the GenJAX model's assess, every sampler's
+"""The structured prior (bayesmap.model.prior): the GenJAX model's assess, every sampler's
 conditional against assess differences, sampler marginals against exact enumeration, and the schedules."""
 
 import itertools

@@ -486,7 +486,7 @@ def test_real_truncated_gzip(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# issue 14, item 2: one outlier never sets the max range or the geometry
+# one outlier never sets the max range or the geometry
 # ---------------------------------------------------------------------------------------------------------------
 
 

@@ -247,7 +247,7 @@ def test_the_unmutated_slices_read_as_the_real_files(tmp_path):
 
 @pytest.mark.parametrize("value", ["1000", "1e26", "1e308", "500", "81.84"])
 def test_one_outlier_never_moves_the_max_range(tmp_path, value):
-    """Issue 14, item 2: one bigger value in a scan hid the real max range (81.83 m on Intel)."""
+    """One bigger value in a scan hid the real max range (81.83 m on Intel)."""
     from bayesmap.io.carmen import read_carmen
 
     lines = base("carmen").split(b"\n")

@@ -1,4 +1,4 @@
-"""The chord geometry (issue 16): the sensor's hit averaged over the beam's chord through the first wall cell.
+"""The chord geometry: the sensor's hit averaged over the beam's chord through the first wall cell.
 
 Its densities are probability measures (quadrature, with the beam mixture's atom at the max range), tend to the
 entry geometry as the chord shrinks, stay finite far in the tails; its GenJAX distributions sample what they score;

@@ -1,4 +1,4 @@
-"""The pose graph's Laplace uncertainty (issue 15): marginal covariances against a dense inverse of a numerically
+"""The pose graph's Laplace uncertainty: marginal covariances against a dense inverse of a numerically
 differentiated information matrix and against the closed form of a chain of edges; perturb-and-solve draws against
 those covariances within Monte Carlo error; and the log pipeline's combination of the chain's and the graph's
 spread."""

@@ -323,7 +323,7 @@ def test_loop_closure_reports_each_rounds_candidates(monkeypatch):
 
 @pytest.mark.parametrize("angle, move", [(0.3, (2.0, -1.0)), (-1.0, (5.0, 3.0))])
 def test_a_held_out_scan_is_registered_into_the_frame_of_the_map_it_is_scored_on(angle, move):
-    """``evaluation.slammap.register_heldout`` (the registered columns of issue 15's map benchmark): held-out scans of
+    """``evaluation.slammap.register_heldout`` (the registered columns of benchmarks/slam_map.py): held-out scans of
     the room (3, 5 and 8, one at a time), started 0.14 m and 0.04 rad off, land within 1 cm and 0.005 rad of their
     true poses carried into the map's frame, the truth turned by ``angle`` and moved by ``move``: they are matched
     against their neighbours at the map's poses, not against the truth (2-6 m away). Exact readings, so the only

@@ -12,6 +12,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.viz.common import (
     CROP_MARGIN,
+    FOCUS_COVERAGE,
     MAX_IMAGE_BLOCKS,
     crop_extent,
     draw_cell_image,
@@ -117,6 +118,30 @@ def test_crop_without_seen_cells_is_the_whole_grid():
     assert crop_extent(METRIC, None) == METRIC.extent
     assert crop_extent(METRIC, np.zeros(METRIC.shape, dtype=bool)) == METRIC.extent
     assert crop_extent(METRIC, np.ones(METRIC.shape, dtype=bool)) == pytest.approx(METRIC.extent)
+
+
+def test_the_crop_holds_the_central_endpoints_and_the_path_not_a_beam_through_a_door():
+    """1,000 endpoints on a room's walls (x 1..3 m, y 4..5 m) and 5 of a beam through a door ending at the grid's far
+    corner: the frame holds the room (the 0.5 % beyond the 99.5th percentile do not set it), the whole path even
+    where it leaves the room, and never more than the seen cells."""
+    assert FOCUS_COVERAGE == 0.99
+    seen = seen_box(METRIC, 0, 100, 0, 80)  # every cell crossed, the door's beam included
+    rng = np.random.default_rng(0)
+    room = np.column_stack([rng.uniform(1.0, 3.0, 1000), rng.uniform(4.0, 5.0, 1000)])
+    door = np.tile([7.9, 10.9], (5, 1))
+    box = crop_extent(METRIC, seen, margin=0.0, focus=np.vstack([room, door]))
+    assert box[0] == pytest.approx(1.0, abs=0.02) and box[1] == pytest.approx(3.0, abs=0.02)
+    assert box[2] == pytest.approx(4.0, abs=0.02) and box[3] == pytest.approx(5.0, abs=0.02)
+    # the door's beam is 0.5 % of the points: at 2 % it sets the frame again
+    wide = crop_extent(METRIC, seen, margin=0.0, focus=np.vstack([room, np.tile(door, (4, 1))]))
+    assert wide[1] == pytest.approx(7.9) and wide[3] == pytest.approx(10.9)
+    path = np.array([[2.0, 4.5], [5.0, 4.5]])  # the robot drives out of the room to x = 5 m
+    assert crop_extent(METRIC, seen, margin=0.0, focus=room, include=path)[1] == pytest.approx(5.0)
+    # the frame never leaves the seen cells: a room the beams did not cross keeps the seen box
+    small = seen_box(METRIC, 30, 50, 10, 20)
+    assert crop_extent(METRIC, small, margin=0.0, focus=room + 3.0) == pytest.approx((1.0, 3.0, 4.0, 5.0))
+    with pytest.raises(BayesmapError, match=r"focus must be \(N, 2\) finite world points"):
+        crop_extent(METRIC, seen, focus=np.zeros((3, 3)))
 
 
 def test_crop_refuses_a_bad_seen_or_margin():

@@ -33,7 +33,7 @@ def report(tmp_path_factory):
 def test_report_is_self_contained(report):
     text = report.read_text(encoding="utf-8")
     assert not re.search(r"https?://|//cdn|<script[^>]+src=|<link[^>]+href=|@import|url\(", text)
-    # every figure of issue "figures": map, what the robot sees, posterior (+ std), convergence, importance, GIF
+    # every figure of the report: map, what the robot sees, posterior (+ std), convergence, importance, GIF
     for gid in ("fig-map", "fig-scan", "fig-posterior", "fig-convergence", "fig-importance", "fig-animation"):
         assert f'id="{gid}"' in text
     assert text.count("data:image/png;base64,") >= 5 and text.count("data:image/gif;base64,") == 1

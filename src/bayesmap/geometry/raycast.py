@@ -40,6 +40,23 @@ def unit_dir(angle):
     return jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)
 
 
+def scan_endpoints(poses, sensor_angles, readings, xp=jnp):
+    """World endpoints of scans: each beam's reading along its world direction from its pose. Jittable.
+
+    Args:
+        poses: ``(..., 3)`` sensor poses (x, y in meters or cells, theta radians).
+        sensor_angles: ``(..., K)`` beam angles relative to the heading, radians.
+        readings: ``(..., K)`` readings, the units of ``poses``.
+        xp: the array module, ``jax.numpy`` (float32 unless x64 is enabled) or ``numpy`` (float64 for float64
+            inputs).
+
+    Returns:
+        ``(..., K, 2)`` endpoints.
+    """
+    theta = poses[..., 2:3] + sensor_angles
+    return poses[..., None, :2] + readings[..., None] * xp.stack([xp.cos(theta), xp.sin(theta)], axis=-1)
+
+
 def cell_hit_distance(p, u, cell):
     """Ray parameter at which the ray ``p + s u`` first meets the boundary of a cell, or ``inf`` if it never does.
 

@@ -239,11 +239,13 @@ def infer_files(problem: scenes.Problem, run: InferRun, title: str, seed: int = 
     summary.json; diagnostics.npz with several chains; map.pgm / map.yaml with ``rosmap``; posterior.npz and the
     16-bit maps with ``maps``; report.html with ``report`` (its chain's traces replayed with ``seed``). ``seen``:
     ``(nx, ny)`` bool, the cells some beam crossed (:func:`infer_seen`, computed here if None and needed): the
-    figure of several scans is cropped to them, and ``maps`` records them."""
+    figure of several scans is cropped to them and to where the readings returned
+    (:attr:`bayesmap.problem.Problem.returned_endpoints`), and ``maps`` records them."""
     result = run.result
     if problem.multi_scan:  # a whole log: the posterior with its standard deviation and the path (too many beams)
         fig = plot_posterior_path(problem.grid, result.posterior, problem.pos, title=title, std=method != "logodds",
-                                  seen=infer_seen(problem) if seen is None else seen)
+                                  seen=infer_seen(problem) if seen is None else seen,
+                                  focus=problem.returned_endpoints)
     else:
         fig = plot_posterior(problem.grid, result.posterior, truth=problem.truth, pos=problem.pos,
                              beam_angles=problem.beam_angles, readings=problem.readings,

@@ -18,6 +18,7 @@ import numpy as np
 from bayesmap import scenes
 from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.trajectory import score_trajectory
+from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.io.maps_out import seen_cells_along
 from bayesmap.io.rosmap import encode_rosmap
 from bayesmap.io.tum import encode_tum, tum_stamps
@@ -195,6 +196,14 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
     return problem, result, chosen, settings
 
 
+def slam_endpoints(problem: SlamProblem, path) -> np.ndarray:
+    """``(N, 2)`` float64 world endpoints of the returned (not max-range) readings of ``problem``'s scans at
+    ``path`` ``(S, 3)`` (x, y m, theta rad), meters."""
+    ends = scan_endpoints(np.asarray(path, np.float64), problem.sensor_angles, problem.readings, xp=np)
+    mask = problem.max_range_mask
+    return ends.reshape(-1, 2) if mask is None else ends[~np.asarray(mask, bool)]
+
+
 def grid_summary(grid) -> dict:
     """A grid as summary.json holds it: ``{"shape": [nx, ny], "resolution": m, "origin": [x, y]}``."""
     return {"shape": [int(n) for n in grid.shape], "resolution": float(grid.resolution),
@@ -238,14 +247,16 @@ def slam_files(run: SlamRun, report: bool = False, rosmap: bool = False, maps: b
     posterior.png (the map with the paths), summary.json, and for a real log (no true map) occupancy.png (the map
     alone); with ``rosmap``, ``maps`` and ``report`` the maps and report.html as
     :func:`bayesmap.runs.infer.infer_files` writes them. The figures are cropped to the cells some beam crossed
-    from the posterior mean path (:func:`bayesmap.io.maps_out.seen_cells_along`)."""
+    from the posterior mean path (:func:`bayesmap.io.maps_out.seen_cells_along`) and to where its readings
+    returned (:func:`slam_endpoints`)."""
     problem, result = run.problem, run.result
     grid = result.grid if result.grid is not None else problem.params.grid
     seen = seen_cells_along(grid, result.mean_path, problem.sensor_angles, problem.readings,
                             float(problem.params.max_range))
+    focus = slam_endpoints(problem, result.mean_path)
     fig = plot_slam(grid, result.posterior, result.mean_path, result.pose_cov, result.pose_samples,
                     true_path=problem.true_poses, odometry=problem.odometry, truth=problem.truth, title=run.title,
-                    seen=seen)
+                    seen=seen, focus=focus)
     png = figure_bytes(fig, "png")
     files = {
         "trajectory.tum": encode_tum(run.stamps, result.mean_path).encode(),
@@ -256,7 +267,8 @@ def slam_files(run: SlamRun, report: bool = False, rosmap: bool = False, maps: b
         "summary.json": json_bytes(run.summary),
     }
     if problem.truth is None:  # a real log: the map alone too, without the paths over it
-        files[OCCUPANCY_FILE] = figure_bytes(plot_occupancy_map(grid, result.posterior, seen, title=run.title), "png")
+        files[OCCUPANCY_FILE] = figure_bytes(plot_occupancy_map(grid, result.posterior, seen, title=run.title,
+                                                                focus=focus), "png")
     if rosmap:
         files.update(encode_rosmap(ROSMAP_STEM, result.posterior, grid))
     if maps:

@@ -55,6 +55,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
+from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.inference.cellwise import cellwise_gibbs
 from bayesmap.inference.chains import run_chain, run_recorded_chains
@@ -70,7 +71,6 @@ from bayesmap.slam.scanmatch import (
     MIN_HIT_FRACTION,
     ScanData,
     correlative_path,
-    scan_endpoints,
 )
 
 FRONT_END_RESOLUTION = 0.05

@@ -45,6 +45,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
+from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.model.generative import check_likelihood_power
 from bayesmap.model.motion import compose, motion_logpdf
 from bayesmap.progress import ProgressCallback, report
@@ -121,13 +122,6 @@ def _field_stencil(resolution: float, radius: float):
     ii, jj = np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1), indexing="ij")
     keep = (ii**2 + jj**2) * resolution**2 <= (radius + 0.75 * resolution) ** 2
     return jnp.asarray(np.stack([ii[keep], jj[keep]], axis=-1).astype(np.int32))
-
-
-def scan_endpoints(poses, sensor_angles, readings):
-    """World endpoints ``(..., K, 2)`` of scans at ``poses`` ``(..., 3)`` (meters): pose position plus reading times
-    the beam's world direction."""
-    theta = poses[..., 2:3] + sensor_angles
-    return poses[..., None, :2] + readings[..., None] * jnp.stack([jnp.cos(theta), jnp.sin(theta)], axis=-1)
 
 
 def _cells(grid: Grid, xy):

@@ -277,6 +277,8 @@ def plot_posterior(
     title=None,
     std=False,
     seen=None,
+    focus=None,
+    include=None,
 ) -> Figure:
     """Draw the posterior wall probability per cell as a heatmap (white = free, black = wall).
 
@@ -296,6 +298,10 @@ def plot_posterior(
             :data:`~bayesmap.viz.common.CROP_MARGIN` (clipped to the grid, see
             :func:`~bayesmap.viz.common.crop_extent`), the other cells in
             :data:`~bayesmap.viz.common.UNSEEN_COLOR`; None shows the whole grid.
+        focus: ``(N, 2)`` world points where the map's content is (the returned beams' endpoints): the frame holds
+            their central :data:`~bayesmap.viz.common.FOCUS_COVERAGE` on each axis
+            (:func:`~bayesmap.viz.common.crop_extent`); None: the seen cells' box.
+        include: ``(M, 2)`` world points the frame must hold with ``focus`` (the sensor path), or None.
 
     Returns:
         The Figure: ``fig.axes`` is ``[map, colour bar]`` (``[map, std map, colour bar, std colour bar]`` with
@@ -316,7 +322,7 @@ def plot_posterior(
     if std:
         panels.append(("std", np.sqrt(prob * (1.0 - prob)), "viridis", 0.5, "std. dev. sqrt(p(1 - p))",
                        "Posterior standard deviation"))
-    fig, pairs = _map_panels(grid, panels, seen, crop_extent(grid, seen))
+    fig, pairs = _map_panels(grid, panels, seen, crop_extent(grid, seen, focus=focus, include=include))
     for ax, _ in pairs:
         handles = []
         if truth is not None:
@@ -330,7 +336,7 @@ def plot_posterior(
     return fig
 
 
-def plot_occupancy_map(grid, posterior, seen=None, title: str = "") -> Figure:
+def plot_occupancy_map(grid, posterior, seen=None, title: str = "", focus=None) -> Figure:
     """The occupancy grid alone: the posterior wall probability per cell (white = free, black = wall), cropped to
     the cells some beam crossed.
 
@@ -342,6 +348,9 @@ def plot_occupancy_map(grid, posterior, seen=None, title: str = "") -> Figure:
             :data:`~bayesmap.viz.common.CROP_MARGIN`, clipped to the grid, and the cells outside ``seen`` are drawn
             in :data:`~bayesmap.viz.common.UNSEEN_COLOR` (a legend entry says so); None shows the whole grid.
         title: the axes title ("" for none).
+        focus: ``(N, 2)`` world points where the map's content is (the returned beams' endpoints): the frame holds
+            their central :data:`~bayesmap.viz.common.FOCUS_COVERAGE` on each axis
+            (:func:`~bayesmap.viz.common.crop_extent`); None: the seen cells' box.
 
     Returns:
         The Figure: ``fig.axes`` is ``[map, colour bar]``; axes in meters (cells on the unit grid); the image has
@@ -355,14 +364,14 @@ def plot_occupancy_map(grid, posterior, seen=None, title: str = "") -> Figure:
     prob = check_cells(posterior, grid, "posterior", unit_interval=True)
     seen = check_seen(seen, grid)
     fig, pairs = _map_panels(grid, [("posterior", prob, "Greys", 1.0, "P(wall)", title)], seen,
-                             crop_extent(grid, seen), width=MAP_WIDTH_INCHES)
+                             crop_extent(grid, seen, focus=focus), width=MAP_WIDTH_INCHES)
     if seen is not None:
         draw_legend(pairs[0][0], [unseen_handle()])
     fit_colorbars(fig, pairs)
     return fig
 
 
-def plot_posterior_path(grid, posterior, path, *, title=None, std=False, seen=None) -> Figure:
+def plot_posterior_path(grid, posterior, path, *, title=None, std=False, seen=None, focus=None) -> Figure:
     """Draw the posterior of a whole log (:func:`plot_posterior` without a scan: a log has too many beams to draw)
     with the robot's path over every map panel.
 
@@ -375,6 +384,9 @@ def plot_posterior_path(grid, posterior, path, *, title=None, std=False, seen=No
         std: also draw the posterior standard deviation panel (with the path too).
         seen: ``(nx, ny)`` bool, the cells some beam crossed: the panels are cropped to them, as in
             :func:`plot_posterior`; None shows the whole grid.
+        focus: ``(N, 2)`` world points where the map's content is (the returned beams' endpoints): the frame holds
+            their central :data:`~bayesmap.viz.common.FOCUS_COVERAGE` on each axis
+            (:func:`~bayesmap.viz.common.crop_extent`); None: the seen cells' box. The path is always in the frame.
 
     Returns:
         The Figure of :func:`plot_posterior`; on each map panel the path is a thin, semi-transparent line above the
@@ -390,7 +402,7 @@ def plot_posterior_path(grid, posterior, path, *, title=None, std=False, seen=No
     if not np.all(np.isfinite(points)):
         k = int(np.argwhere(~np.isfinite(points))[0, 0])
         raise BayesmapError(f"path[{k}] is {points[k].tolist()!r}: sensor positions must be finite")
-    fig = plot_posterior(grid, posterior, title=title, std=std, seen=seen)
+    fig = plot_posterior(grid, posterior, title=title, std=std, seen=seen, focus=focus, include=points)
     for ax in fig.axes[: 2 if std else 1]:  # the map panels (the colour bars come after them)
         ax.plot(points[:, 0], points[:, 1], color=PATH_COLOR, lw=0.6, alpha=0.6, zorder=4, label="sensor path",
                 gid="sensor_path")

@@ -164,7 +164,7 @@ def _draw_ellipses(ax, mean, cov, many: bool, unit: str) -> list:
 
 
 def plot_slam(grid, posterior, mean_path, pose_cov, samples, *, true_path=None, odometry=None, truth=None,
-              title: str | None = None, seen=None) -> Figure:
+              title: str | None = None, seen=None, focus=None) -> Figure:
     """The posterior map of a SLAM run with its paths.
 
     Args:
@@ -186,6 +186,9 @@ def plot_slam(grid, posterior, mean_path, pose_cov, samples, *, true_path=None, 
             plus :data:`~bayesmap.viz.common.CROP_MARGIN`, clipped to the grid
             (:func:`~bayesmap.viz.common.crop_extent`), the other cells in
             :data:`~bayesmap.viz.common.UNSEEN_COLOR`; None shows the whole grid.
+        focus: optional ``(N, 2)`` world points where the map's content is (the returned beams' endpoints at
+            ``mean_path``): the frame holds their central :data:`~bayesmap.viz.common.FOCUS_COVERAGE` on each axis,
+            and the whole mean path (:func:`~bayesmap.viz.common.crop_extent`); None: the seen cells' box.
 
     Returns:
         A Figure with one map panel and a colour bar as tall as the map; artists carry gids ``"posterior"`` (the
@@ -197,7 +200,7 @@ def plot_slam(grid, posterior, mean_path, pose_cov, samples, *, true_path=None, 
             ``(nx, ny)`` bool array (the message names them).
     """
     grid, prob, mean, cov, paths, seen = _check_slam(grid, posterior, mean_path, pose_cov, samples, seen)
-    extent = crop_extent(grid, seen)
+    extent = crop_extent(grid, seen, focus=focus, include=mean[:, :2])
     fig = new_figure(map_figsize(extent, 1, colorbar=True, width=MAP_WIDTH_INCHES))
     ax = fig.add_subplot(1, 1, 1)
     setup_map_axes(ax, grid, title or "Posterior P(wall) and path", extent)

@@ -82,9 +82,12 @@ def _map_figures(problem, result) -> list[str]:
     figures.append(_figure(figure_bytes(plot_map(grid, None, title="What the robot sees", **scan)),
                            f"The data alone: rays from the sensor to each reading, axes in {unit}.", "fig-scan"))
     # a real log's grid reaches as far as its longest beam: show the cells the beams crossed
-    seen = seen_cells(problem.table, problem.ray_readings) if problem.multi_scan and problem.truth is None else None
+    real_log = problem.multi_scan and problem.truth is None
+    seen = seen_cells(problem.table, problem.ray_readings) if real_log else None
+    focus = problem.returned_endpoints if real_log else None
     figures.append(_figure(figure_bytes(plot_posterior(grid, result.posterior, truth=problem.truth, std=True,
-                                                       title="Posterior wall probability", seen=seen, **scan)),
+                                                       title="Posterior wall probability", seen=seen, focus=focus,
+                                                       include=np.reshape(problem.pos, (-1, 2)), **scan)),
                            f"Left: posterior probability that each cell is a wall (mean of sweeps {burn_in + 1}-"
                            f"{summary['sweeps']}{', all chains' if np.ndim(result.samples) == 4 else ''}); true walls "
                            "outlined when known. Right: posterior standard deviation (0 = certain, 0.5 = a coin flip).",
