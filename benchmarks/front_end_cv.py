@@ -1,4 +1,4 @@
-"""Leave-one-log-out cross-validation of a front-end setting (issue 15: the path's error): the likelihood power, the
+"""Leave-one-log-out cross-validation of a front-end setting (judged by the path's error): the likelihood power, the
 least hit fraction of a trusted match, or the local map's length.
 
 The front end (:func:`bayesmap.slam.scanmatch.correlative_path`) places each scan at the maximum of

@@ -1,4 +1,4 @@
-"""Leave-one-log-out cross-validation of the map model's defaults for logs (issue 16): the likelihood power (fixed, or
+"""Leave-one-log-out cross-validation of the map model's defaults for logs: the likelihood power (fixed, or
 following the data: ``c`` readings per cell), the structured prior's run length, the sensor noise, the beam mixture's
 random weight and the probability that a beam passes a wall cell, in the chord geometry with no range offset, at several
 resolutions.
@@ -12,9 +12,9 @@ Selection: for each log held out, among the settings whose NLL is below log-odds
 logs, the one with the highest mean AUC margin over log-odds (bayesmap's AUC minus log-odds', every resolution of
 the other logs weighted equally) is chosen and reported on the held-out log, at every resolution ("mean"); and by a
 second rule ("tie-by-nll", :data:`TIE`): among those within 0.0005 of the highest mean margin, the one with the
-lowest mean NLL margin over log-odds. Issue 16's target is a margin of at least 0.01 with a lower NLL than
+lowest mean NLL margin over log-odds. The map target is a margin of at least 0.01 with a lower NLL than
 log-odds' on every log and resolution. The last lines are the settings each rule chooses on every log; the tie
-rule's is the defaults' (since 2026-11-24).
+rule's is the defaults'.
 
 A setting with ``readings_per_cell`` ``c > 0`` (``--readings-per-cell``) has no fixed power (``power`` 0 in its row):
 its power is ``c`` over the mean number of returned readings per cell of the training scans

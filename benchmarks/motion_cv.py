@@ -1,4 +1,4 @@
-"""Leave-one-log-out cross-validation of the odometry motion model's noise (issue 15: motion-noise defaults).
+"""Leave-one-log-out cross-validation of the odometry motion model's noise (the motion-noise defaults).
 
 For each SLAM problem (a noisy-odometry log and its true trajectory, ``../shared/data/slam/X-odom.*`` or any made by
 ``noisy_odometry.py``) the score of motion parameters is the mean log-density per step of the true path given the

@@ -4,7 +4,7 @@ For each log (intel, aces, csail) and each odometry noise seed, the script makes
 ``noisy_odometry.py`` (as ``karto_peer.py`` does: real scans, simulated wheel odometry, the corrected poses as the
 truth) and runs :func:`bayesmap.evaluation.slammap.evaluate_slam_map`: every 10th scan held out, SLAM on the rest from
 odometry alone, the reference map from the same scans at their true poses, both scored on the held-out beams at their
-true poses (occupancy AUC and predictive NLL), each in its own map model. Issue 15's target: the SLAM map's AUC within
+true poses (occupancy AUC and predictive NLL), each in its own map model. The target: the SLAM map's AUC within
 0.01 of the reference's. The ``registered`` columns score the same two maps with each held-out scan first registered
 into the map's frame by scan matching against its neighbours at that map's poses (step 5 of
 :mod:`bayesmap.evaluation.slammap`), with the RMS distance the held-out positions moved: the map's quality without

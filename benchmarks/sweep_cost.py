@@ -1,4 +1,4 @@
-"""Seconds per cellwise sweep of a whole log, by map model (issue 16's cost target: the structured prior at most 1.5x
+"""Seconds per cellwise sweep of a whole log, by map model (the cost target: the structured prior at most 1.5x
 the independent prior's sweep).
 
 For each setting, the log's problem is built at ``--resolution``, the cellwise sampler is started from the log-odds
@@ -7,7 +7,7 @@ best of ``--repeats`` timed runs of the compiled chain, divided by its sweeps (c
 excluded, as ``bayesmap bench`` times its samplers). Settings:
 
 * ``entry``: the tutorial's entry geometry, a 0.1 m range offset, power 0.1, the independent prior (the log
-  defaults before issue 16);
+  defaults before the map model was cross-validated);
 * ``chord``: the chord geometry, no offset, the default power, the independent prior;
 * ``opaque``: the log defaults with wall cells that stop every beam (``wall_pass_prob`` 0: each ray's first two
   walls in the rows, as before passable walls);
