@@ -27,11 +27,13 @@ MAX_GRID_CELLS = 50_000_000
 """Cells of one grid (times the chains run at once): each float32 map of the posterior is 200 MB at this size, and a
 chain keeps several."""
 MAX_MEMORY_BYTES = 16e9
-"""Bytes the ray-cell table may take (estimated with :data:`BYTES_PER_PAIR`): the machine the limits were set on
-has 24 GB, and JAX and the figures need the rest."""
-BYTES_PER_PAIR = 40
-"""Bytes per (beam, cell) pair of the estimate :func:`beam_cells` (an upper bound, about twice the real count on
-the Intel log): the whole Intel log at 0.1 m has 42.4 million pairs and peaks at 2.9 GB, 68 bytes per real pair."""
+"""Bytes a run may take (estimated with :data:`BYTES_PER_PAIR`): the machine the limits were set on has 24 GB, and
+the operating system and the user's other work need the rest."""
+BYTES_PER_PAIR = 80
+"""Peak resident bytes of a whole-log run per (beam, cell) pair of its ray-cell table (:func:`ray_cells` counts them
+to within 1 %), everything included: the largest measured, 78 bytes for ``infer --log`` of the whole Intel log at
+0.1 m (42.4 million pairs, 3.3 GB peak) and 75 for ``slam --log`` of CSAIL (70 million pairs, 5.2 GB); runs of 10
+sweeps peak at 22 bytes per pair plus 0.6 GB ([validation](../validation/speed.md#memory))."""
 MIN_TRUTH_RESOLUTION = 0.01
 """Meters per pixel: the finest floor plan ``evaluate --truth`` takes (its poses keep 0.5 m of clearance, checked
 over a square of ``(2 * 0.5 / resolution + 1) ** 2`` shifted copies of the map)."""
@@ -163,17 +165,35 @@ def check_free_cell(walls, pos, source: str) -> None:
                             "put the sensor in a free cell ('.')")
 
 
-def beam_cells(length: float, resolution: float, beam_angles) -> float:
-    """An upper bound on the (beam, cell) pairs of beams at ``beam_angles`` (radians) of ``length`` meters on a
-    grid of ``resolution`` meters per cell: at most ``length (|cos a| + |sin a|) / resolution + 2`` cells each (one
-    new cell per grid line crossed; Amanatides & Woo 1987, "A fast voxel traversal algorithm for ray tracing")."""
-    a = np.asarray(beam_angles, dtype=np.float64).reshape(-1)
-    return float(np.sum(length * (np.abs(np.cos(a)) + np.abs(np.sin(a))) / resolution + 2.0))
+def ray_cells(grid, origins, beam_angles, max_distance: float) -> np.ndarray:
+    """How many cells each beam crosses before it reaches ``max_distance`` or leaves ``grid``, estimated in closed
+    form: ``L (|cos a| + |sin a|) / resolution + 2`` for the beam's length ``L`` inside the grid (one new cell per grid
+    line crossed; Amanatides & Woo 1987, "A fast voxel traversal algorithm for ray tracing"). Within 1 % of the
+    ray-cell table's pairs on the shared logs (an upper bound for a beam that starts inside the grid).
+
+    Args:
+        grid: the :class:`~bayesmap.geometry.grid.Grid` (meters).
+        origins: ``(R, 2)`` or ``(2,)`` float sensor positions, meters.
+        beam_angles: ``(R,)`` float world-frame beam angles, radians.
+        max_distance: meters.
+
+    Returns:
+        ``(R,)`` float64 cells per beam.
+    """
+    angles = np.asarray(beam_angles, dtype=np.float64).reshape(-1)
+    origins = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 2), (len(angles), 2))
+    cos, sin = np.cos(angles), np.sin(angles)
+    x0, x1, y0, y1 = grid.extent
+    with np.errstate(divide="ignore", invalid="ignore"):  # a beam along an axis never meets the other axis' sides
+        exit_x = np.where(cos > 0, (x1 - origins[:, 0]) / cos, np.where(cos < 0, (x0 - origins[:, 0]) / cos, np.inf))
+        exit_y = np.where(sin > 0, (y1 - origins[:, 1]) / sin, np.where(sin < 0, (y0 - origins[:, 1]) / sin, np.inf))
+    length = np.clip(np.minimum(np.minimum(exit_x, exit_y), max_distance), 0.0, None)
+    return length * (np.abs(cos) + np.abs(sin)) / grid.resolution + 2.0
 
 
 def check_sizes(shape: tuple[int, int], resolution: float, pairs: float, chains: int = 1) -> None:
     """Refuse a grid of ``shape`` cells over :data:`MAX_GRID_CELLS` (times ``chains``), or a ray-cell table of
-    ``pairs`` (estimated) pairs over :data:`MAX_MEMORY_BYTES` at :data:`BYTES_PER_PAIR`.
+    ``pairs`` (estimated) pairs whose run would take more than :data:`MAX_MEMORY_BYTES` at :data:`BYTES_PER_PAIR`.
 
     Raises:
         BayesmapError: naming the figure and the way out.
@@ -184,9 +204,10 @@ def check_sizes(shape: tuple[int, int], resolution: float, pairs: float, chains:
                             f"chains; at most {MAX_GRID_CELLS:,}): use a coarser --resolution, fewer --chains or fewer "
                             "--scans (a far-away pose widens the grid)")
     if pairs * BYTES_PER_PAIR > MAX_MEMORY_BYTES:
-        raise BayesmapError(f"the ray-cell table would take about {pairs * BYTES_PER_PAIR / 1e9:,.0f} GB ({pairs:,.0f} "
-                            f"(beam, cell) pairs; at most {MAX_MEMORY_BYTES / 1e9:g} GB): use a coarser --resolution, "
-                            "fewer --scans, fewer poses or beams, or a shorter --max-range")
+        raise BayesmapError(f"the ray-cell table would take about {pairs * BYTES_PER_PAIR / 1e9:,.0f} GB with the "
+                            f"run's other arrays ({pairs:,.0f} (beam, cell) pairs at {BYTES_PER_PAIR} bytes; at most "
+                            f"{MAX_MEMORY_BYTES / 1e9:g} GB): use a coarser --resolution, fewer --scans, fewer poses "
+                            "or beams, or a shorter --max-range")
 
 
 def check_problem_size(problem, chains: int = 1) -> None:
@@ -200,8 +221,8 @@ def check_problem_size(problem, chains: int = 1) -> None:
     grid = problem.grid
     if grid.num_cells * max(chains, 1) > MAX_GRID_CELLS:
         check_sizes(grid.shape, grid.resolution, 0.0, chains)
-    length = min(float(problem.params.max_range), math.hypot(*grid.shape) * grid.resolution)
-    check_sizes(grid.shape, grid.resolution, beam_cells(length, grid.resolution, problem.ray_angles), chains)
+    pairs = ray_cells(grid, problem.ray_origins, problem.ray_angles, float(problem.params.max_range)).sum()
+    check_sizes(grid.shape, grid.resolution, float(pairs), chains)
 
 
 def check_slam_size(problem) -> None:
@@ -212,9 +233,11 @@ def check_slam_size(problem) -> None:
         BayesmapError: as :func:`check_sizes`.
     """
     grid = problem.params.grid
-    length = min(float(problem.params.max_range), math.hypot(*grid.shape) * grid.resolution)
-    angles = np.asarray(problem.odometry)[:, 2:3] + np.asarray(problem.sensor_angles)
-    check_sizes(grid.shape, grid.resolution, beam_cells(length, grid.resolution, angles))
+    odometry = np.asarray(problem.odometry, dtype=np.float64)
+    angles = odometry[:, 2:3] + np.asarray(problem.sensor_angles)
+    origins = np.repeat(odometry[:, :2], angles.shape[1], axis=0)
+    pairs = ray_cells(grid, origins, angles, float(problem.params.max_range)).sum()
+    check_sizes(grid.shape, grid.resolution, float(pairs))
 
 
 def check_truth_scene(truth: Path, resolution: float, num_poses: int, num_angles: int, max_range: float) -> None:
@@ -231,9 +254,11 @@ def check_truth_scene(truth: Path, resolution: float, num_poses: int, num_angles
     if max_range < grid.resolution:
         raise BayesmapError(f"--max-range {max_range:g} m is shorter than one cell of {truth} ({grid.resolution:g} m): "
                             "no beam would cross a cell")
+    # the poses are drawn later, anywhere in the plan: each beam as long as the max range or the plan's diagonal
     length = min(max_range, math.hypot(*grid.shape) * grid.resolution)
     angles = np.linspace(0, 2 * np.pi, num_angles, endpoint=False)
-    check_sizes(grid.shape, grid.resolution, num_poses * beam_cells(length, grid.resolution, angles))
+    per_scan = np.sum(length * (np.abs(np.cos(angles)) + np.abs(np.sin(angles))) / grid.resolution + 2.0)
+    check_sizes(grid.shape, grid.resolution, num_poses * float(per_scan))
 
 
 def load_npy(path: Path, what: str) -> np.ndarray:
