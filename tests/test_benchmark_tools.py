@@ -1,15 +1,17 @@
-"""The benchmarks' own helpers: the trace reader of ``benchmarks/sweep_cost.py --profile`` and the selection rules
-of ``benchmarks/map_cv.py``."""
+"""The benchmarks' own helpers: the trace reader of ``benchmarks/sweep_cost.py --profile``, the selection rules
+of ``benchmarks/map_cv.py``, and the watchdog, slopes and table of ``benchmarks/scale.py``."""
 
 import gzip
 import json
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import map_cv  # noqa: E402
+import scale  # noqa: E402
 import sweep_cost  # noqa: E402
 
 EVENTS = [
@@ -57,3 +59,139 @@ def test_map_cv_rules_choose_by_mean_margin_and_break_ties_by_nll():
     # a setting missing one (log, resolution) is not eligible, whatever its scores
     rows.append(_cv_row("x", 0.1, (0.5, 1.0, 0.1), 0.99, 0.1))
     assert map_cv.choose(rows, ["x", "y"], 0.0) == pick[0.0]
+
+
+def test_scale_slope_is_the_least_squares_fit_per_thousand_scans():
+    """Points on a line of 40 s per 1,000 scans plus 5 s give 40 exactly; noise of +-1 s at 250 and 1,000 scans
+    (the middle point 0) moves the slope by 2 / 0.75 = 2.67 s per 1,000 (least squares: sum(dx dy) / sum(dx^2) with
+    dx = -0.25, 0.5 thousand from the mean 0.5833... computed by hand below); one prefix gives no slope."""
+    scans = [250, 500, 1000]
+    assert scale.fit_slope(scans, [5 + 0.04 * n for n in scans]) == pytest.approx(40.0)
+    x = [0.25, 0.5, 1.0]
+    mean = sum(x) / 3
+    dy = [-1.0, 0.0, 1.0]
+    by_hand = sum((a - mean) * b for a, b in zip(x, dy)) / sum((a - mean) ** 2 for a in x)
+    noisy = [5 + 0.04 * n + d for n, d in zip(scans, dy)]
+    assert scale.fit_slope(scans, noisy) == pytest.approx(40.0 + by_hand)
+    assert scale.fit_slope([500], [3.0]) is None and scale.fit_slope([500, 500], [3.0, 4.0]) is None
+
+
+def _scale_records():
+    stages = [{"stage": name, "seconds": seconds, "peak_rss_mb": 100.0 * k} for k, (name, seconds) in enumerate([
+        ("read log", 0.1), ("front end", 30.0), ("loop closure 1/3", 4.0), ("loop closure 2/3", 2.0),
+        ("round 1/3: map", 50.0), ("round 1/3: poses", 10.0), ("round 2/3: map", 40.0), ("final map", 20.4),
+        ("figures", 3.0)])]
+    return [
+        {"scans": 500, "method": "karto", "status": "ok", "wall_s": 4.0, "peak_mb": 400.0, "ate_m": 0.5},
+        {"scans": 250, "method": "bayesmap", "status": "ok", "wall_s": 120.0, "peak_mb": 2000.0, "ate_m": 0.25,
+         "stages": stages},
+        {"scans": 500, "method": "bayesmap", "status": "ok", "wall_s": 300.0, "peak_mb": 5000.0, "ate_m": 0.3,
+         "stages": stages[:2] + [{"stage": "build problem", "seconds": 1.0, "peak_rss_mb": 7.0}] + stages[2:]},
+        {"scans": 1000, "method": "bayesmap", "status": "killed", "killed": "memory", "wall_s": 93.4,
+         "peak_mb": 10100.0, "memory_limit_gb": 10.0, "time_limit_s": 1800.0},
+        {"scans": 4791, "method": "bayesmap", "status": "refused", "returncode": 2, "wall_s": 6.0, "peak_mb": None,
+         "message": "the ray-cell table would take about 72 GB | more"},
+        {"scans": 250, "method": "karto", "status": "ok", "wall_s": 2.0, "peak_mb": 350.0, "ate_m": 0.4},
+    ]
+
+
+def test_scale_table_rows_statuses_and_stage_columns():
+    """One row per run, by prefix then method (bayesmap first); a killed run says at what and when, a refused one
+    its message (a "|" escaped, not a new column); the rounds' map and pose stages sum (50 + 10 + 40), the loop
+    closure's rounds too (4 + 2); the slopes use the finished runs alone."""
+    records = _scale_records()
+    lines = scale.markdown_table(records).splitlines()
+    assert lines[0].startswith("| prefix scans | method | status | wall s | peak MB | ATE m | front end s")
+    assert [line.split(" | ")[:2] for line in lines[2:]] == [["| 250", "bayesmap"], ["| 250", "karto"],
+                                                             ["| 500", "bayesmap"], ["| 500", "karto"],
+                                                             ["| 1,000", "bayesmap"], ["| 4,791", "bayesmap"]]
+    assert lines[2] == "| 250 | bayesmap | ok | 120 | 2,000 | 0.25 | 30 | 6 | 100 | 20 |"
+    assert lines[3] == "| 250 | karto | ok | 2 | 350 | 0.40 | - | - | - | - |"
+    assert "| killed at 10 GB after 93 s | 93 | 10,100 | - |" in lines[6]
+    assert "refused: the ray-cell table would take about 72 GB \\| more | 6 | - | - |" in lines[7]
+    assert all(line.replace("\\|", "").count("|") == lines[0].count("|") for line in lines[2:])  # the columns
+    fits = scale.slopes(records)
+    assert fits["bayesmap"]["prefixes"] == [250, 500]
+    assert fits["bayesmap"]["seconds_per_1000"] == pytest.approx(720.0)  # (300 - 120) s over 0.25 thousand scans
+    assert fits["bayesmap"]["mb_per_1000"] == pytest.approx(12000.0)
+    assert fits["karto"]["seconds_per_1000"] == pytest.approx(8.0)
+    assert scale.status_text({**records[3], "killed": "time", "wall_s": 1800.2}) == (
+        "killed at the 1800 s limit after 1800 s")
+
+
+def test_scale_prefixes_and_error_line():
+    assert scale.parse_prefixes("500, 250,all,250", 4791) == [250, 500, 4791]
+    for bad in ("0", "5000", "x", ""):
+        with pytest.raises(ValueError):
+            scale.parse_prefixes(bad, 4791)
+    text = "front end: 10%\rfront end: 20%\nerror: the grid would have 9 cells\n"
+    assert scale.error_line(text) == "the grid would have 9 cells"
+    assert scale.error_line("Traceback\nKeyError: 3\n") == "KeyError: 3"
+
+
+ALLOCATE = """
+import os, sys, time
+open(sys.argv[1], "w").write(str(os.getpid()))
+blocks = []
+for _ in range(60):  # 5 MB more every 0.02 s, touched (a bytearray is zeroed): 300 MB after 1.2 s
+    blocks.append(bytearray(5 * 10**6))
+    time.sleep(0.02)
+time.sleep(30)
+"""
+
+
+def test_scale_watchdog_kills_the_whole_tree_above_the_memory_limit(tmp_path):
+    """A child whose own child (a grandchild) fills 300 MB: the tree's memory is polled, the tree killed soon after
+    it passes 150 MB (not after the grandchild's 30 s sleep), the grandchild gone too; the run reports no exit code
+    and at least the limit seen."""
+    pid_file = tmp_path / "pid"
+    parent = f"import subprocess, sys; subprocess.run([sys.executable, '-c', {ALLOCATE!r}, {str(pid_file)!r}])"
+    start = time.perf_counter()
+    watched = scale.run_watched([sys.executable, "-c", parent], memory_limit_mb=150.0, time_limit_s=60.0,
+                                poll_s=0.1)
+    assert watched.killed == "memory" and watched.returncode is None
+    assert watched.polled_peak_mb > 150.0 and time.perf_counter() - start < 15.0
+    assert max(watched.peaks.values()) > 100.0  # the grandchild's own high-water mark (it held most of it)
+    grandchild = int(pid_file.read_text())
+    deadline = time.perf_counter() + 5.0
+    while time.perf_counter() < deadline and _alive(grandchild):
+        time.sleep(0.05)
+    assert not _alive(grandchild)
+
+
+def _alive(pid: int) -> bool:
+    import psutil
+
+    try:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
+def test_scale_watchdog_time_limit_and_exit_codes(tmp_path):
+    """A run past its time limit is killed; one that ends reports its exit code, its wall time and its process's
+    peak (the high-water mark read while it held 50 MB for a second: at least that), and its output is kept."""
+    slow = scale.run_watched([sys.executable, "-c", "import time; time.sleep(30)"], memory_limit_mb=1e6,
+                             time_limit_s=0.5, poll_s=0.1)
+    assert slow.killed == "time" and slow.wall_s < 10.0
+    output = tmp_path / "out.txt"
+    code = "import sys, time; block = bytearray(50 * 10**6); print('error: refused here'); time.sleep(1); sys.exit(2)"
+    done = scale.run_watched([sys.executable, "-c", code], memory_limit_mb=1e6, time_limit_s=60.0, output=output,
+                             poll_s=0.1)
+    assert done.killed is None and done.returncode == 2
+    assert list(done.peaks) == [scale.process_label([sys.executable, "-c"])] and max(done.peaks.values()) >= 50.0
+    assert scale.error_line(output.read_text()) == "refused here"
+    assert 0.0 < done.wall_s < 30.0
+
+
+def test_scale_stage_table_has_every_stage_of_the_finished_bayesmap_runs():
+    """One row per stage in the order they ran (a stage only one prefix has: blank cells for the others), two
+    columns (seconds, peak MB) per finished bayesmap prefix; Karto's and unfinished runs have no columns."""
+    lines = scale.stage_table(_scale_records()).splitlines()
+    assert lines[0] == "| stage | 250 scans: s | 250 scans: peak MB | 500 scans: s | 500 scans: peak MB |"
+    assert [line.split(" | ")[0] for line in lines[2:]] == ["| read log", "| front end", "| build problem",
+                                                            "| loop closure 1/3", "| loop closure 2/3",
+                                                            "| round 1/3: map", "| round 1/3: poses",
+                                                            "| round 2/3: map", "| final map", "| figures"]
+    assert lines[3] == "| front end | 30.0 | 100 | 30.0 | 100 |" and lines[4] == "| build problem |  |  | 1.0 | 7 |"
+    assert scale.stage_table([r for r in _scale_records() if r["method"] == "karto"]) == ""

@@ -22,6 +22,7 @@ def test_infer_on_a_map_file_writes_all_outputs(tmp_path, monkeypatch, capsys):
     assert np.load(tmp_path / "out" / "readings.npy").shape == (60,)
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["sweeps"] == 20 and summary["pos"] == [2.0, 3.0] and summary["visible_cells"] == 31
+    assert [s["stage"] for s in summary["stages"]] == ["build problem", "sweeps", "figures", "write outputs"]
     assert posterior[1:4, 1:6].max() < 0.5 and posterior[1:4, 1:6].mean() < 0.1  # the free interior is inferred free
     # (single-site Gibbs, any order, can get stuck here for 20+ sweeps with some seeds: a wall next to the sensor
     # shadows the true walls; the default 2x2 block sampler does not)
@@ -31,6 +32,22 @@ def test_infer_on_a_map_file_writes_all_outputs(tmp_path, monkeypatch, capsys):
     before = (tmp_path / "out" / "summary.json").read_bytes()
     code, out, err = run_cli(monkeypatch, capsys, "infer", "--map", tmp_path / "room.txt", "--out", tmp_path / "out")
     assert code == 2 and "--force" in err and (tmp_path / "out" / "summary.json").read_bytes() == before
+
+
+def test_infer_on_a_log_records_its_stages(intel_log, tmp_path, monkeypatch, capsys):
+    """summary.json of ``infer --log --scans`` holds each stage, the ray-cell table one of its own, in the order
+    they ran; the sampler's stage holds the sampler's own runtime (and the summary computed after it); the run's
+    peak is at least every stage's; the other keys are there as before."""
+    code, out, err = run_cli(monkeypatch, capsys, "infer", "--log", intel_log, "--scans", "0:4", "--resolution",
+                             0.2, "--sweeps", 4, "--out", tmp_path / "out")
+    assert code in (0, None), err
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    stages = summary["stages"]
+    assert [s["stage"] for s in stages] == ["read log", "build problem", "ray-cell table", "sweeps", "figures",
+                                            "write outputs"]
+    assert stages[3]["seconds"] >= summary["runtime_s"] - 0.01  # (1 ms rounding each)
+    assert summary["peak_rss_mb"] >= max(s["peak_rss_mb"] for s in stages) > 0  # (the peak before them counts too)
+    assert summary["num_scans"] == 4 and summary["sweeps"] == 4
 
 
 def test_infer_on_a_real_scan(intel_log, tmp_path, monkeypatch, capsys):

@@ -110,6 +110,24 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
 
 
 @ONE_RUN
+def test_slam_log_summary_holds_each_stage(log_run):
+    """summary.json's stages: the runs layer's (reading the log, building the problem, the figures, the files)
+    around the pipeline's, in the order they ran (no loop closure on 25 scans: no candidate). The pipeline times
+    itself (runtime_s) from inside "build problem" (the scans' data precede its first report) until it returns,
+    a few lines before "figures" starts: so its stages add up to runtime_s less part of "build problem", within
+    0.2 s (the lines between, and 1 ms of rounding per stage). Each peak is positive and at most the run's."""
+    summary = json.loads((log_run / "summary.json").read_text())
+    stages = summary["stages"]
+    rounds = [f"round {r}/2: {part}" for r in (1, 2) for part in ("map", "poses")]
+    assert [s["stage"] for s in stages] == ["read log", "build problem", "front end", *rounds, "final map", "figures",
+                                            "write outputs"]
+    pipeline = sum(s["seconds"] for s in stages[2:-2])
+    assert pipeline - 0.2 <= summary["runtime_s"] <= pipeline + stages[1]["seconds"] + 0.2
+    assert all(0 < s["peak_rss_mb"] <= summary["peak_rss_mb"] for s in stages)
+    assert all(s["seconds"] >= 0 for s in stages)
+
+
+@ONE_RUN
 def test_slam_bag_gives_the_logs_trajectory(log_run, aces_odom, tmp_path, monkeypatch, capsys):
     """The slice written as a ROS 1 bag by `bayesmap convert` maps to the log's path (same seed): the bag keeps
     ranges and poses exactly and beam angles to 2e-7 rad (float32)."""
@@ -142,6 +160,11 @@ def test_evaluate_runs_slam_on_the_log(log_run, aces_odom, tmp_path, monkeypatch
     assert code == 0, err
     new, old = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("new", "run"))
     assert new["setup"]["paired_by"] == "order" and new["setup"]["scans"] == 25
+    # the JSON's stages: a new run's pipeline (no final map: the path is scored) between reading and scoring
+    assert [s["stage"] for s in old["stages"]] == ["read truth", "read log", "score"]
+    names = [s["stage"] for s in new["stages"]]
+    assert names[:4] == ["read truth", "read log", "build problem", "front end"] and names[-1] == "score"
+    assert "round 2/2: poses" in names and "final map" not in names and new["peak_rss_mb"] > 0
     # 1e-5 m: the run folder's trajectory.tum keeps 6 decimals
     assert new["bayesmap"]["ate_rmse_m"] == pytest.approx(old["bayesmap"]["ate_rmse_m"], abs=1e-5)
     _, true_poses = read_tum(truth)

@@ -3,7 +3,8 @@ against a known floor plan (:mod:`bayesmap.evaluation.heldout`), or a SLAM path 
 true trajectory (:func:`bayesmap.evaluation.trajectory.score_trajectory`).
 
 :func:`evaluate` runs the job an :class:`EvaluateRequest` describes and returns an :class:`EvaluateRun` (the scores,
-one line saying what was scored, the table); :func:`bayesmap.runs.outputs.write_json` writes the scores.
+with each stage's wall time and peak memory, one line saying what was scored, the table);
+:func:`bayesmap.runs.outputs.write_json` writes the scores.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.heldout import evaluate_log, evaluate_truth
 from bayesmap.evaluation.trajectory import score_trajectory
 from bayesmap.io.tum import STAMP_TOLERANCE, match_stamps, read_tum, tum_stamps
-from bayesmap.progress import ProgressCallback
+from bayesmap.progress import ProgressCallback, StageRecorder, start_stage
 from bayesmap.runs.inputs import (
     check_problem_size,
     check_truth_scene,
@@ -90,8 +91,9 @@ class EvaluateRun(NamedTuple):
 
 
 def format_scores(scores: dict) -> str:
-    """The map evaluation's table: one row per method, its metrics as columns."""
-    rows = [(name, vals) for name, vals in scores.items() if name != "setup"]
+    """The map evaluation's table: one row per method (a dict of metrics other than ``"setup"``), its metrics as
+    columns."""
+    rows = [(name, vals) for name, vals in scores.items() if name != "setup" and isinstance(vals, dict)]
     keys = [k for k in ("auc", "nll", "accuracy", "brier", "beams", "cells", "runtime_s")
             if any(k in v for _, v in rows)]
     lines = [f"{'method':<10}" + "".join(f"{k:>12}" for k in keys)]
@@ -185,9 +187,11 @@ def evaluate_trajectory(req: EvaluateRequest, progress: Optional[ProgressCallbac
             that does not pair with the scans.
     """
     _check_trajectory_request(req)
+    start_stage(progress, "read truth")
     truth_stamps, truth_poses = read_tum(req.truth_trajectory)
     if req.run is not None:
         stamps, mean, cov = read_slam_run(req.run)
+    start_stage(progress, "read log")
     carmen = read_source(req.log, req.bag, req.scan_topic, req.odom_topic, req.tf, req.max_range)
     path = req.log if req.log is not None else req.bag
     log_stamps = tum_stamps(carmen.timestamps)
@@ -212,6 +216,7 @@ def evaluate_trajectory(req: EvaluateRequest, progress: Optional[ProgressCallbac
         mean, cov = result.mean_path, result.pose_cov
         setup.update(settings=settings, runtime_s=result.runtime_s, acceptance_rate=result.acceptance_rate)
     setup.update(scans=len(chosen), paired_by=paired)
+    start_stage(progress, "score")
     scores = {"setup": setup, "bayesmap": score_trajectory(mean, truth, cov),
               "odometry": score_trajectory(np.asarray(carmen.poses, np.float64)[chosen], truth)}
     source = f"the run in {req.run}" if req.run is not None else f"a new run ({setup['runtime_s']:.1f} s)"
@@ -229,6 +234,7 @@ def _evaluate_on_truth(req: EvaluateRequest, mapping: dict, progress: Optional[P
         raise BayesmapError("--geometry and --wall-pass-prob apply to --log, not to --truth")
     max_range = scenes.SIMULATED_MAX_RANGE if req.max_range is None else req.max_range
     check_truth_scene(req.truth, req.resolution, req.num_poses, req.num_angles, max_range)
+    start_stage(progress, "maps and scores")
     scores = evaluate_truth(req.truth, resolution=req.resolution, num_poses=req.num_poses,
                             num_angles=req.num_angles, max_range=max_range, progress=progress, **mapping)
     setup = scores["setup"]
@@ -255,12 +261,16 @@ def evaluate_maps(req: EvaluateRequest, progress: Optional[ProgressCallback] = N
                    beam_model=req.beam_model, prior_wall_prob=req.prior_wall_prob,
                    sensor_params=sensor_params(req.beam_weights, req.lambda_short),
                    coupling=coupling_option(req.coupling, req.run_length, req.resolution))
+    if req.truth is None:
+        start_stage(progress, "read log")
     carmen = read_source(req.log, req.bag, req.scan_topic, req.odom_topic, req.tf, req.max_range)
     if carmen is None:
         return _evaluate_on_truth(req, mapping, progress)
     name = (req.log if req.log is not None else req.bag).name
     chosen = parse_scans(req.scans, len(carmen))
+    start_stage(progress, "build problem")
     check_problem_size(log_problem(carmen, chosen, resolution=req.resolution))  # the grid of all chosen scans
+    start_stage(progress, "maps and scores")
     scores = evaluate_log(carmen, chosen, every=req.every, resolution=req.resolution, range_offset=req.range_offset,
                           likelihood_power=req.likelihood_power,
                           geometry=scenes.LOG_GEOMETRY if req.geometry is None else req.geometry,
@@ -276,11 +286,20 @@ def evaluate(req: EvaluateRequest, progress: Optional[ProgressCallback] = None,
              notify: Optional[Callable[[str], None]] = None) -> EvaluateRun:
     """``bayesmap evaluate``: a SLAM path against a true trajectory (``--truth-trajectory``,
     :func:`evaluate_trajectory`) or maps against held-out beams or a floor plan (:func:`evaluate_maps`).
-    ``progress`` and ``notify`` are passed on to the long work.
+    ``progress`` and ``notify`` are passed on to the long work, ``progress`` through a
+    :class:`bayesmap.progress.StageRecorder` whose stages the scores get as ``"stages"`` and ``"peak_rss_mb"``
+    (the JSON ``--json`` writes; the stages end when the scores are done). Reading the inputs, building the
+    problem and scoring are stages of their own ("read truth", "read log", "build problem", "score"); the time
+    the library spends after its last report (log-odds mapping and the held-out scores of a map evaluation) counts
+    in its last stage.
 
     Raises:
         BayesmapError: on a bad option, input or output (named), before any work where it can be told.
     """
+    stages = StageRecorder(progress)
     if req.truth_trajectory is not None or req.run is not None:
-        return evaluate_trajectory(req, progress, notify)
-    return evaluate_maps(req, progress)
+        done = evaluate_trajectory(req, stages, notify)
+    else:
+        done = evaluate_maps(req, stages)
+    done.scores.update(stages.summary())
+    return done

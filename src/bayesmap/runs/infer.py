@@ -3,7 +3,8 @@ posterior by Gibbs sampling (or log-odds mapping), and the output folder.
 
 In data-flow order: :func:`infer_scene` (the problem an :class:`InferRequest` describes), :func:`run_infer` (the
 job: result and summary), :func:`infer_files` (the output files' bytes), :func:`write_infer` (the folder and the
-``--out-bag`` bag); :func:`infer` does all four after checking the outputs.
+``--out-bag`` bag); :func:`infer` does all four after checking the outputs, and records each stage's wall time and
+peak memory in summary.json (:class:`bayesmap.progress.StageRecorder`).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from bayesmap.io.maps_out import seen_cells
 from bayesmap.io.rosbag import write_occupancy_grid_bag
 from bayesmap.io.rosmap import encode_rosmap
 from bayesmap.model import prior
-from bayesmap.progress import ProgressCallback
+from bayesmap.progress import ProgressCallback, StageRecorder, stage_summary, start_stage
 from bayesmap.runs.inputs import (
     check_free_cell,
     check_problem_size,
@@ -133,8 +134,10 @@ def check_infer_request(req: InferRequest) -> None:
         check_out_bag(req.out_bag, req.force)
 
 
-def infer_scene(req: InferRequest) -> tuple[scenes.Problem, str]:
+def infer_scene(req: InferRequest, progress: Optional[ProgressCallback] = None) -> tuple[scenes.Problem, str]:
     """``(problem, title)`` of a request: a log's scans (``--log`` / ``--bag``) or a map file's simulated readings.
+    A :class:`bayesmap.progress.StageRecorder` as ``progress`` gets the stages "read log" (a log or bag) and
+    "build problem".
 
     Raises:
         BayesmapError: on a bad option value or input file (named).
@@ -142,7 +145,10 @@ def infer_scene(req: InferRequest) -> tuple[scenes.Problem, str]:
     params = sensor_params(req.beam_weights, req.lambda_short)
     carmen_like = req.log is not None or req.bag is not None
     coupling = coupling_option(req.coupling, req.run_length, req.resolution if carmen_like else 1.0)
+    if carmen_like:
+        start_stage(progress, "read log")
     carmen = read_source(req.log, req.bag, req.scan_topic, req.odom_topic, req.tf, req.max_range)
+    start_stage(progress, "build problem")
     if carmen is not None:
         problem, title = _log_scene(carmen, req, params, coupling)
     else:
@@ -213,13 +219,16 @@ def run_infer(problem: scenes.Problem, method: str = "gibbs", sampler: str = "bl
         burn_in: sweeps dropped before averaging; default half.
         seed: the chain's seed.
         chains: chains run at once, >= 1.
-        progress: called with a :class:`bayesmap.progress.Progress` after each chunk of sweeps.
+        progress: called with a :class:`bayesmap.progress.Progress` after each chunk of sweeps; a
+            :class:`bayesmap.progress.StageRecorder` also gets the stage "log-odds mapping" (``method="logodds"``,
+            which reports nothing itself).
 
     Raises:
         BayesmapError: on a problem too large, or bad settings (named).
     """
     check_problem_size(problem, chains=chains)
     if method == "logodds":
+        start_stage(progress, "log-odds mapping")
         result = run_logodds(problem)
     else:
         result = run_inference(problem, sampler=sampler, sweeps=sweeps, burn_in=burn_in, seed=seed, chains=chains,
@@ -234,14 +243,21 @@ def infer_seen(problem: scenes.Problem) -> np.ndarray:
 
 def infer_files(problem: scenes.Problem, run: InferRun, title: str, seed: int = 0, method: str = "gibbs",
                 report: bool = False, rosmap: bool = False, maps: bool = False,
-                seen: Optional[np.ndarray] = None) -> dict[str, bytes]:
+                seen: Optional[np.ndarray] = None, stages: Optional[StageRecorder] = None) -> dict[str, bytes]:
     """The output folder of a mapping run, ``{name: bytes}``: posterior.npy, readings.npy, posterior.png and
     summary.json; diagnostics.npz with several chains; map.pgm / map.yaml with ``rosmap``; posterior.npz and the
     16-bit maps with ``maps``; report.html with ``report`` (its chain's traces replayed with ``seed``). ``seen``:
     ``(nx, ny)`` bool, the cells some beam crossed (:func:`infer_seen`, computed here if None and needed): the
     figure of several scans is cropped to them and to where the readings returned
-    (:attr:`bayesmap.problem.Problem.returned_endpoints`), and ``maps`` records them."""
+    (:attr:`bayesmap.problem.Problem.returned_endpoints`), and ``maps`` records them.
+
+    With ``stages`` (a :class:`bayesmap.progress.StageRecorder`), the figure, the report and the encoding of the
+    other files are its stages "figures", "report" and "write outputs", and summary.json, encoded last, gets
+    ``"stages"`` and ``"peak_rss_mb"`` (:meth:`~bayesmap.progress.StageRecorder.summary`; ``run.summary`` is
+    updated in place): the stages end when summary.json is encoded, before the folder and ``--out-bag`` are
+    written. report.html's summary is the one without them."""
     result = run.result
+    start_stage(stages, "figures")
     if problem.multi_scan:  # a whole log: the posterior with its standard deviation and the path (too many beams)
         fig = plot_posterior_path(problem.grid, result.posterior, problem.pos, title=title, std=method != "logodds",
                                   seen=infer_seen(problem) if seen is None else seen,
@@ -250,10 +266,17 @@ def infer_files(problem: scenes.Problem, run: InferRun, title: str, seed: int = 
         fig = plot_posterior(problem.grid, result.posterior, truth=problem.truth, pos=problem.pos,
                              beam_angles=problem.beam_angles, readings=problem.readings,
                              max_range_mask=problem.max_range_mask, title=title)
+    png = figure_bytes(fig, "png")
+    report_html = None
+    if report:
+        start_stage(stages, "report")
+        traces = chain_traces(problem, result, seed=seed)
+        report_html = build_report(problem, result, traces, title=title).encode("utf-8")
+    start_stage(stages, "write outputs")
     files = {"posterior.npy": npy_bytes(result.posterior.astype("float32")),
              "readings.npy": npy_bytes(problem.readings.astype("float32")),
-             "posterior.png": figure_bytes(fig, "png"),
-             "summary.json": json_bytes(run.summary)}
+             "posterior.png": png,
+             "summary.json": b""}  # (encoded last, below)
     if result.diagnostics is not None:
         buf = io.BytesIO()
         np.savez(buf, r_hat=result.diagnostics["r_hat"], ess=result.diagnostics["ess"])
@@ -262,9 +285,10 @@ def infer_files(problem: scenes.Problem, run: InferRun, title: str, seed: int = 
         files.update(encode_rosmap(ROSMAP_STEM, result.posterior, problem.grid))
     if maps:
         files.update(map_files(result.posterior, problem.grid, infer_seen(problem) if seen is None else seen))
-    if report:
-        traces = chain_traces(problem, result, seed=seed)
-        files[REPORT_FILE] = build_report(problem, result, traces, title=title).encode("utf-8")
+    if report_html is not None:
+        files[REPORT_FILE] = report_html
+    run.summary.update(stage_summary(stages))
+    files["summary.json"] = json_bytes(run.summary)
     return files
 
 
@@ -287,29 +311,41 @@ def write_infer(out: Path, files: dict[str, bytes], problem: scenes.Problem, run
 
 def infer(req: InferRequest, progress: Optional[ProgressCallback] = None) -> InferOutcome:
     """``bayesmap infer``: check the request and its outputs, build the scene, map it, write the outputs.
+    ``progress`` gets every report of the long work through a :class:`bayesmap.progress.StageRecorder`, whose
+    stages ("read log", "build problem", "ray-cell table", the sampler's "sweeps", "figures", "write outputs")
+    summary.json holds (:func:`map_and_write`).
 
     Raises:
         BayesmapError: on a bad option, input or output (named), before any work where it can be told.
     """
     check_infer_request(req)
-    problem, title = infer_scene(req)
+    stages = StageRecorder(progress)
+    problem, title = infer_scene(req, stages)
     sampler = req.sampler or ("cellwise" if problem.multi_scan else "block")
-    return map_and_write(problem, title, req, sampler, progress)
+    return map_and_write(problem, title, req, sampler, stages)
 
 
 def map_and_write(problem: scenes.Problem, title: str, req: InferRequest, sampler: str,
                   progress: Optional[ProgressCallback] = None) -> InferOutcome:
     """Map ``problem`` with the request's settings and write its outputs (:func:`run_infer`, :func:`infer_files`,
-    :func:`write_infer`); ``demo`` calls it on the tutorial scene.
+    :func:`write_infer`); ``demo`` calls it on the tutorial scene. With a :class:`bayesmap.progress.StageRecorder`
+    as ``progress``, a problem of several scans builds its ray-cell table as the stage "ray-cell table" (after the
+    size check), and summary.json gets the stages (:func:`infer_files`).
 
     Raises:
         BayesmapError: as those functions.
     """
     check_output_dir(req.out, req.force)
+    if problem.multi_scan and isinstance(progress, StageRecorder):
+        check_problem_size(problem, chains=req.chains)  # (before the table is built)
+        progress.start("ray-cell table")
+        problem.table  # noqa: B018 (built on first use and kept: the sampler and the figure's seen cells read it)
     run = run_infer(problem, req.method, sampler, req.sweeps, req.burn_in, req.seed, req.chains, progress)
+    recorder = progress if isinstance(progress, StageRecorder) else None
+    start_stage(recorder, "figures")
     seen = infer_seen(problem) if (req.maps or req.out_bag is not None or problem.multi_scan) else None
     files = infer_files(problem, run, title, seed=req.seed, method=req.method, report=req.report, rosmap=req.rosmap,
-                        maps=req.maps, seen=seen)
+                        maps=req.maps, seen=seen, stages=recorder)
     written = write_infer(req.out, files, problem, run, out_bag=req.out_bag, force=req.force, seen=seen)
     return InferOutcome(problem, run, written)
 

@@ -4,7 +4,8 @@ app) by the joint chain (:func:`bayesmap.slam.joint.run_slam`), with its summary
 
 In data-flow order: :func:`run_simulated_slam` / :func:`run_log_slam_job` (the job: a :class:`SlamRun`, result and
 summary), :func:`slam_files` (the output files' bytes), :func:`bayesmap.runs.outputs.write_outputs`;
-:func:`slam` does all of them for a :class:`SlamRequest` after checking the outputs.
+:func:`slam` does all of them for a :class:`SlamRequest` after checking the outputs, and records each stage's wall
+time and peak memory in summary.json (:class:`bayesmap.progress.StageRecorder`).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.io.maps_out import seen_cells_along
 from bayesmap.io.rosmap import encode_rosmap
 from bayesmap.io.tum import encode_tum, tum_stamps
-from bayesmap.progress import ProgressCallback
+from bayesmap.progress import ProgressCallback, StageRecorder, stage_summary, start_stage
 from bayesmap.runs.inputs import check_slam_size, parse_scans, read_source
 from bayesmap.runs.outputs import (
     OCCUPANCY_FILE,
@@ -143,11 +144,14 @@ def tutorial_slam(seed: int = 0, num_poses: Optional[int] = None, sweeps: Option
     """SLAM on the tutorial scene (:func:`bayesmap.slam.problem.slam_tutorial_problem`): ``num_poses`` poses on a
     loop (default :data:`TUTORIAL_SLAM_POSES`), :data:`TUTORIAL_SLAM_SWEEPS` sweeps by default.
 
+    ``progress`` gets the stage "build problem" (:func:`bayesmap.progress.start_stage`) and the chain's reports.
+
     Raises:
         BayesmapError: on bad counts (named).
     """
     num_poses = TUTORIAL_SLAM_POSES if num_poses is None else num_poses
     sweeps, burn_in = slam_counts(sweeps, burn_in, {"sweeps": TUTORIAL_SLAM_SWEEPS, "burn_in": None})
+    start_stage(progress, "build problem")
     problem = slam_tutorial_problem(seed=seed, num_poses=num_poses)
     title = f"bayesmap slam: {problem.num_scans} poses, {sweeps} sweeps"
     return run_simulated_slam(problem, sweeps, burn_in, seed, progress, title)
@@ -160,7 +164,9 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
     from ``path``; without ``final_map``, no final map (for scoring the path alone).
 
     Args:
-        progress: passed on to ``run_log_slam``.
+        progress: passed on to ``run_log_slam``; a :class:`bayesmap.progress.StageRecorder` also gets the stage
+            "build problem" (the problem and its size check; the time ``run_log_slam`` takes before its first
+            report, the scans' data, counts in it too).
         notify: called with one line (the log, its scans and sweeps) before the long work starts.
 
     Returns:
@@ -172,6 +178,7 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
     chosen = parse_scans(scans, len(carmen))
     resolution = scenes.RESOLUTION if resolution is None else resolution
     sweeps, burn_in = slam_counts(sweeps, burn_in, LOG_SLAM_DEFAULTS)
+    start_stage(progress, "build problem")
     problem = log_slam_problem(carmen, chosen, resolution=resolution)
     check_slam_size(problem)
     if notify is not None:
@@ -241,15 +248,22 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
     return SlamRun(problem, result, summary, all_stamps[chosen], title)
 
 
-def slam_files(run: SlamRun, report: bool = False, rosmap: bool = False, maps: bool = False) -> dict[str, bytes]:
+def slam_files(run: SlamRun, report: bool = False, rosmap: bool = False, maps: bool = False,
+               stages: Optional[StageRecorder] = None) -> dict[str, bytes]:
     """The output folder of a SLAM run, ``{name: bytes}``: trajectory.tum (the posterior mean pose per scan, at
     ``run.stamps``), trajectory_samples.npy ``(N, S, 3)``, pose_cov.npy ``(S, 3, 3)``, posterior.npy,
     posterior.png (the map with the paths), summary.json, and for a real log (no true map) occupancy.png (the map
     alone); with ``rosmap``, ``maps`` and ``report`` the maps and report.html as
     :func:`bayesmap.runs.infer.infer_files` writes them. The figures are cropped to the cells some beam crossed
     from the posterior mean path (:func:`bayesmap.io.maps_out.seen_cells_along`) and to where its readings
-    returned (:func:`slam_endpoints`)."""
+    returned (:func:`slam_endpoints`).
+
+    With ``stages`` (a :class:`bayesmap.progress.StageRecorder`), the figures and the encoding of the files are its
+    stages "figures" and "write outputs", and summary.json, encoded last, gets ``"stages"`` and ``"peak_rss_mb"``
+    (:meth:`~bayesmap.progress.StageRecorder.summary`; ``run.summary`` is updated in place): the stages end when
+    summary.json is encoded, before the folder is written. report.html's summary is the one without them."""
     problem, result = run.problem, run.result
+    start_stage(stages, "figures")
     grid = result.grid if result.grid is not None else problem.params.grid
     seen = seen_cells_along(grid, result.mean_path, problem.sensor_angles, problem.readings,
                             float(problem.params.max_range))
@@ -258,23 +272,29 @@ def slam_files(run: SlamRun, report: bool = False, rosmap: bool = False, maps: b
                     true_path=problem.true_poses, odometry=problem.odometry, truth=problem.truth, title=run.title,
                     seen=seen, focus=focus)
     png = figure_bytes(fig, "png")
+    occupancy = None
+    if problem.truth is None:  # a real log: the map alone too, without the paths over it
+        occupancy = figure_bytes(plot_occupancy_map(grid, result.posterior, seen, title=run.title, focus=focus),
+                                 "png")
+    start_stage(stages, "write outputs")
     files = {
         "trajectory.tum": encode_tum(run.stamps, result.mean_path).encode(),
         "trajectory_samples.npy": npy_bytes(result.pose_samples),
         "pose_cov.npy": npy_bytes(result.pose_cov),
         "posterior.npy": npy_bytes(result.posterior.astype("float32")),
         "posterior.png": png,
-        "summary.json": json_bytes(run.summary),
+        "summary.json": b"",  # (encoded last, below)
     }
-    if problem.truth is None:  # a real log: the map alone too, without the paths over it
-        files[OCCUPANCY_FILE] = figure_bytes(plot_occupancy_map(grid, result.posterior, seen, title=run.title,
-                                                                focus=focus), "png")
+    if occupancy is not None:
+        files[OCCUPANCY_FILE] = occupancy
     if rosmap:
         files.update(encode_rosmap(ROSMAP_STEM, result.posterior, grid))
     if maps:
         files.update(map_files(result.posterior, grid, seen))
     if report:
         files[REPORT_FILE] = slam_report(png, run.summary, title=f"bayesmap slam: {problem.source}").encode("utf-8")
+    run.summary.update(stage_summary(stages))
+    files["summary.json"] = json_bytes(run.summary)
     return files
 
 
@@ -297,20 +317,25 @@ def check_slam_request(req: SlamRequest) -> None:
 def slam(req: SlamRequest, progress: Optional[ProgressCallback] = None,
          notify: Optional[Callable[[str], None]] = None) -> tuple[SlamRun, list[str]]:
     """``bayesmap slam``: check the request and its output folder, run SLAM on the log or bag (or the tutorial
-    scene), write the outputs. Returns the run and the names written.
+    scene), write the outputs. Returns the run and the names written. ``progress`` gets every report of the long
+    work through a :class:`bayesmap.progress.StageRecorder`, whose stages ("read log", "build problem", the
+    library's, "figures", "write outputs") summary.json holds (:func:`slam_files`).
 
     Raises:
         BayesmapError: on a bad option, input or output (named), before any work where it can be told.
     """
     check_slam_request(req)
+    stages = StageRecorder(progress)
+    if req.log is not None or req.bag is not None:
+        stages.start("read log")
     carmen = read_source(req.log, req.bag, req.scan_topic, req.odom_topic, req.tf, None)
     if carmen is None:
-        run = tutorial_slam(req.seed, req.num_poses, req.sweeps, req.burn_in, progress)
+        run = tutorial_slam(req.seed, req.num_poses, req.sweeps, req.burn_in, stages)
     else:
         path = req.log if req.log is not None else req.bag
         run = run_log_slam_job(carmen, path, req.scans, req.resolution, req.sweeps, req.burn_in, req.seed,
-                               progress, notify)
-    files = slam_files(run, report=req.report, rosmap=req.rosmap, maps=req.maps)
+                               stages, notify)
+    files = slam_files(run, report=req.report, rosmap=req.rosmap, maps=req.maps, stages=stages)
     return run, write_outputs(req.out, files, owned=SLAM_OWNED_FILES)
 
 
