@@ -146,7 +146,8 @@ def _rosmap_yaml(tmp_path: Path, resolution: str) -> Path:
     (lambda t, log: ["infer", "--max-range", "50"], "need --log"),
     # walls a beam can pass: a probability below 1, several scans of a log, a sampler that keeps two walls
     (lambda t, log: ["infer", "--log", log, "--wall-pass-prob", "1"], "wall_pass_prob must be in \\[0, 1\\)"),
-    (lambda t, log: ["infer", "--wall-pass-prob", "0.2"], "--wall-pass-prob apply to several scans"),
+    (lambda t, log: ["infer", "--wall-pass-prob", "0.2"], "--wall-pass-prob and --cut-past-reading apply to several"),
+    (lambda t, log: ["infer", "--cut-past-reading", "1"], "--wall-pass-prob and --cut-past-reading apply to several"),
     (lambda t, log: ["infer", "--log", log, "--wall-pass-prob", "0.2", "--sampler", "raster"],
      "wall_pass_prob = 0.2; the cellwise sampler supports it"),
     # --scan and --scans agree on negative indexes; out of range is refused by both alike

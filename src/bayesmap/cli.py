@@ -108,6 +108,9 @@ WallPassOpt = _opt(Optional[float], "--wall-pass-prob", help="--log (several sca
                    "passes through a wall cell it meets (thin or partly filled cells; the reading then comes from "
                    f"the ray's next wall), in [0, 1); default {scenes.LOG_WALL_PASS_PROB:g} with the cellwise sampler "
                    "(the default), 0 with the others, which support only 0")
+CutOpt = _opt(Optional[float], "--cut-past-reading", help="--log (several scans): meters past its reading beyond "
+             "which a beam does not look at the map (a wall there counts as no wall for that beam), > 0: the ray-cell "
+             "table keeps only the cells up to the cut, about 5 times fewer on real logs; default: the whole beam")
 PowerOpt = _opt(Optional[float], "--likelihood-power", help="--log: power eta in (0, 1] of the likelihood, sampling "
                 "p(walls) p(readings | walls)^eta (a power posterior for beams that are not independent evidence; 1 "
                 f"is the plain posterior; default for logs: {scenes.LOG_READINGS_PER_CELL:g} over the mean number "
@@ -296,6 +299,7 @@ def infer(
     range_offset: InferRangeOffsetOpt = None,
     geometry: GeometryOpt = None,
     wall_pass_prob: WallPassOpt = None,
+    cut_past_reading: CutOpt = None,
     beam_weights: BeamWeightsOpt = None,
     lambda_short: LambdaShortOpt = None,
     likelihood_power: PowerOpt = None,
@@ -404,6 +408,7 @@ def evaluate(
     range_offset: EvalRangeOffsetOpt = None,
     geometry: GeometryOpt = None,
     wall_pass_prob: WallPassOpt = None,
+    cut_past_reading: CutOpt = None,
     likelihood_power: PowerOpt = None,
     coupling: CouplingOpt = None,
     run_length: RunLengthOpt = None,

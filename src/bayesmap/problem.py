@@ -44,7 +44,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.geometry.raytable import RayTable, build_ray_table, visible_cells
-from bayesmap.model.generative import ModelParams, log_joint, log_joint_scans, walls_log_likelihood
+from bayesmap.model.generative import ModelParams, log_joint, log_joint_scans, ray_limits, walls_log_likelihood
 from bayesmap.model.passable import PASS_WALLS
 from bayesmap.model.prior import disagreeing_pairs
 
@@ -320,7 +320,8 @@ class Problem:
         if self.ray_table is not None:
             return self.ray_table
 
-        return build_ray_table(self.grid, self.ray_origins, self.ray_angles, self.params.max_range)
+        return build_ray_table(self.grid, self.ray_origins, self.ray_angles, self.params.max_range,
+                               ray_limits=ray_limits(self.model_ray_readings, self.params))
 
     def single_scan(self) -> tuple:
         """``(readings (K,), pos (2,), params, beam_angles (K,))`` for the single-scan (reference) samplers.

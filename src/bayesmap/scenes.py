@@ -319,7 +319,8 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
                 grid: Grid | None = None, range_offset: float | None = None,
                 sensor_params: dict | None = None, likelihood_power: float | None = None,
                 geometry: str = LOG_GEOMETRY, coupling: float | None = None,
-                wall_pass_prob: float | None = None, readings_per_cell: float | None = None) -> Problem:
+                wall_pass_prob: float | None = None, readings_per_cell: float | None = None,
+                cut_past_reading: float = math.inf) -> Problem:
     """Many scans of a real log at their poses: one map from all of them.
 
     The grid (``resolution`` meters per cell) covers the sensor positions and the endpoints of all beams that
@@ -352,6 +353,8 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
             (:class:`bayesmap.model.generative.ModelParams`); default :data:`LOG_WALL_PASS_PROB`.
         readings_per_cell: what the default likelihood power makes a cell's endpoints worth; default
             :data:`LOG_READINGS_PER_CELL`; unused when ``likelihood_power`` is given.
+        cut_past_reading: meters past its reading beyond which a beam does not look at the map
+            (:class:`bayesmap.model.generative.ModelParams`); default ``inf``, the whole beam.
 
     Raises:
         BayesmapError: on bad parameters or scan indices, or a sensor position outside ``grid``.
@@ -365,7 +368,8 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
     prior_wall_prob = log_prior_wall_prob(coupling) if prior_wall_prob is None else prior_wall_prob
     params = make_params(prior_wall_prob, noise, obs.num_beams, grid, max_distance=obs.max_range,
                          beam_model=beam_model, geometry=geometry, **(sensor_params or {}), coupling=coupling,
-                         wall_pass_prob=LOG_WALL_PASS_PROB if wall_pass_prob is None else wall_pass_prob)
+                         wall_pass_prob=LOG_WALL_PASS_PROB if wall_pass_prob is None else wall_pass_prob,
+                         cut_past_reading=cut_past_reading)
     label = (f"{log.path} scans {scans[0]}..{scans[-1]} ({len(scans)})" if len(scans) > 1
              else f"{log.path} scan {scans[0]}")
     offset = 0.0 if range_offset is None else float(range_offset)
@@ -380,5 +384,6 @@ def log_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall_prob
     return Problem(params=params, observations=obs, poses=chosen.poses, world_angles=chosen.world_angles,
                    source=label, extra={"max_range": obs.max_range, "scans": len(scans), "range_offset": offset,
                                          "geometry": geometry, "coupling": float(coupling),
-                                         "wall_pass_prob": params.wall_pass_prob},
+                                         "wall_pass_prob": params.wall_pass_prob,
+                                         "cut_past_reading": params.cut_past_reading if params.cut else None},
                    range_offset=offset, likelihood_power=eta)

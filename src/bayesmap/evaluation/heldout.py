@@ -25,6 +25,7 @@ Against a floor plan: cell-wise accuracy, AUC and Brier score of the wall probab
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import jax
 import jax.numpy as jnp
@@ -358,7 +359,7 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
                  range_offset: float | None = None, sensor_params: dict | None = None,
                  likelihood_power: float | None = None, geometry: str = LOG_GEOMETRY,
                  coupling: float | None = None, wall_pass_prob: float | None = None,
-                 readings_per_cell: float | None = None) -> dict:
+                 readings_per_cell: float | None = None, cut_past_reading: float = math.inf) -> dict:
     """Held-out evaluation on a log: hold out every ``every``-th of the chosen scans, map the rest with bayesmap
     (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
     held-out beams (see the module docstring). ``sensor_noise``, ``range_offset``, ``sensor_params``,
@@ -368,7 +369,9 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
     coupling), ``wall_pass_prob`` (None: :func:`bayesmap.scenes.log_wall_pass_prob` of ``sampler``) and
     ``readings_per_cell`` (None: :data:`bayesmap.scenes.LOG_READINGS_PER_CELL`): see
     :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses the measured ranges); the other defaults are
-    the scene defaults of :mod:`bayesmap.scenes`. ``progress`` gets the chain's sweeps
+    the scene defaults of :mod:`bayesmap.scenes`. ``cut_past_reading`` (meters, default ``inf``) cuts the training
+    beams past their readings (:class:`bayesmap.model.generative.ModelParams`); the held-out beams are always
+    scored with whole beams, so that scores with and without a cut compare. ``progress`` gets the chain's sweeps
     (:func:`bayesmap.inference.driver.run_inference`).
 
     Returns:
@@ -389,7 +392,7 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
                   beam_model=beam_model, grid=grid, range_offset=range_offset, sensor_params=sensor_params,
                   likelihood_power=likelihood_power, geometry=geometry, coupling=coupling,
                   wall_pass_prob=wall_pass_prob, readings_per_cell=readings_per_cell)
-    train_problem = log_problem(log, train, **kwargs)
+    train_problem = log_problem(log, train, **kwargs, cut_past_reading=cut_past_reading)
     test_problem = log_problem(log, test, **kwargs)
     start = time.perf_counter()
     gibbs = run_inference(train_problem, sampler, sweeps, seed=seed, progress=progress)
@@ -409,6 +412,7 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
         "geometry": geometry,
         "coupling": float(train_problem.params.coupling),
         "wall_pass_prob": float(train_problem.params.wall_pass_prob),
+        "cut_past_reading": train_problem.params.cut_past_reading if train_problem.params.cut else None,
     }
     return scores
 

@@ -39,6 +39,10 @@ class RayTable:
         origins: ``(R, 2)`` float64 world position of each ray's sensor (meters).
         beam_angles: ``(R,)`` float64 world-frame angle of each ray (radians).
         max_distance: the max distance (meters): pairs at this distance or beyond are not listed.
+        ray_limits: ``(R,)`` float (the dtype of ``pair_dists``) each ray's own max distance, meters, at most
+            ``max_distance``: pairs at it or beyond are not listed (a beam cut past its reading,
+            :func:`bayesmap.model.generative.ray_limits`); None: ``max_distance`` for every ray. A ray with no wall
+            among its pairs still has the "no wall" distance ``max_distance``.
     """
 
     grid: Grid
@@ -48,6 +52,7 @@ class RayTable:
     origins: np.ndarray
     beam_angles: np.ndarray
     max_distance: float
+    ray_limits: np.ndarray | None = None
 
     @property
     def num_rays(self) -> int:
@@ -228,7 +233,8 @@ class RayTable:
         repeated = np.flatnonzero(np.diff(rays) == 0)
         if len(repeated):
             raise BayesmapError(f"ray {rays[repeated[0]]} is listed twice")
-        new_rows = build_ray_table(self.grid, origins[order], beam_angles[order], self.max_distance, chunk)
+        limits = None if self.ray_limits is None else self.ray_limits[rays]
+        new_rows = build_ray_table(self.grid, origins[order], beam_angles[order], self.max_distance, chunk, limits)
         if new_rows.pair_dists.dtype != self.pair_dists.dtype:
             raise BayesmapError(f"the table's distances are {self.pair_dists.dtype} but JAX's default float is now "
                                 f"{new_rows.pair_dists.dtype}: rebuild the table")
@@ -272,7 +278,7 @@ def _checked_rays(grid: Grid, origins, beam_angles, max_distance: float | None):
 
 
 def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None = None,
-                    chunk: int = 1 << 18) -> RayTable:
+                    chunk: int = 1 << 18, ray_limits=None) -> RayTable:
     """Build the :class:`RayTable` for rays from ``origins`` at ``beam_angles``.
 
     Args:
@@ -283,6 +289,8 @@ def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None
         chunk: about how many (ray, cell) slots to trace at once (whole rays; bounds the temporaries, about 150
             bytes per slot); up to :data:`bayesmap.geometry.traversal.TRACE_THREADS` chunks are traced at a time,
             one per core.
+        ray_limits: ``(R,)`` each ray's own max distance, meters (``<= max_distance``; a ray's pairs at it or
+            beyond are left out, compared in the table's dtype: :attr:`RayTable.ray_limits`); None: none.
 
     Returns:
         The table: for each ray every cell whose tutorial distance (:func:`cell_hit_distance`, in JAX's default
@@ -311,8 +319,13 @@ def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None
     origins, beam_angles, max_distance = _checked_rays(grid, origins, beam_angles, max_distance)
     max_cells = max_distance / grid.resolution
     p_table, u_table = cell_frame(grid, origins, beam_angles)
+    limits = _checked_limits(ray_limits, len(beam_angles), max_distance, p_table.dtype)
+    if limits is not None:  # traced a little past each limit, then cut exactly in meters below
+        max_cells = np.minimum(limits.astype(np.float64) * (1.0 + 1e-6) / grid.resolution, max_cells)
     counts, cells, dists = trace_rays(p_table, u_table, grid.shape, max_cells, chunk)
     dists *= dists.dtype.type(grid.resolution)
+    if limits is not None:
+        counts, cells, dists = _cut_rows(counts, cells, dists, limits)
     offsets = np.zeros(len(beam_angles) + 1, dtype=np.int64)
     np.cumsum(counts, out=offsets[1:])
     return RayTable(
@@ -323,7 +336,35 @@ def build_ray_table(grid: Grid, origins, beam_angles, max_distance: float | None
         origins=np.array(origins),
         beam_angles=beam_angles,
         max_distance=max_distance,
+        ray_limits=limits,
     )
+
+
+def _checked_limits(ray_limits, num_rays: int, max_distance: float, dtype) -> np.ndarray | None:
+    """``ray_limits`` as ``(R,)`` of the table's ``dtype`` (None stays None).
+
+    Raises:
+        BayesmapError: on the wrong length, or a limit that is NaN, below 0 or above the max distance (named).
+    """
+    if ray_limits is None:
+        return None
+    limits = np.asarray(ray_limits).reshape(-1).astype(dtype)
+    if limits.shape != (num_rays,):
+        raise BayesmapError(f"expected {num_rays} ray limits (meters), got {limits.size}")
+    bad = np.flatnonzero(~((limits >= 0) & (limits <= dtype.type(max_distance))))  # (compared in the table's dtype)
+    if len(bad):
+        raise BayesmapError(f"ray limit {bad[0]} is {float(limits[bad[0]])!r}: ray limits must lie in "
+                            f"[0, {max_distance!r}] (meters, the max distance)")
+    return limits
+
+
+def _cut_rows(counts, cells, dists, limits):
+    """Each ray's pairs below its limit (meters, the table's dtype): ``(counts, cells, dists)`` as
+    :func:`bayesmap.geometry.traversal.trace_rays` returns them."""
+    keep = dists < np.repeat(limits, counts)
+    total = np.concatenate([[0], np.cumsum(keep, dtype=np.int64)])
+    ends = np.cumsum(counts)
+    return total[ends] - total[ends - counts], cells[keep], dists[keep]
 
 
 def _splice_plan(old_offsets, new_offsets, spliced_offsets, rays) -> list[tuple[bool, int, int, int]]:
@@ -379,6 +420,7 @@ def _splice_rows(table: RayTable, rays: np.ndarray, new_rows: RayTable) -> RayTa
         origins=origins,
         beam_angles=beam_angles,
         max_distance=table.max_distance,
+        ray_limits=None if table.ray_limits is None else _spliced_limits(table.ray_limits, rays, new_rows),
     )
     cached = vars(table)
     spliced_cache = vars(spliced)  # where functools.cached_property keeps its values
@@ -390,6 +432,12 @@ def _splice_rows(table: RayTable, rays: np.ndarray, new_rows: RayTable) -> RayTa
         spliced_cache["pair_positions"] = _splice_values(cached["pair_positions"], new_rows.pair_positions, plan,
                                                          num_pairs)
     return spliced
+
+
+def _spliced_limits(limits: np.ndarray, rays: np.ndarray, new_rows: RayTable) -> np.ndarray:
+    out = np.array(limits)
+    out[rays] = new_rows.ray_limits
+    return out
 
 
 def visible_cells(table: RayTable, walls) -> np.ndarray:

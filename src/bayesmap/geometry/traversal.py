@@ -126,7 +126,7 @@ class _NearVertex(NamedTuple):
     vertex_y: np.ndarray
 
 
-def _traversal(p: np.ndarray, u: np.ndarray, shape: tuple[int, int], max_cells: float, dtype) -> _Traversal:
+def _traversal(p: np.ndarray, u: np.ndarray, shape: tuple[int, int], max_cells, dtype) -> _Traversal:
     """Per-ray, per-axis parameters of the grid traversal (Amanatides & Woo 1987), float64 cell coordinates.
 
     Grid lines along axis ``a`` sit at half-integers. For each ray ``p + s u`` (``(R, 2)`` each) and axis:
@@ -158,7 +158,7 @@ def _traversal(p: np.ndarray, u: np.ndarray, shape: tuple[int, int], max_cells: 
     # where the ray leaves the grid's box, widened on each axis by the vertex tolerance of the other axis'
     # crossings (a ray grazing the border keeps touching border cells in the edge test)
     s_limit = max_cells * (1.0 + 1e-6) + 1e-6
-    s_reference = min(s_limit, 2.0 * math.hypot(*shape) + 4.0)
+    s_reference = np.minimum(s_limit, 2.0 * math.hypot(*shape) + 4.0)
     tolerance = _vertex_tol(np.float64(s_reference), np.abs(p).max(axis=1) + s_reference, dtype) * np.abs(u).max(axis=1)
     with np.errstate(divide="ignore"):
         slack = 2.0 * tolerance[:, None] / np.where(moving, np.abs(u), 0.0)[:, ::-1]
@@ -176,7 +176,16 @@ def _flat_index(cell_i, cell_j, shape):
     return np.where((cell_i >= 0) & (cell_i < nx) & (cell_j >= 0) & (cell_j < ny), cell_i * ny + cell_j, -1)
 
 
-def _trace_chunk(p, u, p_table, u_table, traversal: _Traversal, shape, max_cells: float):
+def _slot_limits(max_cells, first, dtype):
+    """The max distance in cells that each slot's distance is compared with: ``max_cells`` itself when it is one
+    number for all rays (a scalar: numpy compares it in the table's dtype), else each ray's ``(n,)`` limit in the
+    table's ``dtype``, repeated for the ray's slots (``first``: each ray's first slot, then the total)."""
+    if np.ndim(max_cells) == 0:
+        return max_cells
+    return np.repeat(np.asarray(max_cells, dtype), np.diff(first))
+
+
+def _trace_chunk(p, u, p_table, u_table, traversal: _Traversal, shape, max_cells):
     """The sorted (ray, cell) pairs of a chunk of rays: see the module docstring for the algorithm.
 
     Args:
@@ -184,7 +193,7 @@ def _trace_chunk(p, u, p_table, u_table, traversal: _Traversal, shape, max_cells
         p_table, u_table: the same in the table's dtype.
         traversal: :func:`_traversal` of these rays.
         shape: the grid's ``(nx, ny)``.
-        max_cells: the max distance in cells.
+        max_cells: the max distance in cells, a number or ``(n,)`` one per ray.
 
     Returns:
         ``(counts, cells, dists)``: ``(n,)`` int64 pairs per ray; ``(P,)`` int32 flat cell indices and ``(P,)``
@@ -201,7 +210,7 @@ def _trace_chunk(p, u, p_table, u_table, traversal: _Traversal, shape, max_cells
     first = np.zeros(num_rays + 1, dtype=np.int64)
     np.cumsum(1 + traversal.count[:, 0] + traversal.count[:, 1], out=first[1:])
     flat, dist, near = _trace_slots(p, u, p_table, u_table, traversal, shape, first)
-    keep = (flat >= 0) & (dist < max_cells)
+    keep = (flat >= 0) & (dist < _slot_limits(max_cells, first, dist.dtype))
     exact_keys = _near_vertex_keys(near, shape)
     if len(exact_keys):
         _drop_fast_pairs_near_vertices(keep, flat, near, first, exact_keys, shape[0] * shape[1])
@@ -343,7 +352,7 @@ def _compact_slots(flat, dist, keep, first):
     return counts, flat[keep].astype(np.int32), dist[keep]
 
 
-def _insert_exact_pairs(counts, fast_cells, fast_dists, exact_keys, p_table, u_table, shape, max_cells: float):
+def _insert_exact_pairs(counts, fast_cells, fast_dists, exact_keys, p_table, u_table, shape, max_cells):
     """Evaluate the pairs ``exact_keys`` (``ray * num_cells + flat``) with the exact edge arithmetic
     (:func:`exact_pair_distances`) and insert those below ``max_cells`` in their rays by (distance, flat index),
     with a vectorized bisection within each ray's fast pairs. Returns the new ``(counts, cells, dists)``."""
@@ -354,7 +363,7 @@ def _insert_exact_pairs(counts, fast_cells, fast_dists, exact_keys, p_table, u_t
     cells = exact_keys % num_cells
     cell_indices = np.stack([cells // ny, cells % ny], axis=-1).astype(p_table.dtype)
     dists = exact_pair_distances(p_table[rays], u_table[rays], cell_indices)
-    ok = dists < max_cells
+    ok = dists < (max_cells if np.ndim(max_cells) == 0 else np.asarray(max_cells, dists.dtype)[rays])
     rays, cells, dists = rays[ok], cells[ok].astype(np.int32), dists[ok]
     order = np.lexsort((cells, dists, rays))
     rays, cells, dists = rays[order], cells[order], dists[order]
@@ -398,7 +407,7 @@ def _ray_chunks(slot_ends: np.ndarray, chunk: int) -> list[slice]:
     return chunks
 
 
-def trace_rays(p_table, u_table, shape, max_cells: float, chunk: int):
+def trace_rays(p_table, u_table, shape, max_cells, chunk: int):
     """The (ray, cell) pairs of all rays in closed form (module docstring), traced by chunks of ``chunk`` slots of
     whole rays on up to :data:`TRACE_THREADS` threads (numpy releases the GIL), gathered in order.
 
@@ -406,7 +415,8 @@ def trace_rays(p_table, u_table, shape, max_cells: float, chunk: int):
         p_table: ``(R, 2)`` ray origins in cell coordinates, in the table's dtype (:func:`cell_frame`).
         u_table: ``(R, 2)`` unit directions, in the table's dtype.
         shape: the grid's ``(nx, ny)``.
-        max_cells: the max distance in cells; pairs at this distance or beyond are not listed.
+        max_cells: the max distance in cells, a number or ``(R,)`` float64 one per ray; pairs at this distance or
+            beyond are not listed (compared in the table's dtype).
         chunk: about how many (ray, cell) slots to trace at once (bounds the temporaries, about 150 bytes a slot).
 
     Returns:
@@ -425,7 +435,8 @@ def trace_rays(p_table, u_table, shape, max_cells: float, chunk: int):
     dists = np.empty(capacity, dtype=p_table.dtype)
 
     def trace(rays):
-        return _trace_chunk(p[rays], u[rays], p_table[rays], u_table[rays], traversal.rows(rays), shape, max_cells)
+        limit = max_cells if np.ndim(max_cells) == 0 else max_cells[rays]
+        return _trace_chunk(p[rays], u[rays], p_table[rays], u_table[rays], traversal.rows(rays), shape, limit)
 
     used = 0
     chunks = _ray_chunks(slot_ends, chunk)

@@ -16,6 +16,11 @@
   through a wall cell: the reading comes from the ray's first wall cell with probability ``1 - pi``, from its second
   with ``pi (1 - pi)``, and is read as if there were no wall with ``pi^2``
   (:func:`bayesmap.model.passable.pass_reading`, the two walls from :func:`bayesmap.geometry.raycast.wall_hit_chords`).
+  ``params.cut_past_reading`` ``c`` (default ``inf``: the whole beam) cuts each beam ``c`` meters past its reading:
+  a wall it enters at or beyond ``y + c`` counts as no wall (:func:`cut_chords`, :func:`cut_reading`). That is an
+  approximation of the likelihood, not a way readings are made: ``assess`` scores the cut likelihood, ``simulate``
+  draws from the uncut sensor model; it lets a ray-cell table stop at the cut (:func:`ray_limits`). Derivation and
+  measured effect: ``docs/sensor.md``, "Beams cut past their readings".
 
 :data:`full_model` is the tutorial's single scan; its arguments are ``(pos, params, beam_angles)``: the sensor
 position (world meters; the tutorial's unit cells by default), the :class:`ModelParams` and the beam angles
@@ -34,6 +39,7 @@ of beams ``K``; scans with different numbers of beams are not supported (resampl
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import genjax
@@ -81,6 +87,10 @@ class ModelParams(Pytree):
             (static); default 0, every wall cell stops the beam (the tutorial's model). With ``pi > 0`` a reading
             comes from the ray's first wall cell, its second, or no wall (module docstring;
             :func:`bayesmap.model.passable.pass_reading`).
+        cut_past_reading: meters past its reading beyond which a beam does not look at the map (static; default
+            ``inf``, the whole beam, the tutorial's model): a wall cell the beam enters at or beyond ``y +
+            cut_past_reading`` counts as no wall for the reading ``y`` (:func:`cut_chords`; the module docstring
+            says what this approximates; [derivation](../sensor.md#beams-cut-past-their-readings)).
     """
 
     prior_wall_prob: float = 0.5
@@ -98,6 +108,12 @@ class ModelParams(Pytree):
     coupling: float = prior.DEFAULT_COUPLING
     neighbourhood: int = Pytree.static(default=0)
     wall_pass_prob: float = Pytree.static(default=0.0)
+    cut_past_reading: float = Pytree.static(default=math.inf)
+
+    @property
+    def cut(self) -> bool:
+        """True when a beam's walls are cut past its reading (``cut_past_reading`` finite, :func:`cut_chords`)."""
+        return math.isfinite(self.cut_past_reading)
 
     @property
     def penetrable(self) -> bool:
@@ -165,6 +181,7 @@ def make_params(
     coupling: float = prior.DEFAULT_COUPLING,
     neighbourhood: int | None = None,
     wall_pass_prob: float = 0.0,
+    cut_past_reading: float = math.inf,
 ) -> ModelParams:
     """Build :class:`ModelParams` after checking every value.
 
@@ -174,15 +191,16 @@ def make_params(
     ``"chord"``); the structured prior's ``coupling`` ``J`` (nats per agreeing pair of 4-neighbours,
     :mod:`bayesmap.model.prior`) and ``neighbourhood`` (default: 4 if ``coupling > 0``, else 0, the tutorial's
     independent prior and model); ``wall_pass_prob``, the probability that a beam passes through a wall cell
-    (default 0, the tutorial's: :class:`ModelParams`).
+    (default 0, the tutorial's: :class:`ModelParams`); ``cut_past_reading``, meters past its reading beyond which a
+    beam does not look at the map (default ``inf``: :class:`ModelParams`).
 
     Raises:
         BayesmapError: if ``prior_wall_prob`` is not in (0, 1), ``sensor_noise`` is not finite and > 0,
             ``num_angles`` is not an integer >= 1, ``max_distance`` is not finite and > 0, ``beam_model`` is
             unknown, ``geometry`` is unknown, the mixture parameters are bad
             (:func:`bayesmap.model.sensor.check_sensor_params`), the coupling is not in ``[0, MAX_COUPLING]`` or the
-            neighbourhood not 0 or 4 (0 with a coupling > 0), or ``wall_pass_prob`` is not in ``[0, 1)``; the
-            message names the bad value.
+            neighbourhood not 0 or 4 (0 with a coupling > 0), ``wall_pass_prob`` is not in ``[0, 1)``, or
+            ``cut_past_reading`` is not a number > 0 (``inf`` allowed); the message names the bad value.
     """
     p = float(prior_wall_prob)
     if not (0.0 < p < 1.0):
@@ -197,6 +215,7 @@ def make_params(
     weights = sensor.check_sensor_params(beam_model, z_hit, z_short, z_max, z_rand, lambda_short)
     sensor.check_geometry(geometry)
     wall_pass_prob = passable.check_wall_pass_prob(wall_pass_prob)
+    cut = _check_cut(cut_past_reading)
     coupling = prior.check_coupling(coupling)
     neighbourhood = (4 if coupling > 0 else 0) if neighbourhood is None else prior.check_neighbourhood(neighbourhood)
     if coupling > 0 and neighbourhood == 0:
@@ -213,7 +232,18 @@ def make_params(
         coupling=coupling,
         neighbourhood=neighbourhood,
         wall_pass_prob=wall_pass_prob,
+        cut_past_reading=cut,
     )
+
+
+def _check_cut(value) -> float:
+    try:
+        cut = float(value)
+    except (TypeError, ValueError):
+        raise BayesmapError(f"cut_past_reading must be a number (meters), got {value!r}") from None
+    if not cut > 0:  # (NaN fails too)
+        raise BayesmapError(f"cut_past_reading must be > 0 (meters; inf: the whole beam), got {value!r}")
+    return cut
 
 
 PARAMS_FIELDS = tuple(field.name for field in dataclasses.fields(ModelParams))
@@ -239,6 +269,15 @@ def walls_prior(shape: tuple[int, int]):
     return genjax.flip.repeat(n=shape[1]).repeat(n=shape[0])
 
 
+def _beam_chords(walls, pos, angle, params: ModelParams):
+    """``(3, 2)`` the chords of a beam's first two wall cells and no wall (wall cells a beam can pass), else
+    ``(1, 2)`` its first wall cell's (meters)."""
+    if params.penetrable:
+        walls2 = wall_hit_chords(walls, pos, angle[None], params.grid, params.max_range, passable.PASS_WALLS)[0]
+        return jnp.concatenate([walls2, jnp.full((1, 2), params.max_range, walls2.dtype)])
+    return first_hit_chords(walls, pos, angle[None], params.grid, params.max_range)
+
+
 @genjax.gen
 def sensor_model_single(pos, walls, params: ModelParams, angle):
     """One beam, a scalar reading (meters) at address ``()`` given the first wall: in the ``"entry"`` geometry its
@@ -249,9 +288,12 @@ def sensor_model_single(pos, walls, params: ModelParams, angle):
     :data:`~bayesmap.model.sensor.chord_normal_reading` or :data:`~bayesmap.model.sensor.chord_beam_reading`.
     With ``params.wall_pass_prob > 0``, the chords of the first two wall cells and no wall
     (:func:`bayesmap.geometry.raycast.wall_hit_chords`) and :func:`~bayesmap.model.passable.pass_reading`."""
+    if params.cut:
+        reading = cut_reading(params.beam_model, params.geometry, params.penetrable, params.cut_past_reading,
+                              params.max_range)
+        return reading(_beam_chords(walls, pos, angle, params), params.wall_pass_prob, *params.sensor_args) @ ()
     if params.penetrable:
-        walls2 = wall_hit_chords(walls, pos, angle[None], params.grid, params.max_range, passable.PASS_WALLS)[0]
-        chords = jnp.concatenate([walls2, jnp.full((1, 2), params.max_range, walls2.dtype)])
+        chords = _beam_chords(walls, pos, angle, params)
         reading = passable.pass_reading(params.beam_model, params.geometry)
         return reading(chords, params.wall_pass_prob, *params.sensor_args) @ ()
     if params.geometry == "chord":
@@ -393,8 +435,13 @@ def reading_log_likelihood(readings, distances, params: ModelParams, exit_distan
         exit_distances = jnp.asarray(exit_distances)
     else:
         exit_distances = None
-    return sensor.reading_logpdf(params.beam_model, jnp.asarray(readings), jnp.asarray(distances), params.sensor_args,
-                                 exit_distances)
+    y, distances = jnp.asarray(readings), jnp.asarray(distances)
+    if params.cut:
+        beyond = distances >= _cut_limits(y, params, distances.dtype)
+        no_wall = jnp.asarray(params.max_range, distances.dtype)
+        distances = jnp.where(beyond, no_wall, distances)
+        exit_distances = None if exit_distances is None else jnp.where(beyond, no_wall, exit_distances)
+    return sensor.reading_logpdf(params.beam_model, y, distances, params.sensor_args, exit_distances)
 
 
 def walls_log_likelihood(readings, chords, params: ModelParams):
@@ -404,7 +451,7 @@ def walls_log_likelihood(readings, chords, params: ModelParams):
     mixture :func:`bayesmap.model.passable.pass_mixture` over the first wall, the second and no wall when
     ``params.wall_pass_prob > 0`` (what the model's ``assess`` scores per beam). The entry geometry ignores the
     exits. Never raises for matching shapes."""
-    y, chords = jnp.asarray(readings), jnp.asarray(chords)
+    y, chords = jnp.asarray(readings), cut_chords(readings, chords, params)
     exits = chords[..., 1] if params.geometry == "chord" else None
     if not params.penetrable:
         return reading_log_likelihood(y, chords[..., 0, 0], params, None if exits is None else exits[..., 0])
@@ -414,6 +461,72 @@ def walls_log_likelihood(readings, chords, params: ModelParams):
                           (chords[..., 1, 0], None if exits is None else exits[..., 1]),
                           (none, None if exits is None else none))]
     return passable.pass_mixture(*parts, params.wall_pass_prob)
+
+
+def _cut_limits(readings, params: ModelParams, dtype):
+    """Each reading's cut, ``y + params.cut_past_reading`` (meters), in ``dtype`` arithmetic."""
+    return jnp.asarray(readings, dtype) + jnp.asarray(params.cut_past_reading, dtype)
+
+
+def cut_chords(readings, chords, params: ModelParams):
+    """The chords ``(..., n, 2)`` (entry and exit distance, meters, of a beam's first ``n`` wall cells in order)
+    of beams with readings ``(...,)`` (meters), cut past the readings: a wall entered at or beyond ``y +
+    params.cut_past_reading`` becomes no wall, ``(M, M)`` with ``M = params.max_range``, and so do the walls after
+    it. The chords unchanged when ``params.cut`` is False. Computed in the chords' dtype; never raises."""
+    chords = jnp.asarray(chords)
+    if not params.cut:
+        return chords
+    return _cut(readings, chords, params.cut_past_reading, params.max_range)
+
+
+def _cut(readings, chords, cut: float, max_range: float):
+    limit = jnp.asarray(readings, chords.dtype) + jnp.asarray(cut, chords.dtype)
+    beyond = chords[..., :1] >= limit[..., None, None]
+    return jnp.where(beyond, jnp.asarray(max_range, chords.dtype), chords)
+
+
+@functools.cache
+def cut_reading(beam_model: str, geometry: str, penetrable: bool, cut: float, max_range: float):
+    """The GenJAX distribution of a reading whose beam is cut ``cut`` meters past it (:func:`cut_chords`), for
+    ``beam_model`` in ``geometry`` with wall cells a beam can pass (``penetrable``) or not; ``max_range`` is the
+    model's (meters). Arguments ``(chords (n, 2), pass_prob, *sensor_args)``: the entry and exit distances of the
+    beam's first wall cell (``n = 1``), or of its first two and no wall (``n = 3``, as
+    :func:`bayesmap.model.passable.pass_reading` takes them). ``assess`` scores the sensor model at the cut chords;
+    ``simulate`` draws from the sensor model at the chords as given (the cut is a likelihood's approximation, not a
+    way readings are made: module docstring).
+
+    Raises:
+        BayesmapError: on an unknown model or geometry name.
+    """
+    inner = (passable.pass_reading(beam_model, geometry) if penetrable
+             else sensor.reading_distribution(beam_model, geometry))
+
+    def inner_args(chords, pass_prob, sensor_args):
+        if penetrable:
+            return (chords, pass_prob, *sensor_args)
+        if geometry == "chord":
+            return (chords[0, 0], chords[0, 1], *sensor_args)
+        return (chords[0, 0], *sensor_args)
+
+    def logpdf(y, chords, pass_prob, *sensor_args):
+        return inner.logpdf(y, *inner_args(_cut(y, chords, cut, max_range), pass_prob, sensor_args))
+
+    def sample(key, chords, pass_prob, *sensor_args):
+        return inner.sample(key, *inner_args(chords, pass_prob, sensor_args))
+
+    return genjax.exact_density(sample, logpdf, name=f"cut_{geometry}_{beam_model}_reading")
+
+
+def ray_limits(readings, params: ModelParams, dtype=None) -> np.ndarray | None:
+    """``(R,)`` each beam's own max distance for a ray-cell table (meters, ``dtype``, default JAX's default float):
+    ``min(y + cut_past_reading, max_range)`` computed as :func:`cut_chords` computes the cut, so the table lists
+    exactly the cells the cut model looks at (:attr:`bayesmap.geometry.raytable.RayTable.ray_limits`); None when
+    ``params.cut`` is False."""
+    if not params.cut:
+        return None
+    dtype = np.dtype(jnp.result_type(float) if dtype is None else dtype)
+    y = np.asarray(readings, dtype=np.float64).reshape(-1).astype(dtype)
+    return np.minimum(y + dtype.type(params.cut_past_reading), dtype.type(params.max_range))
 
 
 def check_opaque_walls(params: ModelParams, what: str) -> None:

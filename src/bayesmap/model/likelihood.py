@@ -24,7 +24,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raytable import RayTable, check_readings
-from bayesmap.model.generative import ModelParams, check_likelihood_power, check_opaque_walls
+from bayesmap.model.generative import ModelParams, check_likelihood_power, check_opaque_walls, ray_limits
 from bayesmap.model.sensor import (
     beam_log_density,
     beam_log_max_mass,
@@ -70,6 +70,25 @@ def check_max_range(table: RayTable, params: ModelParams) -> None:
                             f"params.max_range = {params.max_range!r} m")
 
 
+def check_ray_limits(table: RayTable, readings, params: ModelParams) -> None:
+    """The cut rule: a table for a model whose beams are cut past their readings (``params.cut``) lists exactly the
+    cells the model looks at, its :attr:`~bayesmap.geometry.raytable.RayTable.ray_limits` those of
+    :func:`bayesmap.model.generative.ray_limits` for ``readings`` ``(R,)`` (meters); a table for an uncut model has
+    none.
+
+    Raises:
+        BayesmapError: when the table's ray limits do not match the model's (both named).
+    """
+    want = ray_limits(readings, params, table.pair_dists.dtype)
+    if want is None and table.ray_limits is not None:
+        raise BayesmapError("the table is cut past the readings but the model is not (params.cut_past_reading = "
+                            f"{params.cut_past_reading!r}): build the table without ray_limits")
+    if want is not None and (table.ray_limits is None or not np.array_equal(table.ray_limits, want)):
+        raise BayesmapError(f"the model cuts each beam {params.cut_past_reading!r} m past its reading but the table's "
+                            "ray limits differ: build it with ray_limits=bayesmap.model.generative.ray_limits("
+                            "readings, params)")
+
+
 def likelihood_inputs(table: RayTable, readings, params: ModelParams,
                       likelihood_power: float = 1.0, passable: bool = False) -> LikelihoodInputs:
     """Check a sampler's arguments and cast them for its kernel (see :class:`LikelihoodInputs`).
@@ -84,7 +103,8 @@ def likelihood_inputs(table: RayTable, readings, params: ModelParams,
 
     Raises:
         BayesmapError: on readings that do not match the table's rays (:func:`check_readings`), a bad likelihood
-            power, a table that breaks the max-range rule (:func:`check_max_range`), or ``params.wall_pass_prob > 0``
+            power, a table that breaks the max-range rule (:func:`check_max_range`) or the cut rule
+            (:func:`check_ray_limits`), or ``params.wall_pass_prob > 0``
             for a sampler that is not ``passable``.
     """
     if not passable:
@@ -92,6 +112,7 @@ def likelihood_inputs(table: RayTable, readings, params: ModelParams,
     y = check_readings(readings, table.num_rays)
     eta = check_likelihood_power(likelihood_power)
     check_max_range(table, params)
+    check_ray_limits(table, y, params)
     dtype = jnp.result_type(float)
     sensor_args = tuple(jnp.asarray(a, dtype=dtype) for a in params.sensor_args)
     return LikelihoodInputs(readings=y, beam_model=params.beam_model, sensor_args=sensor_args, dtype=dtype,

@@ -9,6 +9,7 @@ with each stage's wall time and peak memory, one line saying what was scored, th
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, NamedTuple, Optional
@@ -71,6 +72,7 @@ class EvaluateRequest:
     range_offset: Optional[float] = None
     geometry: Optional[str] = None
     wall_pass_prob: Optional[float] = None
+    cut_past_reading: Optional[float] = None
     likelihood_power: Optional[float] = None
     coupling: Optional[float] = None
     run_length: Optional[float] = None
@@ -230,8 +232,8 @@ def _evaluate_on_truth(req: EvaluateRequest, mapping: dict, progress: Optional[P
     """``evaluate --truth``: simulated scans of a floor plan, mapped, scored against it."""
     if req.likelihood_power is not None or req.range_offset is not None:
         raise BayesmapError("--likelihood-power and --range-offset apply to --log, not to --truth")
-    if req.geometry is not None or req.wall_pass_prob is not None:
-        raise BayesmapError("--geometry and --wall-pass-prob apply to --log, not to --truth")
+    if req.geometry is not None or req.wall_pass_prob is not None or req.cut_past_reading is not None:
+        raise BayesmapError("--geometry, --wall-pass-prob and --cut-past-reading apply to --log, not to --truth")
     max_range = scenes.SIMULATED_MAX_RANGE if req.max_range is None else req.max_range
     check_truth_scene(req.truth, req.resolution, req.num_poses, req.num_angles, max_range)
     start_stage(progress, "maps and scores")
@@ -274,7 +276,8 @@ def evaluate_maps(req: EvaluateRequest, progress: Optional[ProgressCallback] = N
     scores = evaluate_log(carmen, chosen, every=req.every, resolution=req.resolution, range_offset=req.range_offset,
                           likelihood_power=req.likelihood_power,
                           geometry=scenes.LOG_GEOMETRY if req.geometry is None else req.geometry,
-                          wall_pass_prob=req.wall_pass_prob, progress=progress, **mapping)
+                          wall_pass_prob=req.wall_pass_prob, progress=progress, **mapping,
+                          cut_past_reading=math.inf if req.cut_past_reading is None else req.cut_past_reading)
     setup = scores["setup"]
     header = (f"{name}: mapped {setup['train_scans']} scans, scored the {setup['test_scans']} held out "
               f"(every {req.every}-th); grid {setup['grid'][0]} x {setup['grid'][1]} cells of {req.resolution:g} m; "

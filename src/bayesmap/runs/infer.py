@@ -10,6 +10,7 @@ peak memory in summary.json (:class:`bayesmap.progress.StageRecorder`).
 from __future__ import annotations
 
 import io
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple, Optional
@@ -71,6 +72,7 @@ class InferRequest:
     range_offset: Optional[float] = None
     geometry: Optional[str] = None
     wall_pass_prob: Optional[float] = None
+    cut_past_reading: Optional[float] = None
     beam_weights: Optional[str] = None
     lambda_short: Optional[float] = None
     likelihood_power: Optional[float] = None
@@ -124,9 +126,9 @@ def check_infer_request(req: InferRequest) -> None:
         if req.scan is not None or req.scans is not None or req.likelihood_power is not None \
                 or req.max_range is not None:
             raise BayesmapError("--scan, --scans, --likelihood-power and --max-range need --log FILE (or --bag)")
-        if req.geometry is not None or req.wall_pass_prob is not None:
-            raise BayesmapError("--geometry and --wall-pass-prob apply to several scans of --log FILE (or --bag); "
-                                "maps keep the tutorial's entry geometry and walls")
+        if req.geometry is not None or req.wall_pass_prob is not None or req.cut_past_reading is not None:
+            raise BayesmapError("--geometry, --wall-pass-prob and --cut-past-reading apply to several scans of --log "
+                                "FILE (or --bag); maps keep the tutorial's entry geometry, walls and whole beams")
     elif req.map_file is not None:
         raise BayesmapError("give either --map or --log / --bag, not both")
     check_output_dir(req.out, req.force)
@@ -168,8 +170,9 @@ def _log_scene(carmen, req: InferRequest, params: dict, coupling):
         if req.range_offset is not None or req.likelihood_power is not None:
             raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), "
                                 "not to --scan N")
-        if req.geometry is not None or req.wall_pass_prob is not None:
-            raise BayesmapError("--geometry and --wall-pass-prob apply to several scans (--scans), not to --scan N")
+        if req.geometry is not None or req.wall_pass_prob is not None or req.cut_past_reading is not None:
+            raise BayesmapError("--geometry, --wall-pass-prob and --cut-past-reading apply to several scans "
+                                "(--scans), not to --scan N")
         scan = int(parse_scans(str(req.scan), len(carmen))[0])  # a negative index counts from the end, as in --scans
         problem = scan_problem(
             carmen, scan, resolution=req.resolution,
@@ -184,7 +187,8 @@ def _log_scene(carmen, req: InferRequest, params: dict, coupling):
                           sensor_noise=req.sensor_noise, beam_model=req.beam_model or scenes.LOG_BEAM_MODEL,
                           range_offset=req.range_offset, sensor_params=params, likelihood_power=req.likelihood_power,
                           geometry=scenes.LOG_GEOMETRY if req.geometry is None else req.geometry, coupling=coupling,
-                          wall_pass_prob=wall_pass_prob)
+                          wall_pass_prob=wall_pass_prob,
+                          cut_past_reading=math.inf if req.cut_past_reading is None else req.cut_past_reading)
     return problem, f"{name}, {len(chosen)} scans"
 
 

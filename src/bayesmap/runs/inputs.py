@@ -21,6 +21,7 @@ from bayesmap.io.files import read_bytes
 from bayesmap.io.rosbag import read_bag
 from bayesmap.io.rosmap import read_rosmap
 from bayesmap.io.tum import read_tum
+from bayesmap.model.generative import ray_limits
 from bayesmap.model.prior import check_coupling, coupling_for_run_length
 
 MAX_GRID_CELLS = 50_000_000
@@ -165,7 +166,7 @@ def check_free_cell(walls, pos, source: str) -> None:
                             "put the sensor in a free cell ('.')")
 
 
-def ray_cells(grid, origins, beam_angles, max_distance: float) -> np.ndarray:
+def ray_cells(grid, origins, beam_angles, max_distance) -> np.ndarray:
     """How many cells each beam crosses before it reaches ``max_distance`` or leaves ``grid``, estimated in closed
     form: ``L (|cos a| + |sin a|) / resolution + 2`` for the beam's length ``L`` inside the grid (one new cell per grid
     line crossed; Amanatides & Woo 1987, "A fast voxel traversal algorithm for ray tracing"). Within 1 % of the
@@ -175,7 +176,8 @@ def ray_cells(grid, origins, beam_angles, max_distance: float) -> np.ndarray:
         grid: the :class:`~bayesmap.geometry.grid.Grid` (meters).
         origins: ``(R, 2)`` or ``(2,)`` float sensor positions, meters.
         beam_angles: ``(R,)`` float world-frame beam angles, radians.
-        max_distance: meters.
+        max_distance: meters, one for all beams or ``(R,)`` each beam's (a beam cut past its reading,
+            :func:`bayesmap.model.generative.ray_limits`).
 
     Returns:
         ``(R,)`` float64 cells per beam.
@@ -221,8 +223,16 @@ def check_problem_size(problem, chains: int = 1) -> None:
     grid = problem.grid
     if grid.num_cells * max(chains, 1) > MAX_GRID_CELLS:
         check_sizes(grid.shape, grid.resolution, 0.0, chains)
-    pairs = ray_cells(grid, problem.ray_origins, problem.ray_angles, float(problem.params.max_range)).sum()
+    pairs = ray_cells(grid, problem.ray_origins, problem.ray_angles,
+                      _beam_lengths(problem.model_ray_readings, problem.params)).sum()
     check_sizes(grid.shape, grid.resolution, float(pairs), chains)
+
+
+def _beam_lengths(readings, params):
+    """Each beam's length in the ray-cell table, meters: its cut (:func:`bayesmap.model.generative.ray_limits`) or
+    the max range."""
+    limits = ray_limits(readings, params)
+    return float(params.max_range) if limits is None else limits.astype(np.float64)
 
 
 def check_slam_size(problem) -> None:
@@ -236,7 +246,7 @@ def check_slam_size(problem) -> None:
     odometry = np.asarray(problem.odometry, dtype=np.float64)
     angles = odometry[:, 2:3] + np.asarray(problem.sensor_angles)
     origins = np.repeat(odometry[:, :2], angles.shape[1], axis=0)
-    pairs = ray_cells(grid, origins, angles, float(problem.params.max_range)).sum()
+    pairs = ray_cells(grid, origins, angles, _beam_lengths(problem.readings, problem.params)).sum()
     check_sizes(grid.shape, grid.resolution, float(pairs))
 
 

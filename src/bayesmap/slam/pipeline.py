@@ -59,7 +59,7 @@ from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.inference.cellwise import cellwise_gibbs
 from bayesmap.inference.chains import run_chain, run_recorded_chains
-from bayesmap.model.generative import replace_params
+from bayesmap.model.generative import ray_limits, replace_params
 from bayesmap.model.motion import odometry_controls
 from bayesmap.progress import ProgressCallback, report
 from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
@@ -173,8 +173,10 @@ def _map_round(key, problem, params, poses, walls, sweeps: int, power: float | N
     report(progress, stage, 0, sweeps)
     theta = poses[:, 2:3] + problem.sensor_angles
     origins = np.repeat(poses[:, :2], problem.sensor_angles.shape[1], axis=0)
-    table = build_ray_table(params.grid, origins, theta.reshape(-1), params.max_range)
-    sampler = cellwise_gibbs(table, problem.readings.reshape(-1), params,
+    readings = problem.readings.reshape(-1)
+    table = build_ray_table(params.grid, origins, theta.reshape(-1), params.max_range,
+                            ray_limits=ray_limits(readings, params))
+    sampler = cellwise_gibbs(table, readings, params,
                              problem.likelihood_power if power is None else power)
     chain = run_chain(key, sampler, walls, sweeps, progress, stage)
     return jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs)
