@@ -437,10 +437,9 @@ def reading_log_likelihood(readings, distances, params: ModelParams, exit_distan
         exit_distances = None
     y, distances = jnp.asarray(readings), jnp.asarray(distances)
     if params.cut:
-        beyond = distances >= _cut_limits(y, params, distances.dtype)
-        no_wall = jnp.asarray(params.max_range, distances.dtype)
-        distances = jnp.where(beyond, no_wall, distances)
-        exit_distances = None if exit_distances is None else jnp.where(beyond, no_wall, exit_distances)
+        exits = distances if exit_distances is None else exit_distances
+        chord = cut_chords(y, jnp.stack([distances, exits.astype(distances.dtype)], axis=-1)[..., None, :], params)
+        distances, exit_distances = chord[..., 0, 0], None if exit_distances is None else chord[..., 0, 1]
     return sensor.reading_logpdf(params.beam_model, y, distances, params.sensor_args, exit_distances)
 
 
@@ -461,11 +460,6 @@ def walls_log_likelihood(readings, chords, params: ModelParams):
                           (chords[..., 1, 0], None if exits is None else exits[..., 1]),
                           (none, None if exits is None else none))]
     return passable.pass_mixture(*parts, params.wall_pass_prob)
-
-
-def _cut_limits(readings, params: ModelParams, dtype):
-    """Each reading's cut, ``y + params.cut_past_reading`` (meters), in ``dtype`` arithmetic."""
-    return jnp.asarray(readings, dtype) + jnp.asarray(params.cut_past_reading, dtype)
 
 
 def cut_chords(readings, chords, params: ModelParams):
