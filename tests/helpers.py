@@ -48,12 +48,26 @@ def scenes(beam_model, seed, max_distance=6.0, num_beams=10, geometry="entry"):
     return grid, params, angles, truth, y, table
 
 
+def enumerated_marginals(poses, params, angles, y):
+    """Exact posterior wall marginals ``(nx, ny)`` of the multi-scan model (scans at ``poses`` ``(S, 2)``, beam
+    angles ``(S, K)``, readings ``(S, K)``), by enumerating every map of ``params.grid`` (at most 16 cells) with the
+    model's assess."""
+    import itertools
+
+    shape = params.grid.shape
+    maps = np.array(list(itertools.product([0.0, 1.0], repeat=shape[0] * shape[1])), np.float32).reshape(-1, *shape)
+    args = scan_args(poses, params, angles)
+    lj = np.asarray(jax.jit(jax.vmap(lambda w: multi_scan_model.assess(choices(w, jnp.asarray(y)), args)[0]))(
+        jnp.asarray(maps)), np.float64)
+    w = np.exp(lj - lj.max())
+    return np.tensordot(w / w.sum(), maps, axes=1)
+
+
 def beam_enumeration_scene(**model):
     """Two scans on a 3 x 4 grid with the beam model (max range 4 m): 2 poses x 6 beams, readings simulated from a
     3-wall map with two set to exactly the max range and one short (0.3 m). Returns ``(table, readings (2, 6),
     params, exact posterior marginals (3, 4))``, the marginals by enumerating all 4,096 maps with the model's
     assess. ``model``: more keywords of ``make_params`` (e.g. ``wall_pass_prob``)."""
-    import itertools
 
     grid = Grid((3, 4))
     params = make_params(0.3, 0.4, 6, grid, 4.0, beam_model="beam", **model)
@@ -64,12 +78,7 @@ def beam_enumeration_scene(**model):
     y = np.asarray(simulate_scan_readings(jax.random.key(5), truth, poses, params, angles), np.float64)
     y[0, 1] = y[1, 4] = params.max_range  # max-range readings
     y[1, 2] = 0.3  # a short reading
-    maps = np.array(list(itertools.product([0.0, 1.0], repeat=12)), np.float32).reshape(-1, 3, 4)
-    args = scan_args(poses, params, angles)
-    lj = np.asarray(jax.jit(jax.vmap(lambda w: multi_scan_model.assess(choices(w, jnp.asarray(y)), args)[0]))(
-        jnp.asarray(maps)), np.float64)
-    w = np.exp(lj - lj.max())
-    exact = np.tensordot(w / w.sum(), maps, axes=1)
+    exact = enumerated_marginals(poses, params, angles, y)
     table = build_ray_table(grid, np.repeat(poses, 6, axis=0), angles.reshape(-1), params.max_range)
     return table, y, params, exact
 
