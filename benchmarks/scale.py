@@ -18,11 +18,11 @@ table then takes more than this machine has), and killed after ``--time-limit`` 
 run is reported as "killed at 10 GB after N s", a refused one (exit 2) with its one-line message.
 
 Each finished run is scored by ATE against the truth (``bayesmap.evaluation.trajectory.absolute_trajectory_error``:
-the RMSE of the positions after the best rigid 2-D alignment). The script prints one Markdown table (prefix,
-method, status, wall seconds and peak MB of the method's process, ATE, and bayesmap's seconds per stage: front end,
-loop closure, the joint chain's rounds, final map), a table of bayesmap's every stage (seconds and peak MB per
-finished prefix), the raw odometry's ATE per prefix, and, per method, the slopes of wall seconds and peak MB per
-1,000 scans (least squares over the prefixes that finished).
+the RMSE of the positions after the best rigid 2-D alignment). The script prints one Markdown table (prefix, method,
+status, wall seconds and peak MB of the method's process, ATE, and bayesmap's seconds per stage: front end, loop
+closure, the joint chain's rounds, final map, placing the scans between keyframes), a table of bayesmap's every
+stage (seconds and peak MB per finished prefix), the raw odometry's ATE per prefix, and, per method, the slopes of
+wall seconds and peak MB per 1,000 scans (least squares over the prefixes that finished).
 
 Wall seconds are the method's whole process: for bayesmap the ``bayesmap`` command from start to exit (interpreter
 start and imports included, about 5 s); for Karto the runner subprocess (``extra["wall_s"]`` of ``run_karto``; its
@@ -66,7 +66,7 @@ POLL_S = 0.5
 """Seconds between two polls of a watched run's resident memory."""
 MB = 1e6
 STAGE_COLUMNS = (("front end", "front end"), ("loop closure", "loop closure"), ("round", "rounds"),
-                 ("final map", "final map"))
+                 ("final map", "final map"), ("place scans", "place scans"))
 """bayesmap's stages in the table: (the stage names' start, the column); the rounds' map and pose stages sum."""
 
 

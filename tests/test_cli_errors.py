@@ -132,7 +132,8 @@ def _rosmap_yaml(tmp_path: Path, resolution: str) -> Path:
     (lambda t, log: ["infer", "--sweeps", "9223372036854775808"], "--sweeps"),
     (lambda t, log: ["infer", "--log", log, "--resolution", "1e-6"], "cells of 1e-06 m .*coarser --resolution"),
     (lambda t, log: ["infer", "--log", _far_pose_log(log), "--method", "logodds"], "far-away pose"),
-    (lambda t, log: ["infer", "--log", INTEL, "--resolution", "0.01"], r"ray-cell table would take about \d+ GB"),
+    (lambda t, log: ["infer", "--log", INTEL, "--resolution", "0.01", "--cut-past-reading", "inf"],
+     r"ray-cell table would take about \d+ GB.*--keyframe-distance.*--cut-past-reading"),
     (lambda t, log: ["evaluate", "--truth", _rosmap_yaml(t, "1e-9")], "finer than 0.01 m"),
     (lambda t, log: ["evaluate", "--log", log, "--resolution", "1e-5"], "cells of 1e-05 m .*coarser --resolution"),
     # a scene that cannot be simulated
@@ -146,8 +147,11 @@ def _rosmap_yaml(tmp_path: Path, resolution: str) -> Path:
     (lambda t, log: ["infer", "--max-range", "50"], "need --log"),
     # walls a beam can pass: a probability below 1, several scans of a log, a sampler that keeps two walls
     (lambda t, log: ["infer", "--log", log, "--wall-pass-prob", "1"], "wall_pass_prob must be in \\[0, 1\\)"),
-    (lambda t, log: ["infer", "--wall-pass-prob", "0.2"], "--wall-pass-prob and --cut-past-reading apply to several"),
-    (lambda t, log: ["infer", "--cut-past-reading", "1"], "--wall-pass-prob and --cut-past-reading apply to several"),
+    (lambda t, log: ["infer", "--wall-pass-prob", "0.2"], "--cut-past-reading and the keyframe options apply"),
+    (lambda t, log: ["infer", "--cut-past-reading", "1"], "--cut-past-reading and the keyframe options apply"),
+    (lambda t, log: ["infer", "--keyframe-distance", "1"], "--cut-past-reading and the keyframe options apply"),
+    (lambda t, log: ["slam", "--keyframe-turn", "1"], "the keyframe options need --log"),
+    (lambda t, log: ["slam", "--log", log, "--keyframe-distance", "-1"], "keyframe distance must be"),
     (lambda t, log: ["infer", "--log", log, "--wall-pass-prob", "0.2", "--sampler", "raster"],
      "wall_pass_prob = 0.2; the cellwise sampler supports it"),
     # --scan and --scans agree on negative indexes; out of range is refused by both alike

@@ -14,6 +14,7 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.io.carmen import read_carmen
 from bayesmap.io.rosbag import read_bag
 from bayesmap.io.tum import read_tum, tum_stamps, write_tum
+from bayesmap.slam.keyframes import keyframe_problem, owners, select_keyframes
 from bayesmap.slam.pipeline import (
     FINAL_MAP_SWEEPS,
     GRAPH_COV_SCALE,
@@ -79,23 +80,29 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert final["sweeps"] == FINAL_MAP_SWEEPS and final["geometry"] == "chord"
     for name in ("coupling", "wall_pass_prob"):
         assert final[name] == pytest.approx(float(getattr(known.params, name))) and final[name] > 0, name
-    # its noise is the model's widened by the path's mean position variance (pose_cov.npy, as written)
-    assert final["sensor_noise"] == pytest.approx(final_map_noise(float(known.params.sensor_noise), cov), rel=1e-9)
+    # its noise is the model's widened by the keyframes' mean position variance (pose_cov.npy, as written; 23 of
+    # the 25 scans are keyframes, settings["keyframes"])
+    keyframes = select_keyframes(log.poses[:25])
+    assert settings["keyframes"] == len(keyframes) == 23
+    assert final["sensor_noise"] == pytest.approx(final_map_noise(float(known.params.sensor_noise), cov[keyframes]),
+                                                  rel=1e-9)
     assert final["sensor_noise"] > float(known.params.sensor_noise)
     # its power follows the readings' density at the mean path (trajectory.tum, rounded to 1e-6: a few endpoints
     # may change cells, hence rel 1e-2), not at the odometry, whose endpoints smear over twice the cells here
     slam_problem = log_slam_problem(read_carmen(aces_odom), np.arange(25), resolution=0.2)
     wide = Grid((2000, 2000), resolution=0.2, origin=(-200.0, -200.0))
     data = scan_data(slam_problem)
-    at_mean = final_map_power(slam_problem, data, poses, wide)
+    chain = keyframe_problem(slam_problem, keyframes)  # the final map is drawn from the keyframes' scans
+    at_mean = final_map_power(chain, scan_data(chain), poses[keyframes], wide)
     assert final["likelihood_power"] == pytest.approx(at_mean, rel=1e-2)
     assert final_map_power(slam_problem, data, slam_problem.odometry, wide) == pytest.approx(known.likelihood_power)
     assert abs(at_mean - known.likelihood_power) > 0.2 * known.likelihood_power
     assert summary["pose_samples"] == len(samples) and 0 <= summary["acceptance_rate"] <= 1
     # the pose graph's spread is in the covariances: 25 scans close no loop (LOOP_GAP), so the graph is a chain of
-    # sequential edges and pose k's (x, y) block has trace at least 2 k SEQUENTIAL_STD[0]^2 (heading errors add)
+    # sequential edges over the keyframes and keyframe k's (x, y) block has trace at least 2 k SEQUENTIAL_STD[0]^2
+    # (heading errors add); a scan between keyframes has its keyframe's and more
     assert settings["graph_cov_scale"] == GRAPH_COV_SCALE and summary["loop_edges"] == 0
-    k = np.arange(25)
+    k = owners(25, keyframes)
     assert np.all(cov[:, 0, 0] + cov[:, 1, 1] >= GRAPH_COV_SCALE**2 * 2 * k * SEQUENTIAL_STD[0] ** 2 - 1e-12)
     posterior = np.load(log_run / "posterior.npy")
     assert list(posterior.shape) == summary["grid"]["shape"] and summary["grid"]["resolution"] == 0.2
@@ -112,15 +119,16 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
 @ONE_RUN
 def test_slam_log_summary_holds_each_stage(log_run):
     """summary.json's stages: the runs layer's (reading the log, building the problem, the figures, the files)
-    around the pipeline's, in the order they ran (no loop closure on 25 scans: no candidate). The pipeline times
+    around the pipeline's, in the order they ran (no loop closure on 25 scans: no candidate; the 2 scans that are
+    not keyframes placed last). The pipeline times
     itself (runtime_s) from inside "build problem" (the scans' data precede its first report) until it returns,
     a few lines before "figures" starts: so its stages add up to runtime_s less part of "build problem", within
     0.2 s (the lines between, and 1 ms of rounding per stage). Each peak is positive and at most the run's."""
     summary = json.loads((log_run / "summary.json").read_text())
     stages = summary["stages"]
     rounds = [f"round {r}/2: {part}" for r in (1, 2) for part in ("map", "poses")]
-    assert [s["stage"] for s in stages] == ["read log", "build problem", "front end", *rounds, "final map", "figures",
-                                            "write outputs"]
+    assert [s["stage"] for s in stages] == ["read log", "build problem", "front end", *rounds, "final map",
+                                            "place scans", "figures", "write outputs"]
     pipeline = sum(s["seconds"] for s in stages[2:-2])
     assert pipeline - 0.2 <= summary["runtime_s"] <= pipeline + stages[1]["seconds"] + 0.2
     assert all(0 < s["peak_rss_mb"] <= summary["peak_rss_mb"] for s in stages)

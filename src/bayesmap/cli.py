@@ -25,6 +25,7 @@ from bayesmap.runs import infer as infer_run
 from bayesmap.runs import slam as slam_run
 from bayesmap.runs.inputs import parse_scans, read_log_or_bag, select_scans
 from bayesmap.runs.outputs import check_output_file, write_json
+from bayesmap.slam.keyframes import KEYFRAME_DISTANCE, KEYFRAME_TURN
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Bayesian occupancy-grid mapping from range scans, with honest uncertainty.")
@@ -111,6 +112,14 @@ WallPassOpt = _opt(Optional[float], "--wall-pass-prob", help="--log (several sca
 CutOpt = _opt(Optional[float], "--cut-past-reading", help="--log (several scans): meters past its reading beyond "
              "which a beam does not look at the map (a wall there counts as no wall for that beam), > 0: the ray-cell "
              "table keeps only the cells up to the cut, about 5 times fewer on real logs; default: the whole beam")
+KeyframeDistanceOpt = _opt(Optional[float], "--keyframe-distance", help="--log / --bag (several scans): meters the "
+                          "poses (slam: the odometry) must move from the last keyframe for a scan to be one "
+                          "(keyframes are mapped; slam places every other scan on their map); 0 with "
+                          f"--keyframe-turn 0: every scan; default {scenes.LOG_KEYFRAME_DISTANCE:g} (slam: "
+                          f"{KEYFRAME_DISTANCE:g})")
+KeyframeTurnOpt = _opt(Optional[float], "--keyframe-turn", help="--log / --bag (several scans): radians the heading "
+                       f"must turn from the last keyframe for a scan to be one; default {scenes.LOG_KEYFRAME_TURN:g} "
+                       f"(slam: {KEYFRAME_TURN:g})")
 PowerOpt = _opt(Optional[float], "--likelihood-power", help="--log: power eta in (0, 1] of the likelihood, sampling "
                 "p(walls) p(readings | walls)^eta (a power posterior for beams that are not independent evidence; 1 "
                 f"is the plain posterior; default for logs: {scenes.LOG_READINGS_PER_CELL:g} over the mean number "
@@ -300,6 +309,8 @@ def infer(
     geometry: GeometryOpt = None,
     wall_pass_prob: WallPassOpt = None,
     cut_past_reading: CutOpt = None,
+    keyframe_distance: KeyframeDistanceOpt = None,
+    keyframe_turn: KeyframeTurnOpt = None,
     beam_weights: BeamWeightsOpt = None,
     lambda_short: LambdaShortOpt = None,
     likelihood_power: PowerOpt = None,
@@ -444,6 +455,8 @@ def slam(
     burn_in: SlamBurnInOpt = None,
     seed: SlamSeedOpt = 0,
     num_poses: SlamPosesOpt = None,
+    keyframe_distance: KeyframeDistanceOpt = None,
+    keyframe_turn: KeyframeTurnOpt = None,
     rosmap: RosmapOpt = False,
     maps: MapsOpt = False,
     report: SlamReportOpt = False,

@@ -112,6 +112,27 @@ long on average, at any resolution; 0 would be the independent prior. Chosen by 
 cross-validation over 0, 1, 2 and 4 m, with the other map defaults of a log
 ([validation](../validation/defaults.md#log_run_length))."""
 
+LOG_CUT_PAST_READING = 0.5
+"""Meters past its reading beyond which a returned beam of a log does not look at the map
+(``ModelParams.cut_past_reading``; :func:`bayesmap.model.generative.cut_chords`), the default of ``bayesmap infer``,
+``evaluate`` and ``slam`` on logs: the ray-cell table stops there, a fifth of the whole beams' pairs on Intel. Chosen
+by leave-one-log-out cross-validation over 0.25, 0.5, 1 and 2 m and the whole beam, as the shortest cut whose held-out
+NLL and AUC on the other logs at 0.1 and 0.2 m are no worse than the whole beam's
+([validation](../validation/defaults.md#log_cut_past_reading)). :func:`log_problem`'s own default stays the whole
+beam (held-out beams are scored whole)."""
+
+LOG_KEYFRAME_DISTANCE = 0.2
+"""Meters the poses must move from the last keyframe for a scan of a log to be mapped by ``bayesmap infer`` and
+``evaluate`` (:func:`bayesmap.slam.keyframes.select_keyframes`; with :data:`LOG_KEYFRAME_TURN`): Karto's default
+``MinimumTravelDistance``. It keeps 898 of Intel's 910 scans, 439 of ACES' 440 and all of CSAIL's, whose maps were
+validated with every scan, and 1,960 of Freiburg 079's 4,791 (a bag's rate, a scan every 0.1 m), whose every scan
+would not fit in memory ([validation](../validation/scale.md#keyframes)). ``bayesmap slam`` keeps fewer
+(:data:`bayesmap.slam.keyframes.KEYFRAME_DISTANCE`)."""
+
+LOG_KEYFRAME_TURN = 0.2
+"""Radians the heading must turn from the last keyframe for a scan to be mapped (with
+:data:`LOG_KEYFRAME_DISTANCE`), about Karto's default ``MinimumTravelHeading`` (10 degrees, 0.17 rad)."""
+
 LOG_WALL_PASS_PROB = 0.5
 """Default probability that a beam passes through a wall cell of a log's map (``ModelParams.wall_pass_prob``; a
 probability of the world, the same at every resolution). 0.5 is the largest value the model is meant for: a reading

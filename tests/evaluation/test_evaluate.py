@@ -23,6 +23,7 @@ def test_evaluate_log_writes_the_table(small_log, tmp_path, monkeypatch, capsys)
     assert scores["setup"]["prior_wall_prob"] == scenes.LOG_STRUCTURED_PRIOR
     assert scores["setup"]["sensor_noise"] == scenes.LOG_SENSOR_NOISE and scores["setup"]["range_offset"] == 0.0
     assert scores["setup"]["geometry"] == "chord" and scores["setup"]["coupling"] == scenes.log_coupling(0.2)
+    assert scores["setup"]["cut_past_reading"] == scenes.LOG_CUT_PAST_READING
     assert "bayesmap" in out and "logodds" in out and "auc" in out
     code, out, err = run_cli(monkeypatch, capsys, "evaluate", "--log", small_log, "--json", tmp_path / "scores.json")
     assert code == 2 and "already exists" in err

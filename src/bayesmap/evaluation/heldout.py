@@ -25,7 +25,6 @@ Against a floor plan: cell-wise accuracy, AUC and Brier score of the wall probab
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import jax
 import jax.numpy as jnp
@@ -44,7 +43,10 @@ from bayesmap.model.sensor import beam_sample
 from bayesmap.progress import ProgressCallback
 from bayesmap.scenes import (
     LOG_BEAM_MODEL,
+    LOG_CUT_PAST_READING,
     LOG_GEOMETRY,
+    LOG_KEYFRAME_DISTANCE,
+    LOG_KEYFRAME_TURN,
     LOG_PRIOR,
     RESOLUTION,
     SIMULATED_CLEARANCE,
@@ -57,6 +59,7 @@ from bayesmap.scenes import (
     log_problem,
     log_wall_pass_prob,
 )
+from bayesmap.slam.keyframes import select_keyframes
 
 
 def heldout_split(num_scans: int, every: int = 10) -> tuple[np.ndarray, np.ndarray]:
@@ -359,7 +362,8 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
                  range_offset: float | None = None, sensor_params: dict | None = None,
                  likelihood_power: float | None = None, geometry: str = LOG_GEOMETRY,
                  coupling: float | None = None, wall_pass_prob: float | None = None,
-                 readings_per_cell: float | None = None, cut_past_reading: float = math.inf) -> dict:
+                 readings_per_cell: float | None = None, cut_past_reading: float = LOG_CUT_PAST_READING,
+                 keyframe_distance: float = LOG_KEYFRAME_DISTANCE, keyframe_turn: float = LOG_KEYFRAME_TURN) -> dict:
     """Held-out evaluation on a log: hold out every ``every``-th of the chosen scans, map the rest with bayesmap
     (``sampler``, ``sweeps``; kept samples after a burn-in of half) and with log-odds mapping, and score both on the
     held-out beams (see the module docstring). ``sensor_noise``, ``range_offset``, ``sensor_params``,
@@ -369,10 +373,14 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
     coupling), ``wall_pass_prob`` (None: :func:`bayesmap.scenes.log_wall_pass_prob` of ``sampler``) and
     ``readings_per_cell`` (None: :data:`bayesmap.scenes.LOG_READINGS_PER_CELL`): see
     :func:`bayesmap.scenes.log_problem` (log-odds mapping always uses the measured ranges); the other defaults are
-    the scene defaults of :mod:`bayesmap.scenes`. ``cut_past_reading`` (meters, default ``inf``) cuts the training
-    beams past their readings (:class:`bayesmap.model.generative.ModelParams`); the held-out beams are always
-    scored with whole beams, so that scores with and without a cut compare. ``progress`` gets the chain's sweeps
-    (:func:`bayesmap.inference.driver.run_inference`).
+    the scene defaults of :mod:`bayesmap.scenes`. ``cut_past_reading`` (meters, default
+    :data:`bayesmap.scenes.LOG_CUT_PAST_READING`) cuts the training beams past their readings
+    (:class:`bayesmap.model.generative.ModelParams`); the held-out beams are always scored with whole beams, so that
+    scores with and without a cut compare. ``keyframe_distance`` (meters) and ``keyframe_turn`` (radians; defaults
+    :data:`bayesmap.scenes.LOG_KEYFRAME_DISTANCE` and ``LOG_KEYFRAME_TURN``) map only the training scans that are
+    keyframes among them (:func:`bayesmap.slam.keyframes.select_keyframes` of their poses; 0: every training scan),
+    as ``bayesmap infer`` does; log-odds mapping always maps every training scan, and the held-out scans are the
+    same. ``progress`` gets the chain's sweeps (:func:`bayesmap.inference.driver.run_inference`).
 
     Returns:
         ``{"bayesmap": {...}, "logodds": {...}, "setup": {...}}`` (JSON-serializable).
@@ -392,18 +400,20 @@ def evaluate_log(log, scans=None, every: int = 10, resolution: float = RESOLUTIO
                   beam_model=beam_model, grid=grid, range_offset=range_offset, sensor_params=sensor_params,
                   likelihood_power=likelihood_power, geometry=geometry, coupling=coupling,
                   wall_pass_prob=wall_pass_prob, readings_per_cell=readings_per_cell)
-    train_problem = log_problem(log, train, **kwargs, cut_past_reading=cut_past_reading)
+    keyframes = train[select_keyframes(log.poses[train], keyframe_distance, keyframe_turn)]
+    train_problem = log_problem(log, keyframes, **kwargs, cut_past_reading=cut_past_reading)
     test_problem = log_problem(log, test, **kwargs)
     start = time.perf_counter()
     gibbs = run_inference(train_problem, sampler, sweeps, seed=seed, progress=progress)
     gibbs_s = time.perf_counter() - start
-    logodds = run_logodds(train_problem)
+    logodds = run_logodds(train_problem if len(keyframes) == len(train) else log_problem(log, train, **kwargs))
     kept = gibbs.samples[gibbs.summary["burn_in"]:]
     scores = score_maps(test_problem, {"bayesmap": (gibbs.posterior, kept), "logodds": (logodds.posterior, None)})
     scores["bayesmap"]["runtime_s"] = round(gibbs_s, 3)
     scores["logodds"]["runtime_s"] = round(logodds.runtime_s, 3)
     scores["setup"] = {
-        "log": str(log.path), "scans": int(len(scans)), "train_scans": int(len(train)), "test_scans": int(len(test)),
+        "log": str(log.path), "scans": int(len(scans)), "train_scans": int(len(train)),
+        "keyframes": int(len(keyframes)), "test_scans": int(len(test)),
         "every": int(every), "resolution": float(resolution), "grid": list(grid.shape), "sampler": sampler,
         "sweeps": int(sweeps), "beam_model": beam_model, "sensor_noise": float(train_problem.params.sensor_noise),
         "prior_wall_prob": float(train_problem.params.prior_wall_prob),

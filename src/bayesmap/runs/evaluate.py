@@ -9,7 +9,6 @@ with each stage's wall time and peak memory, one line saying what was scored, th
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, NamedTuple, Optional
@@ -277,7 +276,8 @@ def evaluate_maps(req: EvaluateRequest, progress: Optional[ProgressCallback] = N
                           likelihood_power=req.likelihood_power,
                           geometry=scenes.LOG_GEOMETRY if req.geometry is None else req.geometry,
                           wall_pass_prob=req.wall_pass_prob, progress=progress, **mapping,
-                          cut_past_reading=math.inf if req.cut_past_reading is None else req.cut_past_reading)
+                          cut_past_reading=scenes.LOG_CUT_PAST_READING if req.cut_past_reading is None
+                          else req.cut_past_reading)
     setup = scores["setup"]
     header = (f"{name}: mapped {setup['train_scans']} scans, scored the {setup['test_scans']} held out "
               f"(every {req.every}-th); grid {setup['grid'][0]} x {setup['grid'][1]} cells of {req.resolution:g} m; "

@@ -10,7 +10,6 @@ peak memory in summary.json (:class:`bayesmap.progress.StageRecorder`).
 from __future__ import annotations
 
 import io
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple, Optional
@@ -47,6 +46,7 @@ from bayesmap.runs.outputs import (
     write_outputs,
 )
 from bayesmap.scenes import log_problem, scan_problem, tutorial_problem
+from bayesmap.slam.keyframes import select_keyframes
 from bayesmap.viz.common import figure_bytes
 from bayesmap.viz.maps import plot_posterior, plot_posterior_path
 from bayesmap.viz.report import build_report
@@ -73,6 +73,8 @@ class InferRequest:
     geometry: Optional[str] = None
     wall_pass_prob: Optional[float] = None
     cut_past_reading: Optional[float] = None
+    keyframe_distance: Optional[float] = None
+    keyframe_turn: Optional[float] = None
     beam_weights: Optional[str] = None
     lambda_short: Optional[float] = None
     likelihood_power: Optional[float] = None
@@ -126,9 +128,11 @@ def check_infer_request(req: InferRequest) -> None:
         if req.scan is not None or req.scans is not None or req.likelihood_power is not None \
                 or req.max_range is not None:
             raise BayesmapError("--scan, --scans, --likelihood-power and --max-range need --log FILE (or --bag)")
-        if req.geometry is not None or req.wall_pass_prob is not None or req.cut_past_reading is not None:
-            raise BayesmapError("--geometry, --wall-pass-prob and --cut-past-reading apply to several scans of --log "
-                                "FILE (or --bag); maps keep the tutorial's entry geometry, walls and whole beams")
+        if (req.geometry is not None or req.wall_pass_prob is not None or req.cut_past_reading is not None
+                or req.keyframe_distance is not None or req.keyframe_turn is not None):
+            raise BayesmapError("--geometry, --wall-pass-prob, --cut-past-reading and the keyframe options apply to "
+                                "several scans of --log FILE (or --bag); maps keep the tutorial's entry geometry, "
+                                "walls and whole beams")
     elif req.map_file is not None:
         raise BayesmapError("give either --map or --log / --bag, not both")
     check_output_dir(req.out, req.force)
@@ -170,9 +174,10 @@ def _log_scene(carmen, req: InferRequest, params: dict, coupling):
         if req.range_offset is not None or req.likelihood_power is not None:
             raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), "
                                 "not to --scan N")
-        if req.geometry is not None or req.wall_pass_prob is not None or req.cut_past_reading is not None:
-            raise BayesmapError("--geometry, --wall-pass-prob and --cut-past-reading apply to several scans "
-                                "(--scans), not to --scan N")
+        if (req.geometry is not None or req.wall_pass_prob is not None or req.cut_past_reading is not None
+                or req.keyframe_distance is not None or req.keyframe_turn is not None):
+            raise BayesmapError("--geometry, --wall-pass-prob, --cut-past-reading and the keyframe options apply to "
+                                "several scans (--scans), not to --scan N")
         scan = int(parse_scans(str(req.scan), len(carmen))[0])  # a negative index counts from the end, as in --scans
         problem = scan_problem(
             carmen, scan, resolution=req.resolution,
@@ -182,14 +187,22 @@ def _log_scene(carmen, req: InferRequest, params: dict, coupling):
             coupling=prior.DEFAULT_COUPLING if coupling is None else coupling)
         return problem, f"{name} scan {scan}"
     chosen = parse_scans(req.scans, len(carmen))
+    keyframes = (_given(req.keyframe_distance, scenes.LOG_KEYFRAME_DISTANCE),
+                 _given(req.keyframe_turn, scenes.LOG_KEYFRAME_TURN))
+    chosen = chosen[select_keyframes(carmen.poses[chosen], *keyframes)]
     wall_pass_prob = scenes.log_wall_pass_prob(req.sampler) if req.wall_pass_prob is None else req.wall_pass_prob
     problem = log_problem(carmen, chosen, resolution=req.resolution, prior_wall_prob=req.prior_wall_prob,
                           sensor_noise=req.sensor_noise, beam_model=req.beam_model or scenes.LOG_BEAM_MODEL,
                           range_offset=req.range_offset, sensor_params=params, likelihood_power=req.likelihood_power,
                           geometry=scenes.LOG_GEOMETRY if req.geometry is None else req.geometry, coupling=coupling,
                           wall_pass_prob=wall_pass_prob,
-                          cut_past_reading=math.inf if req.cut_past_reading is None else req.cut_past_reading)
+                          cut_past_reading=_given(req.cut_past_reading, scenes.LOG_CUT_PAST_READING))
+    problem.extra.update(keyframe_distance_m=float(keyframes[0]), keyframe_turn_rad=float(keyframes[1]))
     return problem, f"{name}, {len(chosen)} scans"
+
+
+def _given(value, default):
+    return default if value is None else value
 
 
 def _map_scene(req: InferRequest, params: dict, coupling):

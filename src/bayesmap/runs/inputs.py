@@ -208,8 +208,9 @@ def check_sizes(shape: tuple[int, int], resolution: float, pairs: float, chains:
     if pairs * BYTES_PER_PAIR > MAX_MEMORY_BYTES:
         raise BayesmapError(f"the ray-cell table would take about {pairs * BYTES_PER_PAIR / 1e9:,.0f} GB with the "
                             f"run's other arrays ({pairs:,.0f} (beam, cell) pairs at {BYTES_PER_PAIR} bytes; at most "
-                            f"{MAX_MEMORY_BYTES / 1e9:g} GB): use a coarser --resolution, fewer --scans, fewer poses "
-                            "or beams, or a shorter --max-range")
+                            f"{MAX_MEMORY_BYTES / 1e9:g} GB): use a coarser --resolution, fewer --scans or a larger "
+                            "--keyframe-distance, fewer poses or beams, or a shorter --cut-past-reading or "
+                            "--max-range")
 
 
 def check_problem_size(problem, chains: int = 1) -> None:

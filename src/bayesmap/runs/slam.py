@@ -37,7 +37,8 @@ from bayesmap.runs.outputs import (
     write_outputs,
 )
 from bayesmap.slam.joint import SlamResult, run_slam
-from bayesmap.slam.pipeline import BURN_IN_ROUNDS, FINAL_MAP_SWEEPS, GRAPH_COV_SCALE, ROUNDS, run_log_slam
+from bayesmap.slam.keyframes import KEYFRAME_DISTANCE, KEYFRAME_TURN, keyframe_problem, select_keyframes
+from bayesmap.slam.pipeline import BURN_IN_ROUNDS, FINAL_MAP_SWEEPS, GRAPH_COV_SCALE, ROUNDS, run_keyframe_slam
 from bayesmap.slam.problem import SLAM_ODOMETRY_ALPHAS, SlamProblem, log_slam_problem, slam_tutorial_problem
 from bayesmap.viz.common import figure_bytes
 from bayesmap.viz.maps import plot_occupancy_map
@@ -69,6 +70,8 @@ class SlamRequest:
     burn_in: Optional[int] = None
     seed: int = 0
     num_poses: Optional[int] = None
+    keyframe_distance: Optional[float] = None
+    keyframe_turn: Optional[float] = None
     rosmap: bool = False
     maps: bool = False
     report: bool = False
@@ -79,13 +82,15 @@ class SlamRequest:
 class SlamRun(NamedTuple):
     """A SLAM run: the ``problem`` (odometry ``(S, 3)``, readings ``(S, K)``, the true path where known), the
     ``result`` (:class:`~bayesmap.slam.joint.SlamResult`), the ``summary`` summary.json holds, ``stamps`` ``(S,)``
-    float64 (trajectory.tum's: a log's scan timestamps, or scan indices) and the figure's ``title``."""
+    float64 (trajectory.tum's: a log's scan timestamps, or scan indices), the figure's ``title`` and the
+    ``keyframes`` ``(K,)`` int64 whose scans made the map (None: every scan)."""
 
     problem: SlamProblem
     result: SlamResult
     summary: dict
     stamps: np.ndarray
     title: str
+    keyframes: Optional[np.ndarray] = None
 
 
 def slam_counts(sweeps: Optional[int], burn_in: Optional[int], default: dict) -> tuple[int, int]:
@@ -159,9 +164,12 @@ def tutorial_slam(seed: int = 0, num_poses: Optional[int] = None, sweeps: Option
 
 def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Optional[float] = None,
              sweeps: Optional[int] = None, burn_in: Optional[int] = None, seed: int = 0, final_map: bool = True,
-             progress: Optional[ProgressCallback] = None, notify: Optional[Callable[[str], None]] = None):
-    """Run :func:`bayesmap.slam.pipeline.run_log_slam` on the ``scans`` (a :func:`parse_scans` spec) of a log read
-    from ``path``; without ``final_map``, no final map (for scoring the path alone).
+             progress: Optional[ProgressCallback] = None, notify: Optional[Callable[[str], None]] = None,
+             keyframe_distance: float = KEYFRAME_DISTANCE, keyframe_turn: float = KEYFRAME_TURN):
+    """Run :func:`bayesmap.slam.pipeline.run_keyframe_slam` on the ``scans`` (a :func:`parse_scans` spec) of a log
+    read from ``path``, its keyframes chosen by ``keyframe_distance`` meters and ``keyframe_turn`` radians
+    (:func:`bayesmap.slam.keyframes.select_keyframes`; 0: every scan); without ``final_map``, no final map (for
+    scoring the path alone).
 
     Args:
         progress: passed on to ``run_log_slam``; a :class:`bayesmap.progress.StageRecorder` also gets the stage
@@ -180,13 +188,16 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
     sweeps, burn_in = slam_counts(sweeps, burn_in, LOG_SLAM_DEFAULTS)
     start_stage(progress, "build problem")
     problem = log_slam_problem(carmen, chosen, resolution=resolution)
-    check_slam_size(problem)
+    keyframes = select_keyframes(problem.odometry, keyframe_distance, keyframe_turn)
+    check_slam_size(keyframe_problem(problem, keyframes))
     if notify is not None:
-        notify(f"bayesmap slam: {path.name}, {len(chosen)} scans, {sweeps} sweeps ...")
-    result = run_log_slam(problem, rounds=sweeps, burn_in=burn_in, seed=seed, progress=progress,
-                          final_map_sweeps=FINAL_MAP_SWEEPS if final_map else 0)
+        notify(f"bayesmap slam: {path.name}, {len(chosen)} scans ({len(keyframes)} keyframes), {sweeps} sweeps ...")
+    result = run_keyframe_slam(problem, keyframes, rounds=sweeps, burn_in=burn_in, seed=seed, progress=progress,
+                               final_map_sweeps=FINAL_MAP_SWEEPS if final_map else 0)
     p = problem.params
-    settings = {"scans": scans if scans is not None else "all", "resolution": resolution, "sweeps": sweeps,
+    settings = {"scans": scans if scans is not None else "all", "resolution": resolution,
+                "keyframe_distance_m": float(keyframe_distance), "keyframe_turn_rad": float(keyframe_turn),
+                "keyframes": int(len(keyframes)), "sweeps": sweeps,
                 "burn_in": burn_in, "seed": seed, "prior_wall_prob": float(p.prior_wall_prob),
                 "sensor_noise": float(p.sensor_noise), "beam_model": p.beam_model, "geometry": p.geometry,
                 "range_offset_m": float(problem.range_offset),
@@ -220,15 +231,18 @@ def grid_summary(grid) -> dict:
 def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution: Optional[float] = None,
                      sweeps: Optional[int] = None, burn_in: Optional[int] = None, seed: int = 0,
                      progress: Optional[ProgressCallback] = None,
-                     notify: Optional[Callable[[str], None]] = None) -> SlamRun:
-    """SLAM on a real log or bag (:func:`log_slam`), with its summary; trajectory.tum's stamps are the scans'
-    timestamps where they increase strictly, else their indices (:func:`bayesmap.io.tum.tum_stamps`).
+                     notify: Optional[Callable[[str], None]] = None,
+                     keyframes: tuple[float, float] = (KEYFRAME_DISTANCE, KEYFRAME_TURN)) -> SlamRun:
+    """SLAM on a real log or bag (:func:`log_slam`, its keyframes at ``keyframes`` = (meters, radians)), with its
+    summary; trajectory.tum's stamps are the scans' timestamps where they increase strictly, else their indices
+    (:func:`bayesmap.io.tum.tum_stamps`).
 
     Raises:
         BayesmapError: as :func:`log_slam`.
     """
     problem, result, chosen, settings = log_slam(carmen, path, scans, resolution, sweeps, burn_in, seed,
-                                                 progress=progress, notify=notify)
+                                                 progress=progress, notify=notify, keyframe_distance=keyframes[0],
+                                                 keyframe_turn=keyframes[1])
     all_stamps = tum_stamps(carmen.timestamps)
     grid = result.grid if result.grid is not None else problem.params.grid
     summary = {
@@ -245,7 +259,8 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
                               else "scan indices of the log (its timestamps do not increase strictly)"),
     }
     title = f"bayesmap slam: {path.name}, {problem.num_scans} scans, {settings['sweeps']} sweeps"
-    return SlamRun(problem, result, summary, all_stamps[chosen], title)
+    return SlamRun(problem, result, summary, all_stamps[chosen], title,
+                   select_keyframes(problem.odometry, *keyframes))
 
 
 def slam_files(run: SlamRun, report: bool = False, rosmap: bool = False, maps: bool = False,
@@ -254,9 +269,9 @@ def slam_files(run: SlamRun, report: bool = False, rosmap: bool = False, maps: b
     ``run.stamps``), trajectory_samples.npy ``(N, S, 3)``, pose_cov.npy ``(S, 3, 3)``, posterior.npy,
     posterior.png (the map with the paths), summary.json, and for a real log (no true map) occupancy.png (the map
     alone); with ``rosmap``, ``maps`` and ``report`` the maps and report.html as
-    :func:`bayesmap.runs.infer.infer_files` writes them. The figures are cropped to the cells some beam crossed
-    from the posterior mean path (:func:`bayesmap.io.maps_out.seen_cells_along`) and to where its readings
-    returned (:func:`slam_endpoints`).
+    :func:`bayesmap.runs.infer.infer_files` writes them. The figures are cropped to the cells some beam of the
+    keyframes (the scans the map was drawn from) crossed from the posterior mean path
+    (:func:`bayesmap.io.maps_out.seen_cells_along`) and to where the readings returned (:func:`slam_endpoints`).
 
     With ``stages`` (a :class:`bayesmap.progress.StageRecorder`), the figures and the encoding of the files are its
     stages "figures" and "write outputs", and summary.json, encoded last, gets ``"stages"`` and ``"peak_rss_mb"``
@@ -265,7 +280,8 @@ def slam_files(run: SlamRun, report: bool = False, rosmap: bool = False, maps: b
     problem, result = run.problem, run.result
     start_stage(stages, "figures")
     grid = result.grid if result.grid is not None else problem.params.grid
-    seen = seen_cells_along(grid, result.mean_path, problem.sensor_angles, problem.readings,
+    mapped = slice(None) if run.keyframes is None else run.keyframes  # the scans the map was drawn from
+    seen = seen_cells_along(grid, result.mean_path[mapped], problem.sensor_angles[mapped], problem.readings[mapped],
                             float(problem.params.max_range))
     focus = slam_endpoints(problem, result.mean_path)
     fig = plot_slam(grid, result.posterior, result.mean_path, result.pose_cov, result.pose_samples,
@@ -307,8 +323,9 @@ def check_slam_request(req: SlamRequest) -> None:
     if req.log is not None and req.bag is not None:
         raise BayesmapError("give either --log or --bag, not both")
     if req.log is None and req.bag is None:
-        if req.scans is not None or req.resolution is not None:
-            raise BayesmapError("--scans and --resolution need --log FILE (or --bag PATH)")
+        if (req.scans is not None or req.resolution is not None or req.keyframe_distance is not None
+                or req.keyframe_turn is not None):
+            raise BayesmapError("--scans, --resolution and the keyframe options need --log FILE (or --bag PATH)")
     elif req.num_poses is not None:
         raise BayesmapError("--num-poses applies to the tutorial scene, not to --log / --bag")
     check_output_dir(req.out, req.force, owned=SLAM_OWNED_FILES)
@@ -333,8 +350,10 @@ def slam(req: SlamRequest, progress: Optional[ProgressCallback] = None,
         run = tutorial_slam(req.seed, req.num_poses, req.sweeps, req.burn_in, stages)
     else:
         path = req.log if req.log is not None else req.bag
+        keyframes = (KEYFRAME_DISTANCE if req.keyframe_distance is None else req.keyframe_distance,
+                     KEYFRAME_TURN if req.keyframe_turn is None else req.keyframe_turn)
         run = run_log_slam_job(carmen, path, req.scans, req.resolution, req.sweeps, req.burn_in, req.seed,
-                               stages, notify)
+                               stages, notify, keyframes)
     files = slam_files(run, report=req.report, rosmap=req.rosmap, maps=req.maps, stages=stages)
     return run, write_outputs(req.out, files, owned=SLAM_OWNED_FILES)
 

@@ -37,7 +37,7 @@ from bayesmap.inference.base import SamplingAlgorithm
 from bayesmap.inference.chains import run_recorded_chains
 from bayesmap.inference.dense import dense_readings, dense_state, dense_sweep
 from bayesmap.model.generative import check_likelihood_power, make_params, prior_log_odds
-from bayesmap.model.motion import compose, motion_logpdf, odometry_controls, wrap_angle
+from bayesmap.model.motion import compose, motion_logpdf, wrap_angle
 from bayesmap.progress import ProgressCallback
 from bayesmap.slam.poses import (
     PoseState,
@@ -257,7 +257,7 @@ def run_slam(problem, sweeps: int = 100, burn_in: int = 20, seed: int = 0, chain
     """
     sweeps, burn_in, chains = check_counts(sweeps, burn_in, chains)
     start = time.perf_counter()
-    increments, covs = odometry_controls(problem.odometry, problem.motion)
+    increments, covs = problem.motion_steps()
     data = slam_data(increments, covs, problem.sensor_angles, problem.readings, problem.params)
     eta = problem.likelihood_power
     if pose_kernel is None:

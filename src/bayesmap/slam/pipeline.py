@@ -60,10 +60,10 @@ from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.inference.cellwise import cellwise_gibbs
 from bayesmap.inference.chains import run_chain, run_recorded_chains
 from bayesmap.model.generative import ray_limits, replace_params
-from bayesmap.model.motion import odometry_controls
 from bayesmap.progress import ProgressCallback, report
 from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
 from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
+from bayesmap.slam.keyframes import keyframe_problem, owners, place_scans, placed_uncertainty
 from bayesmap.slam.posegraph import close_loops, marginal_covariances, sample_deviations
 from bayesmap.slam.poses import PoseState, random_walk_pose_mh, slam_data
 from bayesmap.slam.scanmatch import (
@@ -112,7 +112,7 @@ def scan_data(problem) -> ScanData:
     sensor read: the model's readings plus the problem's ``range_offset``, so that scan matching aligns the scans'
     true endpoints (the offset belongs to the map's cell geometry; subtracted, it shrinks every scan towards its pose
     and biases each match along the direction of travel: 0.6 % of the distance on ACES)."""
-    increments, covs = odometry_controls(problem.odometry, problem.motion)
+    increments, covs = problem.motion_steps()
     mask = problem.max_range_mask if problem.max_range_mask is not None else np.zeros(problem.readings.shape, bool)
     returned = ~np.asarray(mask, bool)
     readings = np.where(returned, problem.readings + problem.range_offset, 0.0)
@@ -363,3 +363,33 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
                       loop_edges=len(edges.i) - (len(path) - 1), graph_cov=graph_cov,
                       chain_posterior=chain_posterior if final else None, final_map_power=final_power,
                       final_map_noise=final_noise)
+
+
+def run_keyframe_slam(problem, keyframes, progress: ProgressCallback | None = None, **kwargs) -> SlamResult:
+    """:func:`run_log_slam` on the scans ``keyframes`` ``(K,)`` of ``problem`` (:func:`bayesmap.slam.keyframes.
+    keyframe_problem`), then every other scan placed on the keyframes' map (:func:`bayesmap.slam.keyframes.
+    place_scans`, reported as stage ``"place scans"``) with its covariance and samples from its keyframe's
+    (:func:`bayesmap.slam.keyframes.placed_uncertainty`). ``kwargs`` are :func:`run_log_slam`'s.
+
+    Returns:
+        A :class:`bayesmap.slam.joint.SlamResult` of every scan of ``problem``: ``mean_path`` ``(S, 3)``,
+        ``pose_cov`` and ``graph_cov`` ``(S, 3, 3)``, ``pose_samples`` ``(N, S, 3)``; the maps the keyframes'.
+
+    Raises:
+        BayesmapError: as :func:`run_log_slam`.
+    """
+    keyframes = np.asarray(keyframes, np.int64)
+    result = run_log_slam(keyframe_problem(problem, keyframes), progress=progress, **kwargs)
+    if len(keyframes) == problem.num_scans:
+        return result
+    start = time.perf_counter()
+    others = problem.num_scans - len(keyframes)
+    report(progress, "place scans", 0, others, "scan")
+    poses = place_scans(result.mean_path, keyframes, problem.odometry, scan_data(problem), problem.likelihood_power,
+                        problem.motion)
+    cov, samples = placed_uncertainty(poses, keyframes, problem.odometry, result.pose_cov, result.pose_samples,
+                                      problem.motion)
+    report(progress, "place scans", others, others, "scan")
+    graph_cov = None if result.graph_cov is None else result.graph_cov[owners(problem.num_scans, keyframes)]
+    return result._replace(mean_path=poses, pose_cov=cov, pose_samples=samples, graph_cov=graph_cov,
+                           runtime_s=result.runtime_s + time.perf_counter() - start)

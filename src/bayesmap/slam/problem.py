@@ -19,9 +19,10 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import angles
 from bayesmap.io.ascii import tutorial_map
 from bayesmap.model.generative import ModelParams, make_params, replace_params, simulate_scan_readings
-from bayesmap.model.motion import MotionParams, wrap_angle
+from bayesmap.model.motion import MotionParams, odometry_controls, wrap_angle
 from bayesmap.scenes import (
     LOG_BEAM_MODEL,
+    LOG_CUT_PAST_READING,
     LOG_GEOMETRY,
     LOG_PRIOR,
     LOG_SENSOR_NOISE,
@@ -63,9 +64,12 @@ default (:func:`log_map_params`)."""
 def slam_map_settings() -> dict:
     """The map model of ``bayesmap slam --log``, as keywords of :func:`log_problem`: :data:`SLAM_GEOMETRY` with no
     range offset, :data:`SLAM_SENSOR_NOISE`, :data:`SLAM_LIKELIHOOD_POWER`, the independent prior and wall cells
-    that stop every beam (its pose moves cast to the first wall only)."""
+    that stop every beam (its pose moves cast to the first wall only), each returned beam cut
+    :data:`bayesmap.scenes.LOG_CUT_PAST_READING` meters past its reading (maps and pose moves alike; the final map
+    keeps the cut, :func:`log_map_params`)."""
     return {"geometry": SLAM_GEOMETRY, "range_offset": 0.0, "sensor_noise": SLAM_SENSOR_NOISE,
-            "likelihood_power": SLAM_LIKELIHOOD_POWER, "coupling": 0.0, "wall_pass_prob": 0.0}
+            "likelihood_power": SLAM_LIKELIHOOD_POWER, "coupling": 0.0, "wall_pass_prob": 0.0,
+            "cut_past_reading": LOG_CUT_PAST_READING}
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -109,6 +113,10 @@ class SlamProblem:
         final_map_power: the likelihood power of that final map, in (0, 1], or None: the log default at the mean
             path (:func:`log_likelihood_power` of its :func:`endpoints_per_cell`), which :func:`log_slam_problem`
             sets.
+        steps: ``(increments (S - 1, 3), covariances (S - 1, 3, 3))`` the motion model's steps between consecutive
+            scans where they are not one odometry step each (keyframes: the steps of the scans between composed,
+            :func:`bayesmap.model.motion.composed_steps`), or None: :func:`bayesmap.model.motion.odometry_controls`
+            of ``odometry`` (:meth:`motion_steps`).
     """
 
     params: ModelParams
@@ -125,11 +133,18 @@ class SlamProblem:
     range_offset: float = 0.0
     final_map_params: ModelParams | None = None
     final_map_power: float | None = 1.0
+    steps: tuple | None = None
 
     @property
     def num_scans(self) -> int:
         """``S``."""
         return self.odometry.shape[0]
+
+    def motion_steps(self) -> tuple:
+        """``(increments (S - 1, 3), covariances (S - 1, 3, 3))``: the motion model's step from each scan to the next,
+        ``steps`` where given, else :func:`bayesmap.model.motion.odometry_controls` of the odometry under
+        ``motion``."""
+        return self.steps if self.steps is not None else odometry_controls(self.odometry, self.motion)
 
 
 def simulate_odometry(true_poses, alphas=SLAM_ODOMETRY_ALPHAS, seed: int = 0) -> np.ndarray:
