@@ -124,10 +124,10 @@ beam (held-out beams are scored whole)."""
 LOG_KEYFRAME_DISTANCE = 0.2
 """Meters the poses must move from the last keyframe for a scan of a log to be mapped by ``bayesmap infer`` and
 ``evaluate`` (:func:`bayesmap.slam.keyframes.select_keyframes`; with :data:`LOG_KEYFRAME_TURN`): Karto's default
-``MinimumTravelDistance``. It keeps 898 of Intel's 910 scans, 439 of ACES' 440 and all of CSAIL's, whose maps were
-validated with every scan, and 1,960 of Freiburg 079's 4,791 (a bag's rate, a scan every 0.1 m), whose every scan
-would not fit in memory ([validation](../validation/scale.md#keyframes)). ``bayesmap slam`` keeps fewer
-(:data:`bayesmap.slam.keyframes.KEYFRAME_DISTANCE`)."""
+``MinimumTravelDistance``. At the corrected poses it keeps 905 of Intel's 910 scans, 439 of ACES' 440 and all of
+CSAIL's 406, whose maps were validated with every scan, and 1,846 of Freiburg 079's 4,791 (a bag's rate, a scan every
+0.1 m), whose every scan would not fit in memory ([validation](../validation/scale.md#keyframes)). ``bayesmap slam``
+keeps fewer (:data:`bayesmap.slam.keyframes.KEYFRAME_DISTANCE`)."""
 
 LOG_KEYFRAME_TURN = 0.2
 """Radians the heading must turn from the last keyframe for a scan to be mapped (with
