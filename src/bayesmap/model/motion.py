@@ -192,7 +192,8 @@ def composed_steps(odometry, starts, ends, params: MotionParams | None = None):
 
     Args:
         odometry: ``(S, 3)`` odometry poses (x m, y m, theta rad).
-        starts, ends: ``(M,)`` int scan indices, ``0 <= starts <= ends < S``.
+        starts: ``(M,)`` int scan indices, ``0 <= starts <= ends``.
+        ends: ``(M,)`` int scan indices, ``ends < S``.
         params: the motion noise (default :class:`MotionParams`'s defaults).
 
     Returns:

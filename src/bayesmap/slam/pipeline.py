@@ -178,7 +178,12 @@ def _map_round(key, problem, params, poses, walls, sweeps: int, power: float | N
                             ray_limits=ray_limits(readings, params))
     sampler = cellwise_gibbs(table, readings, params,
                              problem.likelihood_power if power is None else power)
+    del table  # the sampler holds what its sweeps read: the table's own arrays go before the chain runs
     chain = run_chain(key, sampler, walls, sweeps, progress, stage)
+    # each map block compiles its sweep for its own table's shapes; dropping the compiled computations of the blocks
+    # before it frees what they hold (on 300 scans of Intel the final map's peak 1,286 -> 929 MB); the pose sweeps
+    # and the front end compile again when next called
+    jax.clear_caches()
     return jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs)
 
 
@@ -373,7 +378,8 @@ def run_keyframe_slam(problem, keyframes, progress: ProgressCallback | None = No
 
     Returns:
         A :class:`bayesmap.slam.joint.SlamResult` of every scan of ``problem``: ``mean_path`` ``(S, 3)``,
-        ``pose_cov`` and ``graph_cov`` ``(S, 3, 3)``, ``pose_samples`` ``(N, S, 3)``; the maps the keyframes'.
+        ``pose_cov`` and ``graph_cov`` ``(S, 3, 3)`` (a scan between keyframes: its keyframe's graph covariance),
+        ``pose_samples`` ``(N, S, 3)``; the maps the keyframes'.
 
     Raises:
         BayesmapError: as :func:`run_log_slam`.
