@@ -105,8 +105,8 @@ def test_scale_table_rows_statuses_and_stage_columns():
     assert [line.split(" | ")[:2] for line in lines[2:]] == [["| 250", "bayesmap"], ["| 250", "karto"],
                                                              ["| 500", "bayesmap"], ["| 500", "karto"],
                                                              ["| 1,000", "bayesmap"], ["| 4,791", "bayesmap"]]
-    assert lines[2] == "| 250 | bayesmap | ok | 120 | 2,000 | 0.25 | 30 | 6 | 100 | 20 |"
-    assert lines[3] == "| 250 | karto | ok | 2 | 350 | 0.40 | - | - | - | - |"
+    assert lines[2] == "| 250 | bayesmap | ok | 120 | 2,000 | 0.25 | 30 | 6 | 100 | 20 | - |"  # no scan placed
+    assert lines[3] == "| 250 | karto | ok | 2 | 350 | 0.40 | - | - | - | - | - |"
     assert "| killed at 10 GB after 93 s | 93 | 10,100 | - |" in lines[6]
     assert "refused: the ray-cell table would take about 72 GB \\| more | 6 | - | - |" in lines[7]
     assert all(line.replace("\\|", "").count("|") == lines[0].count("|") for line in lines[2:])  # the columns

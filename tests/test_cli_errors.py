@@ -151,7 +151,8 @@ def _rosmap_yaml(tmp_path: Path, resolution: str) -> Path:
     (lambda t, log: ["infer", "--cut-past-reading", "1"], "--cut-past-reading and the keyframe options apply"),
     (lambda t, log: ["infer", "--keyframe-distance", "1"], "--cut-past-reading and the keyframe options apply"),
     (lambda t, log: ["slam", "--keyframe-turn", "1"], "the keyframe options need --log"),
-    (lambda t, log: ["slam", "--log", log, "--keyframe-distance", "-1"], "keyframe distance must be"),
+    (lambda t, log: ["slam", "--log", log, "--keyframe-distance", "-1", "--out", t / "kf"],
+     "keyframe distance must be"),
     (lambda t, log: ["infer", "--log", log, "--wall-pass-prob", "0.2", "--sampler", "raster"],
      "wall_pass_prob = 0.2; the cellwise sampler supports it"),
     # --scan and --scans agree on negative indexes; out of range is refused by both alike
