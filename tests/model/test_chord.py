@@ -22,14 +22,19 @@ from bayesmap.geometry.raycast import first_hit_chords, first_hit_distances
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.inference.cellwise import CellwiseGibbs
 from bayesmap.inference.fast import FastGibbs
-from bayesmap.inference.schedules import block_configurations
 from bayesmap.model import sensor
 from bayesmap.model.generative import (
     log_joint_scans,
     make_params,
     prior_log_odds,
 )
-from helpers import POSES, assess_block_log_joints, assess_cell_differences, random_scene, scenes
+from helpers import (
+    POSES,
+    assert_block_weights_match_assess,
+    assess_cell_differences,
+    random_scene,
+    scenes,
+)
 
 SIGMA, MAX = 0.05, 8.0
 BEAM = (SIGMA, 0.8, 0.05, 0.05, 0.1, 0.1, MAX)
@@ -235,17 +240,7 @@ def test_block_samplers_match_the_model_in_the_chord_geometry(beam_model, block_
     with enable_x64():
         grid, params, angles, _, y, table = scenes(beam_model, 7, geometry="chord")
         fast = FastGibbs(table, y.reshape(-1), params, block_size=block_size)
-        configs = block_configurations(fast.blocks.shape[1])
-
-        brute = assess_block_log_joints(grid, params, angles, y, fast.blocks, configs)  # (NB, C)
-
-        rng = np.random.default_rng(3)
-        for density in (0.15, 0.35, 0.6):
-            walls = (rng.random(grid.shape) < density).astype(np.float64)
-            got = np.asarray(fast.block_log_weights(walls))
-            want = np.asarray(brute(jnp.asarray(walls)))
-            np.testing.assert_allclose(got - got[:, :1], want - want[:, :1], atol=1e-4, rtol=0)
-            assert np.ptp(want - want[:, :1]) > 1.0
+        assert_block_weights_match_assess(fast, grid, params, angles, y)
 
 
 @pytest.mark.parametrize("beam_model", ["normal", "beam"])
