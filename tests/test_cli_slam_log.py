@@ -136,6 +136,30 @@ def test_slam_log_summary_holds_each_stage(log_run):
 
 
 @ONE_RUN
+def test_slam_log_in_tiles_maps_the_same_building(log_run, aces_odom, tmp_path):
+    """With --tile-pairs below the slice's pairs (about 141,000 at the start path: two tiles), every map block is
+    swept in tiles: the run records its budget, each block is one stage however many tiles it has, and its map is
+    the untiled run's building: the two final maps' probabilities correlate above 0.9 over the cells either run's
+    beams crossed (0.97 measured: they differ by their chains' draws and the path of one round fewer; a tile left
+    at its starting map or without its beams would leave half the building at the prior). One round, to keep the
+    run short: each tile compiles its own sweep. (The tiles' band is checked in tests/inference/test_tiled.py,
+    where it matters; here the final map starts from the chain's walls and the band changes little.)"""
+    out = tmp_path / "tiled"
+    code = run_main("slam", "--log", aces_odom, "--scans", "0:25", "--resolution", "0.2", "--sweeps", "1",
+                    "--seed", "3", "--tile-pairs", "100000", "--maps", "--out", out)
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["settings"]["tile_pairs"] == 100000
+    assert [s["stage"] for s in summary["stages"]] == ["read log", "build problem", "front end", "round 1/1: map",
+                                                      "round 1/1: poses", "final map", "place scans", "figures",
+                                                      "write outputs"]
+    tiled, whole = (np.load(folder / "posterior.npz") for folder in (out, log_run))
+    assert tiled["probability"].shape == whole["probability"].shape
+    seen = tiled["seen"] | whole["seen"]
+    assert np.corrcoef(tiled["probability"][seen], whole["probability"][seen])[0, 1] > 0.9
+
+
+@ONE_RUN
 def test_slam_bag_gives_the_logs_trajectory(log_run, aces_odom, tmp_path, monkeypatch, capsys):
     """The slice written as a ROS 1 bag by `bayesmap convert` maps to the log's path (same seed): the bag keeps
     ranges and poses exactly and beam angles to 2e-7 rad (float32)."""
@@ -254,6 +278,8 @@ def test_evaluate_pairs_a_longer_truth_by_timestamp(tmp_path, monkeypatch, capsy
     (lambda t: ["slam", "--log", t / "missing.log"], "missing.log"),
     (lambda t: ["slam", "--log", t / "square.log", "--num-poses", "5"], "--num-poses"),
     (lambda t: ["slam", "--scans", "0:5"], "--scans"),
+    (lambda t: ["slam", "--tile-pairs", "1000"], "--tile-pairs"),
+    (lambda t: ["slam", "--log", t / "square.log", "--tile-pairs", "0"], "--tile-pairs must be an integer >= 1, got 0"),
     (lambda t: ["slam", "--log", t / "square.log", "--sweeps", "4", "--burn-in", "4"], "--burn-in"),
     (lambda t: ["evaluate", "--truth-trajectory", t / "truth.tum"], "needs --log"),
     (lambda t: ["evaluate", "--log", t / "square.log", "--truth-trajectory", t / "missing.tum"], "missing.tum"),

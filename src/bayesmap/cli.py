@@ -18,6 +18,7 @@ import typer
 from bayesmap import scenes  # the scene defaults
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.registry import SAMPLERS
+from bayesmap.inference.tiled import TILE_PAIRS
 from bayesmap.io.rosbag import STORAGES, check_bag_path, write_log_bag
 from bayesmap.progress import ProgressBar
 from bayesmap.runs import evaluate as evaluate_run
@@ -120,6 +121,9 @@ KeyframeDistanceOpt = _opt(Optional[float], "--keyframe-distance", help="--log /
 KeyframeTurnOpt = _opt(Optional[float], "--keyframe-turn", help="--log / --bag (several scans): radians the heading "
                        f"must turn from the last keyframe for a scan to be one; default {scenes.LOG_KEYFRAME_TURN:g} "
                        f"(slam: {KEYFRAME_TURN:g})")
+TilePairsOpt = _opt(Optional[int], "--tile-pairs", help="--log / --bag: the most (beam, cell) pairs a map block "
+                    "holds at once (about 35 bytes each); a map whose beams cross more cells is swept a tile of the "
+                    f"grid at a time, each with its own table; lower it to bound memory; default {TILE_PAIRS:,}")
 PowerOpt = _opt(Optional[float], "--likelihood-power", help="--log: power eta in (0, 1] of the likelihood, sampling "
                 "p(walls) p(readings | walls)^eta (a power posterior for beams that are not independent evidence; 1 "
                 f"is the plain posterior; default for logs: {scenes.LOG_READINGS_PER_CELL:g} over the mean number "
@@ -457,6 +461,7 @@ def slam(
     num_poses: SlamPosesOpt = None,
     keyframe_distance: KeyframeDistanceOpt = None,
     keyframe_turn: KeyframeTurnOpt = None,
+    tile_pairs: TilePairsOpt = None,
     rosmap: RosmapOpt = False,
     maps: MapsOpt = False,
     report: SlamReportOpt = False,

@@ -220,12 +220,13 @@ class CellwiseKernel(KernelFields):
     """The sweep's data (pytree leaves) and code; built by :class:`CellwiseGibbs`. Problems with the same geometry
     and sensor model (other readings, prior, noise, mixture weights, coupling) share one compiled sweep.
     ``_coupling`` is the structured prior's ``J`` (a scalar array), None for the independent prior; ``_free_cells``
-    the cells no ray crosses (int32, ascending), None for the independent prior. With wall cells a beam can pass
+    the cells no ray crosses (int32, ascending), None for the independent prior; ``_frozen_cells`` the cells a sweep
+    keeps as they are (int32, ascending; None: none), last in the visiting order. With wall cells a beam can pass
     (``_penetrable``), ``_eta`` is the likelihood power and ``_pass_weights`` the ``(3,)`` log-weights of
     :func:`bayesmap.model.passable.pass_log_weights` (both None otherwise: the tables are tempered already)."""
 
     _ARRAYS = ("_lanes", "_free", "_rank", "_pair_cells", "_pair_ll", "_ray_start", "_ray_length", "_max_ll",
-               "_prior_log_odds", "_coupling", "_free_cells", "_eta", "_pass_weights")
+               "_prior_log_odds", "_coupling", "_free_cells", "_frozen_cells", "_eta", "_pass_weights")
     _STATIC = ("_shape", "_num_rays", "_num_pairs", "_penetrable")
 
     # -- the per-ray rows ---------------------------------------------------------------------------------------
@@ -467,9 +468,12 @@ class CellwiseKernel(KernelFields):
         walls = state.walls.reshape(-1)
         u = jax.random.uniform(key, walls.shape)
         prior = jax.nn.sigmoid(self._prior_log_odds)
-        order = jnp.concatenate([lanes.cells for lanes in self._lanes])
+        order = [lanes.cells for lanes in self._lanes]
         if self._coupling is not None:  # every cell (those no ray crosses last), then the slot outside-the-grid
-            order = jnp.concatenate([order, self._free_cells])  # neighbours read: 2 * 0.5 - 1 = 0
+            order.append(self._free_cells)  # neighbours read: 2 * 0.5 - 1 = 0
+        if self._frozen_cells is not None:  # kept, read by the walks along the rays and as neighbours
+            order.append(self._frozen_cells)
+        order = jnp.concatenate(order)
         cur, u_order = walls[order], u[order]
         if self._coupling is not None:
             cur = jnp.append(cur, jnp.asarray(0.5, cur.dtype))
@@ -491,6 +495,8 @@ class CellwiseKernel(KernelFields):
                 p = jax.nn.sigmoid(self._prior_log_odds + self._coupling * field)
                 walls = jnp.where(mask, (u < p).astype(walls.dtype), walls)
                 wall_prob = jnp.where(mask, p.astype(jnp.float32), wall_prob)
+        if self._frozen_cells is not None:  # a frozen cell reports the value it keeps
+            wall_prob = wall_prob.at[self._frozen_cells].set(walls[self._frozen_cells].astype(jnp.float32))
         state = CellwiseState(walls=walls.reshape(self._shape), ray_walls=rows)
         return state, GibbsInfo(wall_prob=wall_prob.reshape(self._shape))
 
@@ -528,6 +534,9 @@ class CellwiseGibbs(KernelSampler):
         likelihood_power: ``eta`` in (0, 1]: sample ``p(walls) p(readings | walls) ** eta``
             (every log-likelihood the sweep looks up times ``eta``: :func:`bayesmap.model.likelihood.tempered`; with
             ``params.wall_pass_prob > 0`` every beam's mixture times ``eta``); 1, the posterior, by default.
+        frozen: ``(nx, ny)`` bool, cells a sweep keeps as they are (the rest of the map, fixed, while a tile of it
+            is sampled: :mod:`bayesmap.inference.tiled`); their rays' rows still read them. The sweep is then the
+            Gibbs sweep of the other cells given these; ``info.wall_prob`` reports a frozen cell's value. None: none.
 
     Attributes:
         kernel: the :class:`CellwiseKernel`.
@@ -536,10 +545,12 @@ class CellwiseGibbs(KernelSampler):
 
     Raises:
         BayesmapError: on readings that do not match the table's rays, a table whose max distance is not the beam
-            model's max range, a bad ``likelihood_power``, or a cell crossed by more than 65,536 rays.
+            model's max range, a bad ``likelihood_power``, a cell crossed by more than 65,536 rays, or ``frozen`` of
+            another shape than the grid's.
     """
 
-    def __init__(self, table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0):
+    def __init__(self, table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0,
+                 frozen=None):
         inputs = likelihood_inputs(table, readings, params, likelihood_power, passable=True)
         y, beam_model, sensor, dtype, eta = inputs[:5]
         num_rays, num_pairs = table.num_rays, table.num_pairs
@@ -550,22 +561,33 @@ class CellwiseGibbs(KernelSampler):
         if eta != 1.0 and not penetrable:  # every log-likelihood the sweep looks up, tempered (eta = 1 leaves them)
             pair_ll, max_ll = tempered(pair_ll, eta), tempered(max_ll, eta)
         counts = table.rays_per_cell()
+        frozen_cells = None
+        if frozen is not None:
+            frozen = np.asarray(frozen, dtype=bool)
+            if frozen.shape != tuple(table.grid.shape):
+                raise BayesmapError(f"frozen must have the grid's shape {tuple(table.grid.shape)}, got {frozen.shape}")
+            frozen = frozen.reshape(-1)
+            frozen_cells = np.flatnonzero(frozen)
+            counts = np.where(frozen, 0, counts)  # visited: the cells that are not frozen
         structured = params.structured
         groups = width_groups(counts)
-        free_cells = np.flatnonzero(counts == 0)
+        free = counts == 0 if frozen is None else (counts == 0) & ~frozen
+        free_cells = np.flatnonzero(free)
+        last = [] if frozen_cells is None else [(0, frozen_cells)]  # frozen cells: after every other in the order
         if structured:  # checkerboard colours one after the other in each group, every cell ranked (docstring)
             groups = checkerboard_groups(groups, table.grid.shape)
-            rank = _visiting_rank(groups + [(0, free_cells)], table.num_cells)
+            rank = _visiting_rank(groups + [(0, free_cells)] + last, table.num_cells)
         else:
-            rank = _visiting_rank(groups, table.num_cells)
+            rank = _visiting_rank(groups + last, table.num_cells)
         lanes = _lanes(table, counts, groups, rank, pair_ll, dtype)
         if structured:
             places = np.append(rank, table.num_cells).astype(np.int32)  # -1 (outside) -> the 0.5 slot
             lanes = tuple(part._replace(neighbours=jnp.asarray(places[neighbour_indices(table.grid.shape)[
                 np.asarray(part.cells)]])) for part in lanes)
         self.kernel = CellwiseKernel(
-            _lanes=lanes, _free=jnp.asarray(counts == 0), _rank=jnp.asarray(rank),
+            _lanes=lanes, _free=jnp.asarray(free), _rank=jnp.asarray(rank),
             _free_cells=jnp.asarray(free_cells, jnp.int32) if structured else None,
+            _frozen_cells=None if frozen_cells is None else jnp.asarray(frozen_cells, jnp.int32),
             _pair_cells=jnp.asarray(np.append(table.pair_cells, 0), jnp.int32),
             _pair_ll=pair_ll,
             _ray_start=jnp.asarray(np.append(table.offsets[:-1], num_pairs), jnp.int32),
@@ -586,6 +608,7 @@ class CellwiseGibbs(KernelSampler):
         return _cell_log_odds(self.kernel, jnp.asarray(walls))
 
 
-def cellwise_gibbs(table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0) -> SamplingAlgorithm:
+def cellwise_gibbs(table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0,
+                   frozen=None) -> SamplingAlgorithm:
     """The :class:`CellwiseGibbs` sampler's :class:`SamplingAlgorithm`."""
-    return CellwiseGibbs(table, readings, params, likelihood_power).algorithm
+    return CellwiseGibbs(table, readings, params, likelihood_power, frozen).algorithm

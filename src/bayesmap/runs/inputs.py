@@ -16,6 +16,7 @@ from typing import Optional
 import numpy as np
 
 from bayesmap.errors import BayesmapError
+from bayesmap.geometry.tiles import ray_cells
 from bayesmap.io.carmen import CarmenLog, read_carmen
 from bayesmap.io.files import read_bytes
 from bayesmap.io.rosbag import read_bag
@@ -166,33 +167,6 @@ def check_free_cell(walls, pos, source: str) -> None:
                             "put the sensor in a free cell ('.')")
 
 
-def ray_cells(grid, origins, beam_angles, max_distance) -> np.ndarray:
-    """How many cells each beam crosses before it reaches ``max_distance`` or leaves ``grid``, estimated in closed
-    form: ``L (|cos a| + |sin a|) / resolution + 2`` for the beam's length ``L`` inside the grid (one new cell per grid
-    line crossed; Amanatides & Woo 1987, "A fast voxel traversal algorithm for ray tracing"). Within 1 % of the
-    ray-cell table's pairs on the shared logs (an upper bound for a beam that starts inside the grid).
-
-    Args:
-        grid: the :class:`~bayesmap.geometry.grid.Grid` (meters).
-        origins: ``(R, 2)`` or ``(2,)`` float sensor positions, meters.
-        beam_angles: ``(R,)`` float world-frame beam angles, radians.
-        max_distance: meters, one for all beams or ``(R,)`` each beam's (a beam cut past its reading,
-            :func:`bayesmap.model.generative.ray_limits`).
-
-    Returns:
-        ``(R,)`` float64 cells per beam.
-    """
-    angles = np.asarray(beam_angles, dtype=np.float64).reshape(-1)
-    origins = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 2), (len(angles), 2))
-    cos, sin = np.cos(angles), np.sin(angles)
-    x0, x1, y0, y1 = grid.extent
-    with np.errstate(divide="ignore", invalid="ignore"):  # a beam along an axis never meets the other axis' sides
-        exit_x = np.where(cos > 0, (x1 - origins[:, 0]) / cos, np.where(cos < 0, (x0 - origins[:, 0]) / cos, np.inf))
-        exit_y = np.where(sin > 0, (y1 - origins[:, 1]) / sin, np.where(sin < 0, (y0 - origins[:, 1]) / sin, np.inf))
-    length = np.clip(np.minimum(np.minimum(exit_x, exit_y), max_distance), 0.0, None)
-    return length * (np.abs(cos) + np.abs(sin)) / grid.resolution + 2.0
-
-
 def check_sizes(shape: tuple[int, int], resolution: float, pairs: float, chains: int = 1) -> None:
     """Refuse a grid of ``shape`` cells over :data:`MAX_GRID_CELLS` (times ``chains``), or a ray-cell table of
     ``pairs`` (estimated) pairs whose run would take more than :data:`MAX_MEMORY_BYTES` at :data:`BYTES_PER_PAIR`.
@@ -236,9 +210,11 @@ def _beam_lengths(readings, params):
     return float(params.max_range) if limits is None else limits.astype(np.float64)
 
 
-def check_slam_size(problem) -> None:
-    """Refuse a SLAM problem (:class:`bayesmap.slam.problem.SlamProblem`) whose grid or ray-cell table cannot fit
-    (:func:`check_sizes`), before any work.
+def check_slam_size(problem, tile_pairs: int) -> None:
+    """Refuse a SLAM problem (:class:`bayesmap.slam.problem.SlamProblem`) whose grid or largest ray-cell table cannot
+    fit (:func:`check_sizes`), before any work. Its map blocks hold at most ``tile_pairs`` pairs at once (the map is
+    swept a tile at a time beyond: :mod:`bayesmap.inference.tiled`), so the table counted is the smaller of the
+    whole log's and ``tile_pairs``.
 
     Raises:
         BayesmapError: as :func:`check_sizes`.
@@ -248,7 +224,7 @@ def check_slam_size(problem) -> None:
     angles = odometry[:, 2:3] + np.asarray(problem.sensor_angles)
     origins = np.repeat(odometry[:, :2], angles.shape[1], axis=0)
     pairs = ray_cells(grid, origins, angles, _beam_lengths(problem.readings, problem.params)).sum()
-    check_sizes(grid.shape, grid.resolution, float(pairs))
+    check_sizes(grid.shape, grid.resolution, float(min(pairs, tile_pairs)))
 
 
 def check_truth_scene(truth: Path, resolution: float, num_poses: int, num_angles: int, max_range: float) -> None:

@@ -20,6 +20,7 @@ from bayesmap import scenes
 from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.trajectory import score_trajectory
 from bayesmap.geometry.raycast import scan_endpoints
+from bayesmap.inference.tiled import TILE_PAIRS
 from bayesmap.io.maps_out import seen_cells_along
 from bayesmap.io.rosmap import encode_rosmap
 from bayesmap.io.tum import encode_tum, tum_stamps
@@ -72,6 +73,7 @@ class SlamRequest:
     num_poses: Optional[int] = None
     keyframe_distance: Optional[float] = None
     keyframe_turn: Optional[float] = None
+    tile_pairs: Optional[int] = None
     rosmap: bool = False
     maps: bool = False
     report: bool = False
@@ -165,10 +167,12 @@ def tutorial_slam(seed: int = 0, num_poses: Optional[int] = None, sweeps: Option
 def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Optional[float] = None,
              sweeps: Optional[int] = None, burn_in: Optional[int] = None, seed: int = 0, final_map: bool = True,
              progress: Optional[ProgressCallback] = None, notify: Optional[Callable[[str], None]] = None,
-             keyframe_distance: float = KEYFRAME_DISTANCE, keyframe_turn: float = KEYFRAME_TURN):
+             keyframe_distance: float = KEYFRAME_DISTANCE, keyframe_turn: float = KEYFRAME_TURN,
+             tile_pairs: int = TILE_PAIRS):
     """Run :func:`bayesmap.slam.pipeline.run_keyframe_slam` on the ``scans`` (a :func:`parse_scans` spec) of a log
     read from ``path``, its keyframes chosen by ``keyframe_distance`` meters and ``keyframe_turn`` radians
-    (:func:`bayesmap.slam.keyframes.select_keyframes`; 0: every scan); without ``final_map``, no final map (for
+    (:func:`bayesmap.slam.keyframes.select_keyframes`; 0: every scan), its map blocks in tiles of at most
+    ``tile_pairs`` pairs (:data:`bayesmap.inference.tiled.TILE_PAIRS`); without ``final_map``, no final map (for
     scoring the path alone).
 
     Args:
@@ -189,15 +193,15 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
     start_stage(progress, "build problem")
     problem = log_slam_problem(carmen, chosen, resolution=resolution)
     keyframes = select_keyframes(problem.odometry, keyframe_distance, keyframe_turn)
-    check_slam_size(keyframe_problem(problem, keyframes))
+    check_slam_size(keyframe_problem(problem, keyframes), tile_pairs)
     if notify is not None:
         notify(f"bayesmap slam: {path.name}, {len(chosen)} scans ({len(keyframes)} keyframes), {sweeps} sweeps ...")
     result = run_keyframe_slam(problem, keyframes, rounds=sweeps, burn_in=burn_in, seed=seed, progress=progress,
-                               final_map_sweeps=FINAL_MAP_SWEEPS if final_map else 0)
+                               final_map_sweeps=FINAL_MAP_SWEEPS if final_map else 0, tile_pairs=tile_pairs)
     p = problem.params
     settings = {"scans": scans if scans is not None else "all", "resolution": resolution,
                 "keyframe_distance_m": float(keyframe_distance), "keyframe_turn_rad": float(keyframe_turn),
-                "keyframes": int(len(keyframes)), "sweeps": sweeps,
+                "keyframes": int(len(keyframes)), "tile_pairs": int(tile_pairs), "sweeps": sweeps,
                 "burn_in": burn_in, "seed": seed, "prior_wall_prob": float(p.prior_wall_prob),
                 "sensor_noise": float(p.sensor_noise), "beam_model": p.beam_model, "geometry": p.geometry,
                 "range_offset_m": float(problem.range_offset),
@@ -232,8 +236,10 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
                      sweeps: Optional[int] = None, burn_in: Optional[int] = None, seed: int = 0,
                      progress: Optional[ProgressCallback] = None,
                      notify: Optional[Callable[[str], None]] = None,
-                     keyframes: tuple[float, float] = (KEYFRAME_DISTANCE, KEYFRAME_TURN)) -> SlamRun:
-    """SLAM on a real log or bag (:func:`log_slam`, its keyframes at ``keyframes`` = (meters, radians)), with its
+                     keyframes: tuple[float, float] = (KEYFRAME_DISTANCE, KEYFRAME_TURN),
+                     tile_pairs: int = TILE_PAIRS) -> SlamRun:
+    """SLAM on a real log or bag (:func:`log_slam`, its keyframes at ``keyframes`` = (meters, radians), its map
+    blocks in tiles of at most ``tile_pairs`` pairs), with its
     summary; trajectory.tum's stamps are the scans' timestamps where they increase strictly, else their indices
     (:func:`bayesmap.io.tum.tum_stamps`).
 
@@ -242,7 +248,7 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
     """
     problem, result, chosen, settings = log_slam(carmen, path, scans, resolution, sweeps, burn_in, seed,
                                                  progress=progress, notify=notify, keyframe_distance=keyframes[0],
-                                                 keyframe_turn=keyframes[1])
+                                                 keyframe_turn=keyframes[1], tile_pairs=tile_pairs)
     all_stamps = tum_stamps(carmen.timestamps)
     grid = result.grid if result.grid is not None else problem.params.grid
     summary = {
@@ -324,10 +330,13 @@ def check_slam_request(req: SlamRequest) -> None:
         raise BayesmapError("give either --log or --bag, not both")
     if req.log is None and req.bag is None:
         if (req.scans is not None or req.resolution is not None or req.keyframe_distance is not None
-                or req.keyframe_turn is not None):
-            raise BayesmapError("--scans, --resolution and the keyframe options need --log FILE (or --bag PATH)")
+                or req.keyframe_turn is not None or req.tile_pairs is not None):
+            raise BayesmapError("--scans, --resolution, --tile-pairs and the keyframe options need --log FILE (or "
+                                "--bag PATH)")
     elif req.num_poses is not None:
         raise BayesmapError("--num-poses applies to the tutorial scene, not to --log / --bag")
+    if req.tile_pairs is not None and req.tile_pairs < 1:
+        raise BayesmapError(f"--tile-pairs must be an integer >= 1, got {req.tile_pairs}")
     check_output_dir(req.out, req.force, owned=SLAM_OWNED_FILES)
 
 
@@ -353,7 +362,7 @@ def slam(req: SlamRequest, progress: Optional[ProgressCallback] = None,
         keyframes = (KEYFRAME_DISTANCE if req.keyframe_distance is None else req.keyframe_distance,
                      KEYFRAME_TURN if req.keyframe_turn is None else req.keyframe_turn)
         run = run_log_slam_job(carmen, path, req.scans, req.resolution, req.sweeps, req.burn_in, req.seed,
-                               stages, notify, keyframes)
+                               stages, notify, keyframes, TILE_PAIRS if req.tile_pairs is None else req.tile_pairs)
     files = slam_files(run, report=req.report, rosmap=req.rosmap, maps=req.maps, stages=stages)
     return run, write_outputs(req.out, files, owned=SLAM_OWNED_FILES)
 

@@ -13,7 +13,9 @@ mapping at known poses). :func:`run_log_slam` finds a start, then runs a blocked
 
    * the walls given the poses: the ray-cell table is built at the current poses
      (:func:`bayesmap.geometry.raytable.build_ray_table`) and :data:`MAP_SWEEPS` sweeps of the cellwise Gibbs
-     sampler run on it (:mod:`bayesmap.inference.cellwise`), continuing from the current walls;
+     sampler run on it (:mod:`bayesmap.inference.cellwise`), continuing from the current walls; a log whose table
+     would hold more than :data:`bayesmap.inference.tiled.TILE_PAIRS` pairs is swept a tile of the grid at a time,
+     each tile with its own table (:func:`bayesmap.inference.tiled.tiled_map_chain`);
    * the poses given the walls: :data:`POSE_SWEEPS` sweeps of random-walk Metropolis over each pose
      (:func:`bayesmap.slam.poses.random_walk_pose_mh`, exact ray casts by grid traversal).
 
@@ -56,10 +58,9 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import scan_endpoints
-from bayesmap.geometry.raytable import build_ray_table
-from bayesmap.inference.cellwise import cellwise_gibbs
-from bayesmap.inference.chains import run_chain, run_recorded_chains
-from bayesmap.model.generative import ray_limits, replace_params
+from bayesmap.inference.chains import run_recorded_chains
+from bayesmap.inference.tiled import TILE_PAIRS, check_tile_pairs, tiled_map_chain
+from bayesmap.model.generative import replace_params
 from bayesmap.progress import ProgressCallback, report
 from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
 from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
@@ -165,26 +166,23 @@ def _pose_record(state, info):
 
 
 def _map_round(key, problem, params, poses, walls, sweeps: int, power: float | None = None,
-               progress: ProgressCallback | None = None, stage: str = "map"):
+               progress: ProgressCallback | None = None, stage: str = "map", tile_pairs: int = TILE_PAIRS):
     """One map block: the table at ``poses`` and ``sweeps`` cellwise sweeps from ``walls`` (likelihood power
-    ``power``, default the problem's); returns the chain's ``(last walls (nx, ny) float32, wall probabilities
-    (sweeps, nx, ny))``. ``progress`` gets ``Progress(stage, done, sweeps, "sweep")`` from before the table is
-    built and after every sweep."""
+    ``power``, default the problem's), in tiles of at most ``tile_pairs`` pairs
+    (:func:`bayesmap.inference.tiled.tiled_map_chain`); returns the chain's ``(last walls (nx, ny) float32, wall
+    probabilities (sweeps, nx, ny))``. ``progress`` gets ``Progress(stage, done, sweeps, "sweep")`` from before
+    the table is built and as the sweeps run."""
     report(progress, stage, 0, sweeps)
     theta = poses[:, 2:3] + problem.sensor_angles
     origins = np.repeat(poses[:, :2], problem.sensor_angles.shape[1], axis=0)
-    readings = problem.readings.reshape(-1)
-    table = build_ray_table(params.grid, origins, theta.reshape(-1), params.max_range,
-                            ray_limits=ray_limits(readings, params))
-    sampler = cellwise_gibbs(table, readings, params,
-                             problem.likelihood_power if power is None else power)
-    del table  # the sampler holds what its sweeps read: the table's own arrays go before the chain runs
-    chain = run_chain(key, sampler, walls, sweeps, progress, stage)
+    chain = tiled_map_chain(key, params, origins, theta.reshape(-1), problem.readings.reshape(-1), walls, sweeps,
+                            problem.likelihood_power if power is None else power, max_pairs=tile_pairs,
+                            progress=progress, stage=stage)
     # each map block compiles its sweep for its own table's shapes; dropping the compiled computations of the blocks
     # before it frees what they hold (on 300 scans of Intel the final map's peak 1,286 -> 929 MB); the pose sweeps
     # and the front end compile again when next called
     jax.clear_caches()
-    return jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs)
+    return chain.walls, chain.wall_probs
 
 
 def final_map_power(problem, data: ScanData, path, grid: Grid) -> float:
@@ -258,10 +256,10 @@ def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_
 
 
 def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tuple[int, int, int, int],
-                 progress: ProgressCallback | None) -> tuple:
+                 progress: ProgressCallback | None, tile_pairs: int = TILE_PAIRS) -> tuple:
     """Stage 4 of the module docstring: the joint chain from ``path`` ``(S, 3)`` and an empty map on ``params``'s
     grid, ``counts`` = ``(rounds, burn_in, map_sweeps, pose_sweeps)``, reporting each round's map and pose sweeps
-    (stages ``"round r/R: map"`` and ``"round r/R: poses"``).
+    (stages ``"round r/R: map"`` and ``"round r/R: poses"``), the map blocks in tiles of at most ``tile_pairs``.
 
     Returns:
         ``(last walls (nx, ny) float32, pose samples (N, S, 3) float64, wall probabilities (M, nx, ny),
@@ -276,7 +274,8 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
     samples, probs, accepted = [], [], []
     for r in range(rounds):
         walls, wall_probs = _map_round(keys[2 * r], problem, params, np.asarray(poses, np.float64), walls,
-                                       map_sweeps, progress=progress, stage=f"round {r + 1}/{rounds}: map")
+                                       map_sweeps, progress=progress, stage=f"round {r + 1}/{rounds}: map",
+                                       tile_pairs=tile_pairs)
         pose_samples, acc = run_recorded_chains(keys[2 * r + 1], PoseState(poses=poses, walls=walls),
                                                 pose_kernel, pose_sweeps, _pose_record, progress=progress,
                                                 stage=f"round {r + 1}/{rounds}: poses")
@@ -289,10 +288,11 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
 
 
 def _final_map(problem, scans: ScanData, grid: Grid, mean, cov, walls, key, sweeps: int,
-               progress: ProgressCallback | None) -> tuple[np.ndarray, float, float]:
+               progress: ProgressCallback | None, tile_pairs: int = TILE_PAIRS) -> tuple[np.ndarray, float, float]:
     """Stage 6 of the module docstring: ``sweeps`` cellwise sweeps (the first half burn-in) at the mean path
     ``mean`` ``(S, 3)`` from the chain's last ``walls``, in the map model of ``problem.final_map_params`` with the
-    noise widened by the path's covariance ``cov`` ``(S, 3, 3)``, reported as stage ``"final map"`` per sweep.
+    noise widened by the path's covariance ``cov`` ``(S, 3, 3)``, reported as stage ``"final map"`` per sweep, in
+    tiles of at most ``tile_pairs`` pairs.
 
     Returns:
         ``(posterior (nx, ny) float64, likelihood power, sensor noise m)``.
@@ -300,7 +300,7 @@ def _final_map(problem, scans: ScanData, grid: Grid, mean, cov, walls, key, swee
     power = final_map_power(problem, scans, mean, grid)
     noise = final_map_noise(float(problem.final_map_params.sensor_noise), cov)
     params = replace_params(with_grid(problem.final_map_params, grid), sensor_noise=noise)
-    _, probs = _map_round(key, problem, params, mean, walls, sweeps, power, progress, "final map")
+    _, probs = _map_round(key, problem, params, mean, walls, sweeps, power, progress, "final map", tile_pairs)
     return probs[sweeps // 2:].astype(np.float64).mean(axis=0), power, noise
 
 
@@ -312,7 +312,8 @@ def _check_final_map_sweeps(final_map_sweeps) -> None:
 
 def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, seed: int = 0,
                  progress: ProgressCallback | None = None, map_sweeps: int = MAP_SWEEPS, pose_sweeps: int = POSE_SWEEPS,
-                 graph_scale: float = GRAPH_COV_SCALE, final_map_sweeps: int = FINAL_MAP_SWEEPS) -> SlamResult:
+                 graph_scale: float = GRAPH_COV_SCALE, final_map_sweeps: int = FINAL_MAP_SWEEPS,
+                 tile_pairs: int = TILE_PAIRS) -> SlamResult:
     """Infer the path and the map of a real log (:func:`bayesmap.slam.problem.log_slam_problem`) with the pipeline
     of the module docstring.
 
@@ -334,6 +335,9 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         final_map_sweeps: cellwise sweeps of the final map at the mean path (stage 6, :data:`FINAL_MAP_SWEEPS`),
             >= 2, or 0: no final map (``posterior`` is the chain's). Without ``problem.final_map_params`` there is
             no final map.
+        tile_pairs: the most (beam, cell) pairs a map block holds at once: a block whose table would hold more is
+            swept a tile of the grid at a time (:data:`bayesmap.inference.tiled.TILE_PAIRS`), >= 1. Bounds the map
+            blocks' memory; any value samples the same posterior.
 
     Returns:
         A :class:`bayesmap.slam.joint.SlamResult`: ``pose_samples`` ``(N, S, 3)`` with ``N = (rounds - burn_in)
@@ -342,9 +346,11 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         ``chain_posterior``), ``graph_cov`` the graph's covariance at unit scale.
 
     Raises:
-        BayesmapError: on bad counts, a bad ``graph_scale`` or ``final_map_sweeps`` (the message names the value).
+        BayesmapError: on bad counts, a bad ``graph_scale``, ``final_map_sweeps`` or ``tile_pairs`` (the message
+            names the value).
     """
     _check_final_map_sweeps(final_map_sweeps)
+    check_tile_pairs(tile_pairs)
     final = problem.final_map_params is not None and final_map_sweeps > 0
     rounds, burn_in, _ = check_counts(rounds, burn_in, 1)
     map_sweeps, _, _ = check_counts(map_sweeps, 0, 1)
@@ -354,14 +360,14 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     path, edges = close_loops(front_end(problem, scans, progress=progress), scans, progress=progress)
     grid = fitted_grid(scans, path, problem.params.grid.resolution)
     walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, grid), path, seed,
-                                                   (rounds, burn_in, map_sweeps, pose_sweeps), progress)
+                                                   (rounds, burn_in, map_sweeps, pose_sweeps), progress, tile_pairs)
     mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, graph_scale)
     chain_posterior = probs.astype(np.float64).mean(axis=0)
     posterior, final_power, final_noise = chain_posterior, None, None
     if final:
         key = jax.random.fold_in(jax.random.key(seed), 2 * rounds)  # none of the chain's keys
         posterior, final_power, final_noise = _final_map(problem, scans, grid, mean, cov, walls, key,
-                                                         final_map_sweeps, progress)
+                                                         final_map_sweeps, progress, tile_pairs)
     return SlamResult(pose_samples=samples, mean_path=mean, pose_cov=cov, posterior=posterior,
                       acceptance_rate=float(accepted.mean()) if accepted.size else 1.0,
                       runtime_s=time.perf_counter() - start, last_walls=np.asarray(walls, np.float32), grid=grid,
