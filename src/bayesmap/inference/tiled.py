@@ -51,9 +51,9 @@ TILE_PAIRS = 12_000_000
 """The most (beam, cell) pairs one tile of a map chain holds (:func:`tiled_map_chain`): a map whose beams cross more
 cells is swept a tile at a time. A memory knob, not a model setting (any value samples the same posterior): a tile
 takes about 35 bytes a pair in the sampler plus the tracing of its beams, so about 0.4 GB at this value; each tile
-compiles its own sweep (about 5 s on two cores). Chosen as the largest at which Freiburg 079's SLAM map stages peak
-no higher than its other stages (1.7 GB; at 6 million they peak at 1.4-1.5 GB and take 45 % longer), on the validation
-page (docs/validation/defaults.md#tile_pairs)."""
+compiles its own sweep (about 5 s on two cores). Chosen as the larger of two budgets measured on Freiburg 079's SLAM
+run (its map stages peak at 1.7 GB; at 6 million at 1.4-1.5 GB, taking 45 % longer), on the validation page
+(docs/validation/defaults.md#tile_pairs)."""
 
 TILE_MARGIN = 0.5
 """How far, in meters, the cells sampled with a tile reach beyond it on every side (clipped to the grid): a tile is
