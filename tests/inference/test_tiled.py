@@ -42,7 +42,7 @@ def _model(grid, num_rays, rng, **model):
     {"wall_pass_prob": 0.2, "coupling": 0.4, "cut_past_reading": 0.6},
 ])
 def test_a_tiles_conditionals_are_the_whole_tables(model):
-    """For random maps of three densities, every cell of every tile gets from its tile's table (the rest frozen)
+    """For random maps of two densities, every cell of every tile gets from its tile's table (the rest frozen)
     the conditional log-odds it gets from the whole log's table. Both are float32 sums of the same terms in another
     order: 1e-4 nats is far above their rounding (~1e-6 seen) and far below any term a wrong cut of a ray would
     drop or add (a beam's term is of order 1 nat here; the check below makes sure the maps are informative)."""
@@ -53,7 +53,7 @@ def test_a_tiles_conditionals_are_the_whole_tables(model):
     tiles = split_tiles(rays_per_cell(grid, origins, angles, params.max_range, limits), whole.num_pairs // 4)
     assert len(tiles) >= 4
     kept = 3 if params.penetrable else 2
-    for density in (0.05, 0.2, 0.5):
+    for density in (0.1, 0.4):
         walls = (rng.random(grid.shape) < density).astype(np.float32)
         want = np.asarray(full.cell_log_odds(walls))
         assert np.ptp(want) > 2.0
