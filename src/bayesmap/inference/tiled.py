@@ -147,7 +147,7 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
     origins = np.asarray(origins, np.float64).reshape(-1, 2)
     readings = np.asarray(readings).reshape(-1)
     limits = ray_limits(readings, params)
-    lengths = float(params.max_range) if limits is None else limits.astype(np.float64)
+    lengths = params.max_range if limits is None else limits
     if ray_cells(grid, origins, angles, lengths).sum() <= max_pairs:  # (an estimate, within 1 %)
         table = build_ray_table(grid, origins, angles, params.max_range, ray_limits=limits)
         sampler = cellwise_gibbs(table, readings, params, likelihood_power)

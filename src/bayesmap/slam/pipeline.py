@@ -172,7 +172,6 @@ def _map_round(key, problem, params, poses, walls, sweeps: int, power: float | N
     (:func:`bayesmap.inference.tiled.tiled_map_chain`); returns the chain's ``(last walls (nx, ny) float32, wall
     probabilities (sweeps, nx, ny))``. ``progress`` gets ``Progress(stage, done, sweeps, "sweep")`` from before
     the table is built and as the sweeps run."""
-    report(progress, stage, 0, sweeps)
     theta = poses[:, 2:3] + problem.sensor_angles
     origins = np.repeat(poses[:, :2], problem.sensor_angles.shape[1], axis=0)
     chain = tiled_map_chain(key, params, origins, theta.reshape(-1), problem.readings.reshape(-1), walls, sweeps,
