@@ -121,9 +121,10 @@ KeyframeDistanceOpt = _opt(Optional[float], "--keyframe-distance", help="--log /
 KeyframeTurnOpt = _opt(Optional[float], "--keyframe-turn", help="--log / --bag (several scans): radians the heading "
                        f"must turn from the last keyframe for a scan to be one; default {scenes.LOG_KEYFRAME_TURN:g} "
                        f"(slam: {KEYFRAME_TURN:g})")
-TilePairsOpt = _opt(Optional[int], "--tile-pairs", help="--log / --bag: the most (beam, cell) pairs a map block "
-                    "holds at once (about 35 bytes each); a map whose beams cross more cells is swept a tile of the "
-                    f"grid at a time, each with its own table; lower it to bound memory; default {TILE_PAIRS:,}")
+TilePairsOpt = _opt(Optional[int], "--tile-pairs", help="--log / --bag (several scans): the most (beam, cell) pairs "
+                    "the map's sampler holds at once (about 35 bytes each); a map whose beams cross more cells is "
+                    "swept a tile of the grid at a time, each with its own table (infer: the cellwise sampler); lower "
+                    f"it to bound memory; default {TILE_PAIRS:,}")
 PowerOpt = _opt(Optional[float], "--likelihood-power", help="--log: power eta in (0, 1] of the likelihood, sampling "
                 "p(walls) p(readings | walls)^eta (a power posterior for beams that are not independent evidence; 1 "
                 f"is the plain posterior; default for logs: {scenes.LOG_READINGS_PER_CELL:g} over the mean number "
@@ -315,6 +316,7 @@ def infer(
     cut_past_reading: CutOpt = None,
     keyframe_distance: KeyframeDistanceOpt = None,
     keyframe_turn: KeyframeTurnOpt = None,
+    tile_pairs: TilePairsOpt = None,
     beam_weights: BeamWeightsOpt = None,
     lambda_short: LambdaShortOpt = None,
     likelihood_power: PowerOpt = None,

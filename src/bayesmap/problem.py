@@ -37,6 +37,7 @@ import math
 from dataclasses import dataclass, field
 from functools import cached_property
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -44,9 +45,25 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.geometry.raytable import RayTable, build_ray_table, visible_cells
+from bayesmap.geometry.tiles import table_chunks
 from bayesmap.model.generative import ModelParams, log_joint, log_joint_scans, ray_limits, walls_log_likelihood
 from bayesmap.model.passable import PASS_WALLS
 from bayesmap.model.prior import disagreeing_pairs
+
+TABLE_PIECE_PAIRS = 1 << 20
+"""About how many (beam, cell) pairs one piece of :meth:`Problem.table_chunks` holds (whole scans): bounds the memory
+that log-odds mapping, the log joint and the seen cells of a log take (about 100 MB of a piece and its temporaries
+at this value), not what they compute."""
+
+LOG_LIKELIHOOD_BEAMS = 1 << 16
+"""Beams per compiled call of :meth:`Problem.table_log_joint` (padded to it: one compilation for every piece of the
+table; bounds the call's memory, a few MB)."""
+
+
+@jax.jit
+def _beams_log_likelihood(readings, chords, valid, params):
+    """The sum over the beams ``valid`` of :func:`~bayesmap.model.generative.walls_log_likelihood`."""
+    return jnp.sum(jnp.where(valid, walls_log_likelihood(readings, chords, params), 0.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -316,12 +333,31 @@ class Problem:
 
     @cached_property
     def table(self) -> RayTable:
-        """The ray-cell table of all beams (``ray_table``, or built on first use)."""
+        """The ray-cell table of all beams (``ray_table``, or built on first use and kept: memory grows with the
+        log's pairs, about 8 bytes each; :meth:`table_chunks` reads the same table a piece at a time)."""
         if self.ray_table is not None:
             return self.ray_table
 
         return build_ray_table(self.grid, self.ray_origins, self.ray_angles, self.params.max_range,
-                               ray_limits=ray_limits(self.model_ray_readings, self.params))
+                               ray_limits=self.ray_limits)
+
+    @property
+    def ray_limits(self) -> np.ndarray | None:
+        """``(R,)`` each beam's own max distance in the table (its cut past the reading,
+        :func:`bayesmap.model.generative.ray_limits`), meters; None: the max distance for every beam."""
+        return ray_limits(self.model_ray_readings, self.params)
+
+    def table_chunks(self, slots: int | None = None):
+        """:attr:`table` a piece of whole scans at a time (:func:`bayesmap.geometry.tiles.table_chunks`, about
+        ``slots`` pairs each, default :data:`TABLE_PIECE_PAIRS`): yields ``(rays, table)``, a slice of the rays and
+        their ray-cell table. The table itself, in one piece, when it is already held (given as ``ray_table`` or
+        built by :attr:`table`)."""
+        if self.ray_table is not None or "table" in self.__dict__:
+            yield slice(0, self.table.num_rays), self.table
+            return
+        yield from table_chunks(self.grid, self.ray_origins, self.ray_angles, self.params.max_range, self.ray_limits,
+                                slots=TABLE_PIECE_PAIRS if slots is None else slots,
+                                step=self.observations.num_beams)
 
     def single_scan(self) -> tuple:
         """``(readings (K,), pos (2,), params, beam_angles (K,))`` for the single-scan (reference) samplers.
@@ -340,7 +376,7 @@ class Problem:
         dense geometry (beams x cells <= 2e7), else :meth:`table_log_joint` (equal to it, tested)."""
         if not self.multi_scan:
             return float(log_joint(walls, self.model_readings, self.pos, self.params, self.beam_angles))
-        if self.table.num_rays * self.grid.num_cells <= 2e7:
+        if len(self.ray_angles) * self.grid.num_cells <= 2e7:
             return float(log_joint_scans(walls, self.model_readings, self.pos, self.params, self.beam_angles))
         return self.table_log_joint(walls)
 
@@ -349,17 +385,32 @@ class Problem:
         the sensor model's log-density of its reading given its first wall (the max distance if none; its first two
         walls when a beam can pass a wall cell, :func:`bayesmap.model.generative.walls_log_likelihood`).
         With a structured prior, the prior's part is :func:`bayesmap.model.prior.log_prior` (``-J`` per differing
-        pair of neighbours, as the model's observed connections score). Memory and time grow with the table's pairs,
-        not beams x cells."""
+        pair of neighbours, as the model's observed connections score). Time grows with the table's pairs, not beams x
+        cells; memory with one piece of :meth:`table_chunks`."""
         walls = np.asarray(walls) > 0.5
         p = float(self.params.prior_wall_prob)
         prior = walls.sum() * math.log(p) + (walls.size - walls.sum()) * math.log1p(-p)
         if self.params.structured:
             prior -= float(self.params.coupling) * int(disagreeing_pairs(walls))
+        readings = self.model_ray_readings
+        total = 0.0
+        for rays, table in self.table_chunks():
+            chords = table.wall_chords(walls, PASS_WALLS if self.params.penetrable else 1)
+            for start in range(0, len(chords), LOG_LIKELIHOOD_BEAMS):
+                part = slice(start, start + LOG_LIKELIHOOD_BEAMS)
+                total += self._beams_log_likelihood(readings[rays][part], chords[part])
+        return float(prior + total)
+
+    def _beams_log_likelihood(self, readings, chords) -> float:
+        """The sum of :func:`~bayesmap.model.generative.walls_log_likelihood` over at most
+        :data:`LOG_LIKELIHOOD_BEAMS` beams, padded to that many: one compiled program for every piece."""
         dtype = jnp.result_type(float)
-        chords = jnp.asarray(self.table.wall_chords(walls, PASS_WALLS if self.params.penetrable else 1), dtype=dtype)
-        ll = walls_log_likelihood(jnp.asarray(self.model_ray_readings), chords, self.params)
-        return float(prior + float(jnp.sum(ll)))
+        pad = LOG_LIKELIHOOD_BEAMS - len(readings)
+        y = np.pad(np.asarray(readings, np.float64), (0, pad), constant_values=self.params.max_range)
+        chords = np.pad(np.asarray(chords, np.float64), ((0, pad), (0, 0), (0, 0)),
+                        constant_values=self.params.max_range)
+        return float(_beams_log_likelihood(jnp.asarray(y, dtype), jnp.asarray(chords, dtype),
+                                           jnp.arange(LOG_LIKELIHOOD_BEAMS) < len(readings), self.params))
 
     @cached_property
     def visible(self) -> np.ndarray | None:

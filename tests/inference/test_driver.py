@@ -108,15 +108,16 @@ def test_fast_samplers_refuse_problems_too_large_for_memory(monkeypatch):
 
 
 def test_cellwise_chains_run_one_after_another_with_the_keys_of_chains_at_once(monkeypatch):
-    """Several cellwise chains run one by one (vmap would turn their conditional writes into always-run selects);
-    chain c gets the keys it would get at once, so the samples equal those of the vmap path, and progress reaches
-    the total of all chains (one stage, reported at its start and after every chunk of 10 sweeps)."""
+    """Several cellwise chains of one scan run one by one (vmap would turn their conditional writes into always-run
+    selects); chain c gets the keys it would get at once, so the samples equal those of the vmap path, and progress
+    reaches the total of all chains (one stage, reported at its start and after every chunk of 10 sweeps)."""
     import bayesmap.inference.driver as driver
+    from bayesmap.scenes import tutorial_problem
 
-    pb = room_scans("beam")
+    pb = tutorial_problem(num_angles=40)
     seen = []
     one_by_one = run_inference(pb, "cellwise", 20, chains=2, progress=seen.append)  # two chunks of 10 sweeps
-    assert one_by_one.samples.shape == (2, 20, 12, 9)
+    assert one_by_one.samples.shape == (2, 20, 21, 21)
     assert seen == [Progress("sweeps", done, 40, "sweep") for done in (0, 10, 20, 30, 40)]
     monkeypatch.setattr(driver, "SEQUENTIAL_CHAINS", ())
     seen.clear()
@@ -129,13 +130,45 @@ def test_cellwise_chains_run_one_after_another_with_the_keys_of_chains_at_once(m
 def test_progress_reports_do_not_change_the_chain():
     """The same seed with and without a progress callback: the same samples and posterior, bit for bit (reporting
     only reads the chunks' results); 25 sweeps are reported after chunks of 10, 10 and 5."""
-    pb = room_scans("beam")
+    from bayesmap.scenes import tutorial_problem
+
+    pb = tutorial_problem(num_angles=40)
     seen = []
     reported = run_inference(pb, "cellwise", 25, seed=3, progress=seen.append)
     silent = run_inference(pb, "cellwise", 25, seed=3)
     np.testing.assert_array_equal(reported.samples, silent.samples)
     np.testing.assert_array_equal(reported.posterior, silent.posterior)
     assert [p.done for p in seen] == [0, 10, 20, 25] and {(p.stage, p.total) for p in seen} == {("sweeps", 25)}
+
+
+def test_cellwise_chains_of_a_log_are_tiled_map_chains_from_the_logodds_start():
+    """On several scans the cellwise sampler runs :func:`tiled_map_chain` (whole table within the budget, tiles
+    beyond), chain c with key c of the seed's key, from the log-odds start; progress counts the sweeps of every
+    chain in one stage up to their total; the summary names the tiles. Without a callback the chains are the
+    same, bit for bit."""
+    import jax
+    import jax.numpy as jnp
+
+    from bayesmap.inference.tiled import tiled_map_chain
+
+    pb = room_scans("beam")
+    seen = []
+    result = run_inference(pb, "cellwise", 12, seed=3, chains=2, progress=seen.append)
+    assert result.samples.shape == (2, 12, 12, 9) and result.summary["tiles"] == 1
+    dones = [p.done for p in seen]
+    assert {(p.stage, p.total) for p in seen} == {("sweeps", 24)} and dones == sorted(dones) and dones[-1] == 24
+    start = jnp.asarray(run_logodds(pb).posterior > 0.5, jnp.float32)
+    for c, key in enumerate(jax.random.split(jax.random.key(3), 2)):
+        chain = tiled_map_chain(key, pb.params, pb.ray_origins, pb.ray_angles, pb.model_ray_readings, start, 12,
+                                pb.likelihood_power)
+        np.testing.assert_array_equal(result.samples[c], chain.samples)
+    silent = run_inference(pb, "cellwise", 12, seed=3, chains=2)
+    np.testing.assert_array_equal(result.samples, silent.samples)
+    np.testing.assert_array_equal(result.posterior, silent.posterior)
+    tiled = run_inference(pb, "cellwise", 12, seed=3, tile_pairs=result.summary["ray_cell_pairs"] // 2)
+    assert tiled.summary["tiles"] >= 2 and tiled.samples.shape == (12, 12, 9)
+    with pytest.raises(BayesmapError, match="pairs per tile must be an integer >= 1, got 0"):
+        run_inference(pb, "cellwise", 12, tile_pairs=0)
 
 
 def test_beam_weights_reach_the_model_and_the_summary(tmp_path, monkeypatch, capsys):

@@ -14,7 +14,7 @@ from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.geometry.tiles import crossing_rays, ray_cells, rays_per_cell, split_tiles, tile_table
 from bayesmap.inference.cellwise import CellwiseGibbs, cellwise_gibbs
 from bayesmap.inference.chains import run_chain
-from bayesmap.inference.tiled import tiled_map_chain
+from bayesmap.inference.tiled import map_chains, tiled_map_chain
 from bayesmap.model.generative import make_params, ray_limits
 from helpers import POSES, assess_cell_differences, scenes
 
@@ -212,3 +212,50 @@ def test_a_tile_no_beam_crosses_draws_from_the_prior():
                       walls, 3)
     np.testing.assert_allclose(np.asarray(chain.wall_probs)[:, inside], 0.3, rtol=1e-6)
     assert not np.asarray(chain.samples)[:, ~inside].any()
+
+
+MAP_CHAINS_ON_DEVICES = """
+import sys
+import numpy as np
+import jax
+sys.path[:0] = sys.argv[2:]
+from tests.inference.test_tiled import map_chains_of_a_scene
+assert len(jax.devices()) == 4, jax.devices()
+walls, probs = map_chains_of_a_scene(5)
+np.savez(sys.argv[1], walls=walls, probs=probs)
+"""
+
+
+def map_chains_of_a_scene(num_chains: int):
+    """``(walls, probs)`` of :func:`map_chains` on a small scene: each chain's last map and conditional wall
+    probabilities, ``num_chains`` chains of 5 sweeps (keys split from 11)."""
+    rng, grid, origins, angles = _rays(9, num_rays=300)
+    params, y, _ = _model(grid, len(angles), rng, wall_pass_prob=0.2, coupling=0.4, cut_past_reading=0.6)
+    keys = jax.random.split(jax.random.key(11), num_chains)
+    runs = map_chains(keys, params, origins, angles, y, np.zeros(grid.shape, np.float32), 5, max_pairs=10**9)
+    return np.stack([np.asarray(r.walls) for r in runs]), np.stack([r.wall_probs for r in runs])
+
+
+def test_map_chains_split_over_four_devices_are_the_chains_one_at_a_time(tmp_path):
+    """Five chains of the whole table split over four CPU devices (``shard_map``,
+    ``XLA_FLAGS=--xla_force_host_platform_device_count=4`` in a fresh process; the chains of one device one after
+    another) give, chain by chain, the maps and conditional probabilities of :func:`tiled_map_chain` with the same
+    keys on one device, bit for bit (each device runs the same sweep on the same numbers)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
+    out = tmp_path / "chains.npz"
+    subprocess.run([sys.executable, "-c", MAP_CHAINS_ON_DEVICES, str(out), str(root), str(root / "tests")], env=env,
+                   check=True, cwd=root, timeout=600)
+    rng, grid, origins, angles = _rays(9, num_rays=300)
+    params, y, _ = _model(grid, len(angles), rng, wall_pass_prob=0.2, coupling=0.4, cut_past_reading=0.6)
+    got = np.load(out)
+    for c, key in enumerate(jax.random.split(jax.random.key(11), 5)):
+        one = tiled_map_chain(key, params, origins, angles, y, np.zeros(grid.shape, np.float32), 5, max_pairs=10**9)
+        np.testing.assert_array_equal(got["walls"][c], np.asarray(one.walls))
+        np.testing.assert_array_equal(got["probs"][c], one.wall_probs)
+    assert not np.array_equal(got["probs"][0], got["probs"][1])

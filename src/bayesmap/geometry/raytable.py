@@ -78,8 +78,14 @@ class RayTable:
 
     @cached_property
     def pair_rays(self) -> np.ndarray:
-        """``(P,)`` int64 ray of each pair."""
+        """``(P,)`` int64 ray of each pair (computed once and kept: 8 bytes per pair; :meth:`rays_of_pairs` for a
+        few pairs)."""
         return self.per_pair(np.arange(self.num_rays))
+
+    def rays_of_pairs(self, pairs) -> np.ndarray:
+        """``pairs.shape`` int64, the ray of each of ``pairs`` (pair indices, any order): ``pair_rays[pairs]``
+        without building :attr:`pair_rays` (a binary search in :attr:`offsets`)."""
+        return np.searchsorted(self.offsets, pairs, side="right") - 1
 
     @cached_property
     def pair_positions(self) -> np.ndarray:
@@ -131,7 +137,8 @@ class RayTable:
         scale = dtype.type(self.grid.resolution)
         for start in range(0, self.num_pairs, _CHUNK_PAIRS):
             part = slice(start, start + _CHUNK_PAIRS)
-            rays, flat = self.pair_rays[part], self.pair_cells[part].astype(np.int64)
+            rays = self.rays_of_pairs(np.arange(part.start, min(part.stop, self.num_pairs)))
+            flat = self.pair_cells[part].astype(np.int64)
             cells = np.stack([flat // ny, flat % ny], axis=-1).astype(np.float64)
             exits = cell_exit_distance(p[rays], u[rays], cells, xp=np).astype(dtype) * scale
             np.clip(exits, self.pair_dists[part], dtype.type(self.max_distance), out=out[part])

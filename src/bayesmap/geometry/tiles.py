@@ -91,14 +91,15 @@ def ray_cells(grid, origins, beam_angles, max_distance) -> np.ndarray:
 
 
 
-def _chunks(grid: Grid, origins: np.ndarray, angles: np.ndarray, lengths: np.ndarray, slots: int):
-    """Slices of consecutive rays of about ``slots`` traced cells each (:func:`ray_cells`)."""
+def _chunks(grid: Grid, origins: np.ndarray, angles: np.ndarray, lengths: np.ndarray, slots: int, step: int = 1):
+    """Slices of consecutive rays of about ``slots`` traced cells each (:func:`ray_cells`), each starting at a
+    multiple of ``step`` rays (at least ``step`` rays each, but for the last)."""
     ends = np.cumsum(ray_cells(grid, origins, angles, lengths))
     start = 0
     while start < len(angles):
         stop = int(np.searchsorted(ends, (ends[start - 1] if start else 0.0) + slots, side="right"))
-        stop = max(stop, start + 1)
-        yield slice(start, stop)
+        stop = max(stop - stop % step, start + step)
+        yield slice(start, min(stop, len(angles)))
         start = stop
 
 
@@ -111,6 +112,23 @@ def _chunk_table(grid, origins, angles, max_distance, ray_limits, part) -> RayTa
     return build_ray_table(grid, origins[part], angles[part], max_distance, ray_limits=limits)
 
 
+def table_chunks(grid: Grid, origins, beam_angles, max_distance: float, ray_limits=None, slots: int = TRACE_SLOTS,
+                 step: int = 1):
+    """The ray-cell table :func:`~bayesmap.geometry.raytable.build_ray_table` would build for these rays (same
+    arguments, meters and radians), a piece at a time: yields ``(rays, table)``, a slice of consecutive rays of about
+    ``slots`` traced pairs (:func:`ray_cells`) and their table, so that a sum over the rays (a log-likelihood, a
+    count per cell) needs the memory of one piece, not of the whole table. Each piece starts at a multiple of
+    ``step`` rays (``step`` the beams of a scan: whole scans, as log-odds mapping's per-scan update needs).
+
+    Raises:
+        BayesmapError: as :func:`~bayesmap.geometry.raytable.build_ray_table`.
+    """
+    angles = np.asarray(beam_angles, np.float64).reshape(-1)
+    origins = np.broadcast_to(np.asarray(origins, np.float64), (len(angles), 2))
+    for part in _chunks(grid, origins, angles, _lengths(len(angles), max_distance, ray_limits), slots, step):
+        yield part, _chunk_table(grid, origins, angles, max_distance, ray_limits, part)
+
+
 def rays_per_cell(grid: Grid, origins, beam_angles, max_distance: float, ray_limits=None,
                   slots: int = TRACE_SLOTS) -> np.ndarray:
     """``(nx, ny)`` int64: how many rays cross each cell, the table :func:`~bayesmap.geometry.raytable.build_ray_table`
@@ -120,11 +138,9 @@ def rays_per_cell(grid: Grid, origins, beam_angles, max_distance: float, ray_lim
     Raises:
         BayesmapError: as :func:`~bayesmap.geometry.raytable.build_ray_table`.
     """
-    origins = np.broadcast_to(np.asarray(origins, np.float64), (len(np.ravel(beam_angles)), 2))
-    angles = np.asarray(beam_angles, np.float64).reshape(-1)
     counts = np.zeros(grid.num_cells, dtype=np.int64)
-    for part in _chunks(grid, origins, angles, _lengths(len(angles), max_distance, ray_limits), slots):
-        counts += _chunk_table(grid, origins, angles, max_distance, ray_limits, part).rays_per_cell()
+    for _, table in table_chunks(grid, origins, beam_angles, max_distance, ray_limits, slots):
+        counts += table.rays_per_cell()
     return counts.reshape(grid.shape)
 
 

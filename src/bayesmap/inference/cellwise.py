@@ -189,7 +189,7 @@ def _lanes(table: RayTable, counts: np.ndarray, groups, rank: np.ndarray, pair_l
         rays = np.full((len(cells), width), table.num_rays, dtype=np.int32)
         positions = np.zeros((len(cells), width), dtype=np.int32)
         for rows, valid, pair in _row_blocks(counts[cells], width, order, first):
-            ray = table.pair_rays[pair]
+            ray = table.rays_of_pairs(pair)
             rays[rows][valid] = ray
             positions[rows][valid] = pair - table.offsets[ray]
         parts.append((rays, positions))

@@ -21,6 +21,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental.shard_map import shard_map
+from jax.sharding import Mesh, PartitionSpec
 
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.base import SamplingAlgorithm
@@ -127,7 +129,7 @@ def _run(key, initial_state, arrays, static, num_sweeps: int, record, batch, pro
     """``_run_jit(key, initial_state, arrays, static, num_sweeps, record, batch)``; with ``progress``, the same
     numbers one sweep per compiled call (:func:`_sweeps_jit` over the keys ``_run_jit`` splits, one compilation
     whatever ``num_sweeps``), reporting ``Progress(stage, done, num_sweeps, "sweep")`` before the first sweep and
-    after each."""
+    after each; the records are then numpy arrays, each sweep's written into them as it comes (no second copy)."""
     num_sweeps = int(num_sweeps)
     if progress is None or num_sweeps < 1:
         return _run_jit(key, initial_state, arrays, static, num_sweeps, record, batch)
@@ -136,16 +138,20 @@ def _run(key, initial_state, arrays, static, num_sweeps: int, record, batch, pro
     else:  # (C, num_sweeps): chain c's keys, as scan_chain splits them under vmap
         sweep_keys = jax.vmap(lambda k: jax.random.split(k, num_sweeps))(key)
     arrays = [jnp.asarray(a) for a in arrays]  # (copied to the device once, not once per sweep)
-    state, pieces = initial_state, []
+    state, out = initial_state, None
+    axis = 0 if batch is None else 1
     report(progress, stage, 0, num_sweeps)
     for t in range(num_sweeps):
         keys = sweep_keys[t:t + 1] if batch is None else sweep_keys[:, t:t + 1]
         state, records = _sweeps_jit(keys, state, arrays, static, record, batch)
         batch = "states" if batch == "keys" else batch  # the chains' states part after their first sweep
-        pieces.append(jax.block_until_ready(records))
+        if out is None:
+            out = jax.tree.map(lambda r: np.empty(r.shape[:axis] + (num_sweeps,) + r.shape[axis + 1:], r.dtype),
+                               records)
+        at = (slice(None),) * axis + (slice(t, t + 1),)
+        jax.tree.map(lambda o, r: o.__setitem__(at, np.asarray(r)), out, records)
         report(progress, stage, t + 1, num_sweeps)
-    axis = 0 if batch is None else 1
-    return state, jax.tree.map(lambda *parts: jnp.concatenate(parts, axis=axis), *pieces)
+    return state, out
 
 
 def _map_chain(arrays, static, key, initial_state, num_sweeps: int, batch, progress: ProgressCallback | None = None,
@@ -254,6 +260,69 @@ def run_chain(key, algorithm: SamplingAlgorithm, initial_walls, num_sweeps: int,
         raise BayesmapError(f"number of sweeps must be an integer >= 1, got {num_sweeps!r}")
     state = algorithm.init(jnp.asarray(initial_walls, dtype=jnp.float32))
     return run_chain_from(key, state, algorithm, int(num_sweeps), progress, stage)
+
+
+@partial(jax.jit, static_argnames=("static", "devices"))
+def _sweeps_on_devices(sweep_keys, states, arrays, static, devices: tuple):
+    """One sweep of each chain, the chains split over ``devices`` (``shard_map``; ``sweep_keys`` ``(C,)`` and the
+    states' leading ``(C,)`` axis split, the algorithm's arrays replicated): each device runs its chains one after
+    another (``lax.map``, not ``vmap``, which would turn a kernel's conditional writes into always-run selects)."""
+    def local(keys, states, arrays):
+        algorithm = _join(arrays, static)
+        return jax.lax.map(lambda ks: scan_sweeps(ks[0][None], ks[1], algorithm, _map_record), (keys, states))
+
+    mesh = Mesh(np.asarray(devices), ("chains",))
+    split = PartitionSpec("chains")
+    return shard_map(local, mesh, in_specs=(split, split, PartitionSpec()), out_specs=split,
+                     check_rep=False)(sweep_keys, states, arrays)
+
+
+def run_chains_on_devices(keys, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int,
+                          progress: ProgressCallback | None = None, stage: str = "sweeps",
+                          devices=None) -> ChainResult:
+    """``C`` chains of ``algorithm`` from one state, split over the devices (``jax.sharding`` / ``shard_map``: one
+    CPU core, several CPU devices, a GPU or several GPUs run the same code): chain ``c`` runs on device ``c % D``'s
+    share, the chains of one device one after another, so a kernel written for one chain (the cellwise sampler)
+    runs as it does alone. Chain ``c`` gets the sweep keys :func:`run_chain` splits from ``keys[c]``, so its records
+    equal those of ``run_chain(keys[c], ...)`` (tested on four CPU devices). One compiled sweep per call, reporting
+    ``Progress(stage, done, num_sweeps, "sweep")`` before the first and after each.
+
+    Args:
+        keys: ``(C,)`` PRNG keys, one per chain.
+        initial_state: the chains' shared first state (``algorithm.init(walls)``).
+        algorithm: the sampler.
+        num_sweeps: sweeps per chain, >= 1.
+        progress: the callback (None: no reports).
+        stage: the stage the reports name.
+        devices: the devices to split the chains over; default all of ``jax.devices()``, at most ``C``.
+
+    Returns:
+        :class:`ChainResult` with ``samples`` ``(C, num_sweeps, nx, ny)`` bool and ``wall_probs`` alike (numpy), and
+        the chains' final states (a leading ``(C,)`` axis).
+    """
+    num_chains, num_sweeps = len(keys), int(num_sweeps)
+    devices = tuple(jax.devices() if devices is None else devices)[:max(num_chains, 1)]
+    padded = -(-num_chains // len(devices)) * len(devices)  # a whole number of chains per device
+    keys = jnp.concatenate([keys, jnp.broadcast_to(keys[:1], (padded - num_chains,))]) if padded > num_chains \
+        else keys
+    sweep_keys = jax.vmap(lambda k: jax.random.split(k, num_sweeps))(keys)  # (C, num_sweeps), as run_chain's
+    states = jax.tree.map(lambda leaf: jnp.broadcast_to(leaf, (padded,) + jnp.shape(leaf)), initial_state)
+    arrays, static = _split(algorithm)
+    arrays = [jnp.asarray(a) for a in arrays]
+    samples = probs = None
+    report(progress, stage, 0, num_sweeps)
+    for t in range(num_sweeps):
+        states, (walls, wall_prob) = _sweeps_on_devices(sweep_keys[:, t], states, arrays, static, devices)
+        if samples is None:
+            samples = np.empty((num_chains, num_sweeps) + walls.shape[2:], bool)
+            probs = None if wall_prob is None else np.empty((num_chains, num_sweeps) + wall_prob.shape[2:],
+                                                            wall_prob.dtype)
+        samples[:, t] = np.asarray(walls)[:num_chains, 0]
+        if probs is not None:
+            probs[:, t] = np.asarray(wall_prob)[:num_chains, 0]
+        report(progress, stage, t + 1, num_sweeps)
+    final = jax.tree.map(lambda leaf: leaf[:num_chains], states)
+    return ChainResult(samples, final, probs)
 
 
 def run_chains_from(keys, initial_states, algorithm: SamplingAlgorithm, num_sweeps: int) -> ChainResult:

@@ -18,8 +18,10 @@ from bayesmap.errors import BayesmapError
 from bayesmap.inference.chains import cell_diagnostics, compile_chain, posterior_mean, run_chain_from, run_chains_from
 from bayesmap.inference.logodds import LogOddsParams, logodds_map, occupancy
 from bayesmap.inference.registry import SAMPLERS, SEQUENTIAL_CHAINS, make_sampler
+from bayesmap.inference.tiled import TILE_PAIRS, check_tile_pairs, map_chains
+from bayesmap.memory import release_freed_memory
 from bayesmap.model.sensor import BEAM_DEFAULTS
-from bayesmap.progress import ProgressCallback, report
+from bayesmap.progress import ProgressCallback, report, start_stage
 from bayesmap.scenes import Problem
 
 DEFAULT_SWEEPS = 100
@@ -172,7 +174,7 @@ def scene_summary(problem: Problem, method: dict, results: dict, posterior, mode
             summary.update(coupling=float(params.coupling), neighbourhood=int(params.neighbourhood))
     summary["num_angles"] = int(np.shape(problem.beam_angles)[-1])
     if problem.multi_scan:
-        summary.update(num_scans=problem.num_scans, num_beams=int(problem.table.num_rays))
+        summary.update(num_scans=problem.num_scans, num_beams=len(problem.ray_readings))
     else:
         summary["pos"] = [float(v) for v in problem.pos]
     if model:
@@ -193,16 +195,18 @@ def scene_summary(problem: Problem, method: dict, results: dict, posterior, mode
 
 
 def _chain_summary(problem: Problem, samples, wall_probs, diagnostics, posterior, settings: dict,
-                   runtime: float) -> dict:
-    """:func:`scene_summary` of a chain run, with its log joints and (several chains) convergence diagnostics."""
+                   runtime: float, final=None) -> dict:
+    """:func:`scene_summary` of a chain run, with its log joints (of ``final``, the first chain's last map; default
+    its last sample) and (several chains) convergence diagnostics."""
     results = {"runtime_s": round(runtime, 4),
                "posterior_estimate": "sample mean" if wall_probs is None else "rao-blackwellized",
                "likelihood_power": float(problem.likelihood_power)}
     summary = scene_summary(problem, settings, results, posterior, model=True)
     if problem.truth is not None:
         summary["log_joint_truth"] = problem.log_joint(problem.truth)
-    last = samples[-1] if settings["chains"] == 1 else samples[0, -1]
-    summary["log_joint_final_sample"] = problem.log_joint(last)
+    if final is None:
+        final = samples[-1] if settings["chains"] == 1 else samples[0, -1]
+    summary["log_joint_final_sample"] = problem.log_joint(final)
     if diagnostics is not None:
         varying = np.isfinite(diagnostics["r_hat"])
         summary["cells_varying"] = int(varying.sum())
@@ -211,11 +215,45 @@ def _chain_summary(problem: Problem, samples, wall_probs, diagnostics, posterior
     return summary
 
 
+def _run_log_chains(problem: Problem, sweeps: int, seed: int, chains: int, init: str, tile_pairs: int,
+                    progress: ProgressCallback | None) -> tuple:
+    """``(samples, wall_probs, tiles, final)`` of ``chains`` cellwise chains on a problem of several scans, by
+    :func:`bayesmap.inference.tiled.map_chains` (a tile of the grid at a time beyond ``tile_pairs`` pairs, the chains
+    one after another; within it, the chains split over the devices). Chain ``c`` gets key ``c`` of ``seed``'s key
+    split in ``chains`` (one chain: the key itself); ``final`` is the first chain's last map. The log-odds start map is
+    computed a piece of the table at a time (the stage ``"log-odds start"`` of a
+    :class:`bayesmap.progress.StageRecorder`); the sweeps report stage ``"sweeps"``, ``total`` the sweeps of every
+    chain."""
+    if init == "logodds":
+        start_stage(progress, "log-odds start")
+        walls0 = run_logodds(problem).posterior > 0.5
+        release_freed_memory()  # (the pieces of the table)
+    else:
+        walls0 = np.zeros(problem.grid.shape, bool)
+    key = jax.random.key(seed)
+    keys = [key] if chains == 1 else list(jax.random.split(key, chains))
+    runs = map_chains(keys, problem.params, problem.ray_origins, problem.ray_angles, problem.model_ray_readings,
+                      jnp.asarray(walls0, jnp.float32), sweeps, problem.likelihood_power, max_pairs=tile_pairs,
+                      progress=progress)
+    if chains == 1:
+        return runs[0].samples, runs[0].wall_probs, runs[0].tiles, runs[0].walls
+    return (np.stack([r.samples for r in runs]), np.stack([r.wall_probs for r in runs]), runs[0].tiles,
+            runs[0].walls)
+
+
 def run_inference(problem: Problem, sampler: str = "block", sweeps: int = DEFAULT_SWEEPS, burn_in: int | None = None,
                   seed: int = 0, progress: ProgressCallback | None = None, chains: int = 1,
-                  init: str | None = None) -> InferenceResult:
+                  init: str | None = None, tile_pairs: int = TILE_PAIRS) -> InferenceResult:
     """Run ``chains`` chains of ``sampler`` and summarize them: at once (``vmap``), or one after another for the
     samplers in :data:`SEQUENTIAL_CHAINS` (with the keys they would get at once, so the samples are the same).
+
+    The cellwise sampler on a problem of several scans (a log) runs a tile of the grid at a time when its ray-cell
+    table would hold more than ``tile_pairs`` pairs (:func:`bayesmap.inference.tiled.tiled_map_chain`; the samples
+    of one sweep are then each cell's draw in that sweep of its tile, not one joint map), chain ``c`` with key ``c``
+    of ``seed``'s key split in ``chains``; within the budget the chains run split over the devices JAX sees
+    (:func:`bayesmap.inference.tiled.map_chains`), beyond it one after another. Its start map and the summary's log
+    joint read the table a piece at a time (:meth:`bayesmap.problem.Problem.table_chunks`), so the memory is bounded
+    by ``tile_pairs``, not by the log.
 
     Steps: check the settings, plan the chunks of sweeps and their keys, build the sampler and its compiled chain
     from the start map, run the chunks (with progress), then the posterior marginals, diagnostics and summary.
@@ -238,11 +276,17 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = DEFAUL
             from the empty map can take very long to clear the spurious walls it draws first (a reading far beyond a
             wrong wall is only "random" under the mixture, so wrong walls on a beam hold each other in place).
 
+        tile_pairs: the most pairs a tile of the cellwise sampler holds on a log
+            (:data:`bayesmap.inference.tiled.TILE_PAIRS`).
+
     Raises:
-        BayesmapError: on an unknown sampler, or a bad number of sweeps, burn-in or chains; with several chains,
-            on fewer than 4 kept sweeps (too few for R-hat).
+        BayesmapError: on an unknown sampler, or a bad number of sweeps, burn-in, chains or ``tile_pairs``; with
+            several chains, on fewer than 4 kept sweeps (too few for R-hat).
     """
     burn_in, init = _check_settings(problem, sweeps, burn_in, chains, init)
+    check_tile_pairs(tile_pairs)
+    if sampler == "cellwise" and problem.multi_scan:
+        return _log_inference(problem, sweeps, burn_in, seed, chains, init, tile_pairs, progress)
     start = time.perf_counter()
     plan = _plan_chunks(sampler, sweeps, seed, chains)
     report(progress, "sweeps", 0, sweeps * chains if plan.one_by_one else sweeps)
@@ -265,6 +309,23 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = DEFAUL
                            diagnostics=diagnostics)
 
 
+def _log_inference(problem: Problem, sweeps: int, burn_in: int, seed: int, chains: int, init: str, tile_pairs: int,
+                   progress: ProgressCallback | None) -> InferenceResult:
+    """:func:`run_inference` of the cellwise sampler on a problem of several scans (:func:`_run_log_chains`)."""
+    start = time.perf_counter()
+    samples, wall_probs, tiles, final = _run_log_chains(problem, sweeps, seed, chains, init, tile_pairs, progress)
+    runtime = time.perf_counter() - start
+    posterior = posterior_mean(wall_probs, burn_in)
+    diagnostics = cell_diagnostics(samples, burn_in) if chains > 1 else None
+    settings = {"sampler": "cellwise", "sampler_description": SAMPLERS["cellwise"][0], "sweeps": int(sweeps),
+                "burn_in": int(burn_in), "seed": int(seed), "chains": int(chains), "init": init,
+                "tile_pairs": int(tile_pairs), "tiles": len(tiles), "ray_cell_pairs": int(sum(t.pairs for t in tiles))}
+    summary = _chain_summary(problem, samples, wall_probs, diagnostics, posterior, settings, runtime,
+                             final=np.asarray(final) > 0.5)
+    return InferenceResult(samples=samples, posterior=posterior, runtime_s=runtime, summary=summary,
+                           diagnostics=diagnostics)
+
+
 def run_logodds(problem: Problem, params=None) -> InferenceResult:
     """Map ``problem`` with classic log-odds occupancy mapping (:func:`bayesmap.inference.logodds.logodds_map`,
     one update per scan, in scan order) instead of a posterior: the baseline users know.
@@ -276,15 +337,27 @@ def run_logodds(problem: Problem, params=None) -> InferenceResult:
 
     params = LogOddsParams() if params is None else params
     start = time.perf_counter()
-    table = problem.table
-    table_s = time.perf_counter() - start
-    logodds = logodds_map(table, problem.ray_readings, problem.ray_max_range, problem.scan_of_ray, params)
+    table_s, pairs, logodds = 0.0, 0, None
+    readings, max_range, scans = problem.ray_readings, problem.ray_max_range, problem.scan_of_ray
+    pieces = problem.table_chunks()  # (whole scans a piece; the scans in order: the same map as in one piece)
+    while True:
+        tic = time.perf_counter()
+        rays, table = next(pieces, (None, None))
+        table_s += time.perf_counter() - tic
+        if table is None:
+            break
+        logodds = logodds_map(table, readings[rays], None if max_range is None else max_range[rays], scans[rays],
+                              params, initial=logodds)
+        pairs += table.num_pairs
+        del table
     runtime = time.perf_counter() - start
+    if logodds is None:  # (no beams)
+        logodds = np.full(problem.grid.shape, params.l_prior)
     prob = occupancy(logodds)
     method = {"method": "logodds", "sampler": "logodds",
               "sampler_description": f"log-odds occupancy mapping, inverse sensor model (p_hit {params.p_hit}, p_miss "
                                      f"{params.p_miss}, clamping {params.clamp_min}-{params.clamp_max})"}
-    results = {"ray_cell_pairs": int(table.num_pairs), "table_s": round(table_s, 4),
+    results = {"ray_cell_pairs": int(pairs), "table_s": round(table_s, 4),
                "update_s": round(runtime - table_s, 4), "runtime_s": round(runtime, 4)}
     summary = scene_summary(problem, method, results, prob, model=False)
     empty = np.zeros((0,) + problem.grid.shape, dtype=bool)

@@ -180,7 +180,7 @@ def beam_hits_and_misses(table: RayTable, readings, max_range_mask=None) -> tupl
 
 
 def logodds_map(table: RayTable, readings, max_range_mask=None, scan_of_ray=None,
-                params: LogOddsParams | None = None) -> np.ndarray:
+                params: LogOddsParams | None = None, initial=None) -> np.ndarray:
     """Occupancy-grid mapping in log-odds form (Thrun et al., *Probabilistic Robotics*, sec. 9.2, Table 9.1, with
     OctoMap's per-scan update rule and clamping; see the module docstring).
 
@@ -202,6 +202,9 @@ def logodds_map(table: RayTable, readings, max_range_mask=None, scan_of_ray=None
             grouping every beam as its own scan would update a cell many times per scan, grouping all scans as one
             only once in all.
         params: inverse sensor model and clamping; default :class:`LogOddsParams` ().
+        initial: ``(nx, ny)`` log-odds the updates start from (those of the scans before, to map a log a piece of
+            whole scans at a time, :meth:`bayesmap.problem.Problem.table_chunks`: the same result as in one
+            piece); None: ``l_0`` everywhere.
 
     Returns:
         ``(nx, ny)`` float64 log-odds of occupied per cell (``l_0`` for cells no beam touched).
@@ -239,7 +242,13 @@ def logodds_map(table: RayTable, readings, max_range_mask=None, scan_of_ray=None
     bounds = np.r_[starts, len(pair_scan)]
 
     lo, hi = params.clamp_bounds
-    logodds = np.full(table.num_cells, params.l_prior, dtype=np.float64)
+    if initial is None:
+        logodds = np.full(table.num_cells, params.l_prior, dtype=np.float64)
+    else:
+        logodds = np.array(initial, dtype=np.float64).reshape(-1)
+        if logodds.size != table.num_cells:
+            raise BayesmapError(f"initial must have the grid's shape {tuple(table.grid.shape)}, got "
+                                f"{np.shape(initial)}")
     update = np.zeros(table.num_cells, dtype=np.float64)  # scratch: this scan's update per cell
     hit_cells_all = np.where(is_hit, cells, -1)
     for a, b in zip(bounds[:-1], bounds[1:]):

@@ -43,7 +43,8 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.geometry.tiles import Tile, ray_cells, rays_per_cell, split_tiles, tile_table
 from bayesmap.inference.cellwise import cellwise_gibbs
-from bayesmap.inference.chains import run_chain
+from bayesmap.inference.chains import run_chain, run_chains_on_devices
+from bayesmap.memory import release_freed_memory
 from bayesmap.model.generative import ModelParams, ray_limits
 from bayesmap.progress import Progress, ProgressCallback, report
 
@@ -71,12 +72,15 @@ class TiledChain(NamedTuple):
         walls: ``(nx, ny)`` float32, the map after the chain's last update (0/1).
         wall_probs: ``(sweeps, nx, ny)`` float32, each cell's conditional wall probability in each sweep of its tile
             (module docstring).
+        samples: ``(sweeps, nx, ny)`` bool, each cell's draw in each sweep of its tile (with one tile, the map after
+            each sweep; with several, the records of one sweep are not one joint map: module docstring).
         tiles: the tiles, in the order they were sampled (one tile, the whole grid, when the log fit the budget).
     """
 
     walls: jax.Array
     wall_probs: np.ndarray
     tiles: tuple[Tile, ...]
+    samples: np.ndarray
 
 
 class _TileProgress:
@@ -91,6 +95,67 @@ class _TileProgress:
     def __call__(self, p: Progress) -> None:
         done = (self.index * self.count + p.done) * self.sweeps // (self.visits * self.count)
         report(self.progress, self.stage, done, self.sweeps, p.unit)
+
+
+def _whole_sampler(params: ModelParams, origins, angles, readings, likelihood_power: float, max_pairs: int):
+    """``(sampler, tile)``: the cellwise sampler of the whole table and the tile of the whole grid, when the table's
+    estimated pairs fit ``max_pairs``; else None."""
+    grid = params.grid
+    limits = ray_limits(readings, params)
+    lengths = params.max_range if limits is None else limits
+    if ray_cells(grid, origins, angles, lengths).sum() > max_pairs:  # (an estimate, within 1 %)
+        return None
+    table = build_ray_table(grid, origins, angles, params.max_range, ray_limits=limits)
+    sampler = cellwise_gibbs(table, readings, params, likelihood_power)
+    tile = Tile(0, grid.shape[0], 0, grid.shape[1], table.num_pairs)
+    del table  # the sampler holds what its sweeps read
+    release_freed_memory()  # (the sorting's temporaries: the sweeps' peak does not count them)
+    return sampler, tile
+
+
+def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls, sweeps: int,
+               likelihood_power: float = 1.0, max_pairs: int = TILE_PAIRS,
+               progress: ProgressCallback | None = None, stage: str = "sweeps") -> list[TiledChain]:
+    """``len(keys)`` chains of :func:`tiled_map_chain` from ``walls``, chain ``c`` with ``keys[c]`` (the same records,
+    tested): when the whole table fits ``max_pairs``, its sampler is built once and the chains run split over the
+    devices JAX sees (:func:`bayesmap.inference.chains.run_chains_on_devices`: several CPU devices or GPUs each run
+    their share of the chains); beyond it, one tiled chain after another (tiles share beams and a tile's table
+    depends on its chain's map, so they stay on one device). ``progress`` gets ``Progress(stage, done, len(keys) *
+    sweeps, "sweep")``, ``done`` the sweeps of every chain so far.
+
+    Raises:
+        BayesmapError: as :func:`tiled_map_chain`.
+    """
+    total = len(keys) * sweeps
+    check_tile_pairs(max_pairs)
+    if isinstance(sweeps, bool) or not isinstance(sweeps, (int, np.integer)) or sweeps < 1:
+        raise BayesmapError(f"sweeps must be an integer >= 1, got {sweeps!r}")
+    report(progress, stage, 0, total)
+    angles = np.asarray(beam_angles, np.float64).reshape(-1)
+    origins = np.asarray(origins, np.float64).reshape(-1, 2)
+    readings = np.asarray(readings).reshape(-1)
+    whole = _whole_sampler(params, origins, angles, readings, likelihood_power, max_pairs) if len(keys) > 1 else None
+    if whole is not None:
+        sampler, tile = whole
+
+        def every_chain(p: Progress) -> None:
+            report(progress, stage, p.done * len(keys), total, p.unit)
+
+        state = sampler.init(jnp.asarray(walls, jnp.float32))
+        run = run_chains_on_devices(jnp.stack(list(keys)), state, sampler, sweeps,
+                                    None if progress is None else every_chain, stage)
+        del sampler, whole, state
+        release_freed_memory()
+        return [TiledChain(jnp.asarray(run.samples[c, -1], jnp.float32), run.wall_probs[c], (tile,), run.samples[c])
+                for c in range(len(keys))]
+    chains = []
+    for c, key in enumerate(keys):
+        def one(p: Progress, c=c) -> None:
+            report(progress, stage, c * sweeps + p.done, total, p.unit)
+
+        chains.append(tiled_map_chain(key, params, origins, angles, readings, walls, sweeps, likelihood_power,
+                                      max_pairs, progress=None if progress is None else one, stage=stage))
+    return chains
 
 
 def check_tile_pairs(max_pairs) -> None:
@@ -147,20 +212,21 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
     origins = np.asarray(origins, np.float64).reshape(-1, 2)
     readings = np.asarray(readings).reshape(-1)
     limits = ray_limits(readings, params)
-    lengths = params.max_range if limits is None else limits
-    if ray_cells(grid, origins, angles, lengths).sum() <= max_pairs:  # (an estimate, within 1 %)
-        table = build_ray_table(grid, origins, angles, params.max_range, ray_limits=limits)
-        sampler = cellwise_gibbs(table, readings, params, likelihood_power)
-        whole = Tile(0, grid.shape[0], 0, grid.shape[1], table.num_pairs)
-        del table  # the sampler holds what its sweeps read
+    whole = _whole_sampler(params, origins, angles, readings, likelihood_power, max_pairs)
+    if whole is not None:
+        sampler, tile = whole
         chain = run_chain(key, sampler, walls, sweeps, progress, stage)
-        return TiledChain(jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs), (whole,))
+        del sampler, whole
+        release_freed_memory()
+        return TiledChain(jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs), (tile,),
+                          np.asarray(chain.samples))
     counts = rays_per_cell(grid, origins, angles, params.max_range, limits)
     tiles = tuple(split_tiles(counts, max_pairs))
     del counts
     kept = 3 if params.penetrable else 2
     current = np.array(walls, dtype=np.float32)
     probs = np.zeros((sweeps, *grid.shape), dtype=np.float32)
+    samples = np.zeros((sweeps, *grid.shape), dtype=bool)
     keys = jax.random.split(key, len(tiles) * passes).reshape(passes, len(tiles))
     grow = int(np.ceil(margin / grid.resolution - 1e-9))
     bounds = np.linspace(0, sweeps, passes + 1).round().astype(int)  # pass p records sweeps bounds[p]:bounds[p+1]
@@ -174,11 +240,14 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
         table, rays = tile_table(grid, origins, angles, params.max_range, limits, current, block, kept)
         sampler = cellwise_gibbs(table, readings[rays], params, likelihood_power, frozen=~sampled)
         del table
+        release_freed_memory()
         sub = None if progress is None else _TileProgress(progress, stage, visit, count, len(visits), sweeps)
         chain = run_chain(keys[p, k], sampler, current, count, sub, stage)
         last = np.asarray(chain.samples[-1])
         current[sampled] = last[sampled]
         probs[first:first + count, inside] = np.asarray(chain.wall_probs)[:, inside]
+        samples[first:first + count, inside] = np.asarray(chain.samples)[:, inside]
         del sampler, chain
         jax.clear_caches()  # each tile compiles its sweep for its own shapes: drop the tile before
-    return TiledChain(jnp.asarray(current), probs, tiles)
+        release_freed_memory()
+    return TiledChain(jnp.asarray(current), probs, tiles, samples)

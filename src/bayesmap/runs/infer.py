@@ -18,7 +18,9 @@ import numpy as np
 
 from bayesmap import scenes
 from bayesmap.errors import BayesmapError
+from bayesmap.geometry.tiles import TRACE_SLOTS
 from bayesmap.inference.driver import InferenceResult, run_inference, run_logodds
+from bayesmap.inference.tiled import TILE_PAIRS
 from bayesmap.inference.traces import chain_traces
 from bayesmap.io.ascii import load_map, tutorial_map
 from bayesmap.io.maps_out import seen_cells
@@ -75,6 +77,7 @@ class InferRequest:
     cut_past_reading: Optional[float] = None
     keyframe_distance: Optional[float] = None
     keyframe_turn: Optional[float] = None
+    tile_pairs: Optional[int] = None
     beam_weights: Optional[str] = None
     lambda_short: Optional[float] = None
     likelihood_power: Optional[float] = None
@@ -129,12 +132,14 @@ def check_infer_request(req: InferRequest) -> None:
                 or req.max_range is not None:
             raise BayesmapError("--scan, --scans, --likelihood-power and --max-range need --log FILE (or --bag)")
         if (req.geometry is not None or req.wall_pass_prob is not None or req.cut_past_reading is not None
-                or req.keyframe_distance is not None or req.keyframe_turn is not None):
-            raise BayesmapError("--geometry, --wall-pass-prob, --cut-past-reading and the keyframe options apply to "
-                                "several scans of --log FILE (or --bag); maps keep the tutorial's entry geometry, "
-                                "walls and whole beams")
+                or req.keyframe_distance is not None or req.keyframe_turn is not None or req.tile_pairs is not None):
+            raise BayesmapError("--geometry, --wall-pass-prob, --cut-past-reading, --tile-pairs and the keyframe "
+                                "options apply to several scans of --log FILE (or --bag); maps keep the tutorial's "
+                                "entry geometry, walls and whole beams")
     elif req.map_file is not None:
         raise BayesmapError("give either --map or --log / --bag, not both")
+    if req.tile_pairs is not None and req.tile_pairs < 1:
+        raise BayesmapError(f"--tile-pairs must be an integer >= 1, got {req.tile_pairs}")
     check_output_dir(req.out, req.force)
     if req.out_bag is not None:
         check_out_bag(req.out_bag, req.force)
@@ -175,9 +180,9 @@ def _log_scene(carmen, req: InferRequest, params: dict, coupling):
             raise BayesmapError("--range-offset and --likelihood-power apply to several scans (--scans), "
                                 "not to --scan N")
         if (req.geometry is not None or req.wall_pass_prob is not None or req.cut_past_reading is not None
-                or req.keyframe_distance is not None or req.keyframe_turn is not None):
-            raise BayesmapError("--geometry, --wall-pass-prob, --cut-past-reading and the keyframe options apply to "
-                                "several scans (--scans), not to --scan N")
+                or req.keyframe_distance is not None or req.keyframe_turn is not None or req.tile_pairs is not None):
+            raise BayesmapError("--geometry, --wall-pass-prob, --cut-past-reading, --tile-pairs and the keyframe "
+                                "options apply to several scans (--scans), not to --scan N")
         scan = int(parse_scans(str(req.scan), len(carmen))[0])  # a negative index counts from the end, as in --scans
         problem = scan_problem(
             carmen, scan, resolution=req.resolution,
@@ -223,10 +228,13 @@ def _map_scene(req: InferRequest, params: dict, coupling):
 
 def run_infer(problem: scenes.Problem, method: str = "gibbs", sampler: str = "block", sweeps: int = 100,
               burn_in: Optional[int] = None, seed: int = 0, chains: int = 1,
-              progress: Optional[ProgressCallback] = None) -> InferRun:
+              progress: Optional[ProgressCallback] = None, tile_pairs: int = TILE_PAIRS) -> InferRun:
     """Map ``problem``: its posterior by Gibbs sampling (:func:`bayesmap.inference.driver.run_inference`), or with
     ``method="logodds"`` classic log-odds mapping (:func:`~bayesmap.inference.driver.run_logodds`), after refusing
-    a problem too large to fit (:func:`bayesmap.runs.inputs.check_problem_size`).
+    a problem too large to fit (:func:`bayesmap.runs.inputs.check_problem_size`). On a log (several scans) the
+    cellwise sampler holds at most ``tile_pairs`` pairs at once (a tile of the grid at a time beyond) and log-odds
+    mapping one piece of the table (:meth:`bayesmap.problem.Problem.table_chunks`); other samplers hold the whole
+    table.
 
     Args:
         problem: the scene.
@@ -243,19 +251,34 @@ def run_infer(problem: scenes.Problem, method: str = "gibbs", sampler: str = "bl
     Raises:
         BayesmapError: on a problem too large, or bad settings (named).
     """
-    check_problem_size(problem, chains=chains)
+    check_problem_size(problem, chains=chains, tile_pairs=_streamed_pairs(problem, method, sampler, tile_pairs))
     if method == "logodds":
         start_stage(progress, "log-odds mapping")
         result = run_logodds(problem)
     else:
         result = run_inference(problem, sampler=sampler, sweeps=sweeps, burn_in=burn_in, seed=seed, chains=chains,
-                               progress=progress)
+                               progress=progress, tile_pairs=tile_pairs)
     return InferRun(result, result.summary)
 
 
+def _streamed_pairs(problem: scenes.Problem, method: str, sampler: str, tile_pairs: int) -> Optional[int]:
+    """The most pairs a run holds at once when it does not hold the whole table (a log mapped by the cellwise
+    sampler: ``tile_pairs``; by log-odds mapping: a piece of the table), else None (the whole table)."""
+    if not problem.multi_scan:
+        return None
+    if method == "logodds":
+        return TRACE_SLOTS
+    return tile_pairs if sampler == "cellwise" else None
+
+
 def infer_seen(problem: scenes.Problem) -> np.ndarray:
-    """``(nx, ny)`` bool, the cells some beam of ``problem`` crossed (:func:`bayesmap.io.maps_out.seen_cells`)."""
-    return seen_cells(problem.table, problem.ray_readings)
+    """``(nx, ny)`` bool, the cells some beam of ``problem`` crossed (:func:`bayesmap.io.maps_out.seen_cells`, a
+    piece of the table at a time: :meth:`bayesmap.problem.Problem.table_chunks`)."""
+    seen = np.zeros(problem.grid.shape, dtype=bool)
+    readings = problem.ray_readings
+    for rays, table in problem.table_chunks():
+        seen |= seen_cells(table, readings[rays])
+    return seen
 
 
 def infer_files(problem: scenes.Problem, run: InferRun, title: str, seed: int = 0, method: str = "gibbs",
@@ -353,11 +376,14 @@ def map_and_write(problem: scenes.Problem, title: str, req: InferRequest, sample
         BayesmapError: as those functions.
     """
     check_output_dir(req.out, req.force)
-    if problem.multi_scan and isinstance(progress, StageRecorder):
+    tile_pairs = TILE_PAIRS if req.tile_pairs is None else req.tile_pairs
+    if problem.multi_scan and isinstance(progress, StageRecorder) \
+            and _streamed_pairs(problem, req.method, sampler, tile_pairs) is None:
         check_problem_size(problem, chains=req.chains)  # (before the table is built)
         progress.start("ray-cell table")
         problem.table  # noqa: B018 (built on first use and kept: the sampler and the figure's seen cells read it)
-    run = run_infer(problem, req.method, sampler, req.sweeps, req.burn_in, req.seed, req.chains, progress)
+    run = run_infer(problem, req.method, sampler, req.sweeps, req.burn_in, req.seed, req.chains, progress,
+                    tile_pairs)
     recorder = progress if isinstance(progress, StageRecorder) else None
     start_stage(recorder, "figures")
     seen = infer_seen(problem) if (req.maps or req.out_bag is not None or problem.multi_scan) else None
