@@ -4,10 +4,8 @@ numpy's and XLA's large temporaries (a ray-cell table being sorted into a sample
 are freed when a stage ends, but glibc's allocator keeps freed blocks below its dynamic mmap threshold (up to 32 MB
 each) in its heap, so the process's resident memory stays at the stage's high-water mark and the next stage's
 temporaries come on top. :func:`release_freed_memory` asks the allocator to return those pages (glibc's
-``malloc_trim``), which the peak of the next stage then does not count. Measured on the Intel log at known poses
-(``bayesmap infer``, 905 scans): the sweeps stage's peak 1,147 -> 1,0xx MB at no measurable cost in time
-(docs/validation/scale.md). Setting the allocator's thresholds instead (``MALLOC_MMAP_THRESHOLD_``) saves about as
-much but makes every large temporary fresh pages, 10-15 % slower on the same run.
+``malloc_trim``), which the peak of the next stage then does not count. What it saves, and why the allocator's
+thresholds are left as they are: docs/validation/scale.md, "Known poses in tiles".
 """
 
 from __future__ import annotations
