@@ -48,9 +48,9 @@ def without_table(problem):
 
 
 def test_sums_over_the_pieces_equal_the_whole_tables(pieces_problem, monkeypatch):
-    """Log-odds mapping (per-scan updates with clamping, scans in order: exactly the same map), the log joint (the
-    same to float32 rounding of the per-piece sums: 1e-6 relative) and the seen cells, a piece at a time and with
-    the whole table."""
+    """Log-odds mapping (per-scan updates with clamping, scans in order: exactly the same map), the log joint of one
+    map and of several in one pass (the same to float32 rounding of the per-piece sums: 1e-6 relative) and the seen
+    cells, a piece at a time and with the whole table."""
     whole = pieces_problem
     whole.table  # noqa: B018 (held: one piece)
     monkeypatch.setattr(problem_module, "TABLE_PIECE_PAIRS", SLOTS)
@@ -59,8 +59,10 @@ def test_sums_over_the_pieces_equal_the_whole_tables(pieces_problem, monkeypatch
     np.testing.assert_array_equal(run_logodds(streamed).posterior, run_logodds(whole).posterior)
     assert run_logodds(streamed).summary["ray_cell_pairs"] == whole.table.num_pairs
     rng = np.random.default_rng(0)
-    for density in (0.05, 0.3):
-        walls = rng.random(whole.grid.shape) < density
-        assert streamed.table_log_joint(walls) == pytest.approx(whole.table_log_joint(walls), rel=1e-6)
+    maps = np.stack([rng.random(whole.grid.shape) < density for density in (0.05, 0.3, 0.6)])
+    want = [whole.table_log_joint(walls) for walls in maps]
+    assert streamed.table_log_joint(maps[1]) == pytest.approx(want[1], rel=1e-6)
+    np.testing.assert_allclose(streamed.table_log_joints(maps), want, rtol=1e-6)  # (all maps, one pass)
+    assert len(set(np.round(want))) == 3
     np.testing.assert_array_equal(infer_seen(streamed), seen_cells(whole.table, whole.ray_readings))
     assert "table" not in streamed.__dict__  # nothing above built the whole table

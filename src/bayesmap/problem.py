@@ -380,28 +380,42 @@ class Problem:
             return float(log_joint_scans(walls, self.model_readings, self.pos, self.params, self.beam_angles))
         return self.table_log_joint(walls)
 
+    def log_joints(self, maps) -> np.ndarray:
+        """``(T,)`` float64 :meth:`log_joint` of each of ``maps`` ``(T, nx, ny)``; on a problem of several scans too
+        large for the dense geometry, :meth:`table_log_joints` (one pass over the table's pieces for all maps)."""
+        maps = np.asarray(maps)
+        if self.multi_scan and len(self.ray_angles) * self.grid.num_cells > 2e7:
+            return self.table_log_joints(maps)
+        return np.array([self.log_joint(w) for w in maps], dtype=np.float64)
+
     def table_log_joint(self, walls) -> float:
-        """``log p(walls, readings)`` from the ray-cell table: the prior's log-probability plus, per beam,
+        """:meth:`table_log_joints` of one map ``walls`` ``(nx, ny)``."""
+        return float(self.table_log_joints(np.asarray(walls)[None])[0])
+
+    def table_log_joints(self, maps) -> np.ndarray:
+        """``(T,)`` float64 ``log p(walls, readings)`` of each of ``maps`` ``(T, nx, ny)`` from the ray-cell table, the
+        table read once, a piece at a time, for all of them: the prior's log-probability plus, per beam,
         the sensor model's log-density of its reading given its first wall (the max distance if none; its first two
         walls when a beam can pass a wall cell, :func:`bayesmap.model.generative.walls_log_likelihood`).
         With a structured prior, the prior's part is :func:`bayesmap.model.prior.log_prior` (``-J`` per differing
         pair of neighbours, as the model's observed connections score). Time grows with the table's pairs, not beams x
         cells; memory with one piece of :meth:`table_chunks`."""
-        walls = np.asarray(walls) > 0.5
+        maps = np.asarray(maps) > 0.5
         p = float(self.params.prior_wall_prob)
-        prior = walls.sum() * math.log(p) + (walls.size - walls.sum()) * math.log1p(-p)
+        walls_count = maps.sum(axis=(1, 2)).astype(np.float64)
+        totals = walls_count * math.log(p) + (maps[0].size - walls_count) * math.log1p(-p)
         if self.params.structured:
-            prior -= float(self.params.coupling) * int(disagreeing_pairs(walls))
+            totals -= float(self.params.coupling) * np.array([int(disagreeing_pairs(w)) for w in maps], np.float64)
         readings = self.model_ray_readings
-        total = 0.0
         for rays, table in self.table_chunks():
-            chords = table.wall_chords(walls, PASS_WALLS if self.params.penetrable else 1)
-            for start in range(0, len(chords), LOG_LIKELIHOOD_BEAMS):
-                part = slice(start, start + LOG_LIKELIHOOD_BEAMS)
-                total += self._beams_log_likelihood(readings[rays][part], chords[part])
-        return float(prior + total)
+            for t, walls in enumerate(maps):
+                chords = table.wall_chords(walls, PASS_WALLS if self.params.penetrable else 1)
+                for start in range(0, len(chords), LOG_LIKELIHOOD_BEAMS):
+                    part = slice(start, start + LOG_LIKELIHOOD_BEAMS)
+                    totals[t] += self._block_log_likelihood(readings[rays][part], chords[part])
+        return totals
 
-    def _beams_log_likelihood(self, readings, chords) -> float:
+    def _block_log_likelihood(self, readings, chords) -> float:
         """The sum of :func:`~bayesmap.model.generative.walls_log_likelihood` over at most
         :data:`LOG_LIKELIHOOD_BEAMS` beams, padded to that many: one compiled program for every piece."""
         dtype = jnp.result_type(float)

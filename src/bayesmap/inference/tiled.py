@@ -128,8 +128,7 @@ def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls,
     """
     total = len(keys) * sweeps
     check_tile_pairs(max_pairs)
-    if isinstance(sweeps, bool) or not isinstance(sweeps, (int, np.integer)) or sweeps < 1:
-        raise BayesmapError(f"sweeps must be an integer >= 1, got {sweeps!r}")
+    _check_sweeps(sweeps)
     report(progress, stage, 0, total)
     angles = np.asarray(beam_angles, np.float64).reshape(-1)
     origins = np.asarray(origins, np.float64).reshape(-1, 2)
@@ -156,6 +155,11 @@ def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls,
         chains.append(tiled_map_chain(key, params, origins, angles, readings, walls, sweeps, likelihood_power,
                                       max_pairs, progress=None if progress is None else one, stage=stage))
     return chains
+
+
+def _check_sweeps(sweeps) -> None:
+    if isinstance(sweeps, bool) or not isinstance(sweeps, (int, np.integer)) or sweeps < 1:
+        raise BayesmapError(f"sweeps must be an integer >= 1, got {sweeps!r}")
 
 
 def check_tile_pairs(max_pairs) -> None:
@@ -200,8 +204,7 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
             :class:`~bayesmap.inference.cellwise.CellwiseGibbs`.
     """
     check_tile_pairs(max_pairs)
-    if isinstance(sweeps, bool) or not isinstance(sweeps, (int, np.integer)) or sweeps < 1:
-        raise BayesmapError(f"sweeps must be an integer >= 1, got {sweeps!r}")
+    _check_sweeps(sweeps)
     if isinstance(passes, bool) or not isinstance(passes, (int, np.integer)) or passes < 1:
         raise BayesmapError(f"passes must be an integer >= 1, got {passes!r}")
     if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not np.isfinite(margin) or margin < 0:

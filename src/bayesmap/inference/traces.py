@@ -45,12 +45,12 @@ class ChainTraces(NamedTuple):
 
 def chain_log_joints(problem, samples) -> np.ndarray:
     """Log joint (GenJAX ``assess``) of every sample: ``samples`` ``(T, nx, ny)`` or ``(C, T, nx, ny)`` ->
-    ``(T,)`` or ``(C, T)`` float64. For several scans: :meth:`~bayesmap.problem.Problem.log_joint` (``assess``, or
-    the ray-cell table's equal sum on large problems), one sample at a time."""
+    ``(T,)`` or ``(C, T)`` float64. For several scans: :meth:`~bayesmap.problem.Problem.log_joints` (``assess``, or
+    the ray-cell table's equal sum on large problems, the table read once for all samples)."""
     arr = np.asarray(samples, dtype=np.float32)
     flat = arr.reshape((-1,) + arr.shape[-2:])
     if problem.multi_scan:
-        return np.array([problem.log_joint(w) for w in flat], dtype=np.float64).reshape(arr.shape[:-2])
+        return problem.log_joints(flat).reshape(arr.shape[:-2])
     score = jax.jit(jax.vmap(lambda w: log_joint(w, problem.model_readings, problem.pos, problem.params,
                                                  problem.beam_angles)))
     out = np.concatenate([np.asarray(score(flat[i:i + LOG_JOINT_BATCH]), dtype=np.float64)

@@ -18,7 +18,6 @@ import numpy as np
 
 from bayesmap import scenes
 from bayesmap.errors import BayesmapError
-from bayesmap.geometry.tiles import TRACE_SLOTS
 from bayesmap.inference.driver import InferenceResult, run_inference, run_logodds
 from bayesmap.inference.tiled import TILE_PAIRS
 from bayesmap.inference.traces import chain_traces
@@ -27,6 +26,7 @@ from bayesmap.io.maps_out import seen_cells
 from bayesmap.io.rosbag import write_occupancy_grid_bag
 from bayesmap.io.rosmap import encode_rosmap
 from bayesmap.model import prior
+from bayesmap.problem import TABLE_PIECE_PAIRS
 from bayesmap.progress import ProgressCallback, StageRecorder, stage_summary, start_stage
 from bayesmap.runs.inputs import (
     check_free_cell,
@@ -267,7 +267,7 @@ def _streamed_pairs(problem: scenes.Problem, method: str, sampler: str, tile_pai
     if not problem.multi_scan:
         return None
     if method == "logodds":
-        return TRACE_SLOTS
+        return TABLE_PIECE_PAIRS
     return tile_pairs if sampler == "cellwise" else None
 
 
