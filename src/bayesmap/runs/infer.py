@@ -26,7 +26,6 @@ from bayesmap.io.maps_out import seen_cells
 from bayesmap.io.rosbag import write_occupancy_grid_bag
 from bayesmap.io.rosmap import encode_rosmap
 from bayesmap.model import prior
-from bayesmap.problem import TABLE_PIECE_PAIRS
 from bayesmap.progress import ProgressCallback, StageRecorder, stage_summary, start_stage
 from bayesmap.runs.inputs import (
     check_free_cell,
@@ -231,10 +230,11 @@ def run_infer(problem: scenes.Problem, method: str = "gibbs", sampler: str = "bl
               progress: Optional[ProgressCallback] = None, tile_pairs: int = TILE_PAIRS) -> InferRun:
     """Map ``problem``: its posterior by Gibbs sampling (:func:`bayesmap.inference.driver.run_inference`), or with
     ``method="logodds"`` classic log-odds mapping (:func:`~bayesmap.inference.driver.run_logodds`), after refusing
-    a problem too large to fit (:func:`bayesmap.runs.inputs.check_problem_size`). On a log (several scans) the
-    cellwise sampler holds at most ``tile_pairs`` pairs at once (a tile of the grid at a time beyond) and log-odds
-    mapping one piece of the table (:meth:`bayesmap.problem.Problem.table_chunks`); other samplers hold the whole
-    table.
+    a problem too large to fit (:func:`bayesmap.runs.inputs.check_problem_size`, on the whole table's pairs: they
+    bound the work as well as the memory, and the per-sweep records grow with the grid whatever the tiles). On a log
+    (several scans) the cellwise sampler holds at most ``tile_pairs`` pairs at once (a tile of the grid at a time
+    beyond) and log-odds mapping one piece of the table (:meth:`bayesmap.problem.Problem.table_chunks`); other
+    samplers hold the whole table.
 
     Args:
         problem: the scene.
@@ -251,7 +251,7 @@ def run_infer(problem: scenes.Problem, method: str = "gibbs", sampler: str = "bl
     Raises:
         BayesmapError: on a problem too large, or bad settings (named).
     """
-    check_problem_size(problem, chains=chains, tile_pairs=_streamed_pairs(problem, method, sampler, tile_pairs))
+    check_problem_size(problem, chains=chains)
     if method == "logodds":
         start_stage(progress, "log-odds mapping")
         result = run_logodds(problem)
@@ -261,14 +261,10 @@ def run_infer(problem: scenes.Problem, method: str = "gibbs", sampler: str = "bl
     return InferRun(result, result.summary)
 
 
-def _streamed_pairs(problem: scenes.Problem, method: str, sampler: str, tile_pairs: int) -> Optional[int]:
-    """The most pairs a run holds at once when it does not hold the whole table (a log mapped by the cellwise
-    sampler: ``tile_pairs``; by log-odds mapping: a piece of the table), else None (the whole table)."""
-    if not problem.multi_scan:
-        return None
-    if method == "logodds":
-        return TABLE_PIECE_PAIRS
-    return tile_pairs if sampler == "cellwise" else None
+def _holds_table(problem: scenes.Problem, method: str, sampler: str) -> bool:
+    """Whether a mapping run holds the whole ray-cell table: not on a log mapped by the cellwise sampler (a tile at a
+    time) or by log-odds mapping (a piece at a time)."""
+    return not (problem.multi_scan and (method == "logodds" or sampler == "cellwise"))
 
 
 def infer_seen(problem: scenes.Problem) -> np.ndarray:
@@ -378,7 +374,7 @@ def map_and_write(problem: scenes.Problem, title: str, req: InferRequest, sample
     check_output_dir(req.out, req.force)
     tile_pairs = TILE_PAIRS if req.tile_pairs is None else req.tile_pairs
     if problem.multi_scan and isinstance(progress, StageRecorder) \
-            and _streamed_pairs(problem, req.method, sampler, tile_pairs) is None:
+            and _holds_table(problem, req.method, sampler):
         check_problem_size(problem, chains=req.chains)  # (before the table is built)
         progress.start("ray-cell table")
         problem.table  # noqa: B018 (built on first use and kept: the sampler and the figure's seen cells read it)

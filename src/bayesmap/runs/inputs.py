@@ -187,11 +187,10 @@ def check_sizes(shape: tuple[int, int], resolution: float, pairs: float, chains:
                             "--max-range")
 
 
-def check_problem_size(problem, chains: int = 1, tile_pairs: Optional[int] = None) -> None:
+def check_problem_size(problem, chains: int = 1) -> None:
     """Refuse, before anything is allocated, a mapping problem (a :class:`bayesmap.scenes.Problem`) whose grid or
     ray-cell table cannot fit in memory (:func:`check_sizes`); a beam's length is bounded by the max distance and
-    the grid's diagonal. ``tile_pairs``: the most pairs the run holds at once when it reads the table a tile or a
-    piece at a time (the table counted is then the smaller of the whole one and this); None: the whole table.
+    the grid's diagonal.
 
     Raises:
         BayesmapError: naming the grid's cells or the estimated pairs and gigabytes, and the way out.
@@ -201,7 +200,7 @@ def check_problem_size(problem, chains: int = 1, tile_pairs: Optional[int] = Non
         check_sizes(grid.shape, grid.resolution, 0.0, chains)
     pairs = ray_cells(grid, problem.ray_origins, problem.ray_angles,
                       _beam_lengths(problem.model_ray_readings, problem.params)).sum()
-    check_sizes(grid.shape, grid.resolution, float(pairs if tile_pairs is None else min(pairs, tile_pairs)), chains)
+    check_sizes(grid.shape, grid.resolution, float(pairs), chains)
 
 
 def _beam_lengths(readings, params):
