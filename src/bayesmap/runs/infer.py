@@ -30,6 +30,7 @@ from bayesmap.progress import ProgressCallback, StageRecorder, stage_summary, st
 from bayesmap.runs.inputs import (
     check_free_cell,
     check_problem_size,
+    check_tile_pairs_option,
     coupling_option,
     parse_scans,
     read_source,
@@ -137,8 +138,7 @@ def check_infer_request(req: InferRequest) -> None:
                                 "entry geometry, walls and whole beams")
     elif req.map_file is not None:
         raise BayesmapError("give either --map or --log / --bag, not both")
-    if req.tile_pairs is not None and req.tile_pairs < 1:
-        raise BayesmapError(f"--tile-pairs must be an integer >= 1, got {req.tile_pairs}")
+    check_tile_pairs_option(req.tile_pairs)
     check_output_dir(req.out, req.force)
     if req.out_bag is not None:
         check_out_bag(req.out_bag, req.force)

@@ -187,6 +187,16 @@ def check_sizes(shape: tuple[int, int], resolution: float, pairs: float, chains:
                             "--max-range")
 
 
+def check_tile_pairs_option(tile_pairs: Optional[int]) -> None:
+    """Refuse a ``--tile-pairs`` below 1 (None, the default, passes).
+
+    Raises:
+        BayesmapError: naming the option and the value.
+    """
+    if tile_pairs is not None and tile_pairs < 1:
+        raise BayesmapError(f"--tile-pairs must be an integer >= 1, got {tile_pairs}")
+
+
 def check_problem_size(problem, chains: int = 1) -> None:
     """Refuse, before anything is allocated, a mapping problem (a :class:`bayesmap.scenes.Problem`) whose grid or
     ray-cell table cannot fit in memory (:func:`check_sizes`); a beam's length is bounded by the max distance and

@@ -25,7 +25,7 @@ from bayesmap.io.maps_out import seen_cells_along
 from bayesmap.io.rosmap import encode_rosmap
 from bayesmap.io.tum import encode_tum, tum_stamps
 from bayesmap.progress import ProgressCallback, StageRecorder, stage_summary, start_stage
-from bayesmap.runs.inputs import check_slam_size, parse_scans, read_source
+from bayesmap.runs.inputs import check_slam_size, check_tile_pairs_option, parse_scans, read_source
 from bayesmap.runs.outputs import (
     OCCUPANCY_FILE,
     REPORT_FILE,
@@ -335,8 +335,7 @@ def check_slam_request(req: SlamRequest) -> None:
                                 "--bag PATH)")
     elif req.num_poses is not None:
         raise BayesmapError("--num-poses applies to the tutorial scene, not to --log / --bag")
-    if req.tile_pairs is not None and req.tile_pairs < 1:
-        raise BayesmapError(f"--tile-pairs must be an integer >= 1, got {req.tile_pairs}")
+    check_tile_pairs_option(req.tile_pairs)
     check_output_dir(req.out, req.force, owned=SLAM_OWNED_FILES)
 
 
