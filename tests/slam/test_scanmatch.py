@@ -348,3 +348,33 @@ def test_a_held_out_scan_is_registered_into_the_frame_of_the_map_it_is_scored_on
         register_heldout(frame[:5], data, train, test, start)
     with pytest.raises(BayesmapError, match="neighbours must index the 12 scans"):
         posegraph.match_to_local_maps(frame, data, test, np.array([[3, 12]]), start)
+
+
+@pytest.mark.parametrize("masked", [False, True])
+def test_search_scores_every_lattice_candidate_as_field_scores_does(masked):
+    """The search's per-level scores (each beam's direction computed once per heading, the local map applied where
+    the fields are read, the coarse level from a precomputed log field) against field_scores of the explicit
+    candidates on a field masked the plain way: the same scores (float32: 1e-4 of their size, a sum of 360 logs;
+    a candidate in the wrong order or a window applied to the wrong cells changes a score by whole log units) and
+    so the same best candidate at every level."""
+    from bayesmap.slam import scanmatch
+
+    grid, truth, _, beams, readings = room_scans(num_poses=3)
+    returned = readings < 30.0
+    rng = np.random.default_rng(1)
+    fields = scanmatch.add_to_fields(scanmatch.empty_fields(grid), grid, jnp.asarray(truth[:2]), beams[:2],
+                                     readings[:2], returned[:2])
+    stamps = jnp.asarray(rng.uniform(0, 10, grid.shape).astype(np.float32))
+    window = (stamps, jnp.float32(5.0)) if masked else None
+    plain = tuple(jnp.where(stamps >= 5.0, f, 0.0) for f in fields) if masked else fields
+    center = jnp.asarray(truth[2] + [0.05, -0.04, 0.02], jnp.float32)
+    for (xy, theta), f in scanmatch.lattices(scanmatch.MATCH_LEVELS):
+        cands = jnp.concatenate([jnp.repeat(center[:2] + xy, len(theta), axis=0),
+                                 jnp.tile(center[2] + theta, len(xy))[:, None]], axis=1)
+        want = np.asarray(scanmatch.field_scores(plain[f], grid, cands, beams[2], readings[2], returned[2],
+                                                 interpolate=f == 0))
+        for log_field in (None, scanmatch.log_field(fields[f])):
+            got = np.asarray(scanmatch.lattice_scores(fields[f], grid, center, xy, theta, beams[2], readings[2],
+                                                      returned[2], f == 0, window, log_field))
+            np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-3)
+            assert np.argmax(got) == np.argmax(want)

@@ -66,7 +66,7 @@ from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
 from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
 from bayesmap.slam.keyframes import keyframe_problem, owners, place_scans, placed_uncertainty
 from bayesmap.slam.posegraph import close_loops, marginal_covariances, sample_deviations
-from bayesmap.slam.poses import PoseState, random_walk_pose_mh, slam_data
+from bayesmap.slam.poses import random_walk_pose_mh, slam_data
 from bayesmap.slam.scanmatch import (
     LOCAL_MAP_DISTANCE,
     MIN_HIT_FRACTION,
@@ -145,7 +145,7 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
     ``min_hit_fraction`` of its endpoints on the local map takes the odometry's prediction
     (:data:`bayesmap.slam.scanmatch.MIN_HIT_FRACTION`, chosen the same way). The local map holds the scans of
     the last ``window`` meters of travel (:data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`). ``progress`` gets
-    ``Progress("front end", done, S - 1, "scan")`` per scan matched.
+    ``Progress("front end", done, S - 1, "scan")`` as the scans are matched.
 
     Raises:
         BayesmapError: as :func:`bayesmap.slam.scanmatch.correlative_path`."""
@@ -275,7 +275,7 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
         walls, wall_probs = _map_round(keys[2 * r], problem, params, np.asarray(poses, np.float64), walls,
                                        map_sweeps, progress=progress, stage=f"round {r + 1}/{rounds}: map",
                                        tile_pairs=tile_pairs)
-        pose_samples, acc = run_recorded_chains(keys[2 * r + 1], PoseState(poses=poses, walls=walls),
+        pose_samples, acc = run_recorded_chains(keys[2 * r + 1], pose_kernel.init(poses, walls),
                                                 pose_kernel, pose_sweeps, _pose_record, progress=progress,
                                                 stage=f"round {r + 1}/{rounds}: poses")
         poses = pose_samples[-1]
@@ -322,9 +322,10 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         burn_in: rounds dropped, ``0 <= burn_in < rounds``.
         seed: the random seed (``jax.random.key(seed)``).
         progress: a :data:`bayesmap.progress.ProgressCallback`, called stage after stage (each from ``done`` 0 up
-            to its ``total``): ``"front end"`` per scan matched, ``"loop closure r/3"`` per loop candidate of each
-            round of :func:`bayesmap.slam.posegraph.close_loops` that has any (unit ``"scan"``), then per sweep
-            ``"round r/R: map"`` and ``"round r/R: poses"`` for each round of the joint chain and ``"final map"``.
+            to its ``total``): ``"front end"`` per block of scans matched, ``"loop closure r/3"`` per loop
+            candidate of each round of :func:`bayesmap.slam.posegraph.close_loops` that has any (unit ``"scan"``),
+            then per sweep ``"round r/R: map"`` and ``"round r/R: poses"`` for each round of the joint chain and
+            ``"final map"``.
             The chains then run one sweep per compiled call, with the same keys: the result is the same, bit for
             bit. None: no reports.
         map_sweeps: cellwise map sweeps per round, >= 1.

@@ -8,9 +8,10 @@ consistent start for the joint chain (graph SLAM: Lu & Milios 1997, "Globally co
   the wide window :data:`LOOP_LEVELS`) against a local map of the scans ``s - LOOP_NEIGHBOURS .. s +
   LOOP_NEIGHBOURS`` at their estimates; if at least :data:`LOOP_MIN_HIT_FRACTION` of its returned beams land on that
   map, the match gives a loop edge ``s -> t``.
-* **Optimization.** The path minimizing ``sum over edges of rho(|W (relative(x_i, x_j) - z_ij)|^2)`` with the first
-  pose fixed, ``W`` the edge's square-root information and ``rho`` the Cauchy loss (a false loop closure costs a
-  bounded amount), by ``scipy.optimize.least_squares`` (trust-region reflective, sparse Jacobian).
+* **Optimization.** The path minimizing ``sum rho(f^2)`` over the components ``f`` of the whitened residuals ``W
+  (relative(x_i, x_j) - z_ij)`` of every edge, with the first pose fixed, ``W`` the edge's square-root information
+  and ``rho`` the Cauchy loss (a false loop closure costs a bounded amount), by Levenberg-Marquardt on iteratively
+  reweighted least squares with the analytic sparse Jacobian (:func:`optimize_pose_graph`).
 * Detection and optimization alternate :data:`ROUNDS` times: each round's path finds the loops the previous one's
   drift hid.
 * **Uncertainty.** The graph is also the Laplace approximation of the path's posterior with the map marginalized
@@ -30,7 +31,6 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.optimize
 import scipy.sparse
 import scipy.sparse.linalg
 
@@ -45,6 +45,7 @@ from bayesmap.slam.scanmatch import (
     empty_fields,
     hit_fraction,
     lattices,
+    log_field,
     search,
 )
 
@@ -101,8 +102,12 @@ dropped and the graph optimized again without it (a false match: a corridor matc
 no consistent path). Five sigma of a 3-dimensional residual is far out (chi-square with 3 degrees of freedom
 exceeds 25 with probability 1e-5), so true loops are kept."""
 
-MAX_EVALUATIONS = 200
-"""Most residual evaluations of one optimization (``least_squares``'s ``max_nfev``)."""
+MAX_ITERATIONS = 100
+"""Most Levenberg-Marquardt iterations of one optimization (:func:`optimize_pose_graph`; the shared logs' graphs
+converge in 4-6)."""
+
+COST_TOLERANCE = 1e-10
+"""An optimization stops when an iteration lowers the robust cost by less than this fraction of it."""
 
 SOLVE_COLUMNS = 384
 """Right-hand sides per sparse solve in :func:`marginal_covariances` (bounds its memory to ``3 S x 384``)."""
@@ -233,15 +238,28 @@ def match_to_local_maps(path, data: ScanData, scans, neighbours, starts, centers
     return poses, quality
 
 
-@functools.partial(jax.jit, static_argnames=("grid",))
 def _match_one(neighbours, t, local_poses, center, angles, readings, returned, steps: Lattices, grid: Grid):
-    """One match of :func:`match_to_local_maps` (module level, so that every run with these shapes shares one
-    compiled search): scan ``t`` searched from ``center`` against the fields of the scans ``neighbours`` at
-    ``local_poses``."""
+    """One match of :func:`match_to_local_maps`: scan ``t`` searched from ``center`` against the fields of the scans
+    ``neighbours`` at ``local_poses``. Two compiled calls (module level, so that every run with these shapes shares
+    them): the local map, then the search, which reads the coarse field's logarithm as an argument
+    (:func:`bayesmap.slam.scanmatch.log_field`)."""
+    fields, logs = _local_map(neighbours, local_poses, angles, readings, returned, grid)
+    return _search_local_map(fields, logs, center, angles[t], readings[t], returned[t], steps, grid)
+
+
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _local_map(neighbours, local_poses, angles, readings, returned, grid: Grid):
+    """The fields of the scans ``neighbours`` at ``local_poses``, and the log of each but the fine one."""
     fields = add_to_fields(empty_fields(grid), grid, local_poses, angles[neighbours], readings[neighbours],
                            returned[neighbours])
-    best, _ = search(fields, grid, center, angles[t], readings[t], returned[t], steps)
-    return best, hit_fraction(fields, grid, best, angles[t], readings[t], returned[t])
+    return fields, (None,) + tuple(log_field(f) for f in fields[1:])
+
+
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _search_local_map(fields, logs, center, angles, readings, returned, steps: Lattices, grid: Grid):
+    """:func:`bayesmap.slam.scanmatch.search` from ``center`` and the match's hit fraction."""
+    best, _ = search(fields, grid, center, angles, readings, returned, steps, log_fields=logs)
+    return best, hit_fraction(fields, grid, best, angles, readings, returned)
 
 
 def loop_edges(path, data: ScanData, progress: ProgressCallback | None = None, stage: str = "loop closure") -> Edges:
@@ -271,19 +289,51 @@ def edge_residuals(path, edges: Edges) -> np.ndarray:
     return e / edges.std
 
 
+def robust_cost(path, edges: Edges, scale: float = CAUCHY_SCALE) -> float:
+    """The graph's robust cost at ``path`` ``(S, 3)``: ``sum rho(f^2) / 2`` over the whitened residuals' components
+    ``f`` (:func:`edge_residuals`), ``rho(z) = c^2 log(1 + z / c^2)`` the Cauchy loss at ``c = scale`` standard
+    deviations (``scipy.optimize.least_squares``'s ``loss="cauchy"``)."""
+    f = edge_residuals(path, edges).reshape(-1)
+    return float(0.5 * scale**2 * np.sum(np.log1p((f / scale) ** 2)))
+
+
 def optimize_pose_graph(path, edges: Edges, scale: float = CAUCHY_SCALE) -> np.ndarray:
-    """The path ``(S, 3)`` float64 minimizing the robust edge cost (module docstring) with the Cauchy loss at
-    ``scale`` standard deviations, pose 0 fixed at ``path[0]``, started at ``path``."""
-    path = np.asarray(path, np.float64)
-    n = len(path)
+    """The path ``(S, 3)`` float64 minimizing the robust edge cost (:func:`robust_cost`, the Cauchy loss at ``scale``
+    standard deviations), pose 0 fixed at ``path[0]``, started at ``path``.
 
-    def residuals(x):
-        return edge_residuals(np.concatenate([path[:1], x.reshape(n - 1, 3)]), edges).reshape(-1)
-
-    sparsity = _edge_matrix(np.ones((len(edges.i), 3, 6)), edges, n).tocsr()
-    fit = scipy.optimize.least_squares(residuals, path[1:].reshape(-1), jac_sparsity=sparsity, loss="cauchy",
-                                       f_scale=scale, x_scale=1.0, method="trf", max_nfev=MAX_EVALUATIONS)
-    return np.concatenate([path[:1], fit.x.reshape(n - 1, 3)])
+    Levenberg-Marquardt (Levenberg 1944, Marquardt 1963) on iteratively reweighted least squares: each iteration
+    weighs every residual component by the loss's slope ``rho'(f^2) = 1 / (1 + f^2 / c^2)`` (Holland & Welsch 1977),
+    solves the damped normal equations ``(J^T W J + lambda diag(J^T W J)) d = -J^T W f`` with the analytic sparse
+    Jacobian (:func:`edge_jacobians`) by a sparse LU, and keeps the step only if the robust cost falls (else
+    ``lambda`` grows tenfold), the scheme of g2o and Ceres for pose graphs. Stops when an iteration lowers the cost by
+    less than :data:`COST_TOLERANCE` of it, or after :data:`MAX_ITERATIONS`."""
+    x = np.array(path, np.float64)
+    n = len(x)
+    damping, cost = 1e-4, robust_cost(x, edges, scale)
+    for _ in range(MAX_ITERATIONS):
+        f = edge_residuals(x, edges).reshape(-1)
+        weight = 1.0 / (1.0 + (f / scale) ** 2)
+        jacobian = _whitened_jacobian(x, edges).tocsr()
+        weighted = scipy.sparse.diags(weight) @ jacobian
+        hessian = (jacobian.T @ weighted).tocsc()
+        gradient = jacobian.T @ (weight * f)
+        diagonal = np.maximum(hessian.diagonal(), 1e-12)
+        while True:
+            step = scipy.sparse.linalg.spsolve((hessian + scipy.sparse.diags(damping * diagonal)).tocsc(), -gradient)
+            trial = x.copy()
+            trial[1:] += step.reshape(n - 1, 3)
+            new = robust_cost(trial, edges, scale)
+            if new < cost:
+                damping = max(damping / 10, 1e-12)
+                break
+            damping *= 10
+            if damping > 1e8:  # no step lowers the cost: a minimum to rounding
+                return x
+        converged = cost - new < COST_TOLERANCE * cost
+        x, cost = trial, new
+        if converged:
+            break
+    return x
 
 
 def optimize_with_loop_gate(path, sequential: Edges, loops: Edges) -> tuple[np.ndarray, Edges]:

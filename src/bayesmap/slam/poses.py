@@ -112,15 +112,20 @@ def scan_log_likelihood(walls, poses, sensor_angles, readings, params: ModelPara
     return jax.vmap(one)(jnp.asarray(poses))
 
 
-def _log_conditional(t, candidates, poses, walls, data: SlamData, eta):
-    """:func:`pose_log_conditional` for a (possibly traced) ``t`` in ``1..S-1``, without checks."""
+def _motion_terms(t, candidates, poses, data: SlamData):
+    """The motion model's part of :func:`pose_log_conditional` ``(M,)`` for a (possibly traced) ``t``: the steps
+    ``t - 1 -> candidate`` and, if ``t < S - 1``, ``candidate -> t + 1``."""
     last = poses.shape[0] - 1
     before = motion_logpdf(poses[t - 1], candidates, data.increments[t - 1], data.covs[t - 1])
     nxt = jnp.minimum(t, last - 1)
     after = motion_logpdf(candidates, poses[jnp.minimum(t + 1, last)], data.increments[nxt], data.covs[nxt])
-    after = jnp.where(t < last, after, 0.0)
+    return before + jnp.where(t < last, after, 0.0)
+
+
+def _log_conditional(t, candidates, poses, walls, data: SlamData, eta):
+    """:func:`pose_log_conditional` for a (possibly traced) ``t`` in ``1..S-1``, without checks."""
     like = scan_log_likelihood(walls, candidates, data.sensor_angles[t], data.readings[t], data.params)
-    return before + after + eta * like
+    return _motion_terms(t, candidates, poses, data) + eta * like
 
 
 def pose_log_conditional(t: int, candidates, poses, walls, data: SlamData, likelihood_power: float = 1.0):
@@ -155,10 +160,14 @@ _log_conditional_jit = jax.jit(_log_conditional)
 
 class PoseState(NamedTuple):
     """State of a pose kernel: ``poses`` ``(S, 3)`` (x m, y m, theta rad; row 0 fixed) and ``walls`` ``(nx, ny)``
-    (the map the poses are conditioned on; the pose kernels leave it unchanged)."""
+    (the map the poses are conditioned on; the pose kernels leave it unchanged); ``scan_log_lik`` ``(S,)`` the
+    untempered :func:`scan_log_likelihood` of each scan at its pose given ``walls`` (:func:`random_walk_pose_mh`'s
+    ``init`` computes it, so that a move casts the proposal's rays only), or None (computed where needed; a state
+    built from new walls must not carry an old one)."""
 
     poses: jax.Array
     walls: jax.Array
+    scan_log_lik: jax.Array | None = None
 
 
 class PoseInfo(NamedTuple):
@@ -183,18 +192,20 @@ def _algorithm(update) -> SamplingAlgorithm:
 
 
 def _sweep(update, key, state: PoseState):
-    """Apply ``update(key, t, poses, walls) -> (pose, accepted, log_conditional)`` to ``t = 1..S-1`` in order."""
+    """Apply ``update(key, t, poses, walls, scan_log_lik) -> (pose, accepted, log_conditional, scan_log_lik)`` to
+    ``t = 1..S-1`` in order (``scan_log_lik``: the state's, None where it has none)."""
     num_steps = state.poses.shape[0] - 1
     keys = jax.random.split(key, num_steps)
 
     def body(i, carry):
-        poses, accepted, logc = carry
-        pose, acc, lc = update(keys[i], i + 1, poses, state.walls)
-        return poses.at[i + 1].set(pose), accepted.at[i].set(acc), logc.at[i].set(lc)
+        poses, accepted, logc, cache = carry
+        pose, acc, lc, cache = update(keys[i], i + 1, poses, state.walls, cache)
+        return poses.at[i + 1].set(pose), accepted.at[i].set(acc), logc.at[i].set(lc), cache
 
-    init = (state.poses, jnp.zeros(num_steps, bool), jnp.zeros(num_steps, state.poses.dtype))
-    poses, accepted, logc = jax.lax.fori_loop(0, num_steps, body, init)
-    return PoseState(poses=poses, walls=state.walls), PoseInfo(accepted=accepted, log_conditional=logc)
+    init = (state.poses, jnp.zeros(num_steps, bool), jnp.zeros(num_steps, state.poses.dtype), state.scan_log_lik)
+    poses, accepted, logc, cache = jax.lax.fori_loop(0, num_steps, body, init)
+    return PoseState(poses=poses, walls=state.walls, scan_log_lik=cache), PoseInfo(accepted=accepted,
+                                                                                    log_conditional=logc)
 
 
 def discrete_pose_gibbs(data: SlamData, candidates, likelihood_power: float = 1.0) -> SamplingAlgorithm:
@@ -226,11 +237,11 @@ def discrete_pose_gibbs(data: SlamData, candidates, likelihood_power: float = 1.
     return _algorithm(Partial(_discrete_update, cands, data, eta))
 
 
-def _discrete_update(cands, data, eta, key, t, poses, walls):
-    """:func:`discrete_pose_gibbs`'s draw of pose ``t`` (``_sweep``'s ``update``)."""
+def _discrete_update(cands, data, eta, key, t, poses, walls, cache):
+    """:func:`discrete_pose_gibbs`'s draw of pose ``t`` (``_sweep``'s ``update``; no cache)."""
     logw = _log_conditional(t, cands[t], poses, walls, data, eta)
     j = jax.random.categorical(key, logw)
-    return cands[t, j], jnp.bool_(True), logw[j]
+    return cands[t, j], jnp.bool_(True), logw[j], cache
 
 
 def lattice_offsets(h_xy: float, h_theta: float, half_width: int = 2):
@@ -303,8 +314,8 @@ def lattice_pose_mh(data: SlamData, h_xy: float, h_theta: float, half_width: int
     return _algorithm(Partial(_lattice_update, unit, steps, jitter_value, data, eta))
 
 
-def _lattice_update(unit, steps, jitter, data, eta, key, t, poses, walls):
-    """:func:`lattice_pose_mh`'s move of pose ``t`` (``_sweep``'s ``update``)."""
+def _lattice_update(unit, steps, jitter, data, eta, key, t, poses, walls, cache):
+    """:func:`lattice_pose_mh`'s move of pose ``t`` (``_sweep``'s ``update``; no cache)."""
     center = unit.shape[0] // 2  # the zero offset: the current pose
     k_h, k_pick, k_acc = jax.random.split(key, 3)
     offsets = unit * steps * jax.random.uniform(k_h, (3,), steps.dtype, 1 - jitter, 1 + jitter)
@@ -315,7 +326,7 @@ def _lattice_update(unit, steps, jitter, data, eta, key, t, poses, walls):
     logw_back = _log_conditional(t, proposal + offsets, poses, walls, data, eta)
     log_ratio = jax.nn.logsumexp(logw) - jax.nn.logsumexp(logw_back)
     accept = jnp.log(jax.random.uniform(k_acc, (), steps.dtype)) < log_ratio
-    return jnp.where(accept, proposal, x), accept, jnp.where(accept, logw[j], logw[center])
+    return jnp.where(accept, proposal, x), accept, jnp.where(accept, logw[j], logw[center]), cache
 
 
 RANDOM_WALK_STD = (0.01, 0.01, 0.003)
@@ -326,9 +337,11 @@ pose given the map and a laser scan of a hundred or more beams (a centimeter, a 
 def random_walk_pose_mh(data: SlamData, step_std=RANDOM_WALK_STD, likelihood_power: float = 1.0) -> SamplingAlgorithm:
     """Random-walk Metropolis over each pose in turn (Metropolis et al. 1953): for ``t = 1..S-1``, propose ``x' = x +
     step_std * N(0, I_3)`` and accept with probability ``min(1, pi(x') / pi(x))``, ``pi`` the pose's exact conditional
-    (:func:`pose_log_conditional`). One ray cast of the scan per proposal (the current pose's conditional is scored
-    again with it), against the ``(2 w + 1)^3`` of :func:`lattice_pose_mh`'s windows: the kernel for real logs, where
-    every scan casts hundreds of beams over a large grid.
+    (:func:`pose_log_conditional`). One ray cast of the scan per proposal, against the ``(2 w + 1)^3`` of
+    :func:`lattice_pose_mh`'s windows: the kernel for real logs, where every scan casts hundreds of beams over a large
+    grid. Its ``init`` casts every scan once at its pose (``PoseState.scan_log_lik``); a move then scores the current
+    pose from that cache and the motion model (the walls do not change during a pose sweep), and a state without
+    the cache (a joint kernel's, whose walls change between its pose sweeps) casts the current pose again.
 
     Args:
         data: :func:`slam_data`.
@@ -348,14 +361,35 @@ def random_walk_pose_mh(data: SlamData, step_std=RANDOM_WALK_STD, likelihood_pow
         raise BayesmapError(f"step_std must be three finite numbers > 0 (x m, y m, theta rad), got {step_std!r}")
     scale = jnp.asarray([_positive("step_std", v) for v in values], dtype=data.increments.dtype)
 
-    return _algorithm(Partial(_random_walk_update, scale, data, eta))
+    return SamplingAlgorithm(init=Partial(_cached_init, data), step=Partial(_sweep, Partial(_random_walk_update, scale,
+                                                                                             data, eta)))
 
 
-def _random_walk_update(scale, data, eta, key, t, poses, walls):
-    """:func:`random_walk_pose_mh`'s move of pose ``t`` (``_sweep``'s ``update``)."""
+def _cached_init(data, poses, walls) -> PoseState:
+    """:func:`_init` with every scan's log-likelihood at its pose (one scan after another: a ray cast's loop runs
+    as long as its longest beam, so casting all scans at once would make every beam as long as the longest)."""
+    state = _init(poses, walls)
+    like = jax.lax.map(lambda t: scan_log_likelihood(state.walls, state.poses[t][None], data.sensor_angles[t],
+                                                     data.readings[t], data.params)[0],
+                       jnp.arange(state.poses.shape[0]))
+    return state._replace(scan_log_lik=like.astype(state.poses.dtype))
+
+
+def _random_walk_update(scale, data, eta, key, t, poses, walls, cache):
+    """:func:`random_walk_pose_mh`'s move of pose ``t`` (``_sweep``'s ``update``), the current pose's scan
+    log-likelihood from ``cache`` where there is one."""
     k_prop, k_acc = jax.random.split(key)
     x = poses[t]
     proposal = x + scale * jax.random.normal(k_prop, (3,), scale.dtype)
-    logc = _log_conditional(t, jnp.stack([x, proposal]), poses, walls, data, eta)
+    both = jnp.stack([x, proposal])
+    if cache is None:
+        logc = _log_conditional(t, both, poses, walls, data, eta)
+        new_like = None
+    else:
+        new_like = scan_log_likelihood(walls, proposal[None], data.sensor_angles[t], data.readings[t],
+                                       data.params)[0].astype(cache.dtype)
+        logc = _motion_terms(t, both, poses, data) + eta * jnp.stack([cache[t], new_like])
     accept = jnp.log(jax.random.uniform(k_acc, (), scale.dtype)) < logc[1] - logc[0]
-    return jnp.where(accept, proposal, x), accept, jnp.where(accept, logc[1], logc[0])
+    if cache is not None:
+        cache = cache.at[t].set(jnp.where(accept, new_like, cache[t]))
+    return jnp.where(accept, proposal, x), accept, jnp.where(accept, logc[1], logc[0]), cache

@@ -29,8 +29,12 @@ slowly; :mod:`bayesmap.slam.posegraph` closes the loops, and :func:`correlative_
 chain, which does not depend on it for its target.
 
 Everything is one jitted ``lax.fori_loop`` over the scans (shapes fixed by the grid and the scan size), whose bounds
-are arguments: given a progress callback (:mod:`bayesmap.progress`), :func:`correlative_path` runs it one scan per
-call, the same path, and reports after each.
+are arguments: given a progress callback (:mod:`bayesmap.progress`), :func:`correlative_path` runs it a block of
+scans per call, the same path, and reports after each.
+
+A search scores every candidate of a level's lattice; each beam's direction is computed once per heading of the
+lattice, not once per candidate, and the front end's local map is applied where the fields are read (a cell reached
+outside the window reads as unmapped) instead of by masking the whole grid before each match.
 """
 
 from __future__ import annotations
@@ -131,11 +135,10 @@ def _cells(grid: Grid, xy):
     return jnp.clip(cells, 0, jnp.asarray(grid.shape) - 1), inside
 
 
-def add_scan(field, grid: Grid, pose, sensor_angles, readings, returned, sigma: float, radius: float):
-    """The likelihood field ``(nx, ny)`` float32 with more endpoints: the returned beams of scans ``(..., K)`` at
-    poses ``(..., 3)`` (one scan or several), a scatter-max of ``exp(-d^2 / (2 sigma^2))`` over the cells whose
-    centers lie within ``radius`` meters of each endpoint, ``d`` the distance from the endpoint itself (not its
-    cell: no half-cell bias). Endpoints outside the grid are skipped. Jittable."""
+def _stencil_cells(grid: Grid, pose, sensor_angles, readings, returned, sigma: float, radius: float, size: int):
+    """The flat indices ``(E, F)`` of the cells whose centers lie within ``radius`` meters of the returned endpoints
+    of scans ``(..., K)`` at poses ``(..., 3)`` (``size``, out of range, where none), and ``exp(-d^2 / (2
+    sigma^2))`` of their distance ``d`` from the endpoint."""
     offsets = _field_stencil(grid.resolution, radius)
     ends = scan_endpoints(pose, sensor_angles, readings)
     coords = grid.to_cell_coords(ends).reshape(-1, 2)
@@ -144,9 +147,54 @@ def add_scan(field, grid: Grid, pose, sensor_angles, readings, returned, sigma: 
     target = cells[:, None, :] + offsets[None, :, :]
     d2 = jnp.sum((target - coords[:, None, :]) ** 2, axis=-1) * grid.resolution**2  # from the endpoint itself
     ok = ok[:, None] & jnp.all((target >= 0) & (target < jnp.asarray(grid.shape)), axis=-1) & (d2 <= radius**2)
-    vals = jnp.exp(-d2 / (2 * sigma**2)).astype(field.dtype)
-    flat = jnp.where(ok, target[..., 0] * grid.shape[1] + target[..., 1], field.size)
-    return field.reshape(-1).at[flat.reshape(-1)].max(vals.reshape(-1), mode="drop").reshape(field.shape)
+    return jnp.where(ok, target[..., 0] * grid.shape[1] + target[..., 1], size), jnp.exp(-d2 / (2 * sigma**2))
+
+
+def add_scan(field, grid: Grid, pose, sensor_angles, readings, returned, sigma: float, radius: float):
+    """The likelihood field ``(nx, ny)`` float32 with more endpoints: the returned beams of scans ``(..., K)`` at
+    poses ``(..., 3)`` (one scan or several), a scatter-max of ``exp(-d^2 / (2 sigma^2))`` over the cells whose
+    centers lie within ``radius`` meters of each endpoint, ``d`` the distance from the endpoint itself (not its
+    cell: no half-cell bias). Endpoints outside the grid are skipped. Jittable."""
+    flat, vals = _stencil_cells(grid, pose, sensor_angles, readings, returned, sigma, radius, field.size)
+    return field.reshape(-1).at[flat.reshape(-1)].max(vals.astype(field.dtype).reshape(-1),
+                                                     mode="drop").reshape(field.shape)
+
+
+def _lookup(field, cells, window):
+    """``field`` at integer cells ``(..., 2)`` (inside the grid), 0 where the window's stamps (``(stamps, since)``:
+    the path length of the last scan that reached a cell, and the least one a match sees) leave a cell out; None:
+    every cell."""
+    value = field[cells[..., 0], cells[..., 1]]
+    if window is None:
+        return value
+    stamps, since = window
+    return jnp.where(stamps[cells[..., 0], cells[..., 1]] >= since, value, 0.0)
+
+
+def _endpoint_values(field, grid: Grid, ends, interpolate: bool, window=None):
+    """The field at world endpoints ``(..., 2)``: bilinearly interpolated between cell centers (``interpolate``; else
+    the nearest cell's value, four times cheaper); 0 outside the grid and at cells ``window`` leaves out
+    (:func:`_lookup`)."""
+    if not interpolate:
+        cells, inside = _cells(grid, ends)
+        return jnp.where(inside, _lookup(field, cells, window), 0.0)
+    c = grid.to_cell_coords(ends)
+    base = jnp.floor(c)
+    frac = c - base
+    base = base.astype(jnp.int32)
+    n = jnp.asarray(grid.shape)
+    value = jnp.zeros(c.shape[:-1], field.dtype)
+    for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        cell = base + jnp.asarray([di, dj])
+        ok = jnp.all((cell >= 0) & (cell < n), axis=-1)
+        cell = jnp.clip(cell, 0, n - 1)
+        weight = (frac[..., 0] if di else 1 - frac[..., 0]) * (frac[..., 1] if dj else 1 - frac[..., 1])
+        value = value + jnp.where(ok, weight * _lookup(field, cell, window), 0.0)
+    return value
+
+
+def _log_score(value, returned):
+    return jnp.sum(jnp.where(returned, jnp.log(value + FIELD_FLOOR), 0.0), axis=-1)
 
 
 def field_scores(field, grid: Grid, candidates, sensor_angles, readings, returned, interpolate: bool = True):
@@ -154,30 +202,43 @@ def field_scores(field, grid: Grid, candidates, sensor_angles, readings, returne
     candidate pose ``(M, 3)``; the field bilinearly interpolated between cell centers (``interpolate``; else the
     nearest cell's value, four times cheaper), endpoints outside the grid count as unmapped."""
     ends = scan_endpoints(candidates, sensor_angles, readings)
-    if not interpolate:
-        cells, inside = _cells(grid, ends)
-        value = jnp.where(inside, field[cells[..., 0], cells[..., 1]], 0.0)
-    else:
-        c = grid.to_cell_coords(ends)
-        base = jnp.floor(c)
-        frac = c - base
-        base = base.astype(jnp.int32)
-        n = jnp.asarray(grid.shape)
-        value = jnp.zeros(c.shape[:-1], field.dtype)
-        for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
-            cell = base + jnp.asarray([di, dj])
-            ok = jnp.all((cell >= 0) & (cell < n), axis=-1)
-            cell = jnp.clip(cell, 0, n - 1)
-            weight = (frac[..., 0] if di else 1 - frac[..., 0]) * (frac[..., 1] if dj else 1 - frac[..., 1])
-            value = value + jnp.where(ok, weight * field[cell[..., 0], cell[..., 1]], 0.0)
-    return jnp.sum(jnp.where(returned, jnp.log(value + FIELD_FLOOR), 0.0), axis=-1)
+    return _log_score(_endpoint_values(field, grid, ends, interpolate), returned)
+
+
+def lattice_scores(field, grid: Grid, center, xy, theta, sensor_angles, readings, returned, interpolate: bool,
+                    window=None, log_field=None):
+    """:func:`field_scores` of the candidates ``center + (xy[a], theta[b])`` in the order ``a * len(theta) + b``
+    (``xy`` ``(A, 2)``, ``theta`` ``(B,)``), each beam's direction computed once per heading instead of once per
+    candidate, the field masked by ``window`` (:func:`_lookup`). ``log_field``: :func:`log_field` of ``field``, read
+    instead of taking a logarithm per endpoint where the nearest cell's value is looked up (the same values)."""
+    heading = center[2] + theta  # (B,)
+    angle = heading[:, None] + sensor_angles  # (B, K)
+    reach = readings[..., None] * jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)  # (B, K, 2)
+    ends = ((center[:2] + xy)[:, None, None, :] + reach[None]).reshape(-1, *reach.shape[1:])  # (A B, K, 2)
+    if interpolate or log_field is None:
+        return _log_score(_endpoint_values(field, grid, ends, interpolate, window), returned)
+    floor = jnp.log(jnp.zeros((), field.dtype) + FIELD_FLOOR)  # the log of an endpoint off the map
+    cells, inside = _cells(grid, ends)
+    if window is not None:  # a cell off the window counts as unmapped
+        inside = inside & (window[0][cells[..., 0], cells[..., 1]] >= window[1])
+    value = jnp.where(inside, log_field[cells[..., 0], cells[..., 1]], floor)
+    return jnp.sum(jnp.where(returned, value, 0.0), axis=-1)
+
+
+def log_field(field):
+    """``log(field + FIELD_FLOOR)`` per cell, what :func:`search` reads for a level that looks up the nearest cell
+    when given it: worth it when a search looks up more endpoints than the grid has cells (the loop closure's wide
+    window), and only as an argument of the jitted search (inside one computation, XLA computes it again at every
+    lookup). Jittable."""
+    return jnp.log(field + FIELD_FLOOR)
 
 
 def _lattice(h_xy: float, h_theta: float, w_xy: int, w_theta: int):
-    r = np.arange(-w_xy, w_xy + 1, dtype=np.float64)
-    rt = np.arange(-w_theta, w_theta + 1, dtype=np.float64)
-    g = np.stack(np.meshgrid(r, r, rt, indexing="ij"), axis=-1).reshape(-1, 3)
-    return jnp.asarray(g * np.array([h_xy, h_xy, h_theta]))
+    """A level's lattice as ``(xy offsets (A, 2), heading offsets (B,))``: the candidates are every pair, ``A = (2
+    w_xy + 1)^2``, ``B = 2 w_theta + 1``."""
+    r = np.arange(-w_xy, w_xy + 1, dtype=np.float64) * h_xy
+    xy = np.stack(np.meshgrid(r, r, indexing="ij"), axis=-1).reshape(-1, 2)
+    return jnp.asarray(xy), jnp.asarray(np.arange(-w_theta, w_theta + 1, dtype=np.float64) * h_theta)
 
 
 def empty_fields(grid: Grid) -> tuple:
@@ -193,9 +254,10 @@ def add_to_fields(fields: tuple, grid: Grid, pose, sensor_angles, readings, retu
 
 @jax.tree_util.register_pytree_node_class
 class Lattices:
-    """The search levels of :func:`search`: per level the candidate offsets ``(M, 3)`` (pytree leaves) and the index
-    of the field it scores against (static), so a jitted function takes them as one argument and compiles once per
-    set of field indices and lattice shapes. Iterating gives ``(offsets, field index)`` per level."""
+    """The search levels of :func:`search`: per level the candidate offsets as ``(xy (A, 2), heading (B,))`` (pytree
+    leaves; the candidates are every pair) and the index of the field it scores against (static), so a jitted
+    function takes them as one argument and compiles once per set of field indices and lattice shapes. Iterating
+    gives ``((xy, heading), field index)`` per level."""
 
     def __init__(self, offsets: tuple, fields: tuple):
         self.offsets, self.fields = tuple(offsets), tuple(fields)
@@ -212,26 +274,36 @@ class Lattices:
 
 
 def lattices(levels) -> Lattices:
-    """The candidate offsets ``(M, 3)`` and field index of every search level (see :data:`MATCH_LEVELS`)."""
+    """The candidate offsets ``(xy (A, 2), heading (B,))`` and field index of every search level (see
+    :data:`MATCH_LEVELS`)."""
     return Lattices([_lattice(h, ht, w, wt) for h, ht, w, wt, _ in levels], [f for *_, f in levels])
 
 
 def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned, levels: Lattices,
-           log_prior=None):
+           log_prior=None, window=None, log_fields=None):
     """The coarse-to-fine search: at each level score ``center + offsets`` (:func:`field_scores` plus
-    ``log_prior(candidates)`` if given) and recenter on the best; the fine field (index 0) is interpolated, the broad
-    one looked up at the nearest cell. Jittable.
+    ``log_prior(candidates)`` if given) and recenter on the best (the first of equal scores, in the order of the
+    offsets ``(x, y, heading)``, heading fastest); the fine field (index 0) is interpolated, the broad one looked up at
+    the nearest cell. Jittable.
 
     Args:
         levels: the output of :func:`lattices`.
+        window: None, or ``(stamps (nx, ny), since)``: the fields count as 0 at the cells whose stamp is below
+            ``since`` (the front end's local map, :func:`correlative_path`), as if masked, without a pass over the
+            grid.
+        log_fields: None, or per field its :func:`log_field` (or None), read by the levels that look up the nearest
+            cell (the same scores, faster when there are more lookups than cells).
 
     Returns:
         ``(best (3,), score)``: the best pose and its score at the last level.
     """
     best, score = center, jnp.asarray(0.0)
-    for offsets, f in levels:
-        cands = best + offsets
-        scores = field_scores(fields[f], grid, cands, sensor_angles, readings, returned, interpolate=f == 0)
+    for (xy, theta), f in levels:
+        scores = lattice_scores(fields[f], grid, best, xy, theta, sensor_angles, readings, returned,
+                                 interpolate=f == 0, window=window,
+                                 log_field=None if log_fields is None else log_fields[f])
+        cands = jnp.concatenate([jnp.repeat(best[:2] + xy, len(theta), axis=0),
+                                 jnp.tile(best[2] + theta, len(xy))[:, None]], axis=1)
         if log_prior is not None:
             scores = scores + log_prior(cands)
         j = jnp.argmax(scores)
@@ -239,11 +311,10 @@ def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned,
     return best, score
 
 
-def hit_fraction(fields: tuple, grid: Grid, pose, sensor_angles, readings, returned):
+def hit_fraction(fields: tuple, grid: Grid, pose, sensor_angles, readings, returned, window=None):
     """The fraction of returned beams whose endpoint at ``pose`` lands where the fine field exceeds one half (within
-    about 1.2 sigma of a mapped endpoint): a match quality in [0, 1]. Jittable."""
-    cells, inside = _cells(grid, scan_endpoints(pose, sensor_angles, readings))
-    value = jnp.where(inside, fields[0][cells[..., 0], cells[..., 1]], 0.0)
+    about 1.2 sigma of a mapped endpoint): a match quality in [0, 1]; ``window`` as in :func:`search`. Jittable."""
+    value = _endpoint_values(fields[0], grid, scan_endpoints(pose, sensor_angles, readings), False, window)
     return jnp.sum(returned & (value > 0.5)) / jnp.maximum(jnp.sum(returned), 1)
 
 
@@ -269,7 +340,8 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
         min_hit_fraction: a match that puts fewer of the scan's returned endpoints on the local map is replaced by
             the odometry's prediction (:data:`MIN_HIT_FRACTION`).
         progress: called with ``Progress("front end", done, S - 1, "scan")`` before the first match and after each
-            (the loop then runs one scan per compiled call: the same path); None: one call, no reports.
+            block of about ``S / 100`` scans (the loop then runs a block per compiled call: the same path); None:
+            one call, no reports.
 
     Returns:
         ``(S, 3)`` float64 path, row 0 ``first_pose``.
@@ -311,17 +383,25 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     return np.asarray(_run_in_steps(run, start, s, progress)[0], np.float64)
 
 
+PROGRESS_REPORTS = 100
+"""With a progress callback, the front end reports about this many times, a compiled call per block of scans: a call
+costs about 3.5 ms on the 2-core machine, a third of a scan's matching, so a call per scan would slow the front end
+by a third."""
+
+
 def _run_in_steps(run, start, count: int, progress: ProgressCallback | None):
     """``run(start(), 1, count)``, the front end's loop over the scans ``1 .. count - 1`` from the carry ``start()``
-    makes; with ``progress``, one scan per call (the same carry: the loop's bounds are arguments, one compilation),
-    reporting the scans matched."""
+    makes; with ``progress``, in about :data:`PROGRESS_REPORTS` blocks of scans, one call each (the same carry: the
+    loop's bounds are arguments, one compilation), reporting the scans matched after each."""
     if progress is None or count < 2:
         return run(start(), 1, count)
     report(progress, "front end", 0, count - 1, "scan")
     carry = start()
-    for t in range(1, count):
-        carry = jax.block_until_ready(run(carry, t, t + 1))
-        report(progress, "front end", t, count - 1, "scan")
+    block = max(1, -(-(count - 1) // PROGRESS_REPORTS))
+    for lo in range(1, count, block):
+        hi = min(lo + block, count)
+        carry = jax.block_until_ready(run(carry, lo, hi))
+        report(progress, "front end", hi - 1, count - 1, "scan")
     return carry
 
 
@@ -331,10 +411,9 @@ def _local(pose, offset, base, resolution: float):
 
 
 def _stamp(d, grid: Grid, stamps, pose, t):
-    """Scatter-max the path length of scan ``t`` of ``d`` into the cells its endpoints' fine field reaches."""
-    marks = add_scan(jnp.zeros_like(stamps), grid, pose, d.sensor_angles[t], d.readings[t], d.returned[t],
-                     *FIELDS[-1])
-    return jnp.where(marks > 0, jnp.maximum(stamps, d.travelled[t]), stamps)
+    """Scatter-max the path length of scan ``t`` of ``d`` into the cells its endpoints' broad field reaches."""
+    flat, _ = _stencil_cells(grid, pose, d.sensor_angles[t], d.readings[t], d.returned[t], *FIELDS[-1], stamps.size)
+    return stamps.reshape(-1).at[flat.reshape(-1)].max(d.travelled[t], mode="drop").reshape(stamps.shape)
 
 
 def _rebuild(d, grid: Grid, base, path, t, offset):
@@ -388,11 +467,10 @@ def _correlative_steps(carry, lo, hi, d, base, span, prior_weight, min_hit, step
         def log_prior(cands):
             return prior_weight * motion_logpdf(local(prev, offset), cands, d.increments[t - 1], d.covs[t - 1])
 
-        recent = stamps >= d.travelled[t] - span
-        masked = tuple(jnp.where(recent, field, 0.0) for field in fields)
-        best, _ = search(masked, grid, local(predicted, offset), d.sensor_angles[t], d.readings[t],
-                         d.returned[t], steps, log_prior)
-        hits = hit_fraction(masked, grid, best, d.sensor_angles[t], d.readings[t], d.returned[t])
+        window = (stamps, d.travelled[t] - span)  # the local map: the cells reached within the window
+        best, _ = search(fields, grid, local(predicted, offset), d.sensor_angles[t], d.readings[t],
+                         d.returned[t], steps, log_prior, window)
+        hits = hit_fraction(fields, grid, best, d.sensor_angles[t], d.readings[t], d.returned[t], window)
         best = jnp.where(hits < min_hit, local(predicted, offset), best)
         fields = add_to_fields(fields, grid, best, d.sensor_angles[t], d.readings[t], d.returned[t])
         world = best - local(jnp.zeros(3, dtype), offset)
