@@ -129,7 +129,8 @@ def _run(key, initial_state, arrays, static, num_sweeps: int, record, batch, pro
     """``_run_jit(key, initial_state, arrays, static, num_sweeps, record, batch)``; with ``progress``, the same
     numbers one sweep per compiled call (:func:`_sweeps_jit` over the keys ``_run_jit`` splits, one compilation
     whatever ``num_sweeps``), reporting ``Progress(stage, done, num_sweeps, "sweep")`` before the first sweep and
-    after each; the records are then numpy arrays, each sweep's written into them as it comes (no second copy)."""
+    after each; the records are then numpy arrays, each sweep's written into them while the next sweep runs (no
+    second copy)."""
     num_sweeps = int(num_sweeps)
     if progress is None or num_sweeps < 1:
         return _run_jit(key, initial_state, arrays, static, num_sweeps, record, batch)
@@ -138,8 +139,14 @@ def _run(key, initial_state, arrays, static, num_sweeps: int, record, batch, pro
     else:  # (C, num_sweeps): chain c's keys, as scan_chain splits them under vmap
         sweep_keys = jax.vmap(lambda k: jax.random.split(k, num_sweeps))(key)
     arrays = [jnp.asarray(a) for a in arrays]  # (copied to the device once, not once per sweep)
-    state, out = initial_state, None
+    state, out, pending = initial_state, None, None
     axis = 0 if batch is None else 1
+
+    def write(t, records):  # sweep t's records into the numpy arrays (waits for the sweep), then its report
+        at = (slice(None),) * axis + (slice(t, t + 1),)
+        jax.tree.map(lambda o, r: o.__setitem__(at, np.asarray(r)), out, records)
+        report(progress, stage, t + 1, num_sweeps)
+
     report(progress, stage, 0, num_sweeps)
     for t in range(num_sweeps):
         keys = sweep_keys[t:t + 1] if batch is None else sweep_keys[:, t:t + 1]
@@ -148,9 +155,10 @@ def _run(key, initial_state, arrays, static, num_sweeps: int, record, batch, pro
         if out is None:
             out = jax.tree.map(lambda r: np.empty(r.shape[:axis] + (num_sweeps,) + r.shape[axis + 1:], r.dtype),
                                records)
-        at = (slice(None),) * axis + (slice(t, t + 1),)
-        jax.tree.map(lambda o, r: o.__setitem__(at, np.asarray(r)), out, records)
-        report(progress, stage, t + 1, num_sweeps)
+        if pending is not None:  # the sweep before, copied while this one runs (JAX dispatches asynchronously)
+            write(*pending)
+        pending = (t, records)
+    write(*pending)
     return state, out
 
 
