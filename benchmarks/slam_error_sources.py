@@ -14,7 +14,12 @@ alignment):
 * the loop edges' median error against the truth (m, m, rad) and the number of sequential steps off by more than
   ``--slip`` meters.
 
-Usage: PYTHONPATH=src python benchmarks/slam_error_sources.py [--logs csail] [--seeds 4] [--slip 0.15] [--json F]
+``--reading-scale F`` multiplies every range reading by ``F`` first: with ``F`` a few 1e-7 from 1 (less than a
+micrometre) it shows how far the start path moves when float32 rounding breaks one near-tie of the search otherwise
+(docs/validation/slam.md).
+
+Usage: PYTHONPATH=src python benchmarks/slam_error_sources.py [--logs csail] [--seeds 4] [--slip 0.15]
+                                                             [--reading-scale 1.0000003] [--json F]
 """
 
 from __future__ import annotations
@@ -45,11 +50,12 @@ def count_slips(path, truth, slip: float = SLIP) -> int:
     return int(np.sum(np.hypot(step_error[:, 0], step_error[:, 1]) > slip))
 
 
-def error_sources(log, truth, slip: float) -> dict:
+def error_sources(log, truth, slip: float, reading_scale: float = 1.0) -> dict:
     """The row of the module docstring for one SLAM problem: ``log`` a CARMEN log whose poses are odometry,
-    ``truth`` ``(S, 3)`` its true poses."""
+    ``truth`` ``(S, 3)`` its true poses; the scans' readings times ``reading_scale``."""
     problem = log_slam_problem(log)
     scans = pipeline.scan_data(problem)
+    scans = scans._replace(readings=np.asarray(scans.readings) * reading_scale)
     front = pipeline.front_end(problem, scans)
     closed, edges = posegraph.close_loops(front, scans)
     loop = np.arange(len(edges.i)) >= len(front) - 1  # close_loops puts the sequential edges first
@@ -89,9 +95,15 @@ def main(argv: list[str] | None = None) -> int:
         argv, __doc__.splitlines()[0],
         "| log | seed | front end | loop closure | true loops | true steps | loop edges | loop edge median error "
         "(m, m, rad) | slips / steps |\n|---|---|---|---|---|---|---|---|---|",
-        lambda parser: parser.add_argument("--slip", type=float, default=SLIP,
-                                           help=f"meters: a step off by more is a slip ({SLIP})"),
-        lambda args: lambda log, truth: error_sources(log, truth, args.slip), table_row, parse_seeds)
+        add_options,
+        lambda args: lambda log, truth: error_sources(log, truth, args.slip, args.reading_scale), table_row,
+        parse_seeds)
+
+
+def add_options(parser) -> None:
+    parser.add_argument("--slip", type=float, default=SLIP, help=f"meters: a step off by more is a slip ({SLIP})")
+    parser.add_argument("--reading-scale", type=float, default=1.0,
+                        help="multiply every range reading by this first (1: the log as it is)")
 
 
 if __name__ == "__main__":
