@@ -184,11 +184,12 @@ def _init(poses, walls) -> PoseState:
     return PoseState(poses=poses, walls=jnp.asarray(walls, dtype=jnp.float32))
 
 
-def _algorithm(update) -> SamplingAlgorithm:
+def _algorithm(update, init=Partial(_init)) -> SamplingAlgorithm:
     """A pose kernel from its per-pose ``update`` (a ``jax.tree_util.Partial`` of a module function and the kernel's
-    arrays): ``init`` and ``step`` are pytrees of module functions and arrays, so a compiled chain takes the arrays
-    as arguments and is reused by every kernel of the same shapes (:mod:`bayesmap.inference.chains`)."""
-    return SamplingAlgorithm(init=Partial(_init), step=Partial(_sweep, update))
+    arrays) and its ``init`` (a ``Partial`` too): ``init`` and ``step`` are pytrees of module functions and arrays, so
+    a compiled chain takes the arrays as arguments and is reused by every kernel of the same shapes
+    (:mod:`bayesmap.inference.chains`)."""
+    return SamplingAlgorithm(init=init, step=Partial(_sweep, update))
 
 
 def _sweep(update, key, state: PoseState):
@@ -361,8 +362,7 @@ def random_walk_pose_mh(data: SlamData, step_std=RANDOM_WALK_STD, likelihood_pow
         raise BayesmapError(f"step_std must be three finite numbers > 0 (x m, y m, theta rad), got {step_std!r}")
     scale = jnp.asarray([_positive("step_std", v) for v in values], dtype=data.increments.dtype)
 
-    return SamplingAlgorithm(init=Partial(_cached_init, data), step=Partial(_sweep, Partial(_random_walk_update, scale,
-                                                                                             data, eta)))
+    return _algorithm(Partial(_random_walk_update, scale, data, eta), init=Partial(_cached_init, data))
 
 
 def _cached_init(data, poses, walls) -> PoseState:
