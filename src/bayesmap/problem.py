@@ -406,13 +406,14 @@ class Problem:
         totals = walls_count * math.log(p) + (maps[0].size - walls_count) * math.log1p(-p)
         if self.params.structured:
             totals -= float(self.params.coupling) * np.array([int(disagreeing_pairs(w)) for w in maps], np.float64)
-        readings = self.model_ray_readings
+        walls_kept = PASS_WALLS if self.params.penetrable else 1
         for rays, table in self.table_chunks():
+            readings = self.model_ray_readings[rays]  # the piece's, once for every map and block
             for t, walls in enumerate(maps):
-                chords = table.wall_chords(walls, PASS_WALLS if self.params.penetrable else 1)
+                chords = table.wall_chords(walls, walls_kept)
                 for start in range(0, len(chords), LOG_LIKELIHOOD_BEAMS):
                     part = slice(start, start + LOG_LIKELIHOOD_BEAMS)
-                    totals[t] += self._block_log_likelihood(readings[rays][part], chords[part])
+                    totals[t] += self._block_log_likelihood(readings[part], chords[part])
         return totals
 
     def _block_log_likelihood(self, readings, chords) -> float:
