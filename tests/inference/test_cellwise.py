@@ -192,3 +192,76 @@ def test_wall_prob_of_the_last_cell_is_its_conditional_given_the_final_map():
         cond = np.asarray(jax.nn.sigmoid(cell_log_odds(state.walls))).reshape(-1)
         prob = np.asarray(info.wall_prob).reshape(-1)
         np.testing.assert_allclose(prob[last], cond[last], rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("model", [{}, {"beam_model": "normal"}, {"coupling": 0.4, "neighbourhood": 4},
+                                   {"wall_pass_prob": 0.2}, {"frozen": True}])
+def test_a_padded_sweep_makes_the_same_draws(model):
+    """A kernel padded to larger sizes (headroom 0.5, and a width group of 4,096 lanes its table lacks, so cells that
+    are all padding) draws every cell as the exact one does: the same maps, conditional probabilities and per-ray
+    rows, sweep after sweep with the same keys, for each sensor and prior kind and with frozen cells. Another table
+    built to its shapes has the same array shapes (one compilation) and again the draws of its exact kernel.
+    Exact equality: the real lanes, rows and uniforms are the same numbers in the same order."""
+    import dataclasses
+
+    model = dict(model)
+    frozen = np.random.default_rng(5).random((6, 7)) < 0.3 if model.pop("frozen", False) else None
+    beam_model = model.pop("beam_model", "beam")
+
+    def sampler_of(seed, **kwargs):
+        grid, params, angles, _, y, table = scenes(beam_model, seed, num_beams=30)
+        params = dataclasses.replace(params, **model)
+        return CellwiseGibbs(table, y.reshape(-1), params, frozen=frozen, **kwargs), grid
+
+    def run(sampler, grid, sweeps=4):
+        step = jax.jit(sampler.step)
+        state = sampler.init(jnp.asarray(np.random.default_rng(1).random(grid.shape) < 0.5, jnp.float32))
+        out = []
+        for k in range(sweeps):
+            state, info = step(jax.random.key(k), state)
+            out.append((np.asarray(state.walls), np.asarray(info.wall_prob), np.asarray(state.ray_walls)))
+        return out
+
+    exact, grid = sampler_of(11)
+    needed = exact.kernel.shapes
+    wider = needed._replace(groups=((4096, 3),), rest=0, rays=0, pairs=0)  # too small but for the added group
+    padded, _ = sampler_of(11, shapes=wider, headroom=0.5)
+    got = padded.kernel.shapes
+    assert got.rays > needed.rays and got.pairs > needed.pairs and (4096, 3) in got.groups
+    assert all(n > dict(needed.groups)[w] for w, n in got.groups if w in dict(needed.groups))
+    num_rays = needed.rays
+    changed = 0
+    for (walls, probs, rows), (walls_p, probs_p, rows_p) in zip(run(exact, grid), run(padded, grid), strict=True):
+        changed += int((walls != walls_p).sum())
+        np.testing.assert_array_equal(walls_p, walls)
+        np.testing.assert_array_equal(probs_p, probs)
+        np.testing.assert_array_equal(rows_p[:num_rays], rows[:num_rays])
+        np.testing.assert_array_equal(rows_p[got.rays], rows[num_rays])  # the padding lanes' row
+    assert changed == 0
+    assert len({tuple(np.asarray(w).ravel()) for w, _, _ in run(exact, grid)}) > 2  # the maps change between sweeps
+
+    other_exact, _ = sampler_of(12)
+    other, _ = sampler_of(12, shapes=got)
+    assert other.kernel.shapes == got
+    assert jax.tree.structure(other.kernel) == jax.tree.structure(padded.kernel)
+    assert [a.shape for a in jax.tree.leaves(other.kernel)] == [a.shape for a in jax.tree.leaves(padded.kernel)]
+    for (walls, probs, _), (walls_p, probs_p, _) in zip(run(other_exact, grid), run(other, grid), strict=True):
+        np.testing.assert_array_equal(walls_p, walls)
+        np.testing.assert_array_equal(probs_p, probs)
+
+
+def test_fitted_shapes():
+    """A size that fits the given one takes it; one that does not grows by the headroom, rounded up to 8; a group
+    only given is kept; a bad headroom is refused."""
+    from bayesmap.inference.cellwise import SweepShapes, fitted_shapes
+
+    needed = SweepShapes(groups=((8, 100), (16, 30)), rest=0, rays=500, pairs=9000)
+    assert fitted_shapes(needed) == needed
+    had = SweepShapes(groups=((8, 120), (32, 4)), rest=8, rays=496, pairs=9000)
+    assert fitted_shapes(needed, had, 0.1) == SweepShapes(groups=((8, 120), (16, 40), (32, 4)), rest=8, rays=552,
+                                                          pairs=9000)
+    assert fitted_shapes(needed, had) == SweepShapes(groups=((8, 120), (16, 30), (32, 4)), rest=8, rays=500,
+                                                     pairs=9000)
+    for bad in (-0.1, float("nan"), True):
+        with pytest.raises(BayesmapError, match="headroom"):
+            fitted_shapes(needed, None, bad)

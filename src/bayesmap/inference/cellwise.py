@@ -148,6 +148,48 @@ class Lanes(NamedTuple):
     neighbours: jax.Array | None = None
 
 
+class SweepShapes(NamedTuple):
+    """The sizes of a cellwise sweep's arrays, which decide its compilation: kernels of equal sizes (and equal model
+    flags) share one compiled sweep.
+
+    Attributes:
+        groups: ``((width, cells), ...)`` ascending by width: each width group's lanes are ``(cells, width)``.
+        rest: entries of the visiting order after the groups (the cells no ray crosses, with the structured prior,
+            and the frozen cells).
+        rays: rays of the per-ray rows (``ray_walls`` has ``rays + 1``).
+        pairs: (ray, cell) pairs of the table (the pair arrays have ``pairs + 1``).
+    """
+
+    groups: tuple[tuple[int, int], ...]
+    rest: int
+    rays: int
+    pairs: int
+
+
+def fitted_shapes(needed: SweepShapes, at_least: SweepShapes | None = None, headroom: float = 0.0) -> SweepShapes:
+    """The sizes to pad a sweep's arrays to: each size of ``needed`` that fits the one of ``at_least`` takes that one
+    (so that a kernel built with a previous kernel's :attr:`CellwiseKernel.shapes` reuses its compilation); one that
+    does not fit, or has none, is ``needed`` times ``1 + headroom`` rounded up to a multiple of 8 (exactly ``needed``
+    with no headroom). A width group of ``at_least`` that ``needed`` lacks is kept (cells that are all padding).
+
+    Raises:
+        BayesmapError: on a negative or non-finite ``headroom``.
+    """
+    if isinstance(headroom, bool) or not isinstance(headroom, (int, float)) or not np.isfinite(headroom) \
+            or headroom < 0:
+        raise BayesmapError(f"headroom must be a finite number >= 0, got {headroom!r}")
+
+    def fit(n: int, have: int | None) -> int:
+        if have is not None and n <= have:
+            return have
+        return n if headroom == 0 else int(np.ceil(n * (1 + headroom) / 8)) * 8
+
+    had, need = ({} if at_least is None else dict(at_least.groups)), dict(needed.groups)
+    groups = tuple((w, fit(need.get(w, 0), had.get(w))) for w in sorted(set(had) | set(need)))
+    return SweepShapes(groups, *(fit(getattr(needed, f), None if at_least is None else getattr(at_least, f))
+                                 for f in ("rest", "rays", "pairs")))
+
+
 def checkerboard_groups(groups, shape: tuple[int, int]):
     """``groups`` (from :func:`width_groups`) with each group's cells reordered: those with ``i + j`` even first,
     then the odd ones, each part ascending. Two cells of one part are never 4-neighbours."""
@@ -159,35 +201,45 @@ def checkerboard_groups(groups, shape: tuple[int, int]):
     return out
 
 
-def _visiting_rank(groups, num_cells: int) -> np.ndarray:
-    """``(num_cells,)`` int32: each cell's place in the sweep's visiting order (the cells of ``groups``, from
-    :func:`width_groups`, group after group); 0 for cells no ray crosses."""
+def _visiting_order(parts, sizes, num_cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(order, rank)``: the sweep's visiting order, ``(sum(sizes),)`` int32, the cells of ``parts`` (int arrays)
+    one part after another, part ``k`` padded with cell 0 to ``sizes[k]`` entries (the padding entries are read and
+    drawn like cells but belong to none), and ``(num_cells,)`` int32 each cell's place in it (0 for cells in no
+    part)."""
+    order = np.zeros(int(sum(sizes)), dtype=np.int32)
     rank = np.zeros(num_cells, dtype=np.int32)
-    if groups:
-        order = np.concatenate([cells for _, cells in groups])
-        rank[order] = np.arange(len(order), dtype=np.int32)
-    return rank
+    start = 0
+    for cells, size in zip(parts, sizes):
+        order[start:start + len(cells)] = cells
+        rank[cells] = np.arange(start, start + len(cells), dtype=np.int32)
+        start += size
+    return order, rank
 
 
 def _lanes(table: RayTable, counts: np.ndarray, groups, rank: np.ndarray, pair_ll: jax.Array,
-           dtype) -> tuple[Lanes, ...]:
-    """The sweep's :class:`Lanes`, one per width group (``groups`` from :func:`width_groups` of ``counts``, the
-    table's rays per cell; ``rank`` the cells' visiting order, :func:`_visiting_rank`); ``pair_ll`` ``(P + 1,)`` of
-    ``dtype`` from :func:`~bayesmap.inference.fast.pair_log_likelihoods`, read last (it may still be computing).
+           dtype, shapes: SweepShapes) -> tuple[Lanes, ...]:
+    """The sweep's :class:`Lanes`, one per width group of ``shapes.groups`` (``groups`` from :func:`width_groups`
+    of ``counts``, the table's rays per cell, each of the widths of ``shapes``; ``rank`` the cells' visiting order,
+    :func:`_visiting_order`); ``pair_ll`` ``(P + 1,)`` of ``dtype`` from
+    :func:`~bayesmap.inference.fast.pair_log_likelihoods`, read last (it may still be computing). Each group is
+    padded to its size in ``shapes`` with cells (cell 0) whose lanes are all padding (ray ``shapes.rays``).
 
     The pairs are sorted once into the order of the lanes (group by group, cells ascending, a cell's pairs in ray
     order), so that each group's pairs are one contiguous slice, written row by row into its padded ``(n, W)``
     arrays, a block of rows at a time. Memory besides the lanes: the sorted pair indices (8 bytes per pair) and
     one block's temporaries (fresh pages cost more than the work on them).
     """
-    if not groups:
+    if not shapes.groups:
         return ()
+    size = dict(shapes.groups)
+    real = dict(groups)
+    groups = [(width, real.get(width, np.zeros(0, np.int64))) for width, _ in shapes.groups]
     order = table.pairs_by_cell(rank)
     firsts = np.cumsum([0] + [int(counts[cells].sum()) for _, cells in groups])  # each group's first sorted pair
     parts = []
     for (width, cells), first in zip(groups, firsts):
-        rays = np.full((len(cells), width), table.num_rays, dtype=np.int32)
-        positions = np.zeros((len(cells), width), dtype=np.int32)
+        rays = np.full((size[width], width), shapes.rays, dtype=np.int32)
+        positions = np.zeros((size[width], width), dtype=np.int32)
         for rows, valid, pair in _row_blocks(counts[cells], width, order, first):
             ray = table.rays_of_pairs(pair)
             rays[rows][valid] = ray
@@ -196,10 +248,12 @@ def _lanes(table: RayTable, counts: np.ndarray, groups, rank: np.ndarray, pair_l
     pair_ll = np.asarray(pair_ll)
     lanes = []
     for (width, cells), first, (rays, positions) in zip(groups, firsts, parts):
-        log_lik = np.zeros((len(cells), width), dtype=dtype)
+        log_lik = np.zeros((size[width], width), dtype=dtype)
         for rows, valid, pair in _row_blocks(counts[cells], width, order, first):
             log_lik[rows][valid] = pair_ll[pair]
-        lanes.append(Lanes(cells=jnp.asarray(cells, jnp.int32), rays=jnp.asarray(rays),
+        padded = np.zeros(size[width], np.int32)
+        padded[:len(cells)] = cells
+        lanes.append(Lanes(cells=jnp.asarray(padded), rays=jnp.asarray(rays),
                            positions=jnp.asarray(positions), log_lik=jnp.asarray(log_lik)))
     return tuple(lanes)
 
@@ -218,16 +272,24 @@ def _row_blocks(num: np.ndarray, width: int, order: np.ndarray, first: int):
 @jax.tree_util.register_pytree_node_class
 class CellwiseKernel(KernelFields):
     """The sweep's data (pytree leaves) and code; built by :class:`CellwiseGibbs`. Problems with the same geometry
-    and sensor model (other readings, prior, noise, mixture weights, coupling) share one compiled sweep.
-    ``_coupling`` is the structured prior's ``J`` (a scalar array), None for the independent prior; ``_free_cells``
-    the cells no ray crosses (int32, ascending), None for the independent prior; ``_frozen_cells`` the cells a sweep
-    keeps as they are (int32, ascending; None: none), last in the visiting order. With wall cells a beam can pass
+    and sensor model (other readings, prior, noise, mixture weights, coupling) share one compiled sweep, and so do
+    kernels built to the same :attr:`shapes`. ``_order`` is the visiting order (int32 flat cells, with padding
+    entries: :func:`_visiting_order`), ``_rank`` each cell's place in it; ``_coupling`` is the structured prior's
+    ``J`` (a scalar array), None for the independent prior; ``_frozen`` ``(nx * ny,)`` bool the cells a sweep keeps
+    as they are (None: none), last in the visiting order. With wall cells a beam can pass
     (``_penetrable``), ``_eta`` is the likelihood power and ``_pass_weights`` the ``(3,)`` log-weights of
     :func:`bayesmap.model.passable.pass_log_weights` (both None otherwise: the tables are tempered already)."""
 
-    _ARRAYS = ("_lanes", "_free", "_rank", "_pair_cells", "_pair_ll", "_ray_start", "_ray_length", "_max_ll",
-               "_prior_log_odds", "_coupling", "_free_cells", "_frozen_cells", "_eta", "_pass_weights")
+    _ARRAYS = ("_lanes", "_free", "_rank", "_order", "_pair_cells", "_pair_ll", "_ray_start", "_ray_length",
+               "_max_ll", "_prior_log_odds", "_coupling", "_frozen", "_eta", "_pass_weights")
     _STATIC = ("_shape", "_num_rays", "_num_pairs", "_penetrable")
+
+    @property
+    def shapes(self) -> SweepShapes:
+        """The sizes of this kernel's arrays (:class:`SweepShapes`), padding included."""
+        groups = tuple((int(lanes.rays.shape[1]), int(lanes.rays.shape[0])) for lanes in self._lanes)
+        rest = int(self._order.shape[0]) - sum(n for _, n in groups)
+        return SweepShapes(groups=groups, rest=rest, rays=self._num_rays, pairs=self._num_pairs)
 
     # -- the per-ray rows ---------------------------------------------------------------------------------------
 
@@ -468,16 +530,12 @@ class CellwiseKernel(KernelFields):
         walls = state.walls.reshape(-1)
         u = jax.random.uniform(key, walls.shape)
         prior = jax.nn.sigmoid(self._prior_log_odds)
-        order = [lanes.cells for lanes in self._lanes]
-        if self._coupling is not None:  # every cell (those no ray crosses last), then the slot outside-the-grid
-            order.append(self._free_cells)  # neighbours read: 2 * 0.5 - 1 = 0
-        if self._frozen_cells is not None:  # kept, read by the walks along the rays and as neighbours
-            order.append(self._frozen_cells)
-        order = jnp.concatenate(order)
-        cur, u_order = walls[order], u[order]
-        if self._coupling is not None:
+        # the visiting order: the groups' cells, then (with the structured prior) those no ray crosses and the frozen
+        # ones (kept, read by the walks along the rays and as neighbours)
+        cur, u_order = walls[self._order], u[self._order]
+        if self._coupling is not None:  # the slot outside-the-grid neighbours read: 2 * 0.5 - 1 = 0
             cur = jnp.append(cur, jnp.asarray(0.5, cur.dtype))
-        probs = jnp.zeros(order.shape, jnp.float32)
+        probs = jnp.zeros(self._order.shape, jnp.float32)
         rows, base = state.ray_walls, 0
         for lanes in self._lanes:
             cur, rows, probs = self._sweep_group(lanes, base, cur, rows, probs, u_order)
@@ -495,8 +553,8 @@ class CellwiseKernel(KernelFields):
                 p = jax.nn.sigmoid(self._prior_log_odds + self._coupling * field)
                 walls = jnp.where(mask, (u < p).astype(walls.dtype), walls)
                 wall_prob = jnp.where(mask, p.astype(jnp.float32), wall_prob)
-        if self._frozen_cells is not None:  # a frozen cell reports the value it keeps
-            wall_prob = wall_prob.at[self._frozen_cells].set(walls[self._frozen_cells].astype(jnp.float32))
+        if self._frozen is not None:  # a frozen cell reports the value it keeps
+            wall_prob = jnp.where(self._frozen, walls.astype(jnp.float32), wall_prob)
         state = CellwiseState(walls=walls.reshape(self._shape), ray_walls=rows)
         return state, GibbsInfo(wall_prob=wall_prob.reshape(self._shape))
 
@@ -537,6 +595,11 @@ class CellwiseGibbs(KernelSampler):
         frozen: ``(nx, ny)`` bool, cells a sweep keeps as they are (the rest of the map, fixed, while a tile of it
             is sampled: :mod:`bayesmap.inference.tiled`); their rays' rows still read them. The sweep is then the
             Gibbs sweep of the other cells given these; ``info.wall_prob`` reports a frozen cell's value. None: none.
+        shapes: pad the sweep's arrays at least to these sizes (:class:`SweepShapes`; :func:`fitted_shapes`), for
+            example a previous kernel's ``kernel.shapes``: a table that fits them reuses that kernel's compiled
+            sweep. Padding changes no draw: the padding cells' lanes add nothing and no cell reads them. None: none.
+        headroom: a size that is not given by ``shapes`` or does not fit it is padded by this fraction (rounded up
+            to a multiple of 8), so that the next, similar table fits (:func:`fitted_shapes`), >= 0; 0: exactly.
 
     Attributes:
         kernel: the :class:`CellwiseKernel`.
@@ -545,12 +608,12 @@ class CellwiseGibbs(KernelSampler):
 
     Raises:
         BayesmapError: on readings that do not match the table's rays, a table whose max distance is not the beam
-            model's max range, a bad ``likelihood_power``, a cell crossed by more than 65,536 rays, or ``frozen`` of
-            another shape than the grid's.
+            model's max range, a bad ``likelihood_power``, a cell crossed by more than 65,536 rays, ``frozen`` of
+            another shape than the grid's, or a bad ``headroom``.
     """
 
     def __init__(self, table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0,
-                 frozen=None):
+                 frozen=None, shapes: SweepShapes | None = None, headroom: float = 0.0):
         inputs = likelihood_inputs(table, readings, params, likelihood_power, passable=True)
         y, beam_model, sensor, dtype, eta = inputs[:5]
         num_rays, num_pairs = table.num_rays, table.num_pairs
@@ -572,32 +635,40 @@ class CellwiseGibbs(KernelSampler):
         structured = params.structured
         groups = width_groups(counts)
         free = counts == 0 if frozen is None else (counts == 0) & ~frozen
-        free_cells = np.flatnonzero(free)
-        last = [] if frozen_cells is None else [(0, frozen_cells)]  # frozen cells: after every other in the order
         if structured:  # checkerboard colours one after the other in each group, every cell ranked (docstring)
             groups = checkerboard_groups(groups, table.grid.shape)
-            rank = _visiting_rank(groups + [(0, free_cells)] + last, table.num_cells)
-        else:
-            rank = _visiting_rank(groups + last, table.num_cells)
-        lanes = _lanes(table, counts, groups, rank, pair_ll, dtype)
+        # after the groups: the cells no ray crosses (structured prior), then the frozen cells
+        rest = [np.flatnonzero(free)] if structured else []
+        rest += [] if frozen_cells is None else [frozen_cells]
+        rest = np.concatenate(rest) if rest else np.zeros(0, np.int64)
+        needed = SweepShapes(groups=tuple((width, len(cells)) for width, cells in groups), rest=len(rest),
+                             rays=num_rays, pairs=num_pairs)
+        sizes = fitted_shapes(needed, shapes, headroom)
+        real = dict(groups)
+        parts = [real.get(width, np.zeros(0, np.int64)) for width, _ in sizes.groups] + [rest]
+        order, rank = _visiting_order(parts, [n for _, n in sizes.groups] + [sizes.rest], table.num_cells)
+        lanes = _lanes(table, counts, groups, rank, pair_ll, dtype, sizes)
         if structured:
-            places = np.append(rank, table.num_cells).astype(np.int32)  # -1 (outside) -> the 0.5 slot
+            places = np.append(rank, len(order)).astype(np.int32)  # -1 (outside) -> the 0.5 slot
             lanes = tuple(part._replace(neighbours=jnp.asarray(places[neighbour_indices(table.grid.shape)[
                 np.asarray(part.cells)]])) for part in lanes)
+            lanes = tuple(part._replace(neighbours=part.neighbours.at[len(cells):].set(len(order)))
+                          for part, cells in zip(lanes, parts))  # padding cells: only the 0.5 slot
+        padded_rays, padded_pairs = sizes.rays - num_rays, sizes.pairs - num_pairs
         self.kernel = CellwiseKernel(
-            _lanes=lanes, _free=jnp.asarray(free), _rank=jnp.asarray(rank),
-            _free_cells=jnp.asarray(free_cells, jnp.int32) if structured else None,
-            _frozen_cells=None if frozen_cells is None else jnp.asarray(frozen_cells, jnp.int32),
-            _pair_cells=jnp.asarray(np.append(table.pair_cells, 0), jnp.int32),
-            _pair_ll=pair_ll,
-            _ray_start=jnp.asarray(np.append(table.offsets[:-1], num_pairs), jnp.int32),
-            _ray_length=jnp.asarray(np.append(table.lengths, 0), jnp.int32),
-            _max_ll=jnp.asarray(np.append(max_ll, 0.0), dtype),
+            _lanes=lanes, _free=jnp.asarray(free), _rank=jnp.asarray(rank), _order=jnp.asarray(order),
+            _frozen=None if frozen is None else jnp.asarray(frozen),
+            _pair_cells=jnp.asarray(np.append(table.pair_cells, np.zeros(padded_pairs + 1, table.pair_cells.dtype)),
+                                    jnp.int32),
+            _pair_ll=jnp.pad(pair_ll, (0, padded_pairs)) if padded_pairs else pair_ll,
+            _ray_start=jnp.asarray(np.append(table.offsets[:-1], np.full(padded_rays + 1, sizes.pairs)), jnp.int32),
+            _ray_length=jnp.asarray(np.append(table.lengths, np.zeros(padded_rays + 1)), jnp.int32),
+            _max_ll=jnp.asarray(np.append(max_ll, np.zeros(padded_rays + 1)), dtype),
             _prior_log_odds=jnp.asarray(prior_log_odds(params.prior_wall_prob), dtype),
             _coupling=jnp.asarray(params.coupling, dtype) if structured else None,
             _eta=jnp.asarray(eta, dtype) if penetrable else None,
             _pass_weights=pass_log_weights(params.wall_pass_prob).astype(dtype) if penetrable else None,
-            _shape=tuple(table.grid.shape), _num_rays=num_rays, _num_pairs=num_pairs, _penetrable=penetrable)
+            _shape=tuple(table.grid.shape), _num_rays=sizes.rays, _num_pairs=sizes.pairs, _penetrable=penetrable)
 
     def ray_walls(self, walls) -> jax.Array:
         """See :meth:`CellwiseKernel.ray_walls`."""
@@ -609,6 +680,6 @@ class CellwiseGibbs(KernelSampler):
 
 
 def cellwise_gibbs(table: RayTable, readings, params: ModelParams, likelihood_power: float = 1.0,
-                   frozen=None) -> SamplingAlgorithm:
+                   frozen=None, shapes: SweepShapes | None = None, headroom: float = 0.0) -> SamplingAlgorithm:
     """The :class:`CellwiseGibbs` sampler's :class:`SamplingAlgorithm`."""
-    return CellwiseGibbs(table, readings, params, likelihood_power, frozen).algorithm
+    return CellwiseGibbs(table, readings, params, likelihood_power, frozen, shapes, headroom).algorithm

@@ -42,7 +42,7 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.geometry.tiles import Tile, ray_cells, rays_per_cell, split_tiles, tile_table
-from bayesmap.inference.cellwise import cellwise_gibbs
+from bayesmap.inference.cellwise import CellwiseGibbs, SweepShapes, cellwise_gibbs
 from bayesmap.inference.chains import run_chain, run_chains_on_devices
 from bayesmap.memory import release_freed_memory
 from bayesmap.model.generative import ModelParams, ray_limits
@@ -75,12 +75,16 @@ class TiledChain(NamedTuple):
         samples: ``(sweeps, nx, ny)`` bool, each cell's draw in each sweep of its tile (with one tile, the map after
             each sweep; with several, the records of one sweep are not one joint map: module docstring).
         tiles: the tiles, in the order they were sampled (one tile, the whole grid, when the log fit the budget).
+        shapes: with one tile, the sizes its sweep was compiled for
+            (:attr:`bayesmap.inference.cellwise.CellwiseKernel.shapes`: pass them to the next chain of a similar
+            table to reuse the compilation); None with several.
     """
 
     walls: jax.Array
     wall_probs: np.ndarray
     tiles: tuple[Tile, ...]
     samples: np.ndarray
+    shapes: SweepShapes | None = None
 
 
 class _TileProgress:
@@ -97,20 +101,23 @@ class _TileProgress:
         report(self.progress, self.stage, done, self.sweeps, p.unit)
 
 
-def _whole_sampler(params: ModelParams, origins, angles, readings, likelihood_power: float, max_pairs: int):
-    """``(sampler, tile)``: the cellwise sampler of the whole table and the tile of the whole grid, when the table's
-    estimated pairs fit ``max_pairs``; else None."""
+def _whole_sampler(params: ModelParams, origins, angles, readings, likelihood_power: float, max_pairs: int,
+                   shapes: SweepShapes | None = None, headroom: float = 0.0):
+    """``(sampler, tile, shapes)``: the cellwise sampler of the whole table (its arrays padded to ``shapes`` with
+    ``headroom``: :class:`~bayesmap.inference.cellwise.CellwiseGibbs`), the tile of the whole grid and the
+    sampler's :class:`~bayesmap.inference.cellwise.SweepShapes`, when the table's estimated pairs fit ``max_pairs``;
+    else None."""
     grid = params.grid
     limits = ray_limits(readings, params)
     lengths = params.max_range if limits is None else limits
     if ray_cells(grid, origins, angles, lengths).sum() > max_pairs:  # (an estimate, within 1 %)
         return None
     table = build_ray_table(grid, origins, angles, params.max_range, ray_limits=limits)
-    sampler = cellwise_gibbs(table, readings, params, likelihood_power)
+    gibbs = CellwiseGibbs(table, readings, params, likelihood_power, shapes=shapes, headroom=headroom)
     tile = Tile(0, grid.shape[0], 0, grid.shape[1], table.num_pairs)
     del table  # the sampler holds what its sweeps read
     release_freed_memory()  # (the sorting's temporaries: the sweeps' peak does not count them)
-    return sampler, tile
+    return gibbs.algorithm, tile, gibbs.kernel.shapes
 
 
 def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls, sweeps: int,
@@ -135,7 +142,7 @@ def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls,
     readings = np.asarray(readings).reshape(-1)
     whole = _whole_sampler(params, origins, angles, readings, likelihood_power, max_pairs) if len(keys) > 1 else None
     if whole is not None:
-        sampler, tile = whole
+        sampler, tile, shapes = whole
 
         def every_chain(p: Progress) -> None:
             report(progress, stage, p.done * len(keys), total, p.unit)
@@ -145,7 +152,8 @@ def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls,
                                     None if progress is None else every_chain, stage)
         del sampler, whole, state
         release_freed_memory()
-        return [TiledChain(jnp.asarray(run.samples[c, -1], jnp.float32), run.wall_probs[c], (tile,), run.samples[c])
+        return [TiledChain(jnp.asarray(run.samples[c, -1], jnp.float32), run.wall_probs[c], (tile,), run.samples[c],
+                           shapes)
                 for c in range(len(keys))]
     chains = []
     for c, key in enumerate(keys):
@@ -174,7 +182,8 @@ def check_tile_pairs(max_pairs) -> None:
 
 def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, walls, sweeps: int,
                     likelihood_power: float = 1.0, max_pairs: int = TILE_PAIRS, margin: float = TILE_MARGIN,
-                    passes: int = 1, progress: ProgressCallback | None = None, stage: str = "sweeps") -> TiledChain:
+                    passes: int = 1, progress: ProgressCallback | None = None, stage: str = "sweeps",
+                    shapes: SweepShapes | None = None, headroom: float = 0.0) -> TiledChain:
     """``sweeps`` cellwise sweeps of the map given rays at known poses, a tile at a time when the rays' table would
     hold more than ``max_pairs`` pairs (module docstring).
 
@@ -194,6 +203,9 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
         progress: gets ``Progress(stage, done, sweeps, "sweep")`` before the table is built and as the sweeps
             run (with tiles, ``done`` counts the sweeps of every tile divided by the number of tiles).
         stage: the stage the reports name.
+        shapes, headroom: when the whole table fits ``max_pairs``, its sweep's arrays are padded to ``shapes`` with
+            ``headroom`` (:class:`~bayesmap.inference.cellwise.CellwiseGibbs`; the same draws): pass the
+            ``shapes`` of a previous chain's :class:`TiledChain` to reuse its compiled sweep. Tiles are not padded.
 
     Returns:
         :class:`TiledChain`.
@@ -215,14 +227,14 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
     origins = np.asarray(origins, np.float64).reshape(-1, 2)
     readings = np.asarray(readings).reshape(-1)
     limits = ray_limits(readings, params)
-    whole = _whole_sampler(params, origins, angles, readings, likelihood_power, max_pairs)
+    whole = _whole_sampler(params, origins, angles, readings, likelihood_power, max_pairs, shapes, headroom)
     if whole is not None:
-        sampler, tile = whole
+        sampler, tile, shapes = whole
         chain = run_chain(key, sampler, walls, sweeps, progress, stage)
         del sampler, whole
         release_freed_memory()
         return TiledChain(jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs), (tile,),
-                          np.asarray(chain.samples))
+                          np.asarray(chain.samples), shapes)
     counts = rays_per_cell(grid, origins, angles, params.max_range, limits)
     tiles = tuple(split_tiles(counts, max_pairs))
     del counts

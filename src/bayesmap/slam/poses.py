@@ -369,10 +369,17 @@ def _cached_init(data, poses, walls) -> PoseState:
     """:func:`_init` with every scan's log-likelihood at its pose (one scan after another: a ray cast's loop runs
     as long as its longest beam, so casting all scans at once would make every beam as long as the longest)."""
     state = _init(poses, walls)
-    like = jax.lax.map(lambda t: scan_log_likelihood(state.walls, state.poses[t][None], data.sensor_angles[t],
-                                                     data.readings[t], data.params)[0],
-                       jnp.arange(state.poses.shape[0]))
-    return state._replace(scan_log_lik=like.astype(state.poses.dtype))
+    return state._replace(scan_log_lik=_scan_log_likelihoods(data, state.poses, state.walls))
+
+
+@jax.jit
+def _scan_log_likelihoods(data, poses, walls):
+    """``(S,)`` each scan's log-likelihood at its pose, in ``poses``' dtype (compiled once per shapes: called
+    outside a compiled chain, a ``lax.map`` of a new function would compile at every call)."""
+    like = jax.lax.map(lambda t: scan_log_likelihood(walls, poses[t][None], data.sensor_angles[t], data.readings[t],
+                                                     data.params)[0],
+                       jnp.arange(poses.shape[0]))
+    return like.astype(poses.dtype)
 
 
 def _random_walk_update(scale, data, eta, key, t, poses, walls, cache):
