@@ -13,13 +13,17 @@ excluded, as ``bayesmap bench`` times its samplers). Settings:
   walls in the rows, as before passable walls);
 * ``default``: the log defaults of ``bayesmap.scenes`` (chord geometry, the structured prior and passable walls).
 
+With ``--speculative CELLS,LANES`` (repeatable), each setting is timed with the sweep scoring at least ``CELLS``
+cells at once, or ``LANES // width`` in a narrow group (``bayesmap.inference.cellwise.SPECULATIVE_CELLS`` and
+``SPECULATIVE_LANES``; the draws are the same whatever they are), one row per pair.
+
 With ``--profile DIR``, one more compiled sweep per setting runs under ``jax.profiler.trace`` (a Perfetto trace in
 ``DIR/SETTING``), and the script prints the compiled program's steps (XLA:CPU thunks: fusions, loops, conditionals)
 with the largest self time, their calls and microseconds per call. The profiler drops events when a sweep has more
 than its buffer holds (tens of thousands of steps), so compare the time per call, not the totals.
 
 Usage: PYTHONPATH=src python benchmarks/sweep_cost.py [--log intel] [--resolution 0.1] [--sweeps 20] [--repeats 3]
-[--profile DIR]
+[--settings entry,chord,opaque,default] [--speculative CELLS,LANES ...] [--profile DIR]
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ import numpy as np
 from seeded_logs import CORRECTED_LOGS
 
 from bayesmap import scenes
+from bayesmap.inference import cellwise
 from bayesmap.inference.chains import compile_chain
 from bayesmap.inference.driver import run_logodds
 from bayesmap.inference.registry import make_sampler
@@ -102,21 +107,36 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--profile", type=Path, default=None, help="folder for a profiled sweep per setting")
     parser.add_argument("--top", type=int, default=12, help="steps printed per profiled setting (12)")
+    parser.add_argument("--settings", default=",".join(SETTINGS), help="comma-separated settings (all)")
+    parser.add_argument("--speculative", action="append", default=None, metavar="CELLS,LANES",
+                        help="cells / lanes scored at once (repeatable; default the module's)")
     args = parser.parse_args(argv)
     log = read_carmen(CORRECTED_LOGS[args.log])
-    print("| setting | coupling J | seconds per sweep | ratio to entry |\n|---|---|---|---|")
+    names = args.settings.split(",")
+    unknown = sorted(set(names) - set(SETTINGS))
+    if unknown:
+        parser.error(f"unknown settings {unknown}; choose from {sorted(SETTINGS)}")
+    speculative = [tuple(int(v) for v in text.split(",")) for text in args.speculative or
+                   [f"{cellwise.SPECULATIVE_CELLS},{cellwise.SPECULATIVE_LANES}"]]
+    print(f"| setting | coupling J | cells, lanes at once | seconds per sweep | ratio to {names[0]} |\n"
+          "|---|---|---|---|---|")
     base = None
-    for name, kwargs in SETTINGS.items():
-        problem = scenes.log_problem(log, resolution=args.resolution, **kwargs)
-        folder = None if args.profile is None else args.profile / name
-        cost = seconds_per_sweep(problem, args.sweeps, args.repeats, folder)
-        base = cost if base is None else base
-        print(f"| {name} | {problem.params.coupling:.3f} | {cost:.3f} | {cost / base:.2f} |", flush=True)
-        if folder is not None:
-            trace = max(folder.glob("**/perfetto_trace.json.gz"), key=lambda p: p.stat().st_mtime)
-            steps = [row for row in self_times(trace) if not row[0].startswith(("ThunkExecutor", "$"))]
-            for step, ms, count in steps[:args.top]:
-                print(f"    {name}: {step[:60]}: {ms:.1f} ms self, {count} calls, {1e3 * ms / count:.1f} us per call")
+    for name in names:
+        problem = scenes.log_problem(log, resolution=args.resolution, **SETTINGS[name])
+        for cells, lanes in speculative:
+            cellwise.SPECULATIVE_CELLS, cellwise.SPECULATIVE_LANES = cells, lanes
+            jax.clear_caches()  # the sweep is traced with these
+            folder = None if args.profile is None else args.profile / f"{name}-{cells}-{lanes}"
+            cost = seconds_per_sweep(problem, args.sweeps, args.repeats, folder)
+            base = cost if base is None else base
+            print(f"| {name} | {problem.params.coupling:.3f} | {cells}, {lanes} | {cost:.3f} | {cost / base:.2f} |",
+                  flush=True)
+            if folder is not None:
+                trace = max(folder.glob("**/perfetto_trace.json.gz"), key=lambda p: p.stat().st_mtime)
+                steps = [row for row in self_times(trace) if not row[0].startswith(("ThunkExecutor", "$"))]
+                for step, ms, count in steps[:args.top]:
+                    print(f"    {name}: {step[:60]}: {ms:.1f} ms self, {count} calls, {1e3 * ms / count:.1f} us per "
+                          "call")
     return 0
 
 

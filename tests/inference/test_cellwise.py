@@ -87,14 +87,15 @@ def test_sweeps_keep_the_ray_rows_consistent(beam_model, batch, monkeypatch):
     assert sweeps_keep_ray_rows(sampler, table, grid, 2, 15) > 20
 
 
-@pytest.mark.parametrize("speculative", [8, 3])
-def test_sweep_is_the_one_cell_at_a_time_sweep(speculative, monkeypatch):
-    """The sweep scores SPECULATIVE_CELLS consecutive cells at once and keeps those up to the first draw that changes
-    a row: its draws are exactly those of updating one cell at a time in the visiting order, each drawn with the
-    same uniform from its conditional given the current map (cell_log_odds, the same scoring), then the cells no ray
-    crosses from the prior. 3 at once leaves partial runs at the ends of groups. Dense maps, so that many cells
-    change."""
+@pytest.mark.parametrize("speculative, lanes", [(16, 2048), (8, 0), (3, 0)])
+def test_sweep_is_the_one_cell_at_a_time_sweep(speculative, lanes, monkeypatch):
+    """The sweep scores consecutive cells at once (SPECULATIVE_CELLS, or SPECULATIVE_LANES // width: the whole of a
+    narrow group here at the defaults) and keeps those up to the first draw that changes a row: its draws are exactly
+    those of updating one cell at a time in the visiting order, each drawn with the same uniform from its
+    conditional given the current map (cell_log_odds, the same scoring), then the cells no ray crosses from the
+    prior. 3 at once leaves partial runs at the ends of groups. Dense maps, so that many cells change."""
     monkeypatch.setattr(cellwise, "SPECULATIVE_CELLS", speculative)
+    monkeypatch.setattr(cellwise, "SPECULATIVE_LANES", lanes)
     grid, params, angles, _, y, table = scenes("beam", 11, num_beams=30)
     sampler = CellwiseGibbs(table, y.reshape(-1), params)
     kernel = sampler.kernel

@@ -20,14 +20,17 @@ classes would bring little parallelism. This sampler is the plain systematic-sca
 * Cells are visited in a fixed order: grouped by how many rays cross them (so that each group is a loop of fixed
   width, padding at most 2x), then in raster order within a group. Any fixed order gives a valid Gibbs sweep.
   Cells that no ray crosses are independent of everything given the rest: they are drawn from the prior at once.
-* The loop scores ``SPECULATIVE_CELLS`` consecutive cells of the order at once, from the same rows, and draws each
-  from its score. Cell ``j`` of the block sees exactly the rows it would see one cell at a time as long as no
-  earlier cell of the block changed a row: the cells up to and including the first draw that changes rows are
-  kept, the rest of the block is scored again from the rewritten rows. So the draws are those of the
-  one-cell-at-a-time sweep in the same order (same uniforms, same conditionals), with one pass over memory for
-  ``SPECULATIVE_CELLS`` cells instead of one per cell (each step of a loop costs several microseconds on CPU; ~4% of
-  cells change rows per sweep on the Intel log). Within the sweep the map is kept in the visiting order, so that a
-  block's cells are one contiguous slice.
+* The loop scores consecutive cells of the order at once (``SPECULATIVE_CELLS``, or ``SPECULATIVE_LANES`` lanes'
+  worth in a narrow group: 256 cells of 8 lanes), from the same rows, and draws each from its score. Cell ``j`` of
+  the block sees exactly the rows it would see one cell at a time as long as no earlier cell of the block changed a
+  row: the cells up to and including the first draw that changes rows are kept, the rest of the block is scored
+  again from the rewritten rows. So the draws are those of the one-cell-at-a-time sweep in the same order (same
+  uniforms, same conditionals), with one pass over memory for many cells instead of one per cell (each step of a
+  loop costs several microseconds on CPU; ~4% of cells change rows per sweep on the Intel log). How many is a speed
+  setting, not a model one (any number makes the same draws): at 16 cells or 2,048 lanes a sweep at known poses took
+  0.12 / 0.09 / 0.15 s on Intel / ACES / CSAIL against 0.17-0.18 / 0.15 / 0.34 s at 8 cells (docs/validation/
+  speed.md, "Cells scored at once"). Within the sweep the map is kept in the visiting order, so that a block's cells
+  are one contiguous slice.
 
 The structured prior (:mod:`bayesmap.model.prior`, ``params.coupling > 0``): a cell's log-odds gain ``J (n_wall -
 n_free)`` over its 4-neighbours, read from the map in visiting order (which then holds every cell: those no ray
@@ -92,8 +95,9 @@ from bayesmap.model.prior import neighbour_field, neighbour_indices
 NO_WALL = float(1 << 22)  # "no such wall": a position beyond every ray (exact in float32)
 SEARCH_CHUNK = 32  # cells read per step of the walk along a ray to its next wall
 SEARCH_BATCH = 16  # rays whose rows a changed cell rewrites (and walks) at once
-SPECULATIVE_CELLS = 8  # consecutive cells scored at once from the same rows, kept up to the first that changes a row
-# (see the module docstring); not a block of a joint update (``block_size`` of the fast samplers)
+SPECULATIVE_CELLS = 16  # the fewest consecutive cells scored at once from the same rows, kept up to the first that
+# changes a row (see the module docstring); not a block of a joint update (``block_size`` of the fast samplers)
+SPECULATIVE_LANES = 2048  # narrow groups score SPECULATIVE_LANES // width cells at once, if more
 MAX_WIDTH = 1 << 16
 
 
@@ -480,11 +484,12 @@ class CellwiseKernel(KernelFields):
         return jax.lax.fori_loop(0, num_batches, one_batch, (jnp.int32(-1), rows_all))[1]
 
     def _sweep_group(self, lanes, base, cur, rows_all, probs, u):
-        """Every cell of ``lanes`` once, ``SPECULATIVE_CELLS`` at a time (see the module docstring). ``cur``,
+        """Every cell of ``lanes`` once, ``SPECULATIVE_CELLS`` or ``SPECULATIVE_LANES // width`` at a time (see the
+        module docstring). ``cur``,
         ``probs`` and ``u``: the map, the conditional probabilities and the uniforms in visiting order, the group's
         cells at ``base, base + 1, ...``."""
         n, width = lanes.rays.shape
-        size = min(SPECULATIVE_CELLS, n)
+        size = min(max(SPECULATIVE_CELLS, SPECULATIVE_LANES // width), n)
         j = jnp.arange(size, dtype=jnp.int32)
 
         def body(carry):

@@ -105,7 +105,7 @@ MAP_SHAPE_HEADROOM = 0.1
 next blocks' tables, at slightly moved poses, fit them and reuse one compiled sweep (each compilation takes 4-5 s
 on two cores). A speed knob, not a model setting: padding changes no draw (tested). On the shared logs a width
 group's cells vary by up to 8 % from one round to the next (a few percent for the large groups); blocks that do not
-fit compile anew ([scale page](../scale.md))."""
+fit compile anew ([scale page](../validation/scale.md#where-the-slam-time-went-on-intel-and-what-was-cut))."""
 
 GRAPH_COV_SCALE = 0.36
 """The factor on the pose graph's standard deviations in the reported uncertainty (module docstring, stage 5): its
