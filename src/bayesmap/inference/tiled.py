@@ -203,9 +203,11 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
         progress: gets ``Progress(stage, done, sweeps, "sweep")`` before the table is built and as the sweeps
             run (with tiles, ``done`` counts the sweeps of every tile divided by the number of tiles).
         stage: the stage the reports name.
-        shapes, headroom: when the whole table fits ``max_pairs``, its sweep's arrays are padded to ``shapes`` with
-            ``headroom`` (:class:`~bayesmap.inference.cellwise.CellwiseGibbs`; the same draws): pass the
-            ``shapes`` of a previous chain's :class:`TiledChain` to reuse its compiled sweep. Tiles are not padded.
+        shapes: when the whole table fits ``max_pairs``, its sweep's arrays are padded at least to these
+            (:class:`~bayesmap.inference.cellwise.CellwiseGibbs`; the same draws): the ``shapes`` of a previous
+            chain's :class:`TiledChain`, to reuse its compiled sweep. Tiles are not padded. None: no padding.
+        headroom: the padding of a size ``shapes`` does not give or that does not fit it, a fraction >= 0
+            (:func:`~bayesmap.inference.cellwise.fitted_shapes`).
 
     Returns:
         :class:`TiledChain`.
