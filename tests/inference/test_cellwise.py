@@ -201,7 +201,7 @@ def test_a_padded_sweep_makes_the_same_draws(model):
     """A kernel padded to larger sizes (headroom 0.5, and a width group of 4,096 lanes its table lacks, so cells that
     are all padding) draws every cell as the exact one does: the same maps, conditional probabilities and per-ray
     rows, sweep after sweep with the same keys, for each sensor and prior kind and with frozen cells. Another table
-    (other sizes) built to its shapes has the same array shapes: one compilation.
+    built to its shapes has the same array shapes (one compilation) and again the draws of its exact kernel.
     Exact equality: the real lanes, rows and uniforms are the same numbers in the same order."""
     import dataclasses
 
@@ -214,7 +214,7 @@ def test_a_padded_sweep_makes_the_same_draws(model):
         params = dataclasses.replace(params, **model)
         return CellwiseGibbs(table, y.reshape(-1), params, frozen=frozen, **kwargs), grid
 
-    def run(sampler, grid, sweeps=3):
+    def run(sampler, grid, sweeps=4):
         step = jax.jit(sampler.step)
         state = sampler.init(jnp.asarray(np.random.default_rng(1).random(grid.shape) < 0.5, jnp.float32))
         out = []
@@ -241,12 +241,14 @@ def test_a_padded_sweep_makes_the_same_draws(model):
     assert changed == 0
     assert len({tuple(np.asarray(w).ravel()) for w, _, _ in run(exact, grid)}) > 2  # the maps change between sweeps
 
-    other, _ = sampler_of(12)
-    assert other.kernel.shapes != needed
+    other_exact, _ = sampler_of(12)
     other, _ = sampler_of(12, shapes=got)
     assert other.kernel.shapes == got
     assert jax.tree.structure(other.kernel) == jax.tree.structure(padded.kernel)
     assert [a.shape for a in jax.tree.leaves(other.kernel)] == [a.shape for a in jax.tree.leaves(padded.kernel)]
+    for (walls, probs, _), (walls_p, probs_p, _) in zip(run(other_exact, grid), run(other, grid), strict=True):
+        np.testing.assert_array_equal(walls_p, walls)
+        np.testing.assert_array_equal(probs_p, probs)
 
 
 def test_fitted_shapes():

@@ -259,30 +259,3 @@ def test_map_chains_split_over_four_devices_are_the_chains_one_at_a_time(tmp_pat
         np.testing.assert_array_equal(got["walls"][c], np.asarray(one.walls))
         np.testing.assert_array_equal(got["probs"][c], one.wall_probs)
     assert not np.array_equal(got["probs"][0], got["probs"][1])
-
-
-def test_the_tiles_of_a_chain_share_compiled_sweeps(monkeypatch):
-    """The tiles of a chain are padded to the sizes of the tiles before them (with headroom), so that most reuse a
-    compiled sweep: fewer distinct sizes than tiles, each tile's sizes at least the tile's before it, and the chain
-    returns the last. (That padding changes no draw is tested on the kernel, frozen cells included:
-    test_cellwise.py::test_a_padded_sweep_makes_the_same_draws.)"""
-    from bayesmap.inference import tiled
-
-    rng, grid, origins, angles = _rays(8, num_rays=300)
-    params, y, limits = _model(grid, len(angles), rng, cut_past_reading=0.5)
-    budget = int(ray_cells(grid, origins, angles, limits).sum()) // 5
-    built = []
-
-    class Recorded(CellwiseGibbs):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            built.append(self.kernel.shapes)
-
-    monkeypatch.setattr(tiled, "CellwiseGibbs", Recorded)
-    got = tiled_map_chain(jax.random.key(3), params, origins, angles, y, np.zeros(grid.shape, np.float32), 1,
-                          max_pairs=budget)
-    assert len(got.tiles) >= 4 and len(built) == len(got.tiles)
-    assert len(set(built)) < len(built) and got.shapes == built[-1]
-    for before, after in zip(built, built[1:]):
-        assert after.rays >= before.rays and after.pairs >= before.pairs and after.rest >= before.rest
-        assert all(dict(after.groups)[w] >= n for w, n in before.groups)

@@ -99,13 +99,6 @@ SPECULATIVE_CELLS = 16  # the fewest consecutive cells scored at once from the s
 # changes a row (see the module docstring); not a block of a joint update (``block_size`` of the fast samplers)
 SPECULATIVE_LANES = 2048  # narrow groups score SPECULATIVE_LANES // width cells at once, if more
 MAX_WIDTH = 1 << 16
-SHAPE_HEADROOM = 0.1
-"""How much larger than its table needs (a fraction) a sweep is padded where later sweeps of similar tables are
-to reuse its compilation (each takes 4-5 s on two cores): a joint chain's map blocks, at slightly moved poses, and the
-tiles of a map chain (:func:`fitted_shapes`). A speed setting, not a model one: padding changes no draw (tested). On
-the shared logs a width group's cells vary by up to 8 % from one round of SLAM to the next (a few percent for the
-large groups); a table that does not fit compiles anew
-([scale page](../validation/scale.md#where-the-slam-time-went-on-intel-and-what-was-cut))."""
 
 
 class CellwiseState(NamedTuple):

@@ -10,10 +10,8 @@ chain a tile of the grid at a time when the log's pairs exceed a budget (:data:`
    built with every other cell held at its current value (:func:`bayesmap.geometry.tiles.tile_table`: the beams that
    cross the block, their pairs in it and their first few wall cells outside it), and ``sweeps`` cellwise sweeps of
    the block's cells run with the rest frozen (``CellwiseGibbs(..., frozen=...)``); the block's last draw is written
-   into the map, the tile's cells' conditional probabilities into the record, and the table is dropped before the
-   next tile. The tile's sweep is padded to the sizes of the tiles before it
-   (:data:`~bayesmap.inference.cellwise.SHAPE_HEADROOM`): a tile that fits them reuses their compiled sweep, one that
-   does not compiles its own and the compiled sweeps before it are dropped. Padding changes no draw (tested).
+   into the map, the tile's cells' conditional probabilities into the record, and the table and the compiled sweep
+   are dropped before the next tile.
 
 Each of a tile's sweeps draws every cell of the tile from its full conditional given every other cell of the map
 (the tile's table gives it exactly the conditional of the whole table: tested), so each leaves the posterior
@@ -44,7 +42,7 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.geometry.tiles import Tile, ray_cells, rays_per_cell, split_tiles, tile_table
-from bayesmap.inference.cellwise import SHAPE_HEADROOM, CellwiseGibbs, SweepShapes
+from bayesmap.inference.cellwise import CellwiseGibbs, SweepShapes, cellwise_gibbs
 from bayesmap.inference.chains import run_chain, run_chains_on_devices
 from bayesmap.memory import release_freed_memory
 from bayesmap.model.generative import ModelParams, ray_limits
@@ -53,9 +51,8 @@ from bayesmap.progress import Progress, ProgressCallback, report
 TILE_PAIRS = 12_000_000
 """The most (beam, cell) pairs one tile of a map chain holds (:func:`tiled_map_chain`): a map whose beams cross more
 cells is swept a tile at a time. A memory knob, not a model setting (any value samples the same posterior): a tile
-takes about 35 bytes a pair in the sampler plus the tracing of its beams, so about 0.4 GB at this value; tiles share
-a compiled sweep where they fit the sizes of the tiles before them, and a tile that does not compiles its own (about
-5 s on two cores). Chosen as the larger of two budgets measured on Freiburg 079's SLAM
+takes about 35 bytes a pair in the sampler plus the tracing of its beams, so about 0.4 GB at this value; each tile
+compiles its own sweep (about 5 s on two cores). Chosen as the larger of two budgets measured on Freiburg 079's SLAM
 run (its map stages peak at 1.7 GB; at 6 million at 1.4-1.5 GB, taking 45 % longer), on the validation page
 (docs/validation/defaults.md#tile_pairs)."""
 
@@ -78,9 +75,9 @@ class TiledChain(NamedTuple):
         samples: ``(sweeps, nx, ny)`` bool, each cell's draw in each sweep of its tile (with one tile, the map after
             each sweep; with several, the records of one sweep are not one joint map: module docstring).
         tiles: the tiles, in the order they were sampled (one tile, the whole grid, when the log fit the budget).
-        shapes: the sizes its sweeps were compiled for (:attr:`bayesmap.inference.cellwise.CellwiseKernel.shapes`;
-            with tiles, those of the last tile, which every tile before it fits or compiled anew): pass them to the
-            next chain of similar tables to reuse the compilation.
+        shapes: with one tile, the sizes its sweep was compiled for
+            (:attr:`bayesmap.inference.cellwise.CellwiseKernel.shapes`: pass them to the next chain of a similar
+            table to reuse the compilation); None with several.
     """
 
     walls: jax.Array
@@ -164,8 +161,7 @@ def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls,
             report(progress, stage, c * sweeps + p.done, total, p.unit)
 
         chains.append(tiled_map_chain(key, params, origins, angles, readings, walls, sweeps, likelihood_power,
-                                      max_pairs, progress=None if progress is None else one, stage=stage,
-                                      shapes=chains[-1].shapes if chains else None))  # one compiled sweep
+                                      max_pairs, progress=None if progress is None else one, stage=stage))
     return chains
 
 
@@ -207,13 +203,11 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
         progress: gets ``Progress(stage, done, sweeps, "sweep")`` before the table is built and as the sweeps
             run (with tiles, ``done`` counts the sweeps of every tile divided by the number of tiles).
         stage: the stage the reports name.
-        shapes: the sweep's arrays are padded at least to these
+        shapes: when the whole table fits ``max_pairs``, its sweep's arrays are padded at least to these
             (:class:`~bayesmap.inference.cellwise.CellwiseGibbs`; the same draws): the ``shapes`` of a previous
-            chain's :class:`TiledChain`, to reuse its compiled sweep. None: no padding but the headroom.
+            chain's :class:`TiledChain`, to reuse its compiled sweep. Tiles are not padded. None: no padding.
         headroom: the padding of a size ``shapes`` does not give or that does not fit it, a fraction >= 0
-            (:func:`~bayesmap.inference.cellwise.fitted_shapes`). The tiles of a chain are padded to the sizes of the
-            tiles before them with at least :data:`~bayesmap.inference.cellwise.SHAPE_HEADROOM`, so that they share
-            compiled sweeps (a tile that does not fit compiles anew, and the caches are cleared first).
+            (:func:`~bayesmap.inference.cellwise.fitted_shapes`).
 
     Returns:
         :class:`TiledChain`.
@@ -261,13 +255,8 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
                      min(tile.j1 + grow, grid.shape[1]))
         sampled = block.mask(grid.shape)
         table, rays = tile_table(grid, origins, angles, params.max_range, limits, current, block, kept)
-        gibbs = CellwiseGibbs(table, readings[rays], params, likelihood_power, frozen=~sampled, shapes=shapes,
-                              headroom=max(headroom, SHAPE_HEADROOM))
+        sampler = cellwise_gibbs(table, readings[rays], params, likelihood_power, frozen=~sampled)
         del table
-        if gibbs.kernel.shapes != shapes:  # a new compilation: drop those before and what they hold
-            jax.clear_caches()
-        shapes, sampler = gibbs.kernel.shapes, gibbs.algorithm
-        del gibbs
         release_freed_memory()
         sub = None if progress is None else _TileProgress(progress, stage, visit, count, len(visits), sweeps)
         chain = run_chain(keys[p, k], sampler, current, count, sub, stage)
@@ -276,5 +265,6 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
         probs[first:first + count, inside] = np.asarray(chain.wall_probs)[:, inside]
         samples[first:first + count, inside] = np.asarray(chain.samples)[:, inside]
         del sampler, chain
+        jax.clear_caches()  # each tile compiles its sweep for its own shapes: drop the tile before
         release_freed_memory()
-    return TiledChain(jnp.asarray(current), probs, tiles, samples, shapes)
+    return TiledChain(jnp.asarray(current), probs, tiles, samples)

@@ -58,7 +58,7 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import scan_endpoints
-from bayesmap.inference.cellwise import SHAPE_HEADROOM, SweepShapes
+from bayesmap.inference.cellwise import SweepShapes
 from bayesmap.inference.chains import run_recorded_chains
 from bayesmap.inference.tiled import TILE_PAIRS, check_tile_pairs, tiled_map_chain
 from bayesmap.model.generative import replace_params
@@ -99,6 +99,13 @@ POSE_SWEEPS = 8
 FINAL_MAP_SWEEPS = 40
 """Cellwise sweeps of the final map (stage 6; the first half burn-in): the sweeps with which the map model of a log
 at known poses was cross-validated ([validation](../validation/defaults.md#final_map_sweeps))."""
+
+MAP_SHAPE_HEADROOM = 0.1
+"""How much larger than its table needs (a fraction) a joint chain's map block pads its sweep's arrays, so that the
+next blocks' tables, at slightly moved poses, fit them and reuse one compiled sweep (each compilation takes 4-5 s
+on two cores). A speed knob, not a model setting: padding changes no draw (tested). On the shared logs a width
+group's cells vary by up to 8 % from one round to the next (a few percent for the large groups); blocks that do not
+fit compile anew ([scale page](../validation/scale.md#where-the-slam-time-went-on-intel-and-what-was-cut))."""
 
 GRAPH_COV_SCALE = 0.36
 """The factor on the pose graph's standard deviations in the reported uncertainty (module docstring, stage 5): its
@@ -171,11 +178,12 @@ def _map_round(key, problem, params, poses, walls, sweeps: int, power: float | N
                shapes: SweepShapes | None = None, headroom: float = 0.0):
     """One map block: the table at ``poses`` and ``sweeps`` cellwise sweeps from ``walls`` (likelihood power
     ``power``, default the problem's), in tiles of at most ``tile_pairs`` pairs
-    (:func:`bayesmap.inference.tiled.tiled_map_chain`); the sweep padded to ``shapes`` with ``headroom`` (the same
-    draws; :class:`bayesmap.inference.cellwise.CellwiseGibbs`), so that the blocks of a joint chain share one
-    compilation. Returns the chain's ``(last walls (nx, ny) float32, wall probabilities (sweeps, nx, ny), the sizes
-    its sweep was compiled for)``. ``progress`` gets ``Progress(stage, done, sweeps, "sweep")`` from before the
-    table is built and as the sweeps run."""
+    (:func:`bayesmap.inference.tiled.tiled_map_chain`); the whole table's sweep padded to ``shapes`` with
+    ``headroom`` (the same draws; :class:`bayesmap.inference.cellwise.CellwiseGibbs`), so that the blocks of a
+    joint chain share one compilation. Returns
+    the chain's ``(last walls (nx, ny) float32, wall probabilities (sweeps, nx, ny), shapes of its sweep (None with
+    tiles))``. ``progress`` gets ``Progress(stage, done, sweeps, "sweep")`` from before the table is built and as
+    the sweeps run."""
     theta = poses[:, 2:3] + problem.sensor_angles
     origins = np.repeat(poses[:, :2], problem.sensor_angles.shape[1], axis=0)
     chain = tiled_map_chain(key, params, origins, theta.reshape(-1), problem.readings.reshape(-1), walls, sweeps,
@@ -267,7 +275,7 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
     rounds, burn_in, map_sweeps, pose_sweeps = counts
     # the front end's and the loop closure's compiled searches, and what they hold (about 250 MB on Intel), are not
     # needed again before the scans between keyframes are placed; the map blocks' sweep is then compiled once
-    # (:data:`bayesmap.inference.cellwise.SHAPE_HEADROOM`) and the pose sweeps' once
+    # (:data:`MAP_SHAPE_HEADROOM`) and the pose sweeps' once
     jax.clear_caches()
     data = slam_data(scans.increments, scans.covs, problem.sensor_angles, problem.readings, params)
     pose_kernel = random_walk_pose_mh(data, likelihood_power=problem.likelihood_power)
@@ -278,7 +286,7 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
     for r in range(rounds):
         walls, wall_probs, shapes = _map_round(keys[2 * r], problem, params, np.asarray(poses, np.float64), walls,
                                                map_sweeps, progress=progress, stage=f"round {r + 1}/{rounds}: map",
-                                               tile_pairs=tile_pairs, shapes=shapes, headroom=SHAPE_HEADROOM)
+                                               tile_pairs=tile_pairs, shapes=shapes, headroom=MAP_SHAPE_HEADROOM)
         pose_samples, acc = run_recorded_chains(keys[2 * r + 1], pose_kernel.init(poses, walls),
                                                 pose_kernel, pose_sweeps, _pose_record, progress=progress,
                                                 stage=f"round {r + 1}/{rounds}: poses")
