@@ -222,22 +222,21 @@ def _visiting_order(parts, sizes, num_cells: int) -> tuple[np.ndarray, np.ndarra
 
 def _lanes(table: RayTable, counts: np.ndarray, groups, rank: np.ndarray, pair_ll: jax.Array,
            dtype, shapes: SweepShapes) -> tuple[Lanes, ...]:
-    """The sweep's :class:`Lanes`, one per width group of ``shapes.groups`` (``groups`` from :func:`width_groups`
-    of ``counts``, the table's rays per cell, each of the widths of ``shapes``; ``rank`` the cells' visiting order,
-    :func:`_visiting_order`); ``pair_ll`` ``(P + 1,)`` of ``dtype`` from
-    :func:`~bayesmap.inference.fast.pair_log_likelihoods`, read last (it may still be computing). Each group is
-    padded to its size in ``shapes`` with cells (cell 0) whose lanes are all padding (ray ``shapes.rays``).
+    """The sweep's :class:`Lanes`, one per width group (``groups``, ``[(width, cells), ...]`` of
+    :func:`width_groups` of ``counts``, the table's rays per cell, with a group for each width of ``shapes.groups``,
+    in its order, maybe of no cells; ``rank`` the cells' visiting order, :func:`_visiting_order`); ``pair_ll``
+    ``(P + 1,)`` of ``dtype`` from :func:`~bayesmap.inference.fast.pair_log_likelihoods`, read last (it may still
+    be computing). Each group is padded to its size in ``shapes`` with cells (cell 0) whose lanes are all padding
+    (ray ``shapes.rays``).
 
     The pairs are sorted once into the order of the lanes (group by group, cells ascending, a cell's pairs in ray
     order), so that each group's pairs are one contiguous slice, written row by row into its padded ``(n, W)``
     arrays, a block of rows at a time. Memory besides the lanes: the sorted pair indices (8 bytes per pair) and
     one block's temporaries (fresh pages cost more than the work on them).
     """
-    if not shapes.groups:
+    if not groups:
         return ()
     size = dict(shapes.groups)
-    real = dict(groups)
-    groups = [(width, real.get(width, np.zeros(0, np.int64))) for width, _ in shapes.groups]
     order = table.pairs_by_cell(rank)
     firsts = np.cumsum([0] + [int(counts[cells].sum()) for _, cells in groups])  # each group's first sorted pair
     parts = []
@@ -649,8 +648,9 @@ class CellwiseGibbs(KernelSampler):
         needed = SweepShapes(groups=tuple((width, len(cells)) for width, cells in groups), rest=len(rest),
                              rays=num_rays, pairs=num_pairs)
         sizes = fitted_shapes(needed, shapes, headroom)
-        real = dict(groups)
-        parts = [real.get(width, np.zeros(0, np.int64)) for width, _ in sizes.groups] + [rest]
+        real = dict(groups)  # and a group of no cells for each width only ``shapes`` has
+        groups = [(width, real.get(width, np.zeros(0, np.int64))) for width, _ in sizes.groups]
+        parts = [cells for _, cells in groups] + [rest]
         order, rank = _visiting_order(parts, [n for _, n in sizes.groups] + [sizes.rest], table.num_cells)
         lanes = _lanes(table, counts, groups, rank, pair_ll, dtype, sizes)
         if structured:
