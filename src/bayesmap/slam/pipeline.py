@@ -180,10 +180,9 @@ def _map_round(key, problem, params, poses, walls, sweeps: int, power: float | N
     ``power``, default the problem's), in tiles of at most ``tile_pairs`` pairs
     (:func:`bayesmap.inference.tiled.tiled_map_chain`); the whole table's sweep padded to ``shapes`` with
     ``headroom`` (the same draws; :class:`bayesmap.inference.cellwise.CellwiseGibbs`), so that the blocks of a
-    joint chain share one compilation. Returns
-    the chain's ``(last walls (nx, ny) float32, wall probabilities (sweeps, nx, ny), shapes of its sweep (None with
-    tiles))``. ``progress`` gets ``Progress(stage, done, sweeps, "sweep")`` from before the table is built and as
-    the sweeps run."""
+    joint chain share one compilation. Returns the chain's ``(last walls (nx, ny) float32, wall probabilities
+    (sweeps, nx, ny), the sizes its sweep was compiled for (None with tiles))``. ``progress`` gets
+    ``Progress(stage, done, sweeps, "sweep")`` from before the table is built and as the sweeps run."""
     theta = poses[:, 2:3] + problem.sensor_angles
     origins = np.repeat(poses[:, :2], problem.sensor_angles.shape[1], axis=0)
     chain = tiled_map_chain(key, params, origins, theta.reshape(-1), problem.readings.reshape(-1), walls, sweeps,
