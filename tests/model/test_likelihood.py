@@ -15,9 +15,12 @@ from bayesmap.inference.cellwise import CellwiseGibbs
 from bayesmap.inference.fast import FastGibbs
 from bayesmap.model.generative import make_params, prior_log_odds
 from bayesmap.model.likelihood import (
+    PAIR_CHUNK,
     check_max_range,
+    chunked_log_likelihoods,
     likelihood_inputs,
     log_likelihood_table,
+    padded_length,
     pair_log_likelihoods,
     tempered,
 )
@@ -29,7 +32,8 @@ from bayesmap.model.sensor import reading_logpdf
 def test_pair_log_likelihoods_are_the_sensor_model(beam_model, x64):
     """likelihood.pair_log_likelihoods (the per-pair table of the fast and cellwise samplers, which computes the beam
     model's point mass only for the pairs of max-range readings) equals reading_logpdf at each pair's reading and
-    stopping distance, element by element, then a 0; with max-range readings (at and beyond the max range),
+    stopping distance, element by element, then zeros up to its padded length; with max-range readings (at and
+    beyond the max range),
     readings just below it on rays whose last cells are near the max range, readings of 0, and stopping distances
     near 0 (sensors just inside a cell edge), in float32 and float64. Tolerance: a few units of rounding (the same
     operations in one jitted call; in practice the bits are equal)."""
@@ -49,13 +53,49 @@ def test_pair_log_likelihoods_are_the_sensor_model(beam_model, x64):
         got = np.asarray(pair_log_likelihoods(table, y, beam_model, sensor_args))
         want = np.asarray(reading_logpdf(beam_model, jnp.asarray(y[table.pair_rays], dtype),
                                          jnp.asarray(table.pair_dists, dtype), sensor_args))
-        assert got.shape == (table.num_pairs + 1,) and got.dtype == dtype and got[-1] == 0.0
+        num_pairs = table.num_pairs
+        assert got.shape == (PAIR_CHUNK,) and got.dtype == dtype and not got[num_pairs:].any()
         tol = 8 * np.finfo(dtype).eps
-        np.testing.assert_allclose(got[:-1], want, rtol=tol, atol=tol)
+        np.testing.assert_allclose(got[:num_pairs], want, rtol=tol, atol=tol)
         # the scene has what the test is about
         at_max = y[table.pair_rays] >= m
         assert at_max.any() and (~at_max).any() and np.isfinite(want).all()
         assert table.pair_dists.min() < 1e-3 and table.pair_dists[~at_max].max() > m - 0.3
+
+
+@pytest.mark.parametrize("chord", [False, True])
+def test_chunked_tables_are_the_table_across_chunk_edges(chord):
+    """Eight chunks and a bit of random readings (max-range ones too) and distances (some inf: no wall): computed
+    a chunk at a time they are log_likelihood_table of the whole arrays, bit for bit (the same elementwise
+    operations); the rest up to the padded length is 0, and the length is a padded number of chunks."""
+    grid = Grid((12, 12))
+    params = make_params(0.3, 0.05, 16, grid, 6.0, beam_model="beam")
+    rng = np.random.default_rng(1)
+    n = 8 * PAIR_CHUNK + 5
+    y = rng.uniform(0.0, 7.0, n).astype(np.float32)
+    y[rng.random(n) < 0.2] = params.max_range
+    d = rng.uniform(0.0, 6.0, n).astype(np.float32)
+    d[rng.random(n) < 0.1] = np.inf
+    exits = (d + rng.uniform(0.0, 0.3, n)).astype(np.float32) if chord else None
+    sensor_args = tuple(jnp.asarray(a, jnp.float32) for a in params.sensor_args)
+    got = np.asarray(chunked_log_likelihoods("beam", sensor_args, y, d, exits))
+    want = np.asarray(log_likelihood_table("beam", sensor_args, y, d, exits))
+    assert got.shape == (PAIR_CHUNK * padded_length(9),) and padded_length(9) == 10  # a zero chunk appended
+    np.testing.assert_array_equal(got[:n], want)
+    assert not got[n:].any() and np.isfinite(want).all() and (want == 0).any() and (y[d < np.inf] >= 6.0).any()
+
+
+def test_padded_lengths_are_few_and_close():
+    """padded_length(n) >= n, within 25 % of n (n itself below 8), never decreasing, and it takes 4 values per
+    doubling: from 1,000 to 1,000,000 the 999,001 lengths share 41 compilations."""
+    n = np.arange(0, 1_000_001)
+    got = np.array([padded_length(int(k)) for k in n])
+    assert (got >= n).all() and (got[8:] <= 1.25 * n[8:]).all() and (got[:8] == n[:8]).all()
+    assert (np.diff(got) >= 0).all()
+    assert len(np.unique(got[1000:])) == 41
+    assert padded_length(1 << 20) == 1 << 20 and padded_length((1 << 20) + 1) == 5 << 18
+    with pytest.raises(ValueError, match="-1"):
+        padded_length(-1)
 
 
 @pytest.mark.parametrize("p", [0.5, 0.1, 0.3, 0.9, 1e-6, 1 - 1e-6])

@@ -225,7 +225,7 @@ def _lanes(table: RayTable, counts: np.ndarray, groups, rank: np.ndarray, pair_l
     """The sweep's :class:`Lanes`, one per width group (``groups``, ``[(width, cells), ...]`` of
     :func:`width_groups` of ``counts``, the table's rays per cell, with a group for each width of ``shapes.groups``,
     in its order, maybe of no cells; ``rank`` the cells' visiting order, :func:`_visiting_order`); ``pair_ll``
-    ``(P + 1,)`` of ``dtype`` from :func:`~bayesmap.inference.fast.pair_log_likelihoods`, read last (it may still
+    ``(L > P,)`` of ``dtype`` from :func:`~bayesmap.model.likelihood.pair_log_likelihoods`, read last (it may still
     be computing). Each group is padded to its size in ``shapes`` with cells (cell 0) whose lanes are all padding
     (ray ``shapes.rays``).
 
@@ -665,10 +665,10 @@ class CellwiseGibbs(KernelSampler):
             _frozen=None if frozen is None else jnp.asarray(frozen),
             _pair_cells=jnp.asarray(np.append(table.pair_cells, np.zeros(padded_pairs + 1, table.pair_cells.dtype)),
                                     jnp.int32),
-            _pair_ll=jnp.pad(pair_ll, (0, padded_pairs)) if padded_pairs else pair_ll,
+            _pair_ll=jnp.asarray(np.append(np.asarray(pair_ll)[:num_pairs], np.zeros(padded_pairs + 1, dtype))),
             _ray_start=jnp.asarray(np.append(table.offsets[:-1], np.full(padded_rays + 1, sizes.pairs)), jnp.int32),
             _ray_length=jnp.asarray(np.append(table.lengths, np.zeros(padded_rays + 1)), jnp.int32),
-            _max_ll=jnp.asarray(np.append(max_ll, np.zeros(padded_rays + 1)), dtype),
+            _max_ll=jnp.asarray(np.append(np.asarray(max_ll)[:num_rays], np.zeros(padded_rays + 1)), dtype),
             _prior_log_odds=jnp.asarray(prior_log_odds(params.prior_wall_prob), dtype),
             _coupling=jnp.asarray(params.coupling, dtype) if structured else None,
             _eta=jnp.asarray(eta, dtype) if penetrable else None,

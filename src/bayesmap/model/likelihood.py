@@ -25,13 +25,7 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raytable import RayTable, check_readings
 from bayesmap.model.generative import ModelParams, check_likelihood_power, check_opaque_walls, ray_limits
-from bayesmap.model.sensor import (
-    beam_log_density,
-    beam_log_max_mass,
-    chord_beam_log_density,
-    chord_beam_log_max_mass,
-    reading_logpdf,
-)
+from bayesmap.model.sensor import reading_logpdf
 
 
 class LikelihoodInputs(NamedTuple):
@@ -128,6 +122,28 @@ def tempered(log_likelihood, likelihood_power):
     return likelihood_power * log_likelihood
 
 
+def padded_length(n: int) -> int:
+    """The length an array of ``n`` entries is padded to before a jitted function whose compilation depends on its
+    length: the smallest ``m * 2 ** e >= n`` with ``m`` in 4..7 (``n`` itself below 8), so lengths within 25 % of
+    each other mostly share one compilation, and padding adds at most 25 % to the work.
+
+    Raises:
+        ValueError: on a negative ``n``.
+    """
+    if n < 0:
+        raise ValueError(f"n must be >= 0, got {n}")
+    if n < 8:
+        return n
+    e = max(int(n).bit_length() - 3, 0)
+    return -(-n // 2 ** e) * 2 ** e
+
+
+def _padded(values: np.ndarray, length: int, fill: float) -> np.ndarray:
+    out = np.full(length, fill, dtype=values.dtype)
+    out[:len(values)] = values
+    return out
+
+
 @partial(jax.jit, static_argnames=("beam_model",))
 def log_likelihood_table(beam_model: str, sensor_args, y, d, exit_distance=None):
     """``log p(y | d)`` of the sensor model ``beam_model`` (``sensor_args`` as :attr:`LikelihoodInputs.sensor_args`)
@@ -143,50 +159,56 @@ def log_likelihood_table(beam_model: str, sensor_args, y, d, exit_distance=None)
     return jnp.where(jnp.isfinite(d), ll, 0.0)
 
 
-@partial(jax.jit, static_argnames=("beam_model",))
-def _pair_log_likelihood_table(beam_model, sensor_args, y, d, max_pairs, exits=None):
-    """:func:`pair_log_likelihoods` from the readings ``y`` ``(P,)`` and distances ``d`` ``(P,)`` of the pairs (with
-    ``exits`` ``(P,)``, the chord geometry's exit distances) and the pairs ``max_pairs`` ``(K,)`` int whose reading is
-    at or beyond the beam model's max range."""
-    if beam_model == "beam" and exits is None:  # what beam_logpdf selects, each part only where it is selected
-        ll = beam_log_density(y, d, *sensor_args)
-        ll = ll.at[max_pairs].set(beam_log_max_mass(d[max_pairs], *sensor_args), indices_are_sorted=True,
-                                  unique_indices=True)
-    elif beam_model == "beam":  # the same for chord_beam_logpdf
-        ll = chord_beam_log_density(y, d, exits, *sensor_args)
-        ll = ll.at[max_pairs].set(chord_beam_log_max_mass(d[max_pairs], exits[max_pairs], *sensor_args),
-                                  indices_are_sorted=True, unique_indices=True)
-    else:
-        ll = reading_logpdf(beam_model, y, d, sensor_args, exits)
-    return jnp.append(jnp.where(jnp.isfinite(d), ll, 0.0), jnp.zeros(1, ll.dtype))
+PAIR_CHUNK = 1 << 16
+"""Entries of ``log p(y | d)`` computed by one call of the compiled table (:func:`chunked_log_likelihoods`): every
+table of any size then runs one compilation. 65,536 float entries: 256 KB of each input, a call's overhead (tens of
+microseconds) small beside its work."""
+
+
+def chunked_log_likelihoods(beam_model: str, sensor_args, y: np.ndarray, d: np.ndarray,
+                            exits: np.ndarray | None = None) -> jax.Array:
+    """``(L,)`` :func:`log_likelihood_table` of the readings ``y`` and distances ``d`` (``(N,)`` float, meters; with
+    ``exits`` ``(N,)`` the chord geometry's exit distances), computed :data:`PAIR_CHUNK` entries at a time, so that
+    arrays of any length share one compilation; then zeros up to ``L = PAIR_CHUNK * padded_length(n) > N`` for
+    ``n = N // PAIR_CHUNK + 1`` chunks (:func:`padded_length`: the concatenation's compilations). Dispatched
+    asynchronously (the caller can work on while it is computed)."""
+    dtype = sensor_args[0].dtype
+    size = len(y)
+    num = size // PAIR_CHUNK + 1
+    length = num * PAIR_CHUNK
+    y, d = _padded(np.asarray(y, dtype), length, 0.0), _padded(np.asarray(d, dtype), length, np.inf)
+    exits = None if exits is None else _padded(np.asarray(exits, dtype), length, 0.0)
+    parts = []
+    for k in range(num):
+        chunk = slice(k * PAIR_CHUNK, (k + 1) * PAIR_CHUNK)
+        parts.append(log_likelihood_table(beam_model, sensor_args, y[chunk], d[chunk],
+                                          None if exits is None else exits[chunk]))
+    if num == 1:
+        return parts[0]
+    return jnp.concatenate(parts + [jnp.zeros(PAIR_CHUNK, dtype)] * (padded_length(num) - num))
 
 
 def pair_log_likelihoods(table: RayTable, readings: np.ndarray, beam_model: str, sensor_args,
                          geometry: str = "entry") -> jax.Array:
-    """``(P + 1,)`` ``log p(y_r | t)`` of the sensor model ``beam_model`` (with ``sensor_args``, scalar arrays of the
-    kernel dtype, as ``params.sensor_args``) for every (ray r, cell) pair of ``table``, then a 0 (the index ``P``
-    pads lookups): ``y_r`` from ``readings`` ``(R,)`` (meters), ``t`` the pair's stopping distance (meters); in the
-    ``"chord"`` ``geometry`` ``log p(y_r | t, e)`` with ``e`` the pair's exit distance (:attr:`RayTable.pair_exits`).
+    """``(L,)`` ``log p(y_r | t)`` of the sensor model ``beam_model`` (with ``sensor_args``, scalar arrays of the
+    kernel dtype, as ``params.sensor_args``) for every (ray r, cell) pair of ``table``, then zeros (the index ``P``
+    pads lookups; ``L > P`` as :func:`chunked_log_likelihoods`, which computes it): ``y_r`` from ``readings``
+    ``(R,)`` (meters), ``t`` the pair's stopping distance (meters); in the ``"chord"`` ``geometry``
+    ``log p(y_r | t, e)`` with ``e`` the pair's exit distance (:attr:`RayTable.pair_exits`).
 
-    Equal to ``reading_logpdf(beam_model, y, t, sensor_args)`` element by element (the same operations), computed in
-    one jitted call; for the beam model the point mass at the max range
-    (:func:`~bayesmap.model.sensor.beam_log_max_mass`) is computed only for the pairs of max-range readings. The
+    Equal to ``reading_logpdf(beam_model, y, t, sensor_args)`` element by element (the same operations). The
     result is dispatched asynchronously (the caller can work on while it is computed)."""
     dtype = sensor_args[0].dtype
-    y = np.asarray(readings, dtype=dtype)
-    if beam_model == "beam":
-        max_pairs = table.ray_pairs(np.flatnonzero(y >= np.asarray(sensor_args[-1])))
-    else:
-        max_pairs = np.zeros(0, dtype=np.int64)
-    exits = np.asarray(table.pair_exits, dtype=dtype) if geometry == "chord" else None
-    return _pair_log_likelihood_table(beam_model, sensor_args, table.per_pair(y),
-                                      np.asarray(table.pair_dists, dtype=dtype), max_pairs, exits)
+    y = table.per_pair(np.asarray(readings, dtype=dtype))
+    exits = table.pair_exits if geometry == "chord" else None
+    return chunked_log_likelihoods(beam_model, sensor_args, y, table.pair_dists, exits)
 
 
 def no_wall_log_likelihoods(inputs: LikelihoodInputs, max_distance: float) -> jax.Array:
-    """``(R,)`` ``log p(y_r | no wall)`` of every ray: the sensor model at the max distance (meters; in the chord
-    geometry the chord ``[max_distance, max_distance]``), in the kernel dtype."""
-    no_wall = jnp.asarray(max_distance, inputs.dtype)
-    exits = no_wall if inputs.geometry == "chord" else None
-    return log_likelihood_table(inputs.beam_model, inputs.sensor_args, jnp.asarray(inputs.readings, inputs.dtype),
-                                no_wall, exits)
+    """``(L,)`` ``log p(y_r | no wall)``: the first ``R`` entries those of the rays (the sensor model at the max
+    distance, meters; in the chord geometry the chord ``[max_distance, max_distance]``), in the kernel dtype; the
+    rest padding (``L > R`` as :func:`chunked_log_likelihoods`)."""
+    y = np.asarray(inputs.readings, inputs.dtype)
+    no_wall = np.full(len(y), max_distance, inputs.dtype)
+    return chunked_log_likelihoods(inputs.beam_model, inputs.sensor_args, y, no_wall,
+                                   no_wall if inputs.geometry == "chord" else None)
