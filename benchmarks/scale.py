@@ -36,6 +36,7 @@ recorder resets the high-water mark at each stage, so at exit it holds only the 
 
 Usage: PYTHONPATH=src nice -n 5 .venv/bin/python benchmarks/scale.py [--scans 250,500,1000,2000,all]
            [--methods bayesmap,karto] [--memory-limit 10] [--time-limit 1800] [--json FILE] [--cache DIR]
+           [--bayesmap COMMAND]
 
 ``--cache DIR`` keeps each (prefix, method)'s record as ``DIR/freiburg-079-N-METHOD.json`` the moment it is done,
 and a later call with the same folder loads it instead of running again (delete a file to rerun it).
@@ -290,14 +291,15 @@ def watched_record(record: dict, watched: Watched, output: Path, limits: dict, l
     return record
 
 
-def run_bayesmap(scans: int, truth: np.ndarray, limits: dict, folder: Path) -> dict:
-    """bayesmap slam on the first ``scans`` scans, watched; its stages, path and ATE when it finishes."""
+def run_bayesmap(scans: int, truth: np.ndarray, limits: dict, folder: Path, command: Optional[str] = None) -> dict:
+    """bayesmap slam on the first ``scans`` scans, watched; its stages, path and ATE when it finishes. ``command``:
+    the ``bayesmap`` executable to run; default the one beside this Python."""
     from bayesmap.evaluation.trajectory import absolute_trajectory_error
     from bayesmap.io.tum import read_tum
 
     out, output = folder / f"bayesmap-{scans}", folder / f"bayesmap-{scans}.txt"
-    command = Path(sys.executable).parent / "bayesmap"
-    cmd = [str(command), "slam", "--log", str(LOG), "--scans", f"0:{scans}", "--out", str(out)]
+    command = command or str(Path(sys.executable).parent / "bayesmap")
+    cmd = [command, "slam", "--log", str(LOG), "--scans", f"0:{scans}", "--out", str(out)]
     watched = run_watched(cmd, limits["memory_limit_gb"] * 1e3, limits["time_limit_s"], output)
     record = watched_record({"scans": scans, "method": "bayesmap", "command": " ".join(cmd[1:])}, watched, output,
                             limits, label="bayesmap")
@@ -346,12 +348,14 @@ def karto_worker(scans: int, result: Path) -> int:
     return 0
 
 
-def cached_run(scans: int, method: str, truth: np.ndarray, limits: dict, folder: Path, cache: Optional[Path]) -> dict:
-    """The record of one (prefix, method): loaded from ``cache`` if there, else run (and saved there, whole)."""
+def cached_run(scans: int, method: str, truth: np.ndarray, limits: dict, folder: Path, cache: Optional[Path],
+               command: Optional[str] = None) -> dict:
+    """The record of one (prefix, method): loaded from ``cache`` if there, else run (and saved there, whole);
+    ``command`` the ``bayesmap`` executable (:func:`run_bayesmap`)."""
     saved = None if cache is None else cache / f"{NAME}-{scans}-{method}.json"
     if saved is not None and saved.exists():
         return json.loads(saved.read_text())
-    record = (run_bayesmap(scans, truth, limits, folder) if method == "bayesmap"
+    record = (run_bayesmap(scans, truth, limits, folder, command) if method == "bayesmap"
               else run_karto(scans, limits, folder))
     if saved is not None:
         partial = saved.with_suffix(".json.part")
@@ -393,6 +397,8 @@ def parse_args(argv: Optional[list[str]]) -> argparse.Namespace:
     parser.add_argument("--time-limit", type=float, default=1800.0, help="seconds after which a run is killed")
     parser.add_argument("--json", type=Path, default=None, help="write every record and the slopes here")
     parser.add_argument("--cache", type=Path, default=None, help="keep each run's record here; reuse those found")
+    parser.add_argument("--bayesmap", default=None, help="the bayesmap command to run (default: the bayesmap "
+                        "script beside this Python, as a venv installs it)")
     parser.add_argument("--karto-worker", type=int, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     args.methods = [m.strip() for m in args.methods.split(",") if m.strip()]
@@ -427,7 +433,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     with tempfile.TemporaryDirectory(prefix="scale-") as tmp:
         for scans in prefixes:
             for method in args.methods:  # one run at a time
-                record = cached_run(scans, method, truth, limits, Path(tmp), args.cache)
+                record = cached_run(scans, method, truth, limits, Path(tmp), args.cache, args.bayesmap)
                 records.append(record)
                 print(f"{scans} scans, {method}: {status_text(record)}, {record['wall_s']:.0f} s", file=sys.stderr,
                       flush=True)

@@ -24,6 +24,7 @@ import numpy as np
 from jax.experimental.shard_map import shard_map
 from jax.sharding import Mesh, PartitionSpec
 
+from bayesmap.devices import sweep_devices
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.base import SamplingAlgorithm
 from bayesmap.progress import ProgressCallback, report
@@ -302,14 +303,15 @@ def run_chains_on_devices(keys, initial_state, algorithm: SamplingAlgorithm, num
         num_sweeps: sweeps per chain, >= 1.
         progress: the callback (None: no reports).
         stage: the stage the reports name.
-        devices: the devices to split the chains over; default all of ``jax.devices()``, at most ``C``.
+        devices: the devices to split the chains over; default :func:`bayesmap.devices.sweep_devices` (the CPU
+            devices), at most ``C``.
 
     Returns:
         :class:`ChainResult` with ``samples`` ``(C, num_sweeps, nx, ny)`` bool and ``wall_probs`` alike (numpy), and
         the chains' final states (a leading ``(C,)`` axis).
     """
     num_chains, num_sweeps = len(keys), int(num_sweeps)
-    devices = tuple(jax.devices() if devices is None else devices)[:max(num_chains, 1)]
+    devices = tuple(sweep_devices() if devices is None else devices)[:max(num_chains, 1)]
     padded = -(-num_chains // len(devices)) * len(devices)  # a whole number of chains per device
     keys = jnp.concatenate([keys, jnp.broadcast_to(keys[:1], (padded - num_chains,))]) if padded > num_chains \
         else keys

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bayesmap.devices import on_sweep_devices
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.chains import cell_diagnostics, compile_chain, posterior_mean, run_chain_from, run_chains_from
 from bayesmap.inference.logodds import LogOddsParams, logodds_map, occupancy
@@ -230,11 +231,12 @@ def _run_log_chains(problem: Problem, sweeps: int, seed: int, chains: int, init:
         release_freed_memory()  # (the pieces of the table)
     else:
         walls0 = np.zeros(problem.grid.shape, bool)
-    key = jax.random.key(seed)
-    keys = [key] if chains == 1 else list(jax.random.split(key, chains))
-    runs = map_chains(keys, problem.params, problem.ray_origins, problem.ray_angles, problem.model_ray_readings,
-                      jnp.asarray(walls0, jnp.float32), sweeps, problem.likelihood_power, max_pairs=tile_pairs,
-                      progress=progress)
+    with on_sweep_devices():  # the sweeps on the CPU, also where JAX's default device is a GPU (bayesmap.devices)
+        key = jax.random.key(seed)
+        keys = [key] if chains == 1 else list(jax.random.split(key, chains))
+        runs = map_chains(keys, problem.params, problem.ray_origins, problem.ray_angles, problem.model_ray_readings,
+                          jnp.asarray(walls0, jnp.float32), sweeps, problem.likelihood_power, max_pairs=tile_pairs,
+                          progress=progress)
     if chains == 1:
         return runs[0].samples, runs[0].wall_probs, runs[0].tiles, runs[0].walls
     return (np.stack([r.samples for r in runs]), np.stack([r.wall_probs for r in runs]), runs[0].tiles,

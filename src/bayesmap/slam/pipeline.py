@@ -55,6 +55,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bayesmap.devices import on_sweep_devices
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import scan_endpoints
@@ -271,6 +272,13 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
         ``(last walls (nx, ny) float32, pose samples (N, S, 3) float64, wall probabilities (M, nx, ny),
         acceptances (N, S - 1) bool)`` of the rounds after the burn-in (the last walls: of the last round).
     """
+    with on_sweep_devices():  # the sweeps on the CPU, also where JAX's default device is a GPU (bayesmap.devices)
+        return _joint_rounds(problem, scans, params, path, seed, counts, progress, tile_pairs)
+
+
+def _joint_rounds(problem, scans: ScanData, params, path, seed: int, counts: tuple[int, int, int, int],
+                  progress: ProgressCallback | None, tile_pairs: int) -> tuple:
+    """:func:`_joint_chain` on the current default device."""
     rounds, burn_in, map_sweeps, pose_sweeps = counts
     # the front end's and the loop closure's compiled searches, and what they hold (about 250 MB on Intel), are not
     # needed again before the scans between keyframes are placed; the map blocks' sweep is then compiled once
@@ -313,7 +321,8 @@ def _final_map(problem, scans: ScanData, grid: Grid, mean, cov, walls, key, swee
     # the final map's model compiles its own sweep: drop the joint chain's compiled sweeps first, and what they hold
     # (on 300 scans of Intel the final map's peak 1,286 -> 929 MB)
     jax.clear_caches()
-    _, probs, _ = _map_round(key, problem, params, mean, walls, sweeps, power, progress, "final map", tile_pairs)
+    with on_sweep_devices():  # (bayesmap.devices)
+        _, probs, _ = _map_round(key, problem, params, mean, walls, sweeps, power, progress, "final map", tile_pairs)
     return probs[sweeps // 2:].astype(np.float64).mean(axis=0), power, noise
 
 
