@@ -92,13 +92,6 @@ class RayTable:
         """``(P,)`` int64 position of each pair along its ray (0 = closest to the sensor)."""
         return np.arange(self.num_pairs) - self.per_pair(self.offsets[:-1])
 
-    def ray_pairs(self, rays) -> np.ndarray:
-        """``(n,)`` int64 indices of the pairs of ``rays`` (ints, ascending for ascending pairs), ray by ray."""
-        rays = np.asarray(rays, dtype=np.int64).reshape(-1)
-        lengths = self.lengths[rays]
-        ends = np.cumsum(lengths)
-        return np.arange(int(ends[-1]) if len(ends) else 0) + np.repeat(self.offsets[rays] - (ends - lengths), lengths)
-
     def pairs_by_cell(self, cell_rank=None) -> np.ndarray:
         """``(P,)`` int64 pair indices sorted by ``cell_rank[cell]`` (``(num_cells,)`` ints below ``2**32``; default
         the flat cell index), the pairs of equal rank in pair order (ray by ray): ``np.argsort(cell_rank[pair_cells],

@@ -252,10 +252,10 @@ def run_inference(problem: Problem, sampler: str = "block", sweeps: int = DEFAUL
     The cellwise sampler on a problem of several scans (a log) runs a tile of the grid at a time when its ray-cell
     table would hold more than ``tile_pairs`` pairs (:func:`bayesmap.inference.tiled.tiled_map_chain`; the samples
     of one sweep are then each cell's draw in that sweep of its tile, not one joint map), chain ``c`` with key ``c``
-    of ``seed``'s key split in ``chains``; within the budget the chains run split over the devices JAX sees
-    (:func:`bayesmap.inference.tiled.map_chains`), beyond it one after another. Its start map and the summary's log
-    joint read the table a piece at a time (:meth:`bayesmap.problem.Problem.table_chunks`), so the memory is bounded
-    by ``tile_pairs``, not by the log.
+    of ``seed``'s key split in ``chains``; within the budget the chains run split over the CPU devices JAX sees
+    (:func:`bayesmap.inference.tiled.map_chains`, :mod:`bayesmap.devices`), beyond it one after another. Its start
+    map and the summary's log joint read the table a piece at a time (:meth:`bayesmap.problem.Problem.table_chunks`),
+    so the memory is bounded by ``tile_pairs``, not by the log.
 
     Steps: check the settings, plan the chunks of sweeps and their keys, build the sampler and its compiled chain
     from the start map, run the chunks (with progress), then the posterior marginals, diagnostics and summary.

@@ -125,8 +125,8 @@ def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls,
                progress: ProgressCallback | None = None, stage: str = "sweeps") -> list[TiledChain]:
     """``len(keys)`` chains of :func:`tiled_map_chain` from ``walls``, chain ``c`` with ``keys[c]`` (the same records,
     tested): when the whole table fits ``max_pairs``, its sampler is built once and the chains run split over the
-    devices JAX sees (:func:`bayesmap.inference.chains.run_chains_on_devices`: several CPU devices or GPUs each run
-    their share of the chains); beyond it, one tiled chain after another (tiles share beams and a tile's table
+    CPU devices JAX sees (:func:`bayesmap.inference.chains.run_chains_on_devices`, :mod:`bayesmap.devices`: each
+    runs its share of the chains); beyond it, one tiled chain after another (tiles share beams and a tile's table
     depends on its chain's map, so they stay on one device). ``progress`` gets ``Progress(stage, done, len(keys) *
     sweeps, "sweep")``, ``done`` the sweeps of every chain so far.
 
