@@ -169,8 +169,9 @@ def test_a_tiled_chain_targets_the_same_posterior(margin, passes, agrees):
     neighbours (0.6 m, three cells). Two whole-table chains of other keys differ by up to 0.21 on a cell (0.014 on
     average) on this scene; 0.35 and 0.03 leave room for that Monte Carlo spread. Without the band a cell on a
     tile's edge takes the wall of beams that end just beyond it while the neighbour is still empty, and keeps it
-    (a marginal near 1 where the whole chain's is near 0): the same check fails. Two passes over the tiles (30
-    sweeps each) agree too, and report their progress as one stage of 60 sweeps that never goes back."""
+    (a marginal near 1 where the whole chain's is near 0): the same check fails (measured: largest difference 1.0,
+    mean 0.039; with the band 0.27 and 0.011). Two passes over the tiles (30 sweeps each) agree too (0.20, 0.013),
+    and report their progress as one stage of 60 sweeps that never goes back."""
     rng, grid, origins, angles = _rays(8, num_rays=600)
     truth = rng.random(grid.shape) < 0.15
     params, _, _ = _model(grid, len(angles), rng, cut_past_reading=0.5)
@@ -181,7 +182,7 @@ def test_a_tiled_chain_targets_the_same_posterior(margin, passes, agrees):
     np.minimum.at(y, ray, dists)
     y = np.minimum(y + rng.normal(0, 0.05, y.shape), params.max_range).clip(0.0)
     walls = np.zeros(grid.shape, np.float32)
-    budget = int(ray_cells(grid, origins, angles, ray_limits(y, params)).sum()) // 5
+    budget = int(ray_cells(grid, origins, angles, ray_limits(y, params)).sum()) // 3  # four tiles
     reports = []
     tiled = tiled_map_chain(jax.random.key(1), params, origins, angles, y, walls, 60, max_pairs=budget,
                             margin=margin, passes=passes, progress=reports.append if passes > 1 else None)
