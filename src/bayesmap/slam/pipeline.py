@@ -262,6 +262,7 @@ def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_
     return mean, chain_cov + scale**2 * graph_cov, chain_samples + scale * deviations, graph_cov
 
 
+@on_sweep_devices()  # the sweeps on the CPU, also where JAX's default device is a GPU (bayesmap.devices)
 def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tuple[int, int, int, int],
                  progress: ProgressCallback | None, tile_pairs: int = TILE_PAIRS) -> tuple:
     """Stage 4 of the module docstring: the joint chain from ``path`` ``(S, 3)`` and an empty map on ``params``'s
@@ -272,13 +273,6 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
         ``(last walls (nx, ny) float32, pose samples (N, S, 3) float64, wall probabilities (M, nx, ny),
         acceptances (N, S - 1) bool)`` of the rounds after the burn-in (the last walls: of the last round).
     """
-    with on_sweep_devices():  # the sweeps on the CPU, also where JAX's default device is a GPU (bayesmap.devices)
-        return _joint_rounds(problem, scans, params, path, seed, counts, progress, tile_pairs)
-
-
-def _joint_rounds(problem, scans: ScanData, params, path, seed: int, counts: tuple[int, int, int, int],
-                  progress: ProgressCallback | None, tile_pairs: int) -> tuple:
-    """:func:`_joint_chain` on the current default device."""
     rounds, burn_in, map_sweeps, pose_sweeps = counts
     # the front end's and the loop closure's compiled searches, and what they hold (about 250 MB on Intel), are not
     # needed again before the scans between keyframes are placed; the map blocks' sweep is then compiled once
