@@ -83,6 +83,29 @@ def beam_enumeration_scene(**model):
     return table, y, params, exact
 
 
+def mrf_enumeration_scene(coupling):
+    """3 x 4 grid (4,096 maps), one scan of 7 beams, J = ``coupling``: the problem and its exact marginals by
+    enumerating every map with the model's assess (connections observed)."""
+    import itertools
+
+    from bayesmap.geometry.raycast import angles as tutorial_angles
+    from bayesmap.model.generative import log_joint, simulate_readings
+    from bayesmap.problem import Problem
+
+    grid = Grid((3, 4))
+    params = make_params(prior_wall_prob=0.3, sensor_noise=0.4, num_angles=7, grid=grid, coupling=coupling)
+    truth = np.zeros((3, 4), np.float32)
+    truth[2, 3] = truth[0, 3] = truth[2, 0] = 1
+    pos = np.array([1.3, 0.6])
+    y = np.abs(np.asarray(simulate_readings(jax.random.key(5), truth, pos, params), float))
+    maps = np.array(list(itertools.product([0.0, 1.0], repeat=12)), np.float32).reshape(-1, 3, 4)
+    lj = np.asarray(jax.jit(jax.vmap(lambda w: log_joint(w, y, pos, params)))(jnp.asarray(maps)), float)
+    w = np.exp(lj - lj.max())
+    exact = np.tensordot(w / w.sum(), maps, axes=1)
+    problem = Problem.from_world_frame(params, pos, np.asarray(tutorial_angles(7), float), y, truth=truth)
+    return problem, exact
+
+
 def sweeps_keep_ray_rows(sampler, table, grid, walls_kept: int, num_sweeps: int) -> int:
     """Run ``num_sweeps`` sweeps of ``sampler`` (a CellwiseGibbs) from a random half-full map (keys 0, 1, ...),
     asserting after each that the state's rows equal those recomputed from its map (``sampler.ray_walls``) and that

@@ -11,7 +11,6 @@ from jax.experimental import enable_x64
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
-from bayesmap.geometry.raycast import angles as tutorial_angles
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.inference.cellwise import CellwiseGibbs
 from bayesmap.inference.chains import run_chains
@@ -41,7 +40,7 @@ from bayesmap.model.prior import (
     neighbour_indices,
     sample_prior,
 )
-from helpers import POSES, replay_one_at_a_time, run_cli, scenes
+from helpers import POSES, mrf_enumeration_scene, replay_one_at_a_time, run_cli, scenes
 
 COUPLING = 0.8
 
@@ -248,28 +247,9 @@ def test_cellwise_and_dense_conditionals_equal_assess():
         np.testing.assert_allclose(got, want, atol=1e-6, rtol=0)
 
 
-def enumeration_scene():
-    """3 x 4 grid (4,096 maps), one scan of 7 beams, J = COUPLING: the problem and its exact marginals by
-    enumerating every map with the model's assess (connections observed)."""
-    from bayesmap.problem import Problem
-
-    grid = Grid((3, 4))
-    params = make_params(prior_wall_prob=0.3, sensor_noise=0.4, num_angles=7, grid=grid, coupling=COUPLING)
-    truth = np.zeros((3, 4), np.float32)
-    truth[2, 3] = truth[0, 3] = truth[2, 0] = 1
-    pos = np.array([1.3, 0.6])
-    y = np.abs(np.asarray(simulate_readings(jax.random.key(5), truth, pos, params), float))
-    maps = np.array(list(itertools.product([0.0, 1.0], repeat=12)), np.float32).reshape(-1, 3, 4)
-    lj = np.asarray(jax.jit(jax.vmap(lambda w: log_joint(w, y, pos, params)))(jnp.asarray(maps)), float)
-    w = np.exp(lj - lj.max())
-    exact = np.tensordot(w / w.sum(), maps, axes=1)
-    problem = Problem.from_world_frame(params, pos, np.asarray(tutorial_angles(7), float), y, truth=truth)
-    return problem, exact
-
-
 @pytest.fixture(scope="module")
 def enumerated():
-    return enumeration_scene()
+    return mrf_enumeration_scene(COUPLING)
 
 
 @pytest.mark.parametrize("sampler", ["raster", "chromatic", "block", "chromatic-block", "cellwise", "split",

@@ -32,6 +32,10 @@ classes would bring little parallelism. This sampler is the plain systematic-sca
   speed.md, "Cells scored at once"). Within the sweep the map is kept in the visiting order, so that a block's cells
   are one contiguous slice.
 
+A sweep visits the first ``count`` rows of each width group (:class:`Lanes`): every crossed cell, or, for the kernel
+:meth:`CellwiseKernel.focus` returns, only the cells it is given (those in doubt: :mod:`bayesmap.inference.focus`),
+which it puts first in each group; the others keep their values, a Gibbs update of the visited cells given the rest.
+
 The structured prior (:mod:`bayesmap.model.prior`, ``params.coupling > 0``): a cell's log-odds gain ``J (n_wall -
 n_free)`` over its 4-neighbours, read from the map in visiting order (which then holds every cell: those no ray
 crosses after the others). Within each group the cells of one colour of the grid's checkerboard (``i + j`` even) come
@@ -82,6 +86,7 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raytable import RayTable
 from bayesmap.inference.base import GibbsInfo, KernelFields, KernelSampler, SamplingAlgorithm
+from bayesmap.memory import release_freed_memory
 from bayesmap.model.generative import ModelParams, prior_log_odds
 from bayesmap.model.likelihood import (
     likelihood_inputs,
@@ -143,13 +148,15 @@ class Lanes(NamedTuple):
     int32 ``rays`` (``R`` for padding), int32 ``positions`` along the ray, and ``log_lik`` ``log p(y_ray | stopping
     distance of the cell)`` (0 for padding); with the structured prior, ``neighbours`` ``(n, 4)`` int32 the places
     of the cell's 4-neighbours in the visiting order (the number of visited cells, a slot that holds 0.5, for a
-    neighbour outside the grid), else None."""
+    neighbour outside the grid), else None. A sweep visits the first ``count`` rows (a scalar int32 array): every
+    real cell (the padding rows come last), or fewer (:meth:`CellwiseKernel.focus`)."""
 
     cells: jax.Array
     rays: jax.Array
     positions: jax.Array
     log_lik: jax.Array
     neighbours: jax.Array | None = None
+    count: jax.Array | None = None
 
 
 class SweepShapes(NamedTuple):
@@ -257,7 +264,8 @@ def _lanes(table: RayTable, counts: np.ndarray, groups, rank: np.ndarray, pair_l
         padded = np.zeros(size[width], np.int32)
         padded[:len(cells)] = cells
         lanes.append(Lanes(cells=jnp.asarray(padded), rays=jnp.asarray(rays),
-                           positions=jnp.asarray(positions), log_lik=jnp.asarray(log_lik)))
+                           positions=jnp.asarray(positions), log_lik=jnp.asarray(log_lik),
+                           count=jnp.asarray(len(cells), jnp.int32)))
     return tuple(lanes)
 
 
@@ -483,17 +491,20 @@ class CellwiseKernel(KernelFields):
         return jax.lax.fori_loop(0, num_batches, one_batch, (jnp.int32(-1), rows_all))[1]
 
     def _sweep_group(self, lanes, base, cur, rows_all, probs, u):
-        """Every cell of ``lanes`` once, ``SPECULATIVE_CELLS`` or ``SPECULATIVE_LANES // width`` at a time (see the
-        module docstring). ``cur``,
-        ``probs`` and ``u``: the map, the conditional probabilities and the uniforms in visiting order, the group's
-        cells at ``base, base + 1, ...``."""
+        """The cells of the rows ``0 .. lanes.count - 1`` once each, in order, ``SPECULATIVE_CELLS`` or
+        ``SPECULATIVE_LANES // width`` at a time (see the module docstring). ``cur``, ``probs`` and ``u``: the map,
+        the conditional probabilities and the uniforms in visiting order, the group's cells at ``base, base + 1,
+        ...``."""
         n, width = lanes.rays.shape
         size = min(max(SPECULATIVE_CELLS, SPECULATIVE_LANES // width), n)
         j = jnp.arange(size, dtype=jnp.int32)
+        count = lanes.count
 
         def body(carry):
             i, cur, rows_all, probs = carry
-            s = jnp.minimum(i, n - size)  # the block: cells s .. s + size - 1 of the group, those before i done
+            # the block: cells s .. s + size - 1 of the group, those before i done, those from count on not visited
+            s = jnp.maximum(jnp.minimum(i, count - size), 0)
+            end = jnp.minimum(s + size, count)
             rays, positions, log_lik = (jax.lax.dynamic_slice_in_dim(a, s, size)
                                         for a in (lanes.rays, lanes.positions, lanes.log_lik))
             score, can_add, can_remove = self._score(rows_all[rays], positions, log_lik)
@@ -502,16 +513,17 @@ class CellwiseKernel(KernelFields):
                 neighbours = jax.lax.dynamic_slice_in_dim(lanes.neighbours, s, size)  # (size, 4) visiting places
                 log_odds = log_odds + self._coupling * jnp.sum(2.0 * cur[neighbours] - 1.0, axis=-1)
                 # a cell with a neighbour later among these: its change makes the later score stale
-                later = jnp.any((neighbours > base + s + j[:, None]) & (neighbours < base + s + size), axis=-1)
+                later = jnp.any((neighbours > base + s + j[:, None]) & (neighbours < base + end), axis=-1)
             prob = jax.nn.sigmoid(log_odds)
             old = jax.lax.dynamic_slice_in_dim(cur, base + s, size) > 0
             new = jax.lax.dynamic_slice_in_dim(u, base + s, size) < prob
             changes = jnp.where(new, can_add, can_remove)
             if lanes.neighbours is not None:
                 changes = changes | later
-            rewrites = (j >= i - s) & (new != old) & changes
+            live = (j >= i - s) & (s + j < end)
+            rewrites = live & (new != old) & changes
             stop = jnp.where(jnp.any(rewrites), jnp.argmax(rewrites), size)  # the first cell that changes rows
-            keep = (j >= i - s) & (j <= stop)
+            keep = live & (j <= stop)
             cur = jax.lax.dynamic_update_slice_in_dim(cur, jnp.where(keep, new, old).astype(cur.dtype), base + s, 0)
             probs = jax.lax.dynamic_update_slice_in_dim(
                 probs, jnp.where(keep, prob.astype(probs.dtype), jax.lax.dynamic_slice_in_dim(probs, base + s, size)),
@@ -524,7 +536,10 @@ class CellwiseKernel(KernelFields):
                                     lambda r: r, rows_all)  # after writing cur: the walk reads the new map
             return s + jnp.minimum(stop + 1, size), cur, rows_all, probs
 
-        _, cur, rows_all, probs = jax.lax.while_loop(lambda c: c[0] < n, body, (jnp.int32(0), cur, rows_all, probs))
+        if n == 0:
+            return cur, rows_all, probs
+        _, cur, rows_all, probs = jax.lax.while_loop(lambda c: c[0] < count, body,
+                                                     (jnp.int32(0), cur, rows_all, probs))
         return cur, rows_all, probs
 
     def step(self, key, state: CellwiseState) -> tuple[CellwiseState, GibbsInfo]:
@@ -561,6 +576,43 @@ class CellwiseKernel(KernelFields):
             wall_prob = jnp.where(self._frozen, walls.astype(jnp.float32), wall_prob)
         state = CellwiseState(walls=walls.reshape(self._shape), ray_walls=rows)
         return state, GibbsInfo(wall_prob=wall_prob.reshape(self._shape))
+
+    def focus(self, cells) -> CellwiseKernel:
+        """Reorder this kernel's cells, in place, so that within each width group those in ``cells`` (``(nx, ny)``
+        bool) come first, in their order, then the others, in theirs; return the kernel that visits only those of
+        ``cells`` (the others keep their values: a Gibbs update of those cells given the rest). Both hold the same
+        arrays and shapes, so that they share one compiled sweep (:func:`bayesmap.inference.focus.focused_chain`
+        alternates them). In place, a group at a time, so that the lanes are never held twice: this kernel's sweep
+        then visits the cells in the new order, which is as valid a sweep as any fixed order, with the same
+        conditionals (:meth:`cell_log_odds`) and per-ray rows (a state of the kernel stays one of both)."""
+        cells = np.asarray(cells, bool).reshape(-1)
+        order = np.asarray(self._order).copy()
+        rank = np.asarray(self._rank).copy()
+        place_map = np.arange(len(order) + 1, dtype=np.int32)  # old place -> new place (the last: outside the grid)
+        moved, counts, base = [], [], 0
+        for lanes in self._lanes:
+            n, count = lanes.rays.shape[0], int(lanes.count)
+            first = cells[order[base:base + count]]
+            perm = np.concatenate([np.flatnonzero(first), np.flatnonzero(~first), np.arange(count, n)])
+            place_map[base + perm] = base + np.arange(n, dtype=np.int32)
+            order[base:base + n] = order[base + perm]
+            rank[order[base:base + count]] = np.arange(base, base + count, dtype=rank.dtype)
+            moved.append(perm)
+            counts.append(int(first.sum()))
+            base += n
+        for g, perm in enumerate(moved):  # in numpy, one array at a time (its old copy freed before the next)
+            for name in ("cells", "rays", "positions", "log_lik", "neighbours"):
+                if getattr(self._lanes[g], name) is not None:
+                    new = np.asarray(getattr(self._lanes[g], name))[perm]
+                    new = jnp.asarray(place_map[new] if name == "neighbours" else new)
+                    self._lanes = self._lanes[:g] + (self._lanes[g]._replace(**{name: new}),) + self._lanes[g + 1:]
+                    del new
+        release_freed_memory()
+        self._order, self._rank = jnp.asarray(order), jnp.asarray(rank)
+        fields = {name: getattr(self, name) for name in self._ARRAYS + self._STATIC}
+        fields["_lanes"] = tuple(lanes._replace(count=jnp.asarray(count, jnp.int32))
+                                 for lanes, count in zip(self._lanes, counts))
+        return CellwiseKernel(**fields)
 
     def cell_log_odds(self, walls) -> jax.Array:
         """Every cell's conditional log-odds given the rest of ``walls`` ``(nx, ny)``: ``(nx, ny)``, computed with

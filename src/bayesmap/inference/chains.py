@@ -139,6 +139,17 @@ def _run(key, initial_state, arrays, static, num_sweeps: int, record, batch, pro
         sweep_keys = jax.random.split(key, num_sweeps)
     else:  # (C, num_sweeps): chain c's keys, as scan_chain splits them under vmap
         sweep_keys = jax.vmap(lambda k: jax.random.split(k, num_sweeps))(key)
+    return _run_keys(sweep_keys, initial_state, arrays, static, record, batch, progress, stage)
+
+
+def _run_keys(sweep_keys, initial_state, arrays, static, record, batch, progress: ProgressCallback | None,
+              stage: str, done: int = 0, total: int | None = None):
+    """One compiled sweep per key of ``sweep_keys`` (``(n,)``; ``(C, n)`` with ``batch``) from ``initial_state``,
+    reporting ``Progress(stage, done + t, total, "sweep")`` (``total`` default ``done + n``) before the first sweep
+    and after each sweep ``t``; returns ``(final_state, records)``, the records numpy arrays, each sweep's written
+    into them while the next sweep runs (no second copy)."""
+    num_sweeps = int(sweep_keys.shape[-1])
+    total = done + num_sweeps if total is None else total
     arrays = [jnp.asarray(a) for a in arrays]  # (copied to the device once, not once per sweep)
     state, out, pending = initial_state, None, None
     axis = 0 if batch is None else 1
@@ -146,9 +157,9 @@ def _run(key, initial_state, arrays, static, num_sweeps: int, record, batch, pro
     def write(t, records):  # sweep t's records into the numpy arrays (waits for the sweep), then its report
         at = (slice(None),) * axis + (slice(t, t + 1),)
         jax.tree.map(lambda o, r: o.__setitem__(at, np.asarray(r)), out, records)
-        report(progress, stage, t + 1, num_sweeps)
+        report(progress, stage, done + t + 1, total)
 
-    report(progress, stage, 0, num_sweeps)
+    report(progress, stage, done, total)
     for t in range(num_sweeps):
         keys = sweep_keys[t:t + 1] if batch is None else sweep_keys[:, t:t + 1]
         state, records = _sweeps_jit(keys, state, arrays, static, record, batch)
@@ -226,6 +237,34 @@ def run_chain_from(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps:
     """
     arrays, static = _split(algorithm)
     return _map_chain(arrays, static, key, initial_state, num_sweeps, None, progress, stage)
+
+
+def run_sweeps(sweep_keys, initial_state, algorithm: SamplingAlgorithm, progress: ProgressCallback | None = None,
+               stage: str = "sweeps", done: int = 0, total: int | None = None) -> ChainResult:
+    """One sweep of ``algorithm`` per key of ``sweep_keys`` ``(n,)``, ``n >= 1``, from a sampler state, one compiled
+    sweep per call (one compilation whatever ``n``, shared by every algorithm of the same static part and array
+    shapes): a piece of a chain whose pieces may use different algorithms of one compilation
+    (:func:`bayesmap.inference.focus.focused_chain`). The keys ``jax.random.split(key, N)[a:b]`` continue, from the
+    state after the keys ``[:a]``, the chain :func:`run_chain_from` runs with ``key``, bit for bit.
+
+    Args:
+        sweep_keys: ``(n,)`` JAX PRNG keys, one per sweep.
+        initial_state: the sampler's state.
+        algorithm: the sampler.
+        progress: called with ``Progress(stage, done + t, total, "sweep")`` before the first sweep (``t = 0``) and
+            after each; None: no reports.
+        stage: the stage the reports name.
+        done: the chain's sweeps before this piece (for the reports).
+        total: the chain's sweeps in all (for the reports); default ``done + n``.
+
+    Returns:
+        :class:`ChainResult` of numpy records: ``samples`` ``(n, nx, ny)`` bool, the final state, ``wall_probs``
+        ``(n, nx, ny)`` float32 or None.
+    """
+    arrays, static = _split(algorithm)
+    final, (samples, wall_probs) = _run_keys(jnp.asarray(sweep_keys), initial_state, arrays, static, _map_record,
+                                             None, progress, stage, done, total)
+    return ChainResult(samples, final, wall_probs)
 
 
 def compile_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, num_chains: int | None = None):

@@ -220,9 +220,10 @@ def _run_log_chains(problem: Problem, sweeps: int, seed: int, chains: int, init:
                     progress: ProgressCallback | None) -> tuple:
     """``(samples, wall_probs, tiles, final)`` of ``chains`` cellwise chains on a problem of several scans, by
     :func:`bayesmap.inference.tiled.map_chains` (a tile of the grid at a time beyond ``tile_pairs`` pairs, the chains
-    one after another; within it, the chains split over the devices). Chain ``c`` gets key ``c`` of ``seed``'s key
-    split in ``chains`` (one chain: the key itself); ``final`` is the first chain's last map. The log-odds start map is
-    computed a piece of the table at a time (the stage ``"log-odds start"`` of a
+    one after another; within it, the chains split over the devices; one chain, or each beyond the budget, sweeping
+    mostly the cells in doubt after its first sweeps: :mod:`bayesmap.inference.focus`). Chain ``c`` gets key ``c`` of
+    ``seed``'s key split in ``chains`` (one chain: the key itself); ``final`` is the first chain's last map. The
+    log-odds start map is computed a piece of the table at a time (the stage ``"log-odds start"`` of a
     :class:`bayesmap.progress.StageRecorder`); the sweeps report stage ``"sweeps"``, ``total`` the sweeps of every
     chain."""
     if init == "logodds":
@@ -236,7 +237,7 @@ def _run_log_chains(problem: Problem, sweeps: int, seed: int, chains: int, init:
         keys = [key] if chains == 1 else list(jax.random.split(key, chains))
         runs = map_chains(keys, problem.params, problem.ray_origins, problem.ray_angles, problem.model_ray_readings,
                           jnp.asarray(walls0, jnp.float32), sweeps, problem.likelihood_power, max_pairs=tile_pairs,
-                          progress=progress)
+                          progress=progress, focus=True)
     if chains == 1:
         return runs[0].samples, runs[0].wall_probs, runs[0].tiles, runs[0].walls
     return (np.stack([r.samples for r in runs]), np.stack([r.wall_probs for r in runs]), runs[0].tiles,

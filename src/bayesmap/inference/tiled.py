@@ -9,12 +9,15 @@ chain a tile of the grid at a time when the log's pairs exceed a budget (:data:`
 2. Tile after tile: the tile grown by a band of ``margin`` meters (:data:`TILE_MARGIN`) is the block; its table is
    built with every other cell held at its current value (:func:`bayesmap.geometry.tiles.tile_table`: the beams that
    cross the block, their pairs in it and their first few wall cells outside it), and ``sweeps`` cellwise sweeps of
-   the block's cells run with the rest frozen (``CellwiseGibbs(..., frozen=...)``); the block's last draw is written
+   the block's cells run with the rest frozen (``CellwiseGibbs(..., frozen=...)``; with ``focus``, after the first
+   :data:`~bayesmap.inference.focus.FOCUS_START` sweeps most of them of the block's cells in doubt only:
+   :func:`bayesmap.inference.focus.focused_chain`); the block's last draw is written
    into the map, the tile's cells' conditional probabilities into the record, and the table and the compiled sweep
    are dropped before the next tile.
 
-Each of a tile's sweeps draws every cell of the tile from its full conditional given every other cell of the map
-(the tile's table gives it exactly the conditional of the whole table: tested), so each leaves the posterior
+Each of a tile's sweeps draws every cell of the tile (or every cell of it in doubt) from its full conditional given
+every other cell of the map (the tile's table gives it exactly the conditional of the whole table: tested), so each
+leaves the posterior
 invariant, and the chain as a whole is a blocked Gibbs sampler whose (overlapping) blocks are the grown tiles, each
 updated by ``sweeps`` Gibbs sweeps in turn (a composition of kernels that each leave the target invariant leaves it
 invariant; Tierney 1994, sec. 2.4). What differs from the whole map's chain is the order of the updates: a tile is
@@ -27,8 +30,9 @@ records of one sweep index are not one joint state of the map (only the last map
 held-out scores (within the whole table's seed-to-seed spread) and on the SLAM path is measured on the validation
 pages (docs/validation/defaults.md, "TILE_MARGIN"; docs/validation/scale.md, "Tiles").
 
-When the log's pairs fit the budget, :func:`tiled_map_chain` is the whole table's chain (:func:`~bayesmap.inference.
-chains.run_chain` of :func:`~bayesmap.inference.cellwise.cellwise_gibbs`), with the same keys and results.
+When the log's pairs fit the budget, :func:`tiled_map_chain` is the whole table's chain
+(:func:`~bayesmap.inference.chains.run_chain` of :class:`~bayesmap.inference.cellwise.CellwiseGibbs`, or with
+``focus`` :func:`~bayesmap.inference.focus.focused_chain` of its kernel), with the same keys and results.
 """
 
 from __future__ import annotations
@@ -42,8 +46,9 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raytable import build_ray_table
 from bayesmap.geometry.tiles import Tile, ray_cells, rays_per_cell, split_tiles, tile_table
-from bayesmap.inference.cellwise import CellwiseGibbs, SweepShapes, cellwise_gibbs
+from bayesmap.inference.cellwise import CellwiseGibbs, SweepShapes
 from bayesmap.inference.chains import run_chain, run_chains_on_devices
+from bayesmap.inference.focus import focused_chain
 from bayesmap.memory import release_freed_memory
 from bayesmap.model.generative import ModelParams, ray_limits
 from bayesmap.progress import Progress, ProgressCallback, report
@@ -103,10 +108,9 @@ class _TileProgress:
 
 def _whole_sampler(params: ModelParams, origins, angles, readings, likelihood_power: float, max_pairs: int,
                    shapes: SweepShapes | None = None, headroom: float = 0.0):
-    """``(sampler, tile, shapes)``: the cellwise sampler of the whole table (its arrays padded to ``shapes`` with
-    ``headroom``: :class:`~bayesmap.inference.cellwise.CellwiseGibbs`), the tile of the whole grid and the
-    sampler's :class:`~bayesmap.inference.cellwise.SweepShapes`, when the table's estimated pairs fit ``max_pairs``;
-    else None."""
+    """``(sampler, tile)``: the cellwise sampler of the whole table (its arrays padded to ``shapes`` with
+    ``headroom``: :class:`~bayesmap.inference.cellwise.CellwiseGibbs`) and the tile of the whole grid, when the
+    table's estimated pairs fit ``max_pairs``; else None."""
     grid = params.grid
     limits = ray_limits(readings, params)
     lengths = params.max_range if limits is None else limits
@@ -117,18 +121,19 @@ def _whole_sampler(params: ModelParams, origins, angles, readings, likelihood_po
     tile = Tile(0, grid.shape[0], 0, grid.shape[1], table.num_pairs)
     del table  # the sampler holds what its sweeps read
     release_freed_memory()  # (the sorting's temporaries: the sweeps' peak does not count them)
-    return gibbs.algorithm, tile, gibbs.kernel.shapes
+    return gibbs, tile
 
 
 def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls, sweeps: int,
                likelihood_power: float = 1.0, max_pairs: int = TILE_PAIRS,
-               progress: ProgressCallback | None = None, stage: str = "sweeps") -> list[TiledChain]:
+               progress: ProgressCallback | None = None, stage: str = "sweeps", focus: bool = False
+               ) -> list[TiledChain]:
     """``len(keys)`` chains of :func:`tiled_map_chain` from ``walls``, chain ``c`` with ``keys[c]`` (the same records,
     tested): when the whole table fits ``max_pairs``, its sampler is built once and the chains run split over the
     CPU devices JAX sees (:func:`bayesmap.inference.chains.run_chains_on_devices`, :mod:`bayesmap.devices`: each
     runs its share of the chains); beyond it, one tiled chain after another (tiles share beams and a tile's table
-    depends on its chain's map, so they stay on one device). ``progress`` gets ``Progress(stage, done, len(keys) *
-    sweeps, "sweep")``, ``done`` the sweeps of every chain so far.
+    depends on its chain's map, so they stay on one device; ``focus`` as :func:`tiled_map_chain`'s). ``progress``
+    gets ``Progress(stage, done, len(keys) * sweeps, "sweep")``, ``done`` the sweeps of every chain so far.
 
     Raises:
         BayesmapError: as :func:`tiled_map_chain`.
@@ -142,7 +147,8 @@ def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls,
     readings = np.asarray(readings).reshape(-1)
     whole = _whole_sampler(params, origins, angles, readings, likelihood_power, max_pairs) if len(keys) > 1 else None
     if whole is not None:
-        sampler, tile, shapes = whole
+        gibbs, tile = whole
+        sampler, shapes = gibbs.algorithm, gibbs.kernel.shapes
 
         def every_chain(p: Progress) -> None:
             report(progress, stage, p.done * len(keys), total, p.unit)
@@ -150,7 +156,7 @@ def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls,
         state = sampler.init(jnp.asarray(walls, jnp.float32))
         run = run_chains_on_devices(jnp.stack(list(keys)), state, sampler, sweeps,
                                     None if progress is None else every_chain, stage)
-        del sampler, whole, state
+        del sampler, gibbs, whole, state
         release_freed_memory()
         return [TiledChain(jnp.asarray(run.samples[c, -1], jnp.float32), run.wall_probs[c], (tile,), run.samples[c],
                            shapes)
@@ -161,7 +167,8 @@ def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls,
             report(progress, stage, c * sweeps + p.done, total, p.unit)
 
         chains.append(tiled_map_chain(key, params, origins, angles, readings, walls, sweeps, likelihood_power,
-                                      max_pairs, progress=None if progress is None else one, stage=stage))
+                                      max_pairs, progress=None if progress is None else one, stage=stage,
+                                      focus=focus))
     return chains
 
 
@@ -183,7 +190,7 @@ def check_tile_pairs(max_pairs) -> None:
 def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, walls, sweeps: int,
                     likelihood_power: float = 1.0, max_pairs: int = TILE_PAIRS, margin: float = TILE_MARGIN,
                     passes: int = 1, progress: ProgressCallback | None = None, stage: str = "sweeps",
-                    shapes: SweepShapes | None = None, headroom: float = 0.0) -> TiledChain:
+                    shapes: SweepShapes | None = None, headroom: float = 0.0, focus: bool = False) -> TiledChain:
     """``sweeps`` cellwise sweeps of the map given rays at known poses, a tile at a time when the rays' table would
     hold more than ``max_pairs`` pairs (module docstring).
 
@@ -208,6 +215,8 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
             chain's :class:`TiledChain`, to reuse its compiled sweep. Tiles are not padded. None: no padding.
         headroom: the padding of a size ``shapes`` does not give or that does not fit it, a fraction >= 0
             (:func:`~bayesmap.inference.cellwise.fitted_shapes`).
+        focus: after the first sweeps, sweep mostly the cells in doubt (:func:`bayesmap.inference.focus.
+            focused_chain`, the whole table or each tile); False: every sweep visits every cell.
 
     Returns:
         :class:`TiledChain`.
@@ -231,9 +240,13 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
     limits = ray_limits(readings, params)
     whole = _whole_sampler(params, origins, angles, readings, likelihood_power, max_pairs, shapes, headroom)
     if whole is not None:
-        sampler, tile, shapes = whole
-        chain = run_chain(key, sampler, walls, sweeps, progress, stage)
-        del sampler, whole
+        gibbs, tile = whole
+        shapes = gibbs.kernel.shapes
+        if focus:
+            chain = focused_chain(key, gibbs.kernel, walls, sweeps, progress, stage)
+        else:
+            chain = run_chain(key, gibbs.algorithm, walls, sweeps, progress, stage)
+        del gibbs, whole
         release_freed_memory()
         return TiledChain(jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs), (tile,),
                           np.asarray(chain.samples), shapes)
@@ -255,16 +268,19 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
                      min(tile.j1 + grow, grid.shape[1]))
         sampled = block.mask(grid.shape)
         table, rays = tile_table(grid, origins, angles, params.max_range, limits, current, block, kept)
-        sampler = cellwise_gibbs(table, readings[rays], params, likelihood_power, frozen=~sampled)
+        gibbs = CellwiseGibbs(table, readings[rays], params, likelihood_power, frozen=~sampled)
         del table
         release_freed_memory()
         sub = None if progress is None else _TileProgress(progress, stage, visit, count, len(visits), sweeps)
-        chain = run_chain(keys[p, k], sampler, current, count, sub, stage)
+        if focus:
+            chain = focused_chain(keys[p, k], gibbs.kernel, current, count, sub, stage)
+        else:
+            chain = run_chain(keys[p, k], gibbs.algorithm, current, count, sub, stage)
         last = np.asarray(chain.samples[-1])
         current[sampled] = last[sampled]
         probs[first:first + count, inside] = np.asarray(chain.wall_probs)[:, inside]
         samples[first:first + count, inside] = np.asarray(chain.samples)[:, inside]
-        del sampler, chain
+        del gibbs, chain
         jax.clear_caches()  # each tile compiles its sweep for its own shapes: drop the tile before
         release_freed_memory()
     return TiledChain(jnp.asarray(current), probs, tiles, samples)
