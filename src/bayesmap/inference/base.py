@@ -82,12 +82,8 @@ class KernelSampler:
 
     @property
     def algorithm(self) -> SamplingAlgorithm:
-        """The :class:`SamplingAlgorithm`: ``init`` and ``step`` are ``jax.tree_util.Partial`` of the kernel, so a
-        compiled chain takes the kernel's arrays as arguments and is reused by any problem of the same static
-        metadata (geometry, schedule, sensor model name)."""
-        kind = type(self.kernel)
-        return SamplingAlgorithm(init=jax.tree_util.Partial(kind.init, self.kernel),
-                                 step=jax.tree_util.Partial(kind.step, self.kernel))
+        """The :class:`SamplingAlgorithm` of the kernel (:func:`kernel_algorithm`)."""
+        return kernel_algorithm(self.kernel)
 
     def init(self, walls):
         """The kernel's state for the map ``walls`` ``(nx, ny)`` (see the subclass's kernel)."""
@@ -96,3 +92,12 @@ class KernelSampler:
     def step(self, key, state):
         """One sweep of the kernel: ``(state, GibbsInfo)`` (see the subclass's kernel)."""
         return self.kernel.step(key, state)
+
+
+def kernel_algorithm(kernel: KernelFields) -> SamplingAlgorithm:
+    """The :class:`SamplingAlgorithm` of a pytree kernel: ``init`` and ``step`` are ``jax.tree_util.Partial`` of the
+    kernel, so a compiled chain takes the kernel's arrays as arguments and is reused by any problem of the same
+    static metadata (geometry, schedule, sensor model name)."""
+    kind = type(kernel)
+    return SamplingAlgorithm(init=jax.tree_util.Partial(kind.init, kernel),
+                             step=jax.tree_util.Partial(kind.step, kernel))

@@ -39,7 +39,7 @@ import jax
 import numpy as np
 
 from bayesmap.errors import BayesmapError
-from bayesmap.inference.base import SamplingAlgorithm
+from bayesmap.inference.base import kernel_algorithm
 from bayesmap.inference.cellwise import CellwiseKernel
 from bayesmap.inference.chains import ChainResult, run_sweeps
 from bayesmap.progress import ProgressCallback
@@ -88,11 +88,6 @@ def _check_doubt(doubt) -> None:
         raise BayesmapError(f"doubt must be a probability in [0, 0.5), got {doubt!r}")
 
 
-def _algorithm(kernel: CellwiseKernel) -> SamplingAlgorithm:
-    return SamplingAlgorithm(init=jax.tree_util.Partial(CellwiseKernel.init, kernel),
-                             step=jax.tree_util.Partial(CellwiseKernel.step, kernel))
-
-
 def focused_chain(key, kernel: CellwiseKernel, initial_walls, num_sweeps: int,
                   progress: ProgressCallback | None = None, stage: str = "sweeps", start: int = FOCUS_START,
                   every: int = FOCUS_EVERY, doubt: float = FOCUS_DOUBT) -> ChainResult:
@@ -126,7 +121,7 @@ def focused_chain(key, kernel: CellwiseKernel, initial_walls, num_sweeps: int,
     _check_doubt(doubt)
     num_sweeps = int(num_sweeps)
     keys = jax.random.split(key, num_sweeps)
-    algorithm = _algorithm(kernel)
+    algorithm = kernel_algorithm(kernel)
     state = algorithm.init(initial_walls)
     first = run_sweeps(keys[:min(start, num_sweeps)], state, algorithm, progress, stage, 0, num_sweeps)
     if start >= num_sweeps:
@@ -137,7 +132,7 @@ def focused_chain(key, kernel: CellwiseKernel, initial_walls, num_sweeps: int,
     settled = ~cells_in_doubt(first.wall_probs[start // 2:], doubt)
     state = first.final_state
     del first
-    focused = _algorithm(kernel.focus(~settled))  # (kernel reordered in place: its whole sweeps, in the new order)
+    focused = kernel_algorithm(kernel.focus(~settled))  # (kernel reordered in place: its whole sweeps in a new order)
     whole = algorithm
     t = start
     while t < num_sweeps:  # a whole sweep, then up to every - 1 sweeps of the cells in doubt

@@ -17,17 +17,16 @@ chain a tile of the grid at a time when the log's pairs exceed a budget (:data:`
 
 Each of a tile's sweeps draws every cell of the tile (or every cell of it in doubt) from its full conditional given
 every other cell of the map (the tile's table gives it exactly the conditional of the whole table: tested), so each
-leaves the posterior
-invariant, and the chain as a whole is a blocked Gibbs sampler whose (overlapping) blocks are the grown tiles, each
-updated by ``sweeps`` Gibbs sweeps in turn (a composition of kernels that each leave the target invariant leaves it
-invariant; Tierney 1994, sec. 2.4). What differs from the whole map's chain is the order of the updates: a tile is
-swept ``sweeps`` times before the next is touched (``passes`` > 1: ``sweeps / passes`` times, the tiles visited
-``passes`` times in turn), so its cells are drawn given the other tiles as they were when it was visited (the tiles
-before it: their last draws; after it: the chain's starting map). The
-per-cell record, ``wall_probs[t]``, is each cell's conditional wall probability in the ``t``-th sweep of its own
-tile; the mean over kept sweeps is a Rao-Blackwellized estimate of the marginal as in the whole chain, but the
-records of one sweep index are not one joint state of the map (only the last map, ``walls``, is). Its effect on the
-held-out scores (within the whole table's seed-to-seed spread) and on the SLAM path is measured on the validation
+leaves the posterior invariant, and the chain as a whole is a blocked Gibbs sampler whose (overlapping) blocks are
+the grown tiles, each updated by ``sweeps`` Gibbs sweeps in turn (a composition of kernels that each leave the target
+invariant leaves it invariant; Tierney 1994, sec. 2.4). What differs from the whole map's chain is the order of
+the updates: a tile is swept ``sweeps`` times before the next is touched (``passes`` > 1: ``sweeps / passes`` times,
+the tiles visited ``passes`` times in turn), so its cells are drawn given the other tiles as they were when it was
+visited (the tiles before it: their last draws; after it: the chain's starting map). The per-cell record,
+``wall_probs[t]``, is each cell's conditional wall probability in the ``t``-th sweep of its own tile; the mean over kept
+sweeps is a Rao-Blackwellized estimate of the marginal as in the whole chain, but the records of one sweep index are not
+one joint state of the map (only the last map, ``walls``, is). Its effect on the held-out scores (within the whole
+table's seed-to-seed spread) and on the SLAM path is measured on the validation
 pages (docs/validation/defaults.md, "TILE_MARGIN"; docs/validation/scale.md, "Tiles").
 
 When the log's pairs fit the budget, :func:`tiled_map_chain` is the whole table's chain
