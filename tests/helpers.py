@@ -297,3 +297,20 @@ def replay_one_at_a_time(log_odds, shape, walls, u, order, probs):
         changed += int(new != walls[c])
         walls[c] = new
     return changed
+
+
+def replayed_sweeps(step, log_odds, state, shape, order, free, prior: float, sweeps: int = 4):
+    """Run ``sweeps`` sweeps of ``step`` (keys 0, 1, ...) from ``state``, replaying each one cell at a time over
+    ``order`` (:func:`replay_one_at_a_time`, each with the sweep's uniform) and then drawing the ``free`` cells
+    ``(nx * ny,)`` bool from the ``prior``; yields ``(state, info, before, walls, probs, changed)`` after each sweep:
+    the sweep's state and info, and the replay's map before and after, probabilities and number of changed cells."""
+    walls = np.asarray(state.walls).reshape(-1).copy()
+    for k in range(sweeps):
+        key = jax.random.key(k)
+        state, info = step(key, state)
+        u = np.asarray(jax.random.uniform(key, walls.shape))
+        probs = np.full(walls.shape, prior, np.float32)
+        before = walls.copy()
+        changed = replay_one_at_a_time(log_odds, shape, walls, u, order, probs)
+        walls[free] = u[free] < prior
+        yield state, info, before, walls, probs, changed

@@ -17,7 +17,7 @@ from bayesmap.model.generative import make_params, prior_log_odds
 from helpers import (
     assess_cell_differences,
     beam_enumeration_scene,
-    replay_one_at_a_time,
+    replayed_sweeps,
     scenes,
     sweeps_keep_ray_rows,
 )
@@ -104,15 +104,9 @@ def test_sweep_is_the_one_cell_at_a_time_sweep(speculative, lanes, monkeypatch):
     prior = float(jax.nn.sigmoid(kernel._prior_log_odds))
     step, log_odds = jax.jit(sampler.step), jax.jit(sampler.cell_log_odds)
     state = sampler.init(jnp.asarray(np.random.default_rng(1).random(grid.shape) < 0.5, jnp.float32))
-    walls = np.asarray(state.walls).reshape(-1).copy()
     changed = 0
-    for k in range(4):
-        key = jax.random.key(k)
-        state, info = step(key, state)
-        u = np.asarray(jax.random.uniform(key, walls.shape))
-        probs = np.full(walls.shape, prior, np.float32)
-        changed += replay_one_at_a_time(log_odds, grid.shape, walls, u, order, probs)
-        walls[free] = u[free] < prior
+    for state, info, _, walls, probs, n in replayed_sweeps(step, log_odds, state, grid.shape, order, free, prior):
+        changed += n
         np.testing.assert_array_equal(np.asarray(state.walls).reshape(-1), walls)
         np.testing.assert_allclose(np.asarray(info.wall_prob).reshape(-1), probs, rtol=1e-6, atol=1e-7)
     assert changed > 20

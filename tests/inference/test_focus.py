@@ -11,7 +11,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.inference.cellwise import CellwiseGibbs
 from bayesmap.inference.chains import compiled_chain_count, run_chain
 from bayesmap.inference.focus import cells_in_doubt, focused_chain
-from helpers import beam_enumeration_scene, mrf_enumeration_scene, replay_one_at_a_time, scenes
+from helpers import beam_enumeration_scene, mrf_enumeration_scene, replayed_sweeps, scenes
 
 
 def _visiting_order(kernel):
@@ -44,16 +44,9 @@ def test_a_focused_sweep_is_the_one_cell_at_a_time_sweep_of_its_cells():
     prior = float(jax.nn.sigmoid(whole._prior_log_odds))
     step, log_odds = jax.jit(focused.step), jax.jit(plain.cell_log_odds)
     state = sampler.init(jnp.asarray(np.random.default_rng(1).random(grid.shape) < 0.5, jnp.float32))
-    walls = np.asarray(state.walls).reshape(-1).copy()
     changed = 0
-    for k in range(4):
-        key = jax.random.key(k)
-        state, info = step(key, state)
-        u = np.asarray(jax.random.uniform(key, walls.shape))
-        probs = np.full(walls.shape, prior, np.float32)
-        before = walls.copy()
-        changed += replay_one_at_a_time(log_odds, grid.shape, walls, u, order, probs)
-        walls[free] = u[free] < prior
+    for state, info, before, walls, probs, n in replayed_sweeps(step, log_odds, state, grid.shape, order, free, prior):
+        changed += n
         np.testing.assert_array_equal(np.asarray(state.walls).reshape(-1), walls)
         visited = doubt & crossed | free
         np.testing.assert_allclose(np.asarray(info.wall_prob).reshape(-1)[visited], probs[visited], rtol=1e-6,
