@@ -49,7 +49,7 @@ from bayesmap.inference.cellwise import CellwiseGibbs, SweepShapes
 from bayesmap.inference.chains import run_chain, run_chains_on_devices
 from bayesmap.inference.focus import focused_chain
 from bayesmap.memory import release_freed_memory
-from bayesmap.model.generative import ModelParams, ray_limits
+from bayesmap.model.generative import ModelParams, beam_lengths, ray_limits
 from bayesmap.progress import Progress, ProgressCallback, report
 
 TILE_PAIRS = 12_000_000
@@ -111,10 +111,9 @@ def _whole_sampler(params: ModelParams, origins, angles, readings, likelihood_po
     ``headroom``: :class:`~bayesmap.inference.cellwise.CellwiseGibbs`) and the tile of the whole grid, when the
     table's estimated pairs fit ``max_pairs``; else None."""
     grid = params.grid
-    limits = ray_limits(readings, params)
-    lengths = params.max_range if limits is None else limits
-    if ray_cells(grid, origins, angles, lengths).sum() > max_pairs:  # (an estimate, within 1 %)
+    if ray_cells(grid, origins, angles, beam_lengths(readings, params)).sum() > max_pairs:  # (an estimate, within 1 %)
         return None
+    limits = ray_limits(readings, params)
     table = build_ray_table(grid, origins, angles, params.max_range, ray_limits=limits)
     gibbs = CellwiseGibbs(table, readings, params, likelihood_power, shapes=shapes, headroom=headroom)
     tile = Tile(0, grid.shape[0], 0, grid.shape[1], table.num_pairs)

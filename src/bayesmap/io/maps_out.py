@@ -92,6 +92,25 @@ def seen_cells(table, readings) -> np.ndarray:
     return out.reshape(table.grid.shape)
 
 
+def seen_cells_in_pieces(pieces, readings, shape: tuple[int, int]) -> np.ndarray:
+    """:func:`seen_cells` of a ray-cell table given a piece at a time, so that it is never held whole.
+
+    Args:
+        pieces: yields ``(rays, table)``: a slice (or index array) of the rays and their ray-cell table
+            (:meth:`bayesmap.problem.Problem.table_chunks`).
+        readings: ``(R,)`` float, every ray's reading in meters, as for :func:`seen_cells`.
+        shape: the grid's ``(nx, ny)``.
+
+    Returns:
+        ``(nx, ny)`` bool.
+    """
+    readings = np.asarray(readings, dtype=np.float64).reshape(-1)
+    seen = np.zeros(shape, dtype=bool)
+    for rays, table in pieces:
+        seen |= seen_cells(table, readings[rays])
+    return seen
+
+
 SEEN_CHUNK_RAYS = 20_000
 """Rays per ray-cell table :func:`seen_cells_along` builds at a time (bounds its memory on a whole log: a no-return
 beam of an 80 m laser crosses up to about 1,100 cells of 0.1 m)."""
@@ -122,17 +141,19 @@ def seen_cells_along(grid: Grid, poses, sensor_angles, readings, max_range: floa
             or values.shape != angles.shape:
         raise BayesmapError(f"poses (S, 3), sensor angles (S, K) and readings (S, K) must agree, got {poses.shape}, "
                             f"{angles.shape} and {values.shape}")
-    seen = np.zeros(grid.shape, dtype=bool)
-    per = max(1, SEEN_CHUNK_RAYS // max(angles.shape[1], 1))
-    for start in range(0, len(poses), per):
-        part = slice(start, start + per)
-        origins = np.repeat(poses[part, :2], angles.shape[1], axis=0)
-        # each ray traced one cell past its reading: the table then holds every pair seen_cells keeps, no more
-        limits = np.minimum(values[part].reshape(-1) + grid.resolution, max_range)
-        table = build_ray_table(grid, origins, (poses[part, 2:3] + angles[part]).reshape(-1), max_range,
-                                ray_limits=limits)
-        seen |= seen_cells(table, values[part])
-    return seen
+    beams = angles.shape[1]
+    per = max(1, SEEN_CHUNK_RAYS // max(beams, 1))
+
+    def pieces():
+        for start in range(0, len(poses), per):
+            part = slice(start, start + per)
+            origins = np.repeat(poses[part, :2], beams, axis=0)
+            # each ray traced one cell past its reading: the table then holds every pair seen_cells keeps, no more
+            limits = np.minimum(values[part].reshape(-1) + grid.resolution, max_range)
+            yield slice(start * beams, min(start + per, len(poses)) * beams), build_ray_table(
+                grid, origins, (poses[part, 2:3] + angles[part]).reshape(-1), max_range, ray_limits=limits)
+
+    return seen_cells_in_pieces(pieces(), values.reshape(-1), grid.shape)
 
 
 def encode_posterior_npz(probability, grid: Grid, seen=None) -> bytes:

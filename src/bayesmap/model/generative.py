@@ -523,6 +523,13 @@ def ray_limits(readings, params: ModelParams, dtype=None) -> np.ndarray | None:
     return np.minimum(y + dtype.type(params.cut_past_reading), dtype.type(params.max_range))
 
 
+def beam_lengths(readings, params: ModelParams):
+    """Each beam's length in a ray-cell table, meters: :func:`ray_limits` ``(R,)`` float64 where the model cuts
+    beams past their readings, else ``params.max_range`` (a float, the same for every beam)."""
+    limits = ray_limits(readings, params)
+    return float(params.max_range) if limits is None else limits.astype(np.float64)
+
+
 def check_opaque_walls(params: ModelParams, what: str) -> None:
     """Refuse wall cells a beam can pass through where only the first wall is computed (``what`` names the caller:
     the level-based fast samplers, the dense sweeps and the pose moves keep one wall per ray).

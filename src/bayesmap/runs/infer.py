@@ -22,7 +22,7 @@ from bayesmap.inference.driver import InferenceResult, run_inference, run_logodd
 from bayesmap.inference.tiled import TILE_PAIRS
 from bayesmap.inference.traces import chain_traces
 from bayesmap.io.ascii import load_map, tutorial_map
-from bayesmap.io.maps_out import seen_cells
+from bayesmap.io.maps_out import seen_cells_in_pieces
 from bayesmap.io.rosbag import write_occupancy_grid_bag
 from bayesmap.io.rosmap import encode_rosmap
 from bayesmap.model import prior
@@ -270,11 +270,7 @@ def _holds_table(problem: scenes.Problem, method: str, sampler: str) -> bool:
 def infer_seen(problem: scenes.Problem) -> np.ndarray:
     """``(nx, ny)`` bool, the cells some beam of ``problem`` crossed (:func:`bayesmap.io.maps_out.seen_cells`, a
     piece of the table at a time: :meth:`bayesmap.problem.Problem.table_chunks`)."""
-    seen = np.zeros(problem.grid.shape, dtype=bool)
-    readings = problem.ray_readings
-    for rays, table in problem.table_chunks():
-        seen |= seen_cells(table, readings[rays])
-    return seen
+    return seen_cells_in_pieces(problem.table_chunks(), problem.ray_readings, problem.grid.shape)
 
 
 def infer_files(problem: scenes.Problem, run: InferRun, title: str, seed: int = 0, method: str = "gibbs",

@@ -22,7 +22,7 @@ from bayesmap.io.files import read_bytes
 from bayesmap.io.rosbag import read_bag
 from bayesmap.io.rosmap import read_rosmap
 from bayesmap.io.tum import read_tum
-from bayesmap.model.generative import ray_limits
+from bayesmap.model.generative import beam_lengths
 from bayesmap.model.prior import check_coupling, coupling_for_run_length
 
 MAX_GRID_CELLS = 50_000_000
@@ -209,15 +209,8 @@ def check_problem_size(problem, chains: int = 1) -> None:
     if grid.num_cells * max(chains, 1) > MAX_GRID_CELLS:
         check_sizes(grid.shape, grid.resolution, 0.0, chains)
     pairs = ray_cells(grid, problem.ray_origins, problem.ray_angles,
-                      _beam_lengths(problem.model_ray_readings, problem.params)).sum()
+                      beam_lengths(problem.model_ray_readings, problem.params)).sum()
     check_sizes(grid.shape, grid.resolution, float(pairs), chains)
-
-
-def _beam_lengths(readings, params):
-    """Each beam's length in the ray-cell table, meters: its cut (:func:`bayesmap.model.generative.ray_limits`) or
-    the max range."""
-    limits = ray_limits(readings, params)
-    return float(params.max_range) if limits is None else limits.astype(np.float64)
 
 
 def check_slam_size(problem, tile_pairs: int) -> None:
@@ -233,7 +226,7 @@ def check_slam_size(problem, tile_pairs: int) -> None:
     odometry = np.asarray(problem.odometry, dtype=np.float64)
     angles = odometry[:, 2:3] + np.asarray(problem.sensor_angles)
     origins = np.repeat(odometry[:, :2], angles.shape[1], axis=0)
-    pairs = ray_cells(grid, origins, angles, _beam_lengths(problem.readings, problem.params)).sum()
+    pairs = ray_cells(grid, origins, angles, beam_lengths(problem.readings, problem.params)).sum()
     check_sizes(grid.shape, grid.resolution, float(min(pairs, tile_pairs)))
 
 

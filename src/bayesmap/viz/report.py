@@ -17,7 +17,7 @@ import html
 
 import numpy as np
 
-from bayesmap.io.maps_out import seen_cells
+from bayesmap.io.maps_out import seen_cells_in_pieces
 from bayesmap.viz.animation import chain_animation
 from bayesmap.viz.common import figure_bytes, is_unit_grid
 from bayesmap.viz.diagnostics import plot_convergence, plot_importance
@@ -83,7 +83,7 @@ def _map_figures(problem, result) -> list[str]:
                            f"The data alone: rays from the sensor to each reading, axes in {unit}.", "fig-scan"))
     # a real log's grid reaches as far as its longest beam: show the cells the beams crossed
     real_log = problem.multi_scan and problem.truth is None
-    seen = seen_cells(problem.table, problem.ray_readings) if real_log else None
+    seen = seen_cells_in_pieces(problem.table_chunks(), problem.ray_readings, grid.shape) if real_log else None
     focus = problem.returned_endpoints if real_log else None
     figures.append(_figure(figure_bytes(plot_posterior(grid, result.posterior, truth=problem.truth, std=True,
                                                        title="Posterior wall probability", seen=seen, focus=focus,
