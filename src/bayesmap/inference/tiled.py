@@ -122,6 +122,15 @@ def _whole_sampler(params: ModelParams, origins, angles, readings, likelihood_po
     return gibbs, tile
 
 
+def _map_chain(key, gibbs: CellwiseGibbs, walls, sweeps: int, focus: bool, progress: ProgressCallback | None,
+               stage: str):
+    """``sweeps`` sweeps of ``gibbs`` from ``walls``: :func:`~bayesmap.inference.focus.focused_chain` of its kernel
+    with ``focus``, else :func:`~bayesmap.inference.chains.run_chain`."""
+    if focus:
+        return focused_chain(key, gibbs.kernel, walls, sweeps, progress, stage)
+    return run_chain(key, gibbs.algorithm, walls, sweeps, progress, stage)
+
+
 def map_chains(keys, params: ModelParams, origins, beam_angles, readings, walls, sweeps: int,
                likelihood_power: float = 1.0, max_pairs: int = TILE_PAIRS,
                progress: ProgressCallback | None = None, stage: str = "sweeps", focus: bool = False
@@ -240,10 +249,7 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
     if whole is not None:
         gibbs, tile = whole
         shapes = gibbs.kernel.shapes
-        if focus:
-            chain = focused_chain(key, gibbs.kernel, walls, sweeps, progress, stage)
-        else:
-            chain = run_chain(key, gibbs.algorithm, walls, sweeps, progress, stage)
+        chain = _map_chain(key, gibbs, walls, sweeps, focus, progress, stage)
         del gibbs, whole
         release_freed_memory()
         return TiledChain(jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs), (tile,),
@@ -270,10 +276,7 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
         del table
         release_freed_memory()
         sub = None if progress is None else _TileProgress(progress, stage, visit, count, len(visits), sweeps)
-        if focus:
-            chain = focused_chain(keys[p, k], gibbs.kernel, current, count, sub, stage)
-        else:
-            chain = run_chain(keys[p, k], gibbs.algorithm, current, count, sub, stage)
+        chain = _map_chain(keys[p, k], gibbs, current, count, focus, sub, stage)
         last = np.asarray(chain.samples[-1])
         current[sampled] = last[sampled]
         probs[first:first + count, inside] = np.asarray(chain.wall_probs)[:, inside]
