@@ -65,7 +65,7 @@ def test_the_wheel_installs_next_to_the_locks_packages_and_runs_the_demo(tmp_pat
     with zipfile.ZipFile(wheel) as whl:
         names = whl.namelist()
         (entry_points,) = [n for n in names if n.endswith(".dist-info/entry_points.txt")]
-        assert "bayesmap = bayesmap.cli:main" in whl.read(entry_points).decode()
+        assert "bayesmap = bayesmap.__main__:main" in whl.read(entry_points).decode()
     assert "bayesmap/data/tutorial.txt" in names and "bayesmap/cli.py" in names
 
     venv = tmp_path / "venv"

@@ -6,7 +6,7 @@ mkdir -p ../shared && cp -r .gpu/shared/data ../shared/
 export PYTHONPATH=$PWD/benchmarks/gpu:/tmp/site:$PWD/src
 export XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1 PYTHONWARNINGS=ignore
 mkdir -p /tmp/bin
-printf '#!%s\nimport sys\nfrom bayesmap.cli import main\nsys.argv[0] = "bayesmap"\nmain()\n' "$(command -v python3)" \
+printf '#!%s\nimport sys\nfrom bayesmap.__main__ import main\nsys.argv[0] = "bayesmap"\nmain()\n' "$(command -v python3)" \
   > /tmp/bin/bayesmap
 chmod +x /tmp/bin/bayesmap
 export PATH=/tmp/bin:$PATH

@@ -6,6 +6,12 @@ each) in its heap, so the process's resident memory stays at the stage's high-wa
 temporaries come on top. :func:`release_freed_memory` asks the allocator to return those pages (glibc's
 ``malloc_trim``), which the peak of the next stage then does not count. What it saves, and why the allocator's
 thresholds are left as they are: docs/validation/scale.md, "Known poses in tiles".
+
+glibc also gives each thread that allocates under contention its own heap ("arena"), up to eight per core, and an
+arena keeps its freed blocks for its own thread. XLA's thread pool has a thread per core, so on a machine of many
+cores the freed memory of many arenas counts in the process's resident memory: :func:`limit_malloc_arenas` caps the
+arenas at :data:`MALLOC_ARENAS` (glibc's ``mallopt(M_ARENA_MAX)``, the setting ``MALLOC_ARENA_MAX`` makes), called by
+the ``bayesmap`` command (:mod:`bayesmap.__main__`) before it imports numpy or JAX.
 """
 
 from __future__ import annotations
@@ -13,14 +19,24 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import functools
+import os
+
+MALLOC_ARENAS = 2
+"""The most heaps (arenas) glibc's allocator keeps, where the environment does not set ``MALLOC_ARENA_MAX``
+(glibc's default: eight per core). On a 16-core machine the first 1,000 scans of Freiburg 079 (``bayesmap slam
+--log``) peaked at 1,593 MB with 2 heaps against 1,963-1,992 MB with glibc's default, and the whole log at 2,186 MB
+against 4,429 MB. Only 2 was measured against the default (one heap would make every thread wait for one lock); the
+runs and their times: [validation](../validation/scale.md#memory-on-a-machine-of-many-cores)."""
+
+_M_ARENA_MAX = -8  # glibc's malloc.h
 
 
 @functools.cache
-def _malloc_trim():
-    """glibc's ``malloc_trim`` or None (another C library, another system)."""
-    name = ctypes.util.find_library("c")
+def _libc_function(name: str):
+    """glibc's function ``name`` or None (another C library, another system)."""
+    library = ctypes.util.find_library("c")
     try:
-        return ctypes.CDLL(name).malloc_trim if name else None
+        return getattr(ctypes.CDLL(library), name) if library else None
     except (OSError, AttributeError):
         return None
 
@@ -28,6 +44,26 @@ def _malloc_trim():
 def release_freed_memory() -> None:
     """Return the heap's free pages to the operating system (glibc's ``malloc_trim(0)``); nothing where the C
     library has no such call. Takes a few milliseconds; changes no value."""
-    trim = _malloc_trim()
+    trim = _libc_function("malloc_trim")
     if trim is not None:
         trim(0)
+
+
+def limit_malloc_arenas(arenas: int = MALLOC_ARENAS) -> bool:
+    """Cap glibc's allocator at ``arenas`` heaps (``mallopt(M_ARENA_MAX, arenas)``) unless the environment sets
+    ``MALLOC_ARENA_MAX``, which then rules. Call it before any other thread allocates (before importing numpy,
+    whose BLAS starts a thread per core): glibc fixes its limit once more than eight heaps exist, and heaps made
+    before stay.
+
+    Returns:
+        True where the cap was set; False where the environment sets it or the C library is not glibc.
+
+    Raises:
+        ValueError: ``arenas`` below 1.
+    """
+    if arenas < 1:
+        raise ValueError(f"arenas must be at least 1, got {arenas}")
+    mallopt = _libc_function("mallopt")
+    if mallopt is None or "MALLOC_ARENA_MAX" in os.environ:
+        return False
+    return bool(mallopt(_M_ARENA_MAX, int(arenas)))
