@@ -1,6 +1,5 @@
 """The cap on glibc's heaps (bayesmap.memory.limit_malloc_arenas), counted from glibc's own report."""
 
-import ctypes.util
 import os
 import subprocess
 import sys
@@ -10,7 +9,7 @@ import pytest
 
 from bayesmap.memory import limit_malloc_arenas
 
-GLIBC = ctypes.util.find_library("c") is not None and os.confstr("CS_GNU_LIBC_VERSION") is not None
+GLIBC = "CS_GNU_LIBC_VERSION" in os.confstr_names and bool(os.confstr("CS_GNU_LIBC_VERSION"))
 
 # The order of the bayesmap command (bayesmap.__main__): the cap, then numpy and JAX, whose threads compute; then
 # eight threads allocate at once; glibc's malloc_info then lists one <heap> per arena.
