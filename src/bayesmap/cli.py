@@ -537,7 +537,7 @@ INTERRUPTED = 130
 
 def main(argv: Optional[list[str]] = None) -> None:
     """Run the typer app on ``argv`` (default ``sys.argv[1:]``); the ``bayesmap`` command calls it through
-    :mod:`bayesmap.__main__`, which caps glibc's heaps first.
+    :mod:`bayesmap.__main__`, which first caps glibc's heaps and turns JAX's persistent compilation cache off.
 
     Every user error ends the process with ONE line ``error: ...`` on stderr and exit code 2: a
     :class:`BayesmapError` (bad file or value) and every command-line usage error of click (unknown command or
