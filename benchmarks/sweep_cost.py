@@ -17,13 +17,17 @@ With ``--speculative CELLS,LANES`` (repeatable), each setting is timed with the 
 cells at once, or ``LANES // width`` in a narrow group (``bayesmap.inference.cellwise.SPECULATIVE_CELLS`` and
 ``SPECULATIVE_LANES``; the draws are the same whatever they are), one row per pair.
 
+With ``--compile``, each setting's one-sweep program is compiled instead (``jax.jit`` of the kernel's ``step``, the
+kernel passed as an argument, as the chains pass it): the table prints its width groups and the seconds of lowering
+and of XLA's compilation, for the first ``--scans`` scans of the log (all by default; repeatable, one row each).
+
 With ``--profile DIR``, one more compiled sweep per setting runs under ``jax.profiler.trace`` (a Perfetto trace in
 ``DIR/SETTING``), and the script prints the compiled program's steps (XLA:CPU thunks: fusions, loops, conditionals)
 with the largest self time, their calls and microseconds per call. The profiler drops events when a sweep has more
 than its buffer holds (tens of thousands of steps), so compare the time per call, not the totals.
 
 Usage: PYTHONPATH=src python benchmarks/sweep_cost.py [--log intel] [--resolution 0.1] [--sweeps 20] [--repeats 3]
-[--settings entry,chord,opaque,default] [--speculative CELLS,LANES ...] [--profile DIR]
+[--settings entry,chord,opaque,default] [--speculative CELLS,LANES ...] [--profile DIR] [--compile [--scans N ...]]
 """
 
 from __future__ import annotations
@@ -74,6 +78,19 @@ def seconds_per_sweep(problem, sweeps: int, repeats: int, profile: Path | None =
     return best / sweeps
 
 
+def compile_seconds(problem) -> tuple[list[int], float, float]:
+    """The cellwise sweep of ``problem``: its width groups, and the seconds to lower and to compile one sweep."""
+    algorithm = make_sampler(problem, "cellwise")
+    kernel = algorithm.step.args[0]  # a jax.tree_util.Partial of the kernel's step
+    state = algorithm.init(np.zeros(problem.params.grid.shape, np.float32))
+    start = time.perf_counter()
+    lowered = jax.jit(lambda k, key, s: k.step(key, s)).lower(kernel, jax.random.key(0), state)
+    lowering = time.perf_counter() - start
+    start = time.perf_counter()
+    lowered.compile()
+    return [width for width, _ in kernel.shapes.groups], lowering, time.perf_counter() - start
+
+
 def self_times(trace_file: Path) -> list[tuple[str, float, int]]:
     """``(name, self time in ms, calls)`` of every complete event of a Chrome/Perfetto trace (``.json.gz``), largest
     self time first: an event's duration minus that of the events nested in it on the same thread."""
@@ -108,6 +125,9 @@ def main(argv=None) -> int:
     parser.add_argument("--profile", type=Path, default=None, help="folder for a profiled sweep per setting")
     parser.add_argument("--top", type=int, default=12, help="steps printed per profiled setting (12)")
     parser.add_argument("--settings", default=",".join(SETTINGS), help="comma-separated settings (all)")
+    parser.add_argument("--compile", action="store_true", help="time the compilation of one sweep instead")
+    parser.add_argument("--scans", type=int, action="append", default=None,
+                        help="--compile: the first N scans (repeatable; default all)")
     parser.add_argument("--speculative", action="append", default=None, metavar="CELLS,LANES",
                         help="cells / lanes scored at once (repeatable; default the module's)")
     args = parser.parse_args(argv)
@@ -118,6 +138,16 @@ def main(argv=None) -> int:
         parser.error(f"unknown settings {unknown}; choose from {sorted(SETTINGS)}")
     speculative = [tuple(int(v) for v in text.split(",")) for text in args.speculative or
                    [f"{cellwise.SPECULATIVE_CELLS},{cellwise.SPECULATIVE_LANES}"]]
+    if args.compile:
+        print("| setting | scans | width groups | lowering s | compiling s |\n|---|---|---|---|---|")
+        for name in names:
+            for scans in args.scans or [len(log.poses)]:
+                problem = scenes.log_problem(log, scans=np.arange(min(scans, len(log.poses))),
+                                             resolution=args.resolution, **SETTINGS[name])
+                groups, lowering, compiling = compile_seconds(problem)
+                print(f"| {name} | {scans} | {len(groups)} ({groups[0]}-{groups[-1]}) | {lowering:.1f} | "
+                      f"{compiling:.1f} |", flush=True)
+        return 0
     print(f"| setting | coupling J | cells, lanes at once | seconds per sweep | ratio to {names[0]} |\n"
           "|---|---|---|---|---|")
     base = None

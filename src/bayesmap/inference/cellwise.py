@@ -17,8 +17,12 @@ classes would bring little parallelism. This sampler is the plain systematic-sca
   rewritten, ``SEARCH_BATCH`` rays at a time; removing a ray's first or second wall needs the next wall along it,
   found by walking the ray's cells in the map (``SEARCH_CHUNK`` at a time). A cell that keeps its value writes
   nothing, nor does one that changes behind the second wall of every ray through it (no row changes).
-* Cells are visited in a fixed order: grouped by how many rays cross them (so that each group is a loop of fixed
-  width, padding at most 2x), then in raster order within a group. Any fixed order gives a valid Gibbs sweep.
+* Cells are visited in a fixed order: grouped by how many rays cross them (so that each group's lanes have a fixed
+  width, padding at most 2x), then in raster order within a group. Any fixed order gives a valid Gibbs sweep. The
+  whole sweep is one loop: a group's scoring is one branch of a switch on the group, and the rewrite of the rows,
+  the largest part of the loop, is traced once for all groups (:meth:`CellwiseKernel._sweep`): compiling a sweep
+  of Intel's scans with the log defaults took 2.7-4.1 s instead of 4.7-9.0 s with a loop per group
+  (docs/validation/speed.md, "One loop for every width group").
   Cells that no ray crosses are independent of everything given the rest: they are drawn from the prior at once.
 * The loop scores consecutive cells of the order at once (``SPECULATIVE_CELLS``, or ``SPECULATIVE_LANES`` lanes'
   worth in a narrow group: 256 cells of 8 lanes), from the same rows, and draws each from its score. Cell ``j`` of
@@ -421,126 +425,187 @@ class CellwiseKernel(KernelFields):
         _, found = jax.lax.while_loop(more, walk, (begin, jnp.full(rays.shape, NO_WALL, after.dtype)))
         return found
 
-    def _rewrite(self, lanes, k, new, cur, rows_all):
-        """The rows after cell ``k`` of ``lanes`` changes to ``new`` (``cur``, the map in visiting order, already
-        has it): the rays whose first or second wall changes get new rows, ``SEARCH_BATCH`` at a time in lane order
-        (each batch: the next changed lanes by ``top_k``, their new rows, walks for removed walls, a write per row:
-        XLA's CPU scatter runs as a loop over all its indices)."""
+    def _changed_lanes(self, lanes, k, new, done, rows_all):
+        """The next ``SEARCH_BATCH`` lanes of cell ``k`` of ``lanes`` after lane ``done`` (-1: from the first) whose
+        ray's row changes now that the cell is ``new``: the rays whose first or second wall (with passable walls:
+        or third) changes, none for a cell behind every ray's last kept wall. Returns ``(rays, data, ok, last,
+        more)``: ``(SEARCH_BATCH,)`` int32 their rays, ``(SEARCH_BATCH, C + 2)`` their rows (``C`` columns) with the
+        cell's position along the ray and ``log p(y | d)`` there, ``(SEARCH_BATCH,)`` bool which entries hold a lane
+        (the first ones, in lane order), the last lane taken and whether changed lanes remain after it. The lanes'
+        rows are those before the rewrite (the rows of later lanes are not rewritten yet: a ray crosses a cell once).
+        The only part of a rewrite whose shapes depend on the group's width (:meth:`_sweep`)."""
         rays, positions, log_lik = lanes.rays[k], lanes.positions[k], lanes.log_lik[k]
         rows = rows_all[rays]
         width = rays.shape[0]
         batch = min(width, SEARCH_BATCH)
         q = positions.astype(rows.dtype)
-        kept = 3 if self._penetrable else 2  # walls a row keeps
-        walls_at = [rows[:, c] for c in range(kept)]
-        # the rays whose first or second (with passable walls: or third) wall changes (none for a cell behind every
-        # ray's last kept wall)
+        walls_at = [rows[:, c] for c in range(3 if self._penetrable else 2)]  # the kept walls
         is_kept = jnp.any(jnp.stack([q == w for w in walls_at]), axis=0)
-        changed = (rays < self._num_rays) & jnp.where(new, (q < walls_at[-1]) & ~is_kept, is_kept)
         lane_ids = jnp.arange(width, dtype=jnp.int32)
+        changed = (rays < self._num_rays) & (lane_ids > done) & jnp.where(new, (q < walls_at[-1]) & ~is_kept, is_kept)
         rank = jnp.where(changed, (width - lane_ids).astype(jnp.float32), 0.0)  # largest for the first changed lane
-        lane_data = jnp.concatenate([rows, q[:, None], log_lik[:, None]], axis=1)  # one gather per batch
+        got, lane = jax.lax.top_k(rank, batch)
+        ok = got > 0
+        num = jnp.sum(ok, dtype=jnp.int32)
+        lane = jnp.where(ok, lane, 0)
+        data = jnp.concatenate([rows[lane], q[lane, None], log_lik[lane, None]], axis=1)
+        pad = SEARCH_BATCH - batch
+        return (jnp.pad(rays[lane], (0, pad)), jnp.pad(data, ((0, pad), (0, 0))), jnp.pad(ok, (0, pad)),
+                lane[jnp.maximum(num - 1, 0)], jnp.sum(changed, dtype=jnp.int32) > num)
 
-        def new_rows(r, data, ok):
-            at, ll_at = data[:, :kept], data[:, kept:2 * kept]  # the kept walls' positions and log-likelihoods
-            p, ll = data[:, -2], data[:, -1]
+    def _no_changed_lanes(self, rows_all):
+        """What :meth:`_changed_lanes` returns when no lane changes."""
+        return (jnp.zeros(SEARCH_BATCH, jnp.int32), jnp.zeros((SEARCH_BATCH, rows_all.shape[1] + 2), rows_all.dtype),
+                jnp.zeros(SEARCH_BATCH, bool), jnp.int32(-1), jnp.bool_(False))
 
-            def added():  # the cell joins the kept walls in order; the last one drops out
-                pos, lls = [], []
-                for c in range(kept):
-                    before = p < at[:, c]
-                    prev = p < at[:, c - 1] if c else jnp.zeros_like(before)
-                    pos.append(jnp.where(prev, at[:, c - 1] if c else p, jnp.where(before, p, at[:, c])))
-                    lls.append(jnp.where(prev, ll_at[:, c - 1] if c else ll, jnp.where(before, ll, ll_at[:, c])))
-                return row(pos, lls, data)
+    def _write_rows(self, rays, data, ok, new, cur, rows_all):
+        """``rows_all`` with the rows of ``rays`` (the entries with ``ok``, from :meth:`_changed_lanes`) rewritten
+        for their cell now ``new`` (``cur``, the map in visiting order, already has it): the cell joins the kept walls
+        or leaves them, and a ray that loses one gets the next wall after its last kept one by a walk (:meth:`_walk`).
+        One write per row: XLA's CPU scatter runs as a loop over all its indices."""
+        kept = 3 if self._penetrable else 2  # walls a row keeps
+        at, ll_at = data[:, :kept], data[:, kept:2 * kept]  # the kept walls' positions and log-likelihoods
+        p, ll = data[:, -2], data[:, -1]
 
-            def removed():  # the walls after the cell move up one; the new last is the next wall after the old last
-                nxt = self._walk(r, at[:, -1], ok, cur)
-                nxt_ll = self._pair_log_lik(r, nxt)
-                pos, lls = [], []
-                for c in range(kept):
-                    gone = p <= at[:, c]  # the cell is this wall or one before it: shift up
-                    up, up_ll = (at[:, c + 1], ll_at[:, c + 1]) if c + 1 < kept else (nxt, nxt_ll)
-                    pos.append(jnp.where(gone, up, at[:, c]))
-                    lls.append(jnp.where(gone, up_ll, ll_at[:, c]))
-                return row(pos, lls, data)
-
-            return jax.lax.cond(new, added, removed)
-
-        def row(pos, lls, data):  # a row from its walls' positions and log-likelihoods (and the no-wall one, kept)
+        def row(pos, lls):  # a row from its walls' positions and log-likelihoods (and the no-wall one, kept)
             if not self._penetrable:
                 return jnp.stack(pos + lls, axis=1)
             none = data[:, 2 * kept]
             return jnp.stack(pos + lls + [none] + self._ray_mixtures(*lls, none), axis=1)
 
-        def one_batch(_, carry):
-            done, rows_all = carry  # done: the last lane rewritten
-            got, lane = jax.lax.top_k(jnp.where(lane_ids > done, rank, 0.0), batch)
-            ok = got > 0
-            num = jnp.sum(ok, dtype=jnp.int32)
-            lane = jnp.where(ok, lane, 0)
-            r = rays[lane]
-            rows_new = new_rows(r, lane_data[lane], ok)
+        def added():  # the cell joins the kept walls in order; the last one drops out
+            pos, lls = [], []
+            for c in range(kept):
+                before = p < at[:, c]
+                prev = p < at[:, c - 1] if c else jnp.zeros_like(before)
+                pos.append(jnp.where(prev, at[:, c - 1] if c else p, jnp.where(before, p, at[:, c])))
+                lls.append(jnp.where(prev, ll_at[:, c - 1] if c else ll, jnp.where(before, ll, ll_at[:, c])))
+            return row(pos, lls)
 
-            def put(t, rows_all):
-                return jax.lax.dynamic_update_slice(rows_all, jax.lax.dynamic_slice_in_dim(rows_new, t, 1), (r[t], 0))
+        def removed():  # the walls after the cell move up one; the new last is the next wall after the old last
+            nxt = self._walk(rays, at[:, -1], ok, cur)
+            nxt_ll = self._pair_log_lik(rays, nxt)
+            pos, lls = [], []
+            for c in range(kept):
+                gone = p <= at[:, c]  # the cell is this wall or one before it: shift up
+                up, up_ll = (at[:, c + 1], ll_at[:, c + 1]) if c + 1 < kept else (nxt, nxt_ll)
+                pos.append(jnp.where(gone, up, at[:, c]))
+                lls.append(jnp.where(gone, up_ll, ll_at[:, c]))
+            return row(pos, lls)
 
-            return lane[num - 1], jax.lax.fori_loop(0, num, put, rows_all)
+        rows_new = jax.lax.cond(new, added, removed)
 
-        num_batches = (jnp.sum(changed, dtype=jnp.int32) + batch - 1) // batch
-        return jax.lax.fori_loop(0, num_batches, one_batch, (jnp.int32(-1), rows_all))[1]
+        def put(t, rows_all):
+            return jax.lax.dynamic_update_slice(rows_all, jax.lax.dynamic_slice_in_dim(rows_new, t, 1), (rays[t], 0))
 
-    def _sweep_group(self, lanes, base, cur, rows_all, probs, u):
-        """The cells of the rows ``0 .. lanes.count - 1`` once each, in order, ``SPECULATIVE_CELLS`` or
-        ``SPECULATIVE_LANES // width`` at a time (see the module docstring). ``cur``, ``probs`` and ``u``: the map,
-        the conditional probabilities and the uniforms in visiting order, the group's cells at ``base, base + 1,
-        ...``."""
+        return jax.lax.fori_loop(0, jnp.sum(ok, dtype=jnp.int32), put, rows_all)
+
+    def _block_size(self, lanes) -> int:
+        """Cells of a width group scored at once: ``SPECULATIVE_CELLS`` or ``SPECULATIVE_LANES // width``, if more,
+        and at most the group's rows."""
         n, width = lanes.rays.shape
-        size = min(max(SPECULATIVE_CELLS, SPECULATIVE_LANES // width), n)
+        return min(max(SPECULATIVE_CELLS, SPECULATIVE_LANES // width), n)
+
+    def _score_block(self, lanes, base, i, cur, rows_all, probs_size: int, u):
+        """One block of a group's sweep: from row ``i`` of ``lanes``, :meth:`_block_size` cells scored at once from
+        the same rows, drawn, and kept up to the first draw that changes a row (see the module docstring). ``cur``
+        and ``u``: the map and the uniforms in visiting order, the group's cells at ``base, base + 1, ...``.
+        Returns ``(i, start, keep, value, prob, rewrite, k, new)``: the next row to visit; from the place ``start``
+        in visiting order on, ``(probs_size,)`` which places take their draw (the block's cells up to the stop;
+        the entries after the block's: none), the draws and their conditional probabilities (float32); and whether
+        cell ``k`` (a row), drawn ``new``, changes rows (:meth:`_changed_lanes`). Small arrays only: the caller
+        writes the map, so that the loop updates it in place."""
+        size = self._block_size(lanes)
         j = jnp.arange(size, dtype=jnp.int32)
         count = lanes.count
+        # the block: cells s .. s + size - 1 of the group, those before i done, those from count on not visited
+        s = jnp.maximum(jnp.minimum(i, count - size), 0)
+        end = jnp.minimum(s + size, count)
+        rays, positions, log_lik = (jax.lax.dynamic_slice_in_dim(a, s, size)
+                                    for a in (lanes.rays, lanes.positions, lanes.log_lik))
+        score, can_add, can_remove = self._score(rows_all[rays], positions, log_lik)
+        log_odds = self._prior_log_odds + score
+        if lanes.neighbours is not None:  # the structured prior: J (n_wall - n_free), from the current map
+            neighbours = jax.lax.dynamic_slice_in_dim(lanes.neighbours, s, size)  # (size, 4) visiting places
+            log_odds = log_odds + self._coupling * jnp.sum(2.0 * cur[neighbours] - 1.0, axis=-1)
+            # a cell with a neighbour later among these: its change makes the later score stale
+            later = jnp.any((neighbours > base + s + j[:, None]) & (neighbours < base + end), axis=-1)
+        prob = jax.nn.sigmoid(log_odds)
+        old = jax.lax.dynamic_slice_in_dim(cur, base + s, size) > 0
+        new = jax.lax.dynamic_slice_in_dim(u, base + s, size) < prob
+        changes = jnp.where(new, can_add, can_remove)
+        if lanes.neighbours is not None:
+            changes = changes | later
+        live = (j >= i - s) & (s + j < end)
+        rewrites = live & (new != old) & changes
+        stop = jnp.where(jnp.any(rewrites), jnp.argmax(rewrites), size)  # the first cell that changes rows
+        keep = live & (j <= stop)
+        rewrite = stop < size
+        if lanes.neighbours is not None:  # a stop for a neighbour only: rows change only if the cell's rows do
+            rewrite = rewrite & jnp.any((j == stop) & jnp.where(new, can_add, can_remove))
+        pad = probs_size - size
+        return (s + jnp.minimum(stop + 1, size), base + s, jnp.pad(keep, (0, pad)), jnp.pad(new, (0, pad)),
+                jnp.pad(prob.astype(jnp.float32), (0, pad)), rewrite, s + jnp.minimum(stop, size - 1),
+                jnp.any(new & (j == stop)))
+
+    def _sweep(self, cur, rows_all, probs, u):
+        """Every width group's cells (the rows ``0 .. lanes.count - 1`` of each) once, in order, in one loop: each
+        step scores a block of the current group (:meth:`_score_block`) or goes on rewriting the rows of the cell that
+        stopped the last block, ``SEARCH_BATCH`` rays at a time (:meth:`_changed_lanes`, :meth:`_write_rows`). The
+        width-dependent parts are the branches of one ``lax.switch`` on the group, which return small arrays only;
+        the rewrite, the largest part of the loop, is traced once for all groups, so that the compile time grows
+        with the number of groups only by their scoring. ``cur``, ``probs`` and ``u`` are in visiting order
+        (:meth:`step`)."""
+        groups, bases, base = [], [], 0
+        for lanes in self._lanes:
+            if lanes.rays.shape[0]:
+                groups.append(lanes)
+                bases.append(base)
+            base += lanes.cells.shape[0]
+        if not groups:
+            return cur, rows_all, probs
+        counts = jnp.stack([lanes.count for lanes in groups])
+        size = max(self._block_size(lanes) for lanes in groups)
+        length = cur.shape[0]  # a block's writes start at most ``size`` before the groups' end: pad, never clamp
+        cur, probs, u = (jnp.pad(a, (0, size)) for a in (cur, probs, u))
+
+        def branch(lanes, base):
+            def run(operand):
+                i, k, new, done, pending, cur, rows_all = operand
+
+                def resume():
+                    return (i, jnp.int32(0), jnp.zeros(size, bool), jnp.zeros(size, bool), jnp.zeros(size, jnp.float32),
+                            jnp.bool_(True), k, new)
+
+                i, start, keep, value, prob, active, k, new = jax.lax.cond(
+                    pending, resume, lambda: self._score_block(lanes, base, i, cur, rows_all, size, u))
+                done = jnp.where(pending, done, -1)
+                batch = jax.lax.cond(active, lambda: self._changed_lanes(lanes, k, new, done, rows_all),
+                                     lambda: self._no_changed_lanes(rows_all))
+                return (i, k, new, start, keep, value, prob) + batch
+
+            return run
+
+        branches = [branch(lanes, base) for lanes, base in zip(groups, bases)]
 
         def body(carry):
-            i, cur, rows_all, probs = carry
-            # the block: cells s .. s + size - 1 of the group, those before i done, those from count on not visited
-            s = jnp.maximum(jnp.minimum(i, count - size), 0)
-            end = jnp.minimum(s + size, count)
-            rays, positions, log_lik = (jax.lax.dynamic_slice_in_dim(a, s, size)
-                                        for a in (lanes.rays, lanes.positions, lanes.log_lik))
-            score, can_add, can_remove = self._score(rows_all[rays], positions, log_lik)
-            log_odds = self._prior_log_odds + score
-            if lanes.neighbours is not None:  # the structured prior: J (n_wall - n_free), from the current map
-                neighbours = jax.lax.dynamic_slice_in_dim(lanes.neighbours, s, size)  # (size, 4) visiting places
-                log_odds = log_odds + self._coupling * jnp.sum(2.0 * cur[neighbours] - 1.0, axis=-1)
-                # a cell with a neighbour later among these: its change makes the later score stale
-                later = jnp.any((neighbours > base + s + j[:, None]) & (neighbours < base + end), axis=-1)
-            prob = jax.nn.sigmoid(log_odds)
-            old = jax.lax.dynamic_slice_in_dim(cur, base + s, size) > 0
-            new = jax.lax.dynamic_slice_in_dim(u, base + s, size) < prob
-            changes = jnp.where(new, can_add, can_remove)
-            if lanes.neighbours is not None:
-                changes = changes | later
-            live = (j >= i - s) & (s + j < end)
-            rewrites = live & (new != old) & changes
-            stop = jnp.where(jnp.any(rewrites), jnp.argmax(rewrites), size)  # the first cell that changes rows
-            keep = live & (j <= stop)
-            cur = jax.lax.dynamic_update_slice_in_dim(cur, jnp.where(keep, new, old).astype(cur.dtype), base + s, 0)
-            probs = jax.lax.dynamic_update_slice_in_dim(
-                probs, jnp.where(keep, prob.astype(probs.dtype), jax.lax.dynamic_slice_in_dim(probs, base + s, size)),
-                base + s, 0)
-            k = s + jnp.minimum(stop, size - 1)
-            rewrite = stop < size
-            if lanes.neighbours is not None:  # a stop for a neighbour only: rows change only if the cell's rows do
-                rewrite = rewrite & jnp.any((j == stop) & jnp.where(new, can_add, can_remove))
-            rows_all = jax.lax.cond(rewrite, lambda r: self._rewrite(lanes, k, jnp.any(new & (j == stop)), cur, r),
+            g, i, cur, rows_all, probs, k, new, done, pending = carry
+            i, k, new, start, keep, value, prob, rays, data, ok, done, more = jax.lax.switch(
+                g, branches, (i, k, new, done, pending, cur, rows_all))
+            old = jax.lax.dynamic_slice_in_dim(cur, start, size)
+            cur = jax.lax.dynamic_update_slice_in_dim(cur, jnp.where(keep, value.astype(cur.dtype), old), start, 0)
+            old = jax.lax.dynamic_slice_in_dim(probs, start, size)
+            probs = jax.lax.dynamic_update_slice_in_dim(probs, jnp.where(keep, prob, old), start, 0)
+            rows_all = jax.lax.cond(jnp.any(ok), lambda r: self._write_rows(rays, data, ok, new, cur, r),
                                     lambda r: r, rows_all)  # after writing cur: the walk reads the new map
-            return s + jnp.minimum(stop + 1, size), cur, rows_all, probs
+            next_group = (i >= counts[g]) & ~more
+            return (jnp.where(next_group, g + 1, g), jnp.where(next_group, 0, i), cur, rows_all, probs, k, new,
+                    done, more)
 
-        if n == 0:
-            return cur, rows_all, probs
-        _, cur, rows_all, probs = jax.lax.while_loop(lambda c: c[0] < count, body,
-                                                     (jnp.int32(0), cur, rows_all, probs))
-        return cur, rows_all, probs
+        start = (jnp.int32(0), jnp.int32(0), cur, rows_all, probs, jnp.int32(0), jnp.bool_(False), jnp.int32(-1),
+                 jnp.bool_(False))
+        _, _, cur, rows_all, probs, *_ = jax.lax.while_loop(lambda c: c[0] < len(groups), body, start)
+        return cur[:length], rows_all, probs[:length]
 
     def step(self, key, state: CellwiseState) -> tuple[CellwiseState, GibbsInfo]:
         """One sweep: every cell once, in the order of the module docstring. Returns the new state and
@@ -555,10 +620,7 @@ class CellwiseKernel(KernelFields):
         if self._coupling is not None:  # the slot outside-the-grid neighbours read: 2 * 0.5 - 1 = 0
             cur = jnp.append(cur, jnp.asarray(0.5, cur.dtype))
         probs = jnp.zeros(self._order.shape, jnp.float32)
-        rows, base = state.ray_walls, 0
-        for lanes in self._lanes:
-            cur, rows, probs = self._sweep_group(lanes, base, cur, rows, probs, u_order)
-            base += lanes.cells.shape[0]
+        cur, rows, probs = self._sweep(cur, state.ray_walls, probs, u_order)
         if self._coupling is None:
             walls = jnp.where(self._free, (u < prior).astype(walls.dtype), cur[self._rank])
             wall_prob = jnp.where(self._free, prior.astype(jnp.float32), probs[self._rank])
