@@ -1,5 +1,5 @@
-"""Shared fixtures: the tutorial scene with the tutorial's readings (key 0); and the xdist_group marks made to work
-again under pytest 9.2 (below)."""
+"""Shared fixtures: the tutorial scene with the tutorial's readings (key 0); JAX's compiled programs kept within a
+module; and the xdist_group marks made to work again under pytest 9.2 (below)."""
 
 import pytest
 
@@ -21,6 +21,38 @@ def pytest_collection_modifyitems(config, items):
         suffix = "@" + "_".join(names)
         if names and not item.nodeid.endswith(suffix) and hasattr(item, "_id"):
             item._id = type(item._id).parse(item.nodeid + suffix)  # parse keeps the string as given
+
+
+@pytest.fixture(scope="module", autouse=True)
+def compiled_programs_kept_within_a_module():
+    """JAX's compiled programs kept while one module's tests run (:func:`bayesmap.memory.keep_compiled_programs`:
+    a SLAM run or a tiled chain would otherwise drop every program the worker has compiled, and the next test compile
+    its own again); after the module, dropped if the worker's resident memory is above :data:`KEPT_PROGRAMS_MB`, to
+    bound it (the next modules reuse them otherwise: the same scenes' samplers, the same shapes)."""
+    import jax
+
+    from bayesmap.memory import keep_compiled_programs
+
+    with keep_compiled_programs():
+        yield
+    if resident_mb() > KEPT_PROGRAMS_MB:
+        jax.clear_caches()
+
+
+KEPT_PROGRAMS_MB = 3000
+"""A worker's resident memory (MB) above which the compiled programs are dropped after a module: the suite's two
+workers then stay within about 2 x 3 GB plus a module's own."""
+
+
+def resident_mb() -> float:
+    """This process's resident memory, MB (10**6 bytes), from /proc (0 where there is none)."""
+    import os
+
+    try:
+        with open("/proc/self/statm") as handle:
+            return int(handle.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+    except OSError:
+        return 0.0
 
 
 @pytest.fixture(scope="session")

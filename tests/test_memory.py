@@ -7,7 +7,7 @@ import textwrap
 
 import pytest
 
-from bayesmap.memory import limit_malloc_arenas
+from bayesmap.memory import drop_compiled_programs, keep_compiled_programs, limit_malloc_arenas
 
 GLIBC = "CS_GNU_LIBC_VERSION" in os.confstr_names and bool(os.confstr("CS_GNU_LIBC_VERSION"))
 
@@ -15,7 +15,7 @@ GLIBC = "CS_GNU_LIBC_VERSION" in os.confstr_names and bool(os.confstr("CS_GNU_LI
 # eight threads allocate at once; glibc's malloc_info then lists one <heap> per arena.
 PROGRAM = textwrap.dedent("""
     import ctypes, ctypes.util, sys, tempfile, threading
-    from bayesmap.memory import limit_malloc_arenas
+    from bayesmap.memory import drop_compiled_programs, keep_compiled_programs, limit_malloc_arenas
     print(limit_malloc_arenas(int(sys.argv[1])) if sys.argv[1] != "none" else None)
     import numpy as np
     import jax.numpy as jnp
@@ -62,3 +62,37 @@ def test_arenas_capped_unless_the_environment_sets_them():
 def test_arenas_below_one_refused():
     with pytest.raises(ValueError, match="at least 1, got 0"):
         limit_malloc_arenas(0)
+
+
+def test_compiled_programs_dropped_unless_kept():
+    """Inside keep_compiled_programs a jitted function keeps its compiled program through drop_compiled_programs;
+    outside it, and after the context, the program is dropped and the next call compiles again. Checked on a thread
+    of its own: a thread starts outside every context (this module's tests run inside one: tests/conftest.py), and
+    the test's own context still keeps."""
+    import threading
+
+    import jax
+    import jax.numpy as jnp
+
+    f = jax.jit(lambda x: x * 2 + 1)
+    sizes = []
+
+    def check():
+        f(jnp.ones(3))
+        sizes.append(f._cache_size())
+        with keep_compiled_programs():
+            with keep_compiled_programs():  # nested: leaving the inner one still keeps
+                pass
+            drop_compiled_programs()
+            sizes.append(f._cache_size())
+        drop_compiled_programs()
+        sizes.append(f._cache_size())
+        sizes.append(float(f(jnp.ones(3))[0]))
+
+    thread = threading.Thread(target=check)
+    thread.start()
+    thread.join()
+    assert sizes == [1, 1, 0, 3.0]
+    f(jnp.ones(3))
+    drop_compiled_programs()  # this test's context keeps (the module fixture's)
+    assert f._cache_size() == 1

@@ -48,7 +48,7 @@ from bayesmap.geometry.tiles import Tile, ray_cells, rays_per_cell, split_tiles,
 from bayesmap.inference.cellwise import CellwiseGibbs, SweepShapes
 from bayesmap.inference.chains import run_chain, run_chains_on_devices
 from bayesmap.inference.focus import focused_chain
-from bayesmap.memory import release_freed_memory
+from bayesmap.memory import drop_compiled_programs, release_freed_memory
 from bayesmap.model.generative import ModelParams, beam_lengths, ray_limits
 from bayesmap.progress import Progress, ProgressCallback, report
 
@@ -282,6 +282,6 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
         probs[first:first + count, inside] = np.asarray(chain.wall_probs)[:, inside]
         samples[first:first + count, inside] = np.asarray(chain.samples)[:, inside]
         del gibbs, chain
-        jax.clear_caches()  # each tile compiles its sweep for its own shapes: drop the tile before
+        drop_compiled_programs()  # each tile compiles its sweep for its own shapes: drop the tile before
         release_freed_memory()
     return TiledChain(jnp.asarray(current), probs, tiles, samples)

@@ -413,8 +413,14 @@ def simulate_scan_readings(key, walls, poses, params: ModelParams, beam_angles):
         BayesmapError: on shapes that do not match.
     """
     poses, params, beam_angles = scan_args(poses, params, beam_angles)
-    trace = scan_sensor_model.simulate(key, (poses, jnp.asarray(walls), params, beam_angles))
-    return trace.get_retval()
+    return _simulate_scans(key, (poses, jnp.asarray(walls), params, beam_angles))
+
+
+@jax.jit
+def _simulate_scans(key, args):
+    """:data:`scan_sensor_model`'s simulated readings, compiled once per shape (run eagerly, each of the model's
+    operations would compile on its own)."""
+    return scan_sensor_model.simulate(key, args).get_retval()
 
 
 def reading_log_likelihood(readings, distances, params: ModelParams, exit_distances=None):
@@ -598,8 +604,13 @@ def simulate_readings(key, walls, pos, params: ModelParams, beam_angles=None):
     with ``key`` (the tutorial's ``sensor_model.simulate``: with key 0 on the tutorial map, the tutorial's
     readings)."""
     pos, params, beam_angles = model_args(pos, params, beam_angles)
-    trace = sensor_model.simulate(key, (pos, jnp.asarray(walls), params, beam_angles))
-    return trace.get_retval()
+    return _simulate_scan(key, (pos, jnp.asarray(walls), params, beam_angles))
+
+
+@jax.jit
+def _simulate_scan(key, args):
+    """:data:`sensor_model`'s simulated readings, compiled once per shape."""
+    return sensor_model.simulate(key, args).get_retval()
 
 
 def simulate(key, pos, params: ModelParams, beam_angles=None):

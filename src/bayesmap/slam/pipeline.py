@@ -62,6 +62,7 @@ from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.inference.cellwise import SweepShapes
 from bayesmap.inference.chains import run_recorded_chains
 from bayesmap.inference.tiled import TILE_PAIRS, check_tile_pairs, tiled_map_chain
+from bayesmap.memory import drop_compiled_programs
 from bayesmap.model.generative import replace_params
 from bayesmap.progress import ProgressCallback, report
 from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
@@ -277,7 +278,7 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
     # the front end's and the loop closure's compiled searches, and what they hold (about 250 MB on Intel), are not
     # needed again before the scans between keyframes are placed; the map blocks' sweep is then compiled once
     # (:data:`MAP_SHAPE_HEADROOM`) and the pose sweeps' once
-    jax.clear_caches()
+    drop_compiled_programs()
     data = slam_data(scans.increments, scans.covs, problem.sensor_angles, problem.readings, params)
     pose_kernel = random_walk_pose_mh(data, likelihood_power=problem.likelihood_power)
     walls = jnp.zeros(params.grid.shape, jnp.float32)
@@ -314,7 +315,7 @@ def _final_map(problem, scans: ScanData, grid: Grid, mean, cov, walls, key, swee
     params = replace_params(with_grid(problem.final_map_params, grid), sensor_noise=noise)
     # the final map's model compiles its own sweep: drop the joint chain's compiled sweeps first, and what they hold
     # (on 300 scans of Intel the final map's peak 1,286 -> 929 MB)
-    jax.clear_caches()
+    drop_compiled_programs()
     with on_sweep_devices():  # (bayesmap.devices)
         _, probs, _ = _map_round(key, problem, params, mean, walls, sweeps, power, progress, "final map", tile_pairs)
     return probs[sweeps // 2:].astype(np.float64).mean(axis=0), power, noise
