@@ -15,7 +15,7 @@ GLIBC = "CS_GNU_LIBC_VERSION" in os.confstr_names and bool(os.confstr("CS_GNU_LI
 # eight threads allocate at once; glibc's malloc_info then lists one <heap> per arena.
 PROGRAM = textwrap.dedent("""
     import ctypes, ctypes.util, sys, tempfile, threading
-    from bayesmap.memory import drop_compiled_programs, keep_compiled_programs, limit_malloc_arenas
+    from bayesmap.memory import limit_malloc_arenas
     print(limit_malloc_arenas(int(sys.argv[1])) if sys.argv[1] != "none" else None)
     import numpy as np
     import jax.numpy as jnp

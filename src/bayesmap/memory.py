@@ -95,8 +95,9 @@ def drop_compiled_programs() -> None:
 def keep_compiled_programs():
     """A context in which :func:`drop_compiled_programs` keeps JAX's compiled programs: for a program that runs
     many small problems in one process (a notebook, a test suite, a sweep over settings), where compiling again
-    costs more than the memory the programs hold. The memory then grows with the programs compiled; leave the
-    context (or call ``jax.clear_caches()``) to bound it. Contexts nest; each thread and task has its own."""
+    costs more than the memory the programs hold. The memory then grows with the programs compiled: leaving the
+    context frees nothing by itself (the next :func:`drop_compiled_programs` outside it does, or
+    ``jax.clear_caches()``). Contexts nest; each thread and task has its own."""
     token = _KEEP_COMPILED.set(True)
     try:
         yield
