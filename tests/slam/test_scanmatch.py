@@ -68,9 +68,11 @@ def test_correlative_path_recovers_the_true_path(window):
 def test_the_fields_follow_the_robot_down_a_corridor():
     """A robot drives 18 m down a 2 m corridor with door recesses at uneven spacing on both sides, its laser reaching
     2.5 m. On fields of +-3 m, which must follow it (they hold at least 2.25 m on every side, so every endpoint of
-    the local map stays inside), the path is the one of +-30 m fields (no recentring needed in between): equal up to
-    one step of the finest lattice (3 mm, 0.8 mrad), by which float32 coordinates shifted by whole cells can break a
-    near-tie differently. Fields that stayed at the first pose would hold no wall beyond x = 4 m. Both paths are
+    the local map stays inside), the path is the one of +-30 m fields (no recentring needed in between), bit for
+    bit: the fields are moved (the cells both windows cover) and filled (the others) as a rebuild from every scan
+    would make them, and every cell coordinate is computed in one frame and shifted in integers. Fields that stayed
+    at the first pose would hold no wall beyond x = 4 m; moved fields that kept a cell they should have cleared, or
+    missed a scan that reaches a new cell, would change a match. Both paths are
     closer to the truth than half the odometry's error (the corridor leaves the along-track position to the
     recesses; the room test above measures accuracy). Run one scan per call, reporting each (a progress callback),
     the +-3 m fields give the same path, bit for bit: the window's moves carry over from call to call."""
@@ -92,7 +94,7 @@ def test_the_fields_follow_the_robot_down_a_corridor():
     data = ScanData(beams, readings, readings < 2.49, np.asarray(inc), np.asarray(cov))
     small = correlative_path(odometry[0], data, grid.resolution, half_width=3.0)
     large = correlative_path(odometry[0], data, grid.resolution, half_width=30.0)
-    assert np.all(np.abs(small - large) <= np.array([0.003, 0.003, 0.0008]) + 1e-5)
+    np.testing.assert_array_equal(small, large)
     seen = []
     np.testing.assert_array_equal(correlative_path(odometry[0], data, grid.resolution, half_width=3.0,
                                                    progress=seen.append), small)
@@ -378,3 +380,46 @@ def test_search_scores_every_lattice_candidate_as_field_scores_does(masked):
                                                       returned[2], f == 0, window, log_field))
             np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-3)
             assert np.argmax(got) == np.argmax(want)
+
+
+def test_fields_and_searches_of_two_shifted_windows_agree_to_the_bit():
+    """Scans given in one frame, on two windows of it (shifted by whole cells, as the front end's fields move): the
+    fields agree on every cell both cover, bit for bit, and so do the search's best pose and score and the hit
+    fraction, whether a level interpolates the fine field or looks up the broad one, masked by a window of stamps
+    or not. A shift applied in floats (the poses moved by a multiple of the cell size) rounds the cell coordinates
+    differently; the path of the front end would then depend on where its square happens to be."""
+    from bayesmap.slam import scanmatch
+
+    room, truth, _, beams, readings = room_scans(num_poses=3)
+    returned = readings < 30.0
+    grid = Grid(shape=(200, 180), resolution=room.resolution, origin=(0.0, 0.0))  # the room's 160 x 120 cells and more
+    shifts = (np.array([-20, -30], np.int32), np.array([-37, -41], np.int32))  # the room's cells, in each window
+    fields, stamps = [], []
+    for shift in shifts:
+        fields.append(scanmatch.add_to_fields(scanmatch.empty_fields(grid), grid, jnp.asarray(truth[:2]), beams[:2],
+                                              readings[:2], returned[:2], jnp.asarray(shift)))
+        stamps.append(jnp.asarray(np.random.default_rng(1).uniform(0, 10, (300, 300)).astype(np.float32)
+                                  [50 + shift[0]:250 + shift[0], 50 + shift[1]:230 + shift[1]]))  # one array's windows
+    lo = np.maximum(*shifts)  # the frame's cells both windows cover (window cell w is the frame's w + shift)
+    hi = np.minimum(*shifts) + grid.shape
+
+    def common(array, shift):
+        return np.asarray(array)[lo[0] - shift[0]:hi[0] - shift[0], lo[1] - shift[1]:hi[1] - shift[1]]
+
+    for k in range(len(scanmatch.FIELDS)):
+        assert np.asarray(fields[0][k]).max() > 0.5
+        np.testing.assert_array_equal(common(fields[0][k], shifts[0]), common(fields[1][k], shifts[1]))
+    center = jnp.asarray(truth[2] + [0.05, -0.04, 0.02], jnp.float32)
+    levels = scanmatch.lattices(scanmatch.MATCH_LEVELS)
+    for masked in (False, True):
+        found = []
+        for f, st, shift in zip(fields, stamps, shifts):
+            window = (st, jnp.float32(5.0)) if masked else None
+            best, score = scanmatch.search(f, grid, center, beams[2], readings[2], returned[2], levels,
+                                           window=window, shift=jnp.asarray(shift))
+            hits = scanmatch.hit_fraction(f, grid, best, beams[2], readings[2], returned[2], window,
+                                          jnp.asarray(shift))
+            found.append(np.asarray(jnp.concatenate([best, score[None], hits[None]])))
+        np.testing.assert_array_equal(found[0], found[1])
+        if not masked:
+            assert np.abs(found[0][:2] - truth[2, :2]).max() < 0.03 and found[0][4] > 0.5

@@ -23,8 +23,12 @@ correlative scan matching", ICRA; the likelihood field of Thrun, Burgard & Fox, 
 
 Every cell also keeps the path length of the last scan that reached it, and a match sees only the cells reached
 within the window: the local map of a running buffer of scans (Karto's design). The fields cover a square of
-:data:`MATCH_GRID_HALF_WIDTH` around the robot and follow it: when the robot nears their edge they are rebuilt around
-it from every earlier scan, so the grid never depends on where the odometry says the robot went. The path drifts
+:data:`MATCH_GRID_HALF_WIDTH` around the robot and follow it: when the robot nears their edge they move to center on
+it, by whole cells, and hold what a grid covering everything would hold there (the cells both squares cover are
+moved; the others are filled from the earlier scans that reach them, at their matched poses), so the grid never
+depends on where the odometry says the robot went. Every cell coordinate is computed in one frame, at the first
+pose, and shifted by whole cells, so the path does not depend on where the square is or on its size (while the
+beams stay inside it), to the bit. The path drifts
 slowly; :mod:`bayesmap.slam.posegraph` closes the loops, and :func:`correlative_path` is only a start for the joint
 chain, which does not depend on it for its target.
 
@@ -97,9 +101,9 @@ MATCH_GRID_HALF_WIDTH = 40.0
 predicted pose, by whole cells, whenever that pose is more than a quarter of the half width from the grid's center), so
 the robot always has at least 30 m of grid on every side, more than the local map's 10 m of travel and the beams of an
 indoor laser (CSAIL's longest return is 35 m, its 99th percentile 14 m). The fields and stamps of a 0.05 m grid of
-this size take 41 MB. When the grid moves, its fields and stamps are rebuilt from every earlier scan at its matched
-pose, so they are those of a grid covering everything, restricted to the window
-([validation](../validation/defaults.md#match_grid_half_width))."""
+this size take 41 MB. When the grid moves, its fields and stamps are those of a grid covering everything, restricted
+to the window: the cells both windows cover are moved, the others filled from every earlier scan that reaches them
+at its matched pose ([validation](../validation/defaults.md#match_grid_half_width))."""
 
 
 class ScanData(NamedTuple):
@@ -128,34 +132,41 @@ def _field_stencil(resolution: float, radius: float):
     return jnp.asarray(np.stack([ii[keep], jj[keep]], axis=-1).astype(np.int32))
 
 
-def _cells(grid: Grid, xy):
-    """Nearest cell indices ``(..., 2)`` int32 of world points, and whether they lie inside the grid."""
+def _cells(grid: Grid, xy, shift=None):
+    """Nearest cell indices ``(..., 2)`` int32 of world points, and whether they lie inside the grid; ``shift`` as in
+    :func:`search`."""
     cells = jnp.floor(grid.to_cell_coords(xy) + 0.5).astype(jnp.int32)
+    if shift is not None:
+        cells = cells - shift
     inside = jnp.all((cells >= 0) & (cells < jnp.asarray(grid.shape)), axis=-1)
     return jnp.clip(cells, 0, jnp.asarray(grid.shape) - 1), inside
 
 
-def _stencil_cells(grid: Grid, pose, sensor_angles, readings, returned, sigma: float, radius: float, size: int):
+def _stencil_cells(grid: Grid, pose, sensor_angles, readings, returned, sigma: float, radius: float, size: int,
+                   shift=None):
     """The flat indices ``(E, F)`` of the cells whose centers lie within ``radius`` meters of the returned endpoints
     of scans ``(..., K)`` at poses ``(..., 3)`` (``size``, out of range, where none), and ``exp(-d^2 / (2
-    sigma^2))`` of their distance ``d`` from the endpoint."""
+    sigma^2))`` of their distance ``d`` from the endpoint; ``shift`` as in :func:`search`."""
     offsets = _field_stencil(grid.resolution, radius)
     ends = scan_endpoints(pose, sensor_angles, readings)
     coords = grid.to_cell_coords(ends).reshape(-1, 2)
-    cells, inside = _cells(grid, ends)
-    cells, ok = cells.reshape(-1, 2), (returned & inside).reshape(-1)
+    cells = jnp.floor(coords + 0.5).astype(jnp.int32)
     target = cells[:, None, :] + offsets[None, :, :]
     d2 = jnp.sum((target - coords[:, None, :]) ** 2, axis=-1) * grid.resolution**2  # from the endpoint itself
-    ok = ok[:, None] & jnp.all((target >= 0) & (target < jnp.asarray(grid.shape)), axis=-1) & (d2 <= radius**2)
+    if shift is not None:
+        cells, target = cells - shift, target - shift
+    n = jnp.asarray(grid.shape)
+    ok = returned.reshape(-1) & jnp.all((cells >= 0) & (cells < n), axis=-1)
+    ok = ok[:, None] & jnp.all((target >= 0) & (target < n), axis=-1) & (d2 <= radius**2)
     return jnp.where(ok, target[..., 0] * grid.shape[1] + target[..., 1], size), jnp.exp(-d2 / (2 * sigma**2))
 
 
-def add_scan(field, grid: Grid, pose, sensor_angles, readings, returned, sigma: float, radius: float):
+def add_scan(field, grid: Grid, pose, sensor_angles, readings, returned, sigma: float, radius: float, shift=None):
     """The likelihood field ``(nx, ny)`` float32 with more endpoints: the returned beams of scans ``(..., K)`` at
     poses ``(..., 3)`` (one scan or several), a scatter-max of ``exp(-d^2 / (2 sigma^2))`` over the cells whose
     centers lie within ``radius`` meters of each endpoint, ``d`` the distance from the endpoint itself (not its
-    cell: no half-cell bias). Endpoints outside the grid are skipped. Jittable."""
-    flat, vals = _stencil_cells(grid, pose, sensor_angles, readings, returned, sigma, radius, field.size)
+    cell: no half-cell bias). Endpoints outside the grid are skipped. ``shift`` as in :func:`search`. Jittable."""
+    flat, vals = _stencil_cells(grid, pose, sensor_angles, readings, returned, sigma, radius, field.size, shift)
     return field.reshape(-1).at[flat.reshape(-1)].max(vals.astype(field.dtype).reshape(-1),
                                                      mode="drop").reshape(field.shape)
 
@@ -171,17 +182,19 @@ def _lookup(field, cells, window):
     return jnp.where(stamps[cells[..., 0], cells[..., 1]] >= since, value, 0.0)
 
 
-def _endpoint_values(field, grid: Grid, ends, interpolate: bool, window=None):
+def _endpoint_values(field, grid: Grid, ends, interpolate: bool, window=None, shift=None):
     """The field at world endpoints ``(..., 2)``: bilinearly interpolated between cell centers (``interpolate``; else
     the nearest cell's value, four times cheaper); 0 outside the grid and at cells ``window`` leaves out
-    (:func:`_lookup`)."""
+    (:func:`_lookup`); ``shift`` as in :func:`search`."""
     if not interpolate:
-        cells, inside = _cells(grid, ends)
+        cells, inside = _cells(grid, ends, shift)
         return jnp.where(inside, _lookup(field, cells, window), 0.0)
     c = grid.to_cell_coords(ends)
     base = jnp.floor(c)
     frac = c - base
     base = base.astype(jnp.int32)
+    if shift is not None:
+        base = base - shift
     n = jnp.asarray(grid.shape)
     value = jnp.zeros(c.shape[:-1], field.dtype)
     for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
@@ -206,19 +219,20 @@ def field_scores(field, grid: Grid, candidates, sensor_angles, readings, returne
 
 
 def lattice_scores(field, grid: Grid, center, xy, theta, sensor_angles, readings, returned, interpolate: bool,
-                    window=None, log_field=None):
+                    window=None, log_field=None, shift=None):
     """:func:`field_scores` of the candidates ``center + (xy[a], theta[b])`` in the order ``a * len(theta) + b``
     (``xy`` ``(A, 2)``, ``theta`` ``(B,)``), each beam's direction computed once per heading instead of once per
     candidate, the field masked by ``window`` (:func:`_lookup`). ``log_field``: :func:`log_field` of ``field``, read
-    instead of taking a logarithm per endpoint where the nearest cell's value is looked up (the same values)."""
+    instead of taking a logarithm per endpoint where the nearest cell's value is looked up (the same values);
+    ``shift`` as in :func:`search`."""
     heading = center[2] + theta  # (B,)
     angle = heading[:, None] + sensor_angles  # (B, K)
     reach = readings[..., None] * jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)  # (B, K, 2)
     ends = ((center[:2] + xy)[:, None, None, :] + reach[None]).reshape(-1, *reach.shape[1:])  # (A B, K, 2)
     if interpolate or log_field is None:
-        return _log_score(_endpoint_values(field, grid, ends, interpolate, window), returned)
+        return _log_score(_endpoint_values(field, grid, ends, interpolate, window, shift), returned)
     floor = jnp.log(jnp.zeros((), field.dtype) + FIELD_FLOOR)  # the log of an endpoint off the map
-    cells, inside = _cells(grid, ends)
+    cells, inside = _cells(grid, ends, shift)
     if window is not None:  # a cell off the window counts as unmapped
         inside = inside & (window[0][cells[..., 0], cells[..., 1]] >= window[1])
     value = jnp.where(inside, log_field[cells[..., 0], cells[..., 1]], floor)
@@ -246,9 +260,10 @@ def empty_fields(grid: Grid) -> tuple:
     return tuple(jnp.zeros(grid.shape, jnp.float32) for _ in FIELDS)
 
 
-def add_to_fields(fields: tuple, grid: Grid, pose, sensor_angles, readings, returned) -> tuple:
-    """:func:`add_scan` of scans ``(..., K)`` at poses ``(..., 3)`` to every field of :data:`FIELDS`. Jittable."""
-    return tuple(add_scan(field, grid, pose, sensor_angles, readings, returned, sigma, radius)
+def add_to_fields(fields: tuple, grid: Grid, pose, sensor_angles, readings, returned, shift=None) -> tuple:
+    """:func:`add_scan` of scans ``(..., K)`` at poses ``(..., 3)`` to every field of :data:`FIELDS` (``shift`` as
+    there). Jittable."""
+    return tuple(add_scan(field, grid, pose, sensor_angles, readings, returned, sigma, radius, shift)
                  for field, (sigma, radius) in zip(fields, FIELDS))
 
 
@@ -280,7 +295,7 @@ def lattices(levels) -> Lattices:
 
 
 def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned, levels: Lattices,
-           log_prior=None, window=None, log_fields=None):
+           log_prior=None, window=None, log_fields=None, shift=None):
     """The coarse-to-fine search: at each level score ``center + offsets`` (:func:`field_scores` plus
     ``log_prior(candidates)`` if given) and recenter on the best (the first of equal scores, in the order of the
     offsets ``(x, y, heading)``, heading fastest); the fine field (index 0) is interpolated, the broad one looked up at
@@ -293,6 +308,10 @@ def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned,
             grid.
         log_fields: None, or per field its :func:`log_field` (or None), read by the levels that look up the nearest
             cell (the same scores, faster when there are more lookups than cells).
+        shift: None, or ``(2,)`` int32 cells: the poses are given in the frame of a grid ``shift`` cells before
+            this one (cell ``c`` there is cell ``c - shift`` here): every cell coordinate is computed in that frame
+            and the cells shifted in integers, so that nothing depends on ``shift`` to the bit (the front end's
+            fields, which follow the robot).
 
     Returns:
         ``(best (3,), score)``: the best pose and its score at the last level.
@@ -301,7 +320,7 @@ def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned,
     for (xy, theta), f in levels:
         scores = lattice_scores(fields[f], grid, best, xy, theta, sensor_angles, readings, returned,
                                  interpolate=f == 0, window=window,
-                                 log_field=None if log_fields is None else log_fields[f])
+                                 log_field=None if log_fields is None else log_fields[f], shift=shift)
         cands = jnp.concatenate([jnp.repeat(best[:2] + xy, len(theta), axis=0),
                                  jnp.tile(best[2] + theta, len(xy))[:, None]], axis=1)
         if log_prior is not None:
@@ -311,10 +330,11 @@ def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned,
     return best, score
 
 
-def hit_fraction(fields: tuple, grid: Grid, pose, sensor_angles, readings, returned, window=None):
+def hit_fraction(fields: tuple, grid: Grid, pose, sensor_angles, readings, returned, window=None, shift=None):
     """The fraction of returned beams whose endpoint at ``pose`` lands where the fine field exceeds one half (within
-    about 1.2 sigma of a mapped endpoint): a match quality in [0, 1]; ``window`` as in :func:`search`. Jittable."""
-    value = _endpoint_values(fields[0], grid, scan_endpoints(pose, sensor_angles, readings), False, window)
+    about 1.2 sigma of a mapped endpoint): a match quality in [0, 1]; ``window`` and ``shift`` as in :func:`search`.
+    Jittable."""
+    value = _endpoint_values(fields[0], grid, scan_endpoints(pose, sensor_angles, readings), False, window, shift)
     return jnp.sum(returned & (value > 0.5)) / jnp.maximum(jnp.sum(returned), 1)
 
 
@@ -370,16 +390,15 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     steps = lattices(levels)
     dtype = jnp.result_type(float)
     first_pose = np.asarray(first_pose, np.float64)
-    base = first_pose[:2] - n * resolution / 2  # world position of the window's corner when its offset is 0
     travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.asarray(data.increments, np.float64)[:, :2].T))])
     span = np.inf if window is None else float(window)
     arrays = ScanData(*(jnp.asarray(a, dtype=bool if a.dtype == bool else dtype) for a in map(np.asarray, data)))
     arrays = _Scans(*arrays, travelled=jnp.asarray(travelled, dtype))
-    base = jnp.asarray(base, dtype)
-    run = functools.partial(_correlative_steps, d=arrays, base=base, span=jnp.asarray(span, dtype),
+    frame = jnp.asarray(first_pose[:2], dtype)  # the world position of the frame the matches are computed in
+    run = functools.partial(_correlative_steps, d=arrays, frame=frame, span=jnp.asarray(span, dtype),
                             prior_weight=jnp.asarray(1.0 / power, dtype), min_hit=jnp.asarray(min_hit_fraction, dtype),
                             steps=steps, grid=grid, half_width=float(half_width))
-    start = functools.partial(_correlative_start, jnp.asarray(first_pose, dtype), arrays, base, grid)
+    start = functools.partial(_correlative_start, jnp.asarray(first_pose, dtype), arrays, frame, grid)
     return np.asarray(_run_in_steps(run, start, s, progress)[0], np.float64)
 
 
@@ -405,76 +424,105 @@ def _run_in_steps(run, start, count: int, progress: ProgressCallback | None):
     return carry
 
 
-def _local(pose, offset, base, resolution: float):
-    """A world pose in the front end's window's frame (the window's corner at ``base + offset * resolution``)."""
-    return pose - jnp.concatenate([base + offset * resolution, jnp.zeros(1, pose.dtype)])
+def _add_matched(d, grid: Grid, frame, world, u, offset, carry):
+    """The fields and stamps ``carry`` of the window at ``offset`` with scan ``u`` of ``d`` added at its matched
+    pose ``world`` ``(3,)``: its endpoints' fields (:func:`add_to_fields`), and its path length scatter-maxed into
+    the cells its broad field reaches (the stamps). Computed in the front end's frame (world coordinates less
+    ``frame``) and shifted by whole cells, so the values do not depend on where the window is or on its size."""
+    fields, stamps = carry
+    pose = world - jnp.concatenate([frame, jnp.zeros(1, frame.dtype)])
+    angles, readings, returned = d.sensor_angles[u], d.readings[u], d.returned[u]
+    fields = add_to_fields(fields, grid, pose, angles, readings, returned, offset)
+    flat, _ = _stencil_cells(grid, pose, angles, readings, returned, *FIELDS[-1], stamps.size, offset)
+    stamps = stamps.reshape(-1).at[flat.reshape(-1)].max(d.travelled[u], mode="drop").reshape(stamps.shape)
+    return fields, stamps
 
 
-def _stamp(d, grid: Grid, stamps, pose, t):
-    """Scatter-max the path length of scan ``t`` of ``d`` into the cells its endpoints' broad field reaches."""
-    flat, _ = _stencil_cells(grid, pose, d.sensor_angles[t], d.readings[t], d.returned[t], *FIELDS[-1], stamps.size)
-    return stamps.reshape(-1).at[flat.reshape(-1)].max(d.travelled[t], mode="drop").reshape(stamps.shape)
-
-
-def _rebuild(d, grid: Grid, base, path, t, offset):
+def _rebuild(d, grid: Grid, frame, path, t, offset):
     """The fields and stamps of the window at ``offset`` from every scan ``< t`` of ``d`` at its matched pose in
     ``path``: those of a grid covering everything, restricted to the window (the stamps mask all but the local
     map)."""
-    def add(u, carry):
-        fields, stamps = carry
-        pose = _local(path[u], offset, base, grid.resolution)
-        fields = add_to_fields(fields, grid, pose, d.sensor_angles[u], d.readings[u], d.returned[u])
-        return fields, _stamp(d, grid, stamps, pose, u)
+    empty = (empty_fields(grid), jnp.full(grid.shape, -jnp.inf, frame.dtype))
+    return jax.lax.fori_loop(0, t, lambda u, carry: _add_matched(d, grid, frame, path[u], u, offset, carry), empty)
 
-    return jax.lax.fori_loop(0, t, add, (empty_fields(grid), jnp.full(grid.shape, -jnp.inf, base.dtype)))
+
+def _moved(d, grid: Grid, frame, path, t, fields, stamps, old, new):
+    """:func:`_rebuild` at offset ``new``, from the fields and stamps at offset ``old``, the same to the bit: a cell
+    that lies at least a stencil's reach (the broad field's radius in cells, plus one) inside both windows has the
+    same value in either (every endpoint that reaches it lies inside both), so it is moved; every other cell is
+    cleared and filled again from the scans ``< t`` whose endpoints reach it (by their bounding box plus the
+    reach; adding a scan twice changes nothing). Scans far from the windows' edges, most of them, are skipped."""
+    n = grid.shape[0]
+    delta = new - old
+    margin = int(math.ceil(FIELDS[-1][1] / grid.resolution + 0.75)) + 1  # _field_stencil's half width, plus one
+    lo = jnp.maximum(margin, margin - delta)  # the moved square, in the new window's cells
+    hi = jnp.minimum(n - margin, n - margin - delta)
+    cell = jnp.arange(n)
+    keep = ((cell[:, None] >= lo[0]) & (cell[:, None] < hi[0]) & (cell[None, :] >= lo[1]) & (cell[None, :] < hi[1]))
+
+    def shifted(array, fill):
+        return jnp.where(keep, jnp.roll(array, (-delta[0], -delta[1]), axis=(0, 1)), fill)
+
+    poses = path - jnp.concatenate([frame, jnp.zeros(1, frame.dtype)])
+    coords = grid.to_cell_coords(scan_endpoints(poses, d.sensor_angles, d.readings)) - new  # (S, K, 2)
+    returned = d.returned[..., None]
+    first = jnp.clip(jnp.min(jnp.where(returned, coords, jnp.inf), axis=1) - margin, 0, n - 1)
+    last = jnp.clip(jnp.max(jnp.where(returned, coords, -jnp.inf), axis=1) + margin, 0, n - 1)
+    moved_only = jnp.all(first >= lo, axis=-1) & jnp.all(last < hi, axis=-1)  # (or nothing: no returned beam)
+    again = (jnp.arange(len(path)) < t) & ~moved_only
+    scans = jnp.nonzero(again, size=len(path), fill_value=0)[0]
+
+    def add(i, carry):
+        return _add_matched(d, grid, frame, path[scans[i]], scans[i], new, carry)
+
+    moved = (tuple(shifted(field, 0.0) for field in fields), shifted(stamps, -jnp.inf))
+    return jax.lax.fori_loop(0, jnp.sum(again), add, moved)
 
 
 @functools.partial(jax.jit, static_argnames=("grid",))
-def _correlative_start(first, d, base, grid: Grid):
+def _correlative_start(first, d, frame, grid: Grid):
     """The carry of the front end's loop before scan 1: ``(path (S, 3)`` with row 0 ``first``, the fields and stamps
-    of scan 0 at it, the window's offset 0)."""
+    of scan 0 at it, the window's offset: the frame's cell of its first cell, so that ``first`` is at its center)."""
     path = jnp.zeros((d.readings.shape[0], 3), first.dtype).at[0].set(first)
-    offset = jnp.zeros(2, jnp.int32)
-    fields, stamps = _rebuild(d, grid, base, path, 1, offset)
+    offset = jnp.full(2, -(grid.shape[0] // 2), jnp.int32)
+    fields, stamps = _rebuild(d, grid, frame, path, 1, offset)
     return path, fields, stamps, offset
 
 
 @functools.partial(jax.jit, static_argnames=("grid", "half_width"), donate_argnames=("carry",))
-def _correlative_steps(carry, lo, hi, d, base, span, prior_weight, min_hit, steps: Lattices, grid: Grid,
+def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, steps: Lattices, grid: Grid,
                        half_width: float):
     """The jitted loop of :func:`correlative_path` over the scans ``lo <= t < hi`` from ``carry`` (module level, so
     that another run with the same shapes and settings reuses the compiled code; the bounds are arguments, so runs in
     pieces share it): the carry ``(path (S, 3)`` in world coordinates, fields, stamps, window offset) after scan
-    ``hi - 1``. ``steps`` are the search levels (:func:`lattices`); ``base`` the world position of the window's
-    corner at offset 0; ``prior_weight`` the inverse of the likelihood power (scaling the motion term instead of the
-    field score leaves the argmax the same); ``min_hit`` the least hit fraction of a trusted match."""
+    ``hi - 1``. ``steps`` are the search levels (:func:`lattices`); ``frame`` the world position ``(2,)`` of the
+    frame every match is computed in (the first pose's: the poses less ``frame``, their cells in that frame's grid
+    of ``grid.resolution``, the window's cell ``(i, j)`` the frame's cell ``offset + (i, j)``); ``prior_weight`` the
+    inverse of the likelihood power (scaling the motion term instead of the field score leaves the argmax the same);
+    ``min_hit`` the least hit fraction of a trusted match."""
     n = grid.shape[0]
-    resolution = grid.resolution
-    dtype = base.dtype
-
-    def local(pose, offset):
-        return _local(pose, offset, base, resolution)
+    origin = jnp.concatenate([frame, jnp.zeros(1, frame.dtype)])  # poses are matched in the frame at ``frame``
 
     def body(t, carry):
         path, fields, stamps, offset = carry
-        prev = path[t - 1]
+        prev = path[t - 1] - origin
         predicted = compose(prev, d.increments[t - 1])
-        cells = jnp.round(local(predicted, offset)[:2] / resolution - n / 2).astype(jnp.int32)
-        far = jnp.max(jnp.abs(cells)) * resolution > half_width / 4
-        offset = jnp.where(far, offset + cells, offset)
-        fields, stamps = jax.lax.cond(far, lambda: _rebuild(d, grid, base, path, t, offset), lambda: (fields, stamps))
+        cells = jnp.round(predicted[:2] / grid.resolution - offset - n / 2).astype(jnp.int32)  # from the center
+        far = jnp.max(jnp.abs(cells)) * grid.resolution > half_width / 4
+        moved = jnp.where(far, offset + cells, offset)
+        fields, stamps = jax.lax.cond(far, lambda: _moved(d, grid, frame, path, t, fields, stamps, offset, moved),
+                                      lambda: (fields, stamps))
 
         def log_prior(cands):
-            return prior_weight * motion_logpdf(local(prev, offset), cands, d.increments[t - 1], d.covs[t - 1])
+            return prior_weight * motion_logpdf(prev, cands, d.increments[t - 1], d.covs[t - 1])
 
         window = (stamps, d.travelled[t] - span)  # the local map: the cells reached within the window
-        best, _ = search(fields, grid, local(predicted, offset), d.sensor_angles[t], d.readings[t],
-                         d.returned[t], steps, log_prior, window)
-        hits = hit_fraction(fields, grid, best, d.sensor_angles[t], d.readings[t], d.returned[t], window)
-        best = jnp.where(hits < min_hit, local(predicted, offset), best)
-        fields = add_to_fields(fields, grid, best, d.sensor_angles[t], d.readings[t], d.returned[t])
-        world = best - local(jnp.zeros(3, dtype), offset)
-        return path.at[t].set(world), fields, _stamp(d, grid, stamps, best, t), offset
+        scan = (d.sensor_angles[t], d.readings[t], d.returned[t])
+        best, _ = search(fields, grid, predicted, *scan, steps, log_prior, window, shift=moved)
+        hits = hit_fraction(fields, grid, best, *scan, window, shift=moved)
+        world = jnp.where(hits < min_hit, predicted, best) + origin
+        fields, stamps = _add_matched(d, grid, frame, world, t, moved, (fields, stamps))
+        return path.at[t].set(world), fields, stamps, moved
 
     return jax.lax.fori_loop(lo, hi, body, carry)
 
