@@ -29,14 +29,12 @@ def compiled_programs_kept_within_a_module():
     a SLAM run or a tiled chain would otherwise drop every program the worker has compiled, and the next test compile
     its own again); after the module, dropped if the worker's resident memory is above :data:`KEPT_PROGRAMS_MB`, to
     bound it (the next modules reuse them otherwise: the same scenes' samplers, the same shapes)."""
-    import jax
-
-    from bayesmap.memory import keep_compiled_programs
+    from bayesmap.memory import drop_compiled_programs, keep_compiled_programs
 
     with keep_compiled_programs():
         yield
     if resident_mb() > KEPT_PROGRAMS_MB:
-        jax.clear_caches()
+        drop_compiled_programs()
 
 
 KEPT_PROGRAMS_MB = 3000

@@ -394,7 +394,7 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     span = np.inf if window is None else float(window)
     arrays = ScanData(*(jnp.asarray(a, dtype=bool if a.dtype == bool else dtype) for a in map(np.asarray, data)))
     arrays = _Scans(*arrays, travelled=jnp.asarray(travelled, dtype))
-    frame = jnp.asarray(first_pose[:2], dtype)  # the world position of the frame the matches are computed in
+    frame = jnp.asarray(np.append(first_pose[:2], 0.0), dtype)  # the frame the matches are computed in (a pose)
     run = functools.partial(_correlative_steps, d=arrays, frame=frame, span=jnp.asarray(span, dtype),
                             prior_weight=jnp.asarray(1.0 / power, dtype), min_hit=jnp.asarray(min_hit_fraction, dtype),
                             steps=steps, grid=grid, half_width=float(half_width))
@@ -428,9 +428,10 @@ def _add_matched(d, grid: Grid, frame, world, u, offset, carry):
     """The fields and stamps ``carry`` of the window at ``offset`` with scan ``u`` of ``d`` added at its matched
     pose ``world`` ``(3,)``: its endpoints' fields (:func:`add_to_fields`), and its path length scatter-maxed into
     the cells its broad field reaches (the stamps). Computed in the front end's frame (world coordinates less
-    ``frame``) and shifted by whole cells, so the values do not depend on where the window is or on its size."""
+    ``frame`` ``(3,)``) and shifted by whole cells, so the values do not depend on where the window is or on its
+    size."""
     fields, stamps = carry
-    pose = world - jnp.concatenate([frame, jnp.zeros(1, frame.dtype)])
+    pose = world - frame
     angles, readings, returned = d.sensor_angles[u], d.readings[u], d.returned[u]
     fields = add_to_fields(fields, grid, pose, angles, readings, returned, offset)
     flat, _ = _stencil_cells(grid, pose, angles, readings, returned, *FIELDS[-1], stamps.size, offset)
@@ -463,7 +464,7 @@ def _moved(d, grid: Grid, frame, path, t, fields, stamps, old, new):
     def shifted(array, fill):
         return jnp.where(keep, jnp.roll(array, (-delta[0], -delta[1]), axis=(0, 1)), fill)
 
-    poses = path - jnp.concatenate([frame, jnp.zeros(1, frame.dtype)])
+    poses = path - frame
     coords = grid.to_cell_coords(scan_endpoints(poses, d.sensor_angles, d.readings)) - new  # (S, K, 2)
     returned = d.returned[..., None]
     first = jnp.clip(jnp.min(jnp.where(returned, coords, jnp.inf), axis=1) - margin, 0, n - 1)
@@ -495,17 +496,16 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
     """The jitted loop of :func:`correlative_path` over the scans ``lo <= t < hi`` from ``carry`` (module level, so
     that another run with the same shapes and settings reuses the compiled code; the bounds are arguments, so runs in
     pieces share it): the carry ``(path (S, 3)`` in world coordinates, fields, stamps, window offset) after scan
-    ``hi - 1``. ``steps`` are the search levels (:func:`lattices`); ``frame`` the world position ``(2,)`` of the
-    frame every match is computed in (the first pose's: the poses less ``frame``, their cells in that frame's grid
-    of ``grid.resolution``, the window's cell ``(i, j)`` the frame's cell ``offset + (i, j)``); ``prior_weight`` the
-    inverse of the likelihood power (scaling the motion term instead of the field score leaves the argmax the same);
-    ``min_hit`` the least hit fraction of a trusted match."""
+    ``hi - 1``. ``steps`` are the search levels (:func:`lattices`); ``frame`` ``(3,)`` the world position (and a
+    heading of 0) of the frame every match is computed in (the first pose's: the poses less ``frame``, their cells
+    in that frame's grid of ``grid.resolution``, the window's cell ``(i, j)`` the frame's cell ``offset + (i, j)``);
+    ``prior_weight`` the inverse of the likelihood power (scaling the motion term instead of the field score leaves
+    the argmax the same); ``min_hit`` the least hit fraction of a trusted match."""
     n = grid.shape[0]
-    origin = jnp.concatenate([frame, jnp.zeros(1, frame.dtype)])  # poses are matched in the frame at ``frame``
 
     def body(t, carry):
         path, fields, stamps, offset = carry
-        prev = path[t - 1] - origin
+        prev = path[t - 1] - frame
         predicted = compose(prev, d.increments[t - 1])
         cells = jnp.round(predicted[:2] / grid.resolution - offset - n / 2).astype(jnp.int32)  # from the center
         far = jnp.max(jnp.abs(cells)) * grid.resolution > half_width / 4
@@ -520,7 +520,7 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
         scan = (d.sensor_angles[t], d.readings[t], d.returned[t])
         best, _ = search(fields, grid, predicted, *scan, steps, log_prior, window, shift=moved)
         hits = hit_fraction(fields, grid, best, *scan, window, shift=moved)
-        world = jnp.where(hits < min_hit, predicted, best) + origin
+        world = jnp.where(hits < min_hit, predicted, best) + frame
         fields, stamps = _add_matched(d, grid, frame, world, t, moved, (fields, stamps))
         return path.at[t].set(world), fields, stamps, moved
 
