@@ -37,7 +37,6 @@ import math
 from dataclasses import dataclass, field
 from functools import cached_property
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -46,25 +45,15 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.geometry.raytable import RayTable, build_ray_table, visible_cells
 from bayesmap.geometry.tiles import table_chunks
-from bayesmap.model.generative import ModelParams, log_joint, log_joint_scans, ray_limits, walls_log_likelihood
-from bayesmap.model.passable import PASS_WALLS
+from bayesmap.model.generative import ModelParams, cut_chords, log_joint, log_joint_scans, ray_limits
+from bayesmap.model.likelihood import chunked_log_likelihoods
+from bayesmap.model.passable import PASS_WALLS, pass_mixture
 from bayesmap.model.prior import disagreeing_pairs
 
 TABLE_PIECE_PAIRS = 1 << 20
 """About how many (beam, cell) pairs one piece of :meth:`Problem.table_chunks` holds (whole scans): bounds the memory
 that log-odds mapping, the log joint and the seen cells of a log take (about 100 MB of a piece and its temporaries
 at this value), not what they compute."""
-
-LOG_LIKELIHOOD_BEAMS = 1 << 16
-"""Beams per compiled call of :meth:`Problem.table_log_joint` (padded to it: one compilation for every piece of the
-table; bounds the call's memory, a few MB)."""
-
-
-@jax.jit
-def _beams_log_likelihood(readings, chords, valid, params):
-    """The sum over the beams ``valid`` of :func:`~bayesmap.model.generative.walls_log_likelihood`."""
-    return jnp.sum(jnp.where(valid, walls_log_likelihood(readings, chords, params), 0.0))
-
 
 @dataclass(frozen=True, eq=False)
 class Observations:
@@ -408,24 +397,34 @@ class Problem:
             totals -= float(self.params.coupling) * np.array([int(disagreeing_pairs(w)) for w in maps], np.float64)
         walls_kept = PASS_WALLS if self.params.penetrable else 1
         for rays, table in self.table_chunks():
-            readings = self.model_ray_readings[rays]  # the piece's, once for every map and block
+            readings = self.model_ray_readings[rays]  # the piece's, once for every map
             for t, walls in enumerate(maps):
-                chords = table.wall_chords(walls, walls_kept)
-                for start in range(0, len(chords), LOG_LIKELIHOOD_BEAMS):
-                    part = slice(start, start + LOG_LIKELIHOOD_BEAMS)
-                    totals[t] += self._block_log_likelihood(readings[part], chords[part])
+                totals[t] += float(np.sum(self._beams_log_likelihoods(readings, table.wall_chords(walls, walls_kept)),
+                                          dtype=np.float64))
         return totals
 
-    def _block_log_likelihood(self, readings, chords) -> float:
-        """The sum of :func:`~bayesmap.model.generative.walls_log_likelihood` over at most
-        :data:`LOG_LIKELIHOOD_BEAMS` beams, padded to that many: one compiled program for every piece."""
+    def _beams_log_likelihoods(self, readings, chords) -> np.ndarray:
+        """``(n,)`` :func:`~bayesmap.model.generative.walls_log_likelihood` of readings ``(n,)`` given their rays' wall
+        chords ``(n, k, 2)`` (meters), by the same operations: the chords cut past the readings, the sensor model's
+        log-density of each wall and of no wall from the compiled table the samplers use
+        (:func:`~bayesmap.model.likelihood.chunked_log_likelihoods`, no compilation of its own), then
+        :func:`~bayesmap.model.passable.pass_mixture` when wall cells can be passed."""
+        params = self.params
         dtype = jnp.result_type(float)
-        pad = LOG_LIKELIHOOD_BEAMS - len(readings)
-        y = np.pad(np.asarray(readings, np.float64), (0, pad), constant_values=self.params.max_range)
-        chords = np.pad(np.asarray(chords, np.float64), ((0, pad), (0, 0), (0, 0)),
-                        constant_values=self.params.max_range)
-        return float(_beams_log_likelihood(jnp.asarray(y, dtype), jnp.asarray(chords, dtype),
-                                           jnp.arange(LOG_LIKELIHOOD_BEAMS) < len(readings), self.params))
+        sensor_args = tuple(jnp.asarray(a, dtype=dtype) for a in params.sensor_args)
+        n = len(readings)
+        y = np.asarray(readings, dtype)
+        chords = np.asarray(cut_chords(y, np.asarray(chords, dtype), params))
+        chord = params.geometry == "chord"
+
+        def wall(entry, exit_):  # (L,) padded past n, as the samplers' tables
+            return chunked_log_likelihoods(params.beam_model, sensor_args, y, entry, exit_ if chord else None)
+
+        parts = [wall(chords[:, k, 0], chords[:, k, 1]) for k in range(chords.shape[1])]
+        if not params.penetrable:
+            return np.asarray(parts[0][:n])
+        none = np.full(n, params.max_range, dtype)
+        return np.asarray(pass_mixture(parts[0], parts[1], wall(none, none), params.wall_pass_prob)[:n])
 
     @cached_property
     def visible(self) -> np.ndarray | None:

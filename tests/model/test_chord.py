@@ -204,6 +204,17 @@ def test_model_chords_equal_the_tables():
         assert np.all(table.pair_exits >= table.pair_dists)
         # a chord is at most a cell's diagonal
         assert np.all(table.pair_exits - table.pair_dists <= math.sqrt(2) * grid.resolution * (1 + 1e-5))
+        # the exits of some pairs (wall_chords computes only its walls') are the table's, to the bit
+        some = np.random.default_rng(0).integers(0, table.num_pairs, 50)
+        np.testing.assert_array_equal(table.exits_of_pairs(some), table.pair_exits[some])
+        two = table.wall_chords(walls, 2)  # (R, 2, 2): each ray's first two wall pairs, in order along it
+        for r in range(table.num_rays):
+            cells, _ = table.ray(r)
+            wall_pairs = table.offsets[r] + np.flatnonzero(np.asarray(walls).reshape(-1)[cells] > 0)
+            for k in range(2):
+                want = ((table.pair_dists[wall_pairs[k]], table.pair_exits[wall_pairs[k]]) if k < len(wall_pairs)
+                        else (table.max_distance, table.max_distance))
+                np.testing.assert_array_equal(two[r, k], np.asarray(want, table.pair_dists.dtype))
 
 
 @pytest.mark.parametrize("beam_model", ["normal", "beam"])

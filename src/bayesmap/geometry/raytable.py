@@ -120,22 +120,31 @@ class RayTable:
         the table was traced from), at least the pair's entry distance and at most the max distance. The chord
         geometry's ``b`` (:mod:`bayesmap.model.sensor`); computed on first use, a chunk of pairs at a time (4 bytes
         per pair in float32)."""
-        dtype = self.pair_dists.dtype
-        out = np.empty(self.num_pairs, dtype=dtype)
-        if not self.num_pairs:
-            return out
-        p_table, u_table = cell_frame(self.grid, self.origins, self.beam_angles)
-        p, u = p_table.astype(np.float64), u_table.astype(np.float64)
-        ny = self.grid.shape[1]
-        scale = dtype.type(self.grid.resolution)
+        out = np.empty(self.num_pairs, dtype=self.pair_dists.dtype)
         for start in range(0, self.num_pairs, _CHUNK_PAIRS):
-            part = slice(start, start + _CHUNK_PAIRS)
-            rays = self.rays_of_pairs(np.arange(part.start, min(part.stop, self.num_pairs)))
-            flat = self.pair_cells[part].astype(np.int64)
-            cells = np.stack([flat // ny, flat % ny], axis=-1).astype(np.float64)
-            exits = cell_exit_distance(p[rays], u[rays], cells, xp=np).astype(dtype) * scale
-            np.clip(exits, self.pair_dists[part], dtype.type(self.max_distance), out=out[part])
+            out[start:start + _CHUNK_PAIRS] = self.exits_of_pairs(np.arange(start, min(start + _CHUNK_PAIRS,
+                                                                                      self.num_pairs)))
         return out
+
+    @cached_property
+    def _frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """The rays' origins and unit directions ``(R, 2)`` in cell coordinates (:func:`cell_frame`), in float64."""
+        p_table, u_table = cell_frame(self.grid, self.origins, self.beam_angles)
+        return p_table.astype(np.float64), u_table.astype(np.float64)
+
+    def exits_of_pairs(self, pairs) -> np.ndarray:
+        """``pairs.shape`` exit distances (meters, the dtype of :attr:`pair_dists`) of the pairs ``pairs`` (pair
+        indices, any order): ``pair_exits[pairs]``, to the bit, without computing every pair's."""
+        pairs = np.asarray(pairs, dtype=np.int64)
+        dtype = self.pair_dists.dtype
+        if not pairs.size:
+            return np.empty(pairs.shape, dtype=dtype)
+        rays = self.rays_of_pairs(pairs)
+        p, u = self._frame[0][rays], self._frame[1][rays]
+        flat = self.pair_cells[pairs].astype(np.int64)
+        cells = np.stack([flat // self.grid.shape[1], flat % self.grid.shape[1]], axis=-1).astype(np.float64)
+        exits = cell_exit_distance(p, u, cells, xp=np).astype(dtype) * dtype.type(self.grid.resolution)
+        return np.clip(exits, self.pair_dists[pairs], dtype.type(self.max_distance))
 
     def first_wall_chords(self, walls) -> np.ndarray:
         """``(R, 2)`` entry and exit distance (meters) of each ray's first wall cell, both the max distance for a ray
@@ -148,16 +157,16 @@ class RayTable:
         along it, both the max distance for a wall the ray does not have:
         :func:`~bayesmap.geometry.raycast.wall_hit_chords` from the table."""
         is_wall = np.asarray(walls).reshape(-1)[self.pair_cells] > 0
-        entry = np.append(self.pair_dists, self.max_distance).astype(self.pair_dists.dtype)
-        exit_ = np.append(self.pair_exits, self.max_distance).astype(self.pair_dists.dtype)
-        out = []
-        for _ in range(count):
+        out = np.full((self.num_rays, count, 2), self.max_distance, dtype=self.pair_dists.dtype)
+        for k in range(count):
             first = np.full(self.num_rays, self.num_pairs, dtype=np.int64)
             wall_pairs = np.flatnonzero(is_wall)
             np.minimum.at(first, self.pair_rays[wall_pairs], wall_pairs)
-            out.append(np.stack([entry[first], exit_[first]], axis=-1))
-            is_wall[first[first < self.num_pairs]] = False
-        return np.stack(out, axis=1)
+            hit = first < self.num_pairs
+            out[hit, k, 0] = self.pair_dists[first[hit]]
+            out[hit, k, 1] = self.exits_of_pairs(first[hit])
+            is_wall[first[hit]] = False
+        return out
 
     def ray(self, r: int) -> tuple[np.ndarray, np.ndarray]:
         """Cells ``(n,)`` int32 and stopping distances ``(n,)`` (meters) of ray ``r``, in order along the ray."""
