@@ -45,7 +45,9 @@ def test_a_tiles_conditionals_are_the_whole_tables(model):
     """For random maps of two densities, every cell of every tile gets from its tile's table (the rest frozen)
     the conditional log-odds it gets from the whole log's table. Both are float32 sums of the same terms in another
     order: 1e-4 nats is far above their rounding (~1e-6 seen) and far below any term a wrong cut of a ray would
-    drop or add (a beam's term is of order 1 nat here; the check below makes sure the maps are informative)."""
+    drop or add (a beam's term is of order 1 nat here; the check below makes sure the maps are informative). The
+    tiles' samplers are padded to the sizes of the samplers before them, as a joint chain's map blocks are (one
+    compilation serves them all)."""
     rng, grid, origins, angles = _rays(1)
     params, y, limits = _model(grid, len(angles), rng, **model)
     whole = build_ray_table(grid, origins, angles, params.max_range, ray_limits=limits)
@@ -53,6 +55,7 @@ def test_a_tiles_conditionals_are_the_whole_tables(model):
     tiles = split_tiles(rays_per_cell(grid, origins, angles, params.max_range, limits), whole.num_pairs // 4)
     assert len(tiles) >= 4
     kept = 3 if params.penetrable else 2
+    shapes = full.kernel.shapes  # every tile's arrays padded to the whole table's sizes: one compilation for all
     for density in (0.1, 0.4):
         walls = (rng.random(grid.shape) < density).astype(np.float32)
         want = np.asarray(full.cell_log_odds(walls))
@@ -61,7 +64,9 @@ def test_a_tiles_conditionals_are_the_whole_tables(model):
             table, rays = tile_table(grid, origins, angles, params.max_range, limits, walls, tile, kept, slots=2000)
             assert table.num_pairs < whole.num_pairs
             inside = tile.mask(grid.shape)
-            got = np.asarray(CellwiseGibbs(table, y[rays], params, frozen=~inside).cell_log_odds(walls))
+            gibbs = CellwiseGibbs(table, y[rays], params, frozen=~inside, shapes=shapes)
+            shapes = gibbs.kernel.shapes
+            got = np.asarray(gibbs.cell_log_odds(walls))
             np.testing.assert_allclose(got[inside], want[inside], atol=1e-4, rtol=0)
 
 
@@ -77,6 +82,7 @@ def test_a_tiles_conditionals_match_the_multi_scan_models_assess(beam_model, geo
         tiles = split_tiles(table.rays_per_cell().reshape(grid.shape), table.num_pairs // 4)
         assert len(tiles) >= 4
         rng = np.random.default_rng(4)
+        shapes = None  # each tile padded to the sizes of the tiles before it (one compilation for most)
         for density in (0.2, 0.5):
             walls = (rng.random(grid.shape) < density).astype(np.float64)
             want = np.asarray(brute(jnp.asarray(walls)))
@@ -84,7 +90,9 @@ def test_a_tiles_conditionals_match_the_multi_scan_models_assess(beam_model, geo
             for tile in tiles:
                 sub, rays = tile_table(grid, origins, angles.reshape(-1), params.max_range, None, walls, tile, 2)
                 inside = tile.mask(grid.shape)
-                got = np.asarray(CellwiseGibbs(sub, y.reshape(-1)[rays], params, frozen=~inside).cell_log_odds(walls))
+                gibbs = CellwiseGibbs(sub, y.reshape(-1)[rays], params, frozen=~inside, shapes=shapes, headroom=0.5)
+                shapes = gibbs.kernel.shapes
+                got = np.asarray(gibbs.cell_log_odds(walls))
                 np.testing.assert_allclose(got[inside], want[inside], atol=1e-4, rtol=0)
 
 
