@@ -124,9 +124,15 @@ class ScanData(NamedTuple):
     covs: jax.Array
 
 
+def _stencil_reach(resolution: float, radius: float) -> int:
+    """The half width in cells of :func:`_field_stencil`'s square: how far (in cells, per axis) an endpoint's
+    stencil reaches."""
+    return int(math.ceil(radius / resolution + 0.75))
+
+
 def _field_stencil(resolution: float, radius: float):
     """Cell offsets ``(F, 2)`` int32 within ``radius`` meters (plus half a cell diagonal) of a cell."""
-    r = int(math.ceil(radius / resolution + 0.75))
+    r = _stencil_reach(resolution, radius)
     ii, jj = np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1), indexing="ij")
     keep = (ii**2 + jj**2) * resolution**2 <= (radius + 0.75 * resolution) ** 2
     return jnp.asarray(np.stack([ii[keep], jj[keep]], axis=-1).astype(np.int32))
@@ -455,7 +461,7 @@ def _moved(d, grid: Grid, frame, path, t, fields, stamps, old, new):
     reach; adding a scan twice changes nothing). Scans far from the windows' edges, most of them, are skipped."""
     n = grid.shape[0]
     delta = new - old
-    margin = int(math.ceil(FIELDS[-1][1] / grid.resolution + 0.75)) + 1  # _field_stencil's half width, plus one
+    margin = _stencil_reach(grid.resolution, FIELDS[-1][1]) + 1
     lo = jnp.maximum(margin, margin - delta)  # the moved square, in the new window's cells
     hi = jnp.minimum(n - margin, n - margin - delta)
     cell = jnp.arange(n)
