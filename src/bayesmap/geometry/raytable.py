@@ -121,12 +121,14 @@ class RayTable:
         geometry's ``b`` (:mod:`bayesmap.model.sensor`); computed on first use, a chunk of pairs at a time (4 bytes
         per pair in float32)."""
         out = np.empty(self.num_pairs, dtype=self.pair_dists.dtype)
+        if not self.num_pairs:
+            return out
+        frame = self._frame()
         for start in range(0, self.num_pairs, _CHUNK_PAIRS):
-            out[start:start + _CHUNK_PAIRS] = self.exits_of_pairs(np.arange(start, min(start + _CHUNK_PAIRS,
-                                                                                      self.num_pairs)))
+            out[start:start + _CHUNK_PAIRS] = self._exits(np.arange(start, min(start + _CHUNK_PAIRS, self.num_pairs)),
+                                                          frame)
         return out
 
-    @cached_property
     def _frame(self) -> tuple[np.ndarray, np.ndarray]:
         """The rays' origins and unit directions ``(R, 2)`` in cell coordinates (:func:`cell_frame`), in float64."""
         p_table, u_table = cell_frame(self.grid, self.origins, self.beam_angles)
@@ -135,12 +137,16 @@ class RayTable:
     def exits_of_pairs(self, pairs) -> np.ndarray:
         """``pairs.shape`` exit distances (meters, the dtype of :attr:`pair_dists`) of the pairs ``pairs`` (pair
         indices, any order): ``pair_exits[pairs]``, to the bit, without computing every pair's."""
+        return self._exits(pairs, self._frame())
+
+    def _exits(self, pairs, frame) -> np.ndarray:
+        """:meth:`exits_of_pairs` given the rays' :meth:`_frame` (computed once by callers that need many)."""
         pairs = np.asarray(pairs, dtype=np.int64)
         dtype = self.pair_dists.dtype
         if not pairs.size:
             return np.empty(pairs.shape, dtype=dtype)
         rays = self.rays_of_pairs(pairs)
-        p, u = self._frame[0][rays], self._frame[1][rays]
+        p, u = frame[0][rays], frame[1][rays]
         flat = self.pair_cells[pairs].astype(np.int64)
         cells = np.stack([flat // self.grid.shape[1], flat % self.grid.shape[1]], axis=-1).astype(np.float64)
         exits = cell_exit_distance(p, u, cells, xp=np).astype(dtype) * dtype.type(self.grid.resolution)
@@ -158,13 +164,14 @@ class RayTable:
         :func:`~bayesmap.geometry.raycast.wall_hit_chords` from the table."""
         is_wall = np.asarray(walls).reshape(-1)[self.pair_cells] > 0
         out = np.full((self.num_rays, count, 2), self.max_distance, dtype=self.pair_dists.dtype)
+        frame = self._frame() if self.num_pairs else None
         for k in range(count):
             first = np.full(self.num_rays, self.num_pairs, dtype=np.int64)
             wall_pairs = np.flatnonzero(is_wall)
             np.minimum.at(first, self.pair_rays[wall_pairs], wall_pairs)
             hit = first < self.num_pairs
             out[hit, k, 0] = self.pair_dists[first[hit]]
-            out[hit, k, 1] = self.exits_of_pairs(first[hit])
+            out[hit, k, 1] = self._exits(first[hit], frame)
             is_wall[first[hit]] = False
         return out
 
