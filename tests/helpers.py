@@ -1,5 +1,6 @@
 """Helpers shared by several test modules: scenes, checks and a CLI runner (not tests themselves)."""
 
+import os
 import sys
 from pathlib import Path
 
@@ -314,3 +315,11 @@ def replayed_sweeps(step, log_odds, state, shape, order, free, prior: float, swe
         changed = replay_one_at_a_time(log_odds, shape, walls, u, order, probs)
         walls[free] = u[free] < prior
         yield state, info, before, walls, probs, changed
+
+
+def four_cpu_devices_env() -> dict:
+    """The environment of a fresh process with four CPU devices: ``JAX_PLATFORMS=cpu`` and this process's
+    ``XLA_FLAGS`` plus ``--xla_force_host_platform_device_count=4``, so that the child compiles as this process does
+    (``make test`` runs most tests at another XLA optimization level, whose floats may differ in the last bit)."""
+    flags = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4").strip()
+    return dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu")

@@ -2,7 +2,11 @@
 
 import json
 
+import pytest
+
 from helpers import run_cli
+
+pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
 
 FIELDS = {"reference_s_per_sweep", "fast_s_per_sweep", "ratio", "compile_s", "time_to_accuracy_s"}
 

@@ -8,6 +8,8 @@ import pytest
 from bayesmap.io.tum import read_tum
 from helpers import run_cli
 
+pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
+
 
 @pytest.mark.xdist_group("tutorial_slam")
 def test_slam_writes_all_outputs(tmp_path, monkeypatch, capsys):

@@ -27,6 +27,8 @@ from bayesmap.slam.posegraph import SEQUENTIAL_STD
 from bayesmap.slam.problem import log_slam_problem
 from helpers import SHARED_DATA, run_cli, run_main
 
+pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
+
 SLICE = ("--scans", "0:25", "--resolution", "0.2", "--sweeps", "2", "--seed", "3")
 """25 scans of ACES at 0.2 m cells, 2 sweeps (the burn-in a third: none; `evaluate` has no --burn-in): a slice whose
 timestamps increase strictly (ACES's do), so trajectory.tum carries them. Each sweep's map round compiles its own

@@ -1,9 +1,10 @@
 """bayesmap.devices: the Gibbs sweeps go to the CPU devices whatever JAX's default device is."""
 
-import os
 import subprocess
 import sys
 from pathlib import Path
+
+from helpers import four_cpu_devices_env
 
 # a fresh process with four CPU devices, the default device set to the last one (as a GPU would be the default):
 # within on_sweep_devices, arrays from host data and a jitted computation on them land on the first CPU device;
@@ -30,8 +31,7 @@ def test_sweeps_go_to_the_cpu_devices_whatever_the_default_device():
     computed within on_sweep_devices land on the first CPU device, and outside it on the default again; the sweep
     devices are all four CPU devices in JAX's order. Fails if on_sweep_devices leaves the default device in place."""
     root = Path(__file__).resolve().parents[1]
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu",
-               PYTHONPATH=str(root / "src"))
+    env = dict(four_cpu_devices_env(), PYTHONPATH=str(root / "src"))
     done = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=300,
                           cwd=root)
     assert done.returncode == 0, done.stderr[-2000:]

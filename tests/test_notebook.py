@@ -4,6 +4,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
+
 NOTEBOOK = Path(__file__).resolve().parents[1] / "notebooks" / "mapping_tutorial.py"
 
 

@@ -16,6 +16,8 @@ from bayesmap.io.maps_out import seen_cells
 from bayesmap.runs.infer import infer_seen
 from bayesmap.scenes import log_problem
 
+pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
+
 SLOTS = 3_000  # pairs per piece: the 12 scans' table (about 20,000 pairs at 0.2 m) comes in several pieces
 
 

@@ -9,6 +9,8 @@ from bayesmap.inference.chains import posterior_mean, run_chain
 from bayesmap.inference.importance import importance_sampling, resample
 from bayesmap.inference.registry import make_sampler
 
+pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
+
 REFERENCE = ["reference-raster", "reference-incremental", "reference-outward", "reference-block"]
 FAST = ["raster", "outward", "chromatic", "block", "chromatic-block"]
 REFERENCE_BLOCK_SWEEPS = 16

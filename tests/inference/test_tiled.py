@@ -16,7 +16,7 @@ from bayesmap.inference.cellwise import CellwiseGibbs, cellwise_gibbs
 from bayesmap.inference.chains import run_chain
 from bayesmap.inference.tiled import map_chains, tiled_map_chain
 from bayesmap.model.generative import make_params, ray_limits
-from helpers import POSES, assess_cell_differences, scenes
+from helpers import POSES, assess_cell_differences, four_cpu_devices_env, scenes
 
 
 def _rays(seed: int, num_rays: int = 400):
@@ -250,13 +250,12 @@ def test_map_chains_split_over_four_devices_are_the_chains_one_at_a_time(tmp_pat
     ``XLA_FLAGS=--xla_force_host_platform_device_count=4`` in a fresh process; the chains of one device one after
     another) give, chain by chain, the maps and conditional probabilities of :func:`tiled_map_chain` with the same
     keys on one device, bit for bit (each device runs the same sweep on the same numbers)."""
-    import os
     import subprocess
     import sys
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[2]
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
+    env = four_cpu_devices_env()
     out = tmp_path / "chains.npz"
     subprocess.run([sys.executable, "-c", MAP_CHAINS_ON_DEVICES, str(out), str(root), str(root / "tests")], env=env,
                    check=True, cwd=root, timeout=600)

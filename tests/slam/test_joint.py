@@ -17,6 +17,8 @@ from bayesmap.slam.poses import discrete_pose_gibbs, slam_data
 from bayesmap.slam.problem import simulate_odometry, slam_tutorial_problem
 from helpers import exact_slam_marginals
 
+pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
+
 GRID = Grid((2, 3))  # 6 unit cells: 64 maps
 ODOMETRY = np.array([[0.0, 0.0, 0.0], [0.2, 1.0, 1.2], [0.0, 2.0, 2.0]])
 OFFSETS = np.array([[0.0, 0.0, 0.0], [-0.12, 0.1, -0.1], [0.1, 0.12, 0.15]])  # 3 candidates per pose

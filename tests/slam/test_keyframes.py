@@ -16,6 +16,9 @@ from bayesmap.slam.keyframes import (
 )
 from bayesmap.slam.posegraph import relative
 from bayesmap.slam.scanmatch import ScanData
+from helpers import four_cpu_devices_env
+
+pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
 
 
 def test_keyframes_by_distance_and_by_turn_from_the_last_keyframe():
@@ -138,13 +141,12 @@ def test_four_devices_place_every_scan_where_one_does(tmp_path):
     """The placement's batches split over four CPU devices (``XLA_FLAGS=--xla_force_host_platform_device_count=4``,
     in a fresh process) give the poses one device gives, to float32 rounding (each device scores its own scans with
     the same arithmetic; only the batch's width per device differs)."""
-    import os
     import subprocess
     import sys
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[2]
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
+    env = four_cpu_devices_env()
     out = tmp_path / "poses.npy"
     subprocess.run([sys.executable, "-c", PLACE_ON_DEVICES, str(out), str(root), str(root / "tests")], env=env,
                    check=True, cwd=root, timeout=600)

@@ -25,6 +25,8 @@ from bayesmap.slam.poses import (
 )
 from helpers import exact_slam_marginals, random_scene
 
+pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
+
 
 def random_slam_scene(seed, beam_model="normal", num_scans=4, geometry="entry"):
     """A random small grid and map (conftest.random_scene), a path of ``num_scans`` poses near its position,

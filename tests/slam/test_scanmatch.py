@@ -12,6 +12,8 @@ from bayesmap.progress import Progress
 from bayesmap.slam import posegraph
 from bayesmap.slam.scanmatch import LOCAL_MAP_DISTANCE, MIN_HIT_FRACTION, ScanData, correlative_path
 
+pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
+
 
 def room_scans(num_poses=12, seed=0):
     """An 8 x 6 m room with a pillar and a side wall on 0.05 m cells; a robot drives an arc through it; exact
