@@ -29,9 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _run(args, cwd, timeout):
-    # as a user's shell runs it: none of this process's Python paths, venv or XLA flags (`make test` compiles most
-    # tests at another optimization level)
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV", "XLA_FLAGS")}
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV")}
     done = subprocess.run([str(a) for a in args], cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env)
     assert done.returncode == 0, f"{' '.join(map(str, args))} failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
     return done.stdout

@@ -4,12 +4,14 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
+
 NOTEBOOK = Path(__file__).resolve().parents[1] / "notebooks" / "mapping_tutorial.py"
 
 
 def test_tutorial_notebook_executes(monkeypatch):
-    # the kernel (a process of its own) compiles as a user's Python would, at XLA's defaults, whatever flags this
-    # pass of `make test` compiles with (Makefile)
+    # the kernel (a process of its own) compiles as a user's Python would, at XLA's defaults, whatever XLA_FLAGS
+    # the tests run with
     monkeypatch.delenv("XLA_FLAGS", raising=False)
     jupytext = pytest.importorskip("jupytext")
     nbclient = pytest.importorskip("nbclient")
