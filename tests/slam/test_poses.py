@@ -11,8 +11,9 @@ from jax.experimental import enable_x64
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
+from bayesmap.geometry.raycast import march_first_chord
 from bayesmap.model import motion
-from bayesmap.model.generative import log_joint_scans, make_params, simulate_scan_readings
+from bayesmap.model.generative import log_joint_scans, make_params, replace_params, simulate_scan_readings
 from bayesmap.model.slam import slam_args, slam_choices, slam_model
 from bayesmap.slam.poses import (
     discrete_pose_gibbs,
@@ -67,9 +68,26 @@ def test_pose_conditional_equals_assess_differences_in_the_chord_geometry():
     check_pose_conditional_against_assess(1, "beam", "chord")
 
 
-def check_pose_conditional_against_assess(seed, beam_model, geometry):
+def test_pose_conditional_equals_assess_differences_with_beams_cut_past_their_readings():
+    """As above with beams cut 0.6 cells past their readings and a third of the readings short, beam model, the
+    scene of seed 5 (30 walls in 7 x 7 cells), 1e-6: the pose moves' traversal stops one cell past each beam's cut
+    (march_first_chord's ``stops``), the model's assess cuts the all-cells ray cast. The stops change the
+    traversal's own result for some beam (a wall it no longer reaches), so a stop placed short of the cut would
+    change the conditional. (The entry geometry: in the chord geometry this scene puts candidates inside wall
+    cells, where the traversal and the all-cells cast pick different first wall cells; the stops themselves are
+    tested in both geometries in tests/geometry/test_raycast.py.)"""
+    assert check_pose_conditional_against_assess(5, "beam", "entry", cut_cells=0.6) > 0
+
+
+def check_pose_conditional_against_assess(seed, beam_model, geometry, cut_cells=None):
+    """Returns how many (candidate, beam) traversals the cut's stops ended before a wall they would have reached."""
+    skipped = 0
     with enable_x64():
         params, path, walls, inc, cov, angles, y, step = random_slam_scene(seed, beam_model, geometry=geometry)
+        if cut_cells is not None:  # and a third of the readings short (an obstacle the map does not hold)
+            params = replace_params(params, cut_past_reading=cut_cells * params.grid.resolution)
+            short = np.random.default_rng(seed).random(y.shape) < 0.3
+            y = np.where(short, y * 0.3, y)
         data = slam_data(inc, cov, angles, y, params)
         entry_data = slam_data(inc, cov, angles, y, dataclasses.replace(params, geometry="entry"))
         assess = jax.jit(lambda p: slam_model.assess(slam_choices(p, walls, y),
@@ -85,7 +103,15 @@ def check_pose_conditional_against_assess(seed, beam_model, geometry):
             np.testing.assert_allclose(got[1:] - got[0], want - base, atol=1e-6, rtol=0)
             entry = np.asarray(pose_log_conditional(t, cands, path, walls, entry_data))
             entry_gap = max(entry_gap, np.abs((entry[1:] - entry[0]) - (got[1:] - got[0])).max())
+            if params.cut:
+                stops = y[t] + params.cut_past_reading + params.grid.resolution
+                for c in cands:
+                    beams = c[2] + angles[t]
+                    whole = march_first_chord(walls, c[:2], beams, params.grid, params.max_range)
+                    stopped = march_first_chord(walls, c[:2], beams, params.grid, params.max_range, stops)
+                    skipped += int(np.sum(np.asarray(whole)[:, 0] != np.asarray(stopped)[:, 0]))
         assert geometry == "entry" or entry_gap > 0.1
+    return skipped
 
 
 @pytest.mark.parametrize("seed", range(2))

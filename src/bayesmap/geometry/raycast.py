@@ -207,10 +207,11 @@ def sensor_distances(walls, pos, beam_angles, grid: Grid | None = None, max_dist
     return first_hit_distances(walls, pos, jnp.asarray(beam_angles), grid, float(max_distance))
 
 
-def _march_one(is_wall, p, u, shape, max_cells):
+def _march_one(is_wall, p, u, shape, max_cells, stop):
     """Entry and exit distance ``(2,)`` in cells from ``p`` along ``u`` of the first wall cell of ``is_wall``
-    ``(nx, ny)`` bool, by grid traversal, capped at ``max_cells`` (both ``max_cells`` if no wall is reached); see
-    :func:`march_first_hit` and :func:`march_first_chord`."""
+    ``(nx, ny)`` bool, by grid traversal, capped at ``max_cells`` (both ``max_cells`` if no wall is reached, or if
+    the first wall cell is entered at or beyond ``stop`` cells along the traversal); see :func:`march_first_hit` and
+    :func:`march_first_chord`."""
     big = jnp.asarray(jnp.inf, p.dtype)
     n = jnp.asarray(shape, jnp.int32)
     with_u = jnp.abs(u) > PARALLEL_TOL
@@ -234,7 +235,7 @@ def _march_one(is_wall, p, u, shape, max_cells):
 
     def cond(carry):
         c, t_max, entry, hit = carry
-        return ~hit & inside(c) & (entry < max_cells)
+        return ~hit & inside(c) & (entry < max_cells) & (entry < stop)
 
     def body(carry):
         c, t_max, entry, hit = carry
@@ -251,7 +252,7 @@ def _march_one(is_wall, p, u, shape, max_cells):
 
 
 @partial(jax.jit, static_argnames=("grid", "max_distance"))
-def march_first_hit(walls, pos, beam_angles, grid: Grid, max_distance: float):
+def march_first_hit(walls, pos, beam_angles, grid: Grid, max_distance: float, stops=None):
     """:func:`first_hit_distances` by grid traversal (Amanatides & Woo 1987, "A Fast Voxel Traversal Algorithm for
     Ray Tracing"): each ray visits only the cells it crosses, in order, up to its first wall (work proportional to
     the distance, not to the grid's size), and the distance to that wall is :func:`cell_hit_distance`, the
@@ -265,15 +266,20 @@ def march_first_hit(walls, pos, beam_angles, grid: Grid, max_distance: float):
         beam_angles: ``(K,)`` world-frame beam angles, radians.
         grid: the grid (static).
         max_distance: the max distance, meters (static).
+        stops: optional ``(K,)`` float, meters: how far along each beam to look for its first wall. A beam whose
+            first wall cell is entered at or beyond its stop (the traversal's entry distance) reports no wall,
+            ``max_distance``, without visiting the cells past it: a beam cut past its reading
+            (:func:`bayesmap.model.generative.cut_chords`) needs no wall beyond the cut. None: every beam up to
+            ``max_distance``.
 
     Returns:
         ``(K,)`` distances in meters, JAX's default float dtype, at most ``max_distance``. Never raises.
     """
-    return _march(walls, pos, beam_angles, grid, max_distance)[:, 0]
+    return _march(walls, pos, beam_angles, grid, max_distance, stops)[:, 0]
 
 
 @partial(jax.jit, static_argnames=("grid", "max_distance"))
-def march_first_chord(walls, pos, beam_angles, grid: Grid, max_distance: float):
+def march_first_chord(walls, pos, beam_angles, grid: Grid, max_distance: float, stops=None):
     """:func:`first_hit_chords` by the grid traversal of :func:`march_first_hit`: the entry and exit distance of each
     beam's first wall cell (the chord geometry, :mod:`bayesmap.model.sensor`), the exit by
     :func:`cell_exit_distance` as there. Equal to :func:`first_hit_chords` except for a ray that passes a grid vertex
@@ -285,13 +291,19 @@ def march_first_chord(walls, pos, beam_angles, grid: Grid, max_distance: float):
         ``(K, 2)`` entry and exit distances in meters, JAX's default float dtype, ``entry <= exit <= max_distance``;
         column 0 equals :func:`march_first_hit`. Never raises.
     """
-    return _march(walls, pos, beam_angles, grid, max_distance)
+    return _march(walls, pos, beam_angles, grid, max_distance, stops)
 
 
-def _march(walls, pos, beam_angles, grid: Grid, max_distance: float):
-    """``(K, 2)`` entry and exit distances, meters, of :func:`_march_one` for every beam."""
+def _march(walls, pos, beam_angles, grid: Grid, max_distance: float, stops=None):
+    """``(K, 2)`` entry and exit distances, meters, of :func:`_march_one` for every beam (``stops``: ``(K,)``
+    meters or None)."""
     p = grid.to_cell_coords(jnp.asarray(pos, jnp.result_type(float)))
     is_wall = jnp.asarray(walls) > 0
     max_cells = max_distance / grid.resolution
     directions = unit_dir(jnp.asarray(beam_angles, p.dtype))
-    return jax.vmap(lambda u: _march_one(is_wall, p, u, grid.shape, max_cells))(directions) * grid.resolution
+    if stops is None:
+        stop_cells = jnp.full(directions.shape[:1], max_cells, p.dtype)
+    else:
+        stop_cells = jnp.asarray(stops, p.dtype) / jnp.asarray(grid.resolution, p.dtype)
+    return jax.vmap(lambda u, stop: _march_one(is_wall, p, u, grid.shape, max_cells, stop))(
+        directions, stop_cells) * grid.resolution

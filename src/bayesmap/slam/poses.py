@@ -97,16 +97,21 @@ def scan_log_likelihood(walls, poses, sensor_angles, readings, params: ModelPara
         :func:`~bayesmap.geometry.raycast.first_hit_distances`; in the ``"chord"`` geometry the first wall cell's entry
         and exit, :func:`~bayesmap.geometry.raycast.march_first_chord`, the numbers of
         :func:`~bayesmap.geometry.raycast.first_hit_chords`) at world-frame angles ``theta + sensor_angles`` and
-        :func:`bayesmap.model.generative.reading_log_likelihood`: the arithmetic of the model's ``assess``. Never
-        raises.
+        :func:`bayesmap.model.generative.reading_log_likelihood`: the arithmetic of the model's ``assess``. With
+        beams cut past their readings (``params.cut_past_reading`` finite) each beam's traversal stops one cell past
+        its cut, where the cut likelihood no longer depends on the walls (the same numbers as a traversal to the max
+        range, tested). Never raises.
     """
     walls = jnp.asarray(walls)
+    stops = None
+    if params.cut:  # a wall entered at or past y + cut counts as none: look one cell further, no more
+        stops = jnp.asarray(readings) + (params.cut_past_reading + params.grid.resolution)
 
     def one(pose):
         if params.geometry == "chord":
-            chord = march_first_chord(walls, pose[:2], pose[2] + sensor_angles, params.grid, params.max_range)
+            chord = march_first_chord(walls, pose[:2], pose[2] + sensor_angles, params.grid, params.max_range, stops)
             return jnp.sum(reading_log_likelihood(readings, chord[:, 0], params, chord[:, 1]))
-        d = march_first_hit(walls, pose[:2], pose[2] + sensor_angles, params.grid, params.max_range)
+        d = march_first_hit(walls, pose[:2], pose[2] + sensor_angles, params.grid, params.max_range, stops)
         return jnp.sum(reading_log_likelihood(readings, d, params))
 
     return jax.vmap(one)(jnp.asarray(poses))
