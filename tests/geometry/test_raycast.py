@@ -13,6 +13,7 @@ from bayesmap.geometry.raycast import (
     first_hit_distances,
     march_first_chord,
     march_first_hit,
+    march_ray_chords,
     sensor_distances,
 )
 from bayesmap.geometry.raytable import build_ray_table, check_readings, visible_cells
@@ -212,3 +213,24 @@ def test_a_march_stopped_past_the_cut_equals_the_whole_march_cut(seed):
         early += int(np.sum(np.asarray(cut_chords(y, short[:, None], params))
                             != np.asarray(cut_chords(y, whole[:, None], params))))
     assert changed > 0 and early > 0
+
+
+@pytest.mark.parametrize("lanes", [1, 7, 64, 4096])
+def test_march_ray_chords_equals_march_first_chord_scan_by_scan(lanes):
+    """Rays of five scans from five origins (inside and outside the grid, on a random grid of 0.1 m cells, 15 % walls,
+    60 beams each with stops for half the scans) traversed ``lanes`` at a time: bit for bit the chords of
+    march_first_chord one scan at a time, whatever the lanes (1: one ray after another; 4,096: more lanes than
+    rays)."""
+    rng = np.random.default_rng(lanes)
+    grid = Grid(shape=(25, 31), resolution=0.1, origin=(-1.0, 0.5))
+    walls = jnp.asarray((rng.random(grid.shape) < 0.15).astype(np.float32))
+    origins = np.asarray(grid.origin) + rng.uniform(-0.3, 1.3, (5, 2)) * np.array(grid.shape) * grid.resolution
+    beams = rng.uniform(-np.pi, np.pi, (5, 60))
+    stops = rng.uniform(0.0, 4.0, (5, 60))
+    stops[::2] = np.inf
+    want = np.stack([march_first_chord(walls, jnp.asarray(origins[m]), jnp.asarray(beams[m]), grid, 3.0,
+                                       jnp.asarray(stops[m])) for m in range(5)])
+    got = march_ray_chords(walls, jnp.asarray(np.repeat(origins, 60, axis=0)), jnp.asarray(beams.reshape(-1)), grid,
+                           3.0, jnp.asarray(stops.reshape(-1)), lanes=lanes)
+    np.testing.assert_array_equal(np.asarray(got).reshape(5, 60, 2), want)
+    assert np.sum(want[..., 0] < 3.0) > 50  # walls found, not only misses

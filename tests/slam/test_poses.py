@@ -2,6 +2,7 @@
 
 import dataclasses
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -22,6 +23,7 @@ from bayesmap.slam.poses import (
     pose_log_conditional,
     random_walk_pose_mh,
     scan_log_likelihood,
+    scans_log_likelihood,
     slam_data,
 )
 from helpers import exact_slam_marginals, random_scene
@@ -418,3 +420,54 @@ def test_random_walk_cache_gives_the_same_moves_and_stays_the_scans_likelihood()
         assert plain.scan_log_lik is None
         fresh = kernel.init(cached.poses, walls).scan_log_lik
         np.testing.assert_allclose(np.asarray(cached.scan_log_lik), np.asarray(fresh), rtol=1e-9)
+
+
+@pytest.mark.parametrize("geometry", ["entry", "chord"])
+def test_scans_log_likelihood_equals_one_scan_at_a_time(geometry):
+    """All scans' beams cast at once (march_ray_chords, 7 lanes for 6 x 12 beams: lanes take new beams many times)
+    equal scan_log_likelihood of each scan at its pose, float64 to 1e-12, with beams cut past their readings and
+    without, on the 6-scan scene of seed 3 with a third of the readings short."""
+    with enable_x64():
+        params, path, walls, inc, cov, angles, y, _ = random_slam_scene(3, "beam", num_scans=6, geometry=geometry)
+        y = np.where(np.random.default_rng(3).random(y.shape) < 0.3, 0.3 * y, y)
+        for cut in (math.inf, 0.6 * params.grid.resolution):
+            p = replace_params(params, cut_past_reading=cut)
+            want = np.array([float(scan_log_likelihood(walls, path[m:m + 1], angles[m], y[m], p)[0])
+                             for m in range(len(path))])
+            got = np.asarray(scans_log_likelihood(walls, path, angles, y, p))
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def test_random_walk_sweep_is_single_pose_moves_odd_then_even():
+    """A sweep of random_walk_pose_mh moves the odd poses at once, then the even ones: the same poses, acceptances
+    and log conditionals as single-pose Metropolis moves in the order 1, 3, 5, 2, 4 (7 scans), each from
+    pose_log_conditional with pose t's key the (t - 1)-th of the sweep key's 6 splits, split again into the
+    proposal's and the acceptance's (float64; poses equal to 1e-12, every acceptance the same). Three sweeps with
+    and without the cache, several moves accepted and several rejected. Moving the even poses before the odd ones'
+    moves are applied (a block that reads stale neighbours) breaks the equality."""
+    with enable_x64():
+        params, path, walls, inc, cov, angles, y, _ = random_slam_scene(2, num_scans=7)
+        data = slam_data(inc, cov, angles, y, params)
+        scale = np.array([0.02, 0.02, 0.02])
+        kernel = random_walk_pose_mh(data, scale)
+        step = jax.jit(kernel.step)
+        for cached in (True, False):
+            state = kernel.init(path, walls)
+            if not cached:
+                state = state._replace(scan_log_lik=None)
+            ref = np.array(path, dtype=np.float64)
+            counts = [0, 0]
+            for key in jax.random.split(jax.random.key(11), 3):
+                state, info = step(key, state)
+                keys = jax.random.split(key, len(path) - 1)
+                for t in (1, 3, 5, 2, 4, 6):
+                    k_prop, k_acc = jax.random.split(keys[t - 1])
+                    proposal = ref[t] + scale * np.asarray(jax.random.normal(k_prop, (3,), jnp.float64))
+                    logc = np.asarray(pose_log_conditional(t, np.stack([ref[t], proposal]), ref, walls, data))
+                    accept = np.log(float(jax.random.uniform(k_acc, (), jnp.float64))) < logc[1] - logc[0]
+                    assert bool(info.accepted[t - 1]) == accept, t
+                    assert float(info.log_conditional[t - 1]) == pytest.approx(logc[int(accept)], abs=1e-9)
+                    ref[t] = proposal if accept else ref[t]
+                    counts[int(accept)] += 1
+                np.testing.assert_allclose(np.asarray(state.poses), ref, rtol=0, atol=1e-12)
+            assert min(counts) >= 3, counts
