@@ -271,25 +271,22 @@ def _march_lanes(is_wall, origins, directions, shape, max_cells, stops, lanes: i
     """:func:`_march_one` for every ray ``(R, 2)`` in cells (origins ``(R, 2)`` or ``(2,)`` and stops ``(R,)`` in
     cells), the same numbers, by ``lanes`` traversals at a time that each take the next ray when theirs ends
     (longest stop first): the loop's steps follow the rays' total length instead of ``R`` times the longest ray's."""
-    k = directions.shape[0]
+    num_rays = directions.shape[0]
     n = jnp.asarray(shape, jnp.int32)
     origins = jnp.broadcast_to(origins, directions.shape)
-    cells, t_maxs, t_deltas, steps = jax.vmap(lambda p, u: _march_start(p, u, shape))(origins, directions)
-    order = jnp.argsort(-stops).astype(jnp.int32)
-    first = jnp.arange(lanes, dtype=jnp.int32)
-    beam0 = jnp.where(first < k, order[jnp.minimum(first, k - 1)], k)
+    starts = jax.vmap(lambda p, u: _march_start(p, u, shape))(origins, directions) + (stops,)
+    order = jnp.argsort(-stops).astype(jnp.int32)  # the queue: longest stop first
 
-    def load(beam, keep, current):
-        b = jnp.minimum(beam, k - 1)
-        return tuple(jnp.where(keep.reshape(keep.shape + (1,) * (new.ndim - 1)), cur, new)
-                     for cur, new in zip(current, (cells[b], t_maxs[b], t_deltas[b], steps[b], stops[b]), strict=True))
+    def start_of(ray):
+        """Each lane's ray's start ``(cell, t_max, t_delta, step, stop)`` (a lane past the queue: any ray's)."""
+        return tuple(a[jnp.minimum(ray, num_rays - 1)] for a in starts)
 
     def cond(state):
-        return jnp.any(state[0] < k)
+        return jnp.any(state[0] < num_rays)
 
     def body(state):
-        beam, c, t_max, t_delta, step, stop, entry, hit_cells, hits, nxt = state
-        active = beam < k
+        ray, (c, t_max, t_delta, step, stop), entry, hit_cells, hits, queued = state
+        active = ray < num_rays
         inside = jnp.all((c >= 0) & (c < n), axis=-1)
         go = active & inside & (entry < max_cells) & (entry < stop)
         cc = jnp.clip(c, 0, n - 1)
@@ -297,29 +294,35 @@ def _march_lanes(is_wall, origins, directions, shape, max_cells, stops, lanes: i
         advance = go & ~wall
         axis = jnp.argmin(t_max, axis=-1)
         along = jax.nn.one_hot(axis, 2, dtype=jnp.int32) * advance[:, None]
-        t_axis = jnp.take_along_axis(t_max, axis[:, None], axis=-1)[:, 0]
+        entry = jnp.where(advance, jnp.take_along_axis(t_max, axis[:, None], axis=-1)[:, 0], entry)
         c = c + along * step
-        entry = jnp.where(advance, t_axis, entry)
         t_max = t_max + along.astype(t_max.dtype) * t_delta
-        done = active & ~advance
-        slot = jnp.where(done, beam, k)
+        done = active & ~advance  # a wall (hit) or its end (no hit): record, then take the next ray
+        slot = jnp.where(done, ray, num_rays)  # out of range: dropped
         hit_cells = hit_cells.at[slot].set(c, mode="drop")
         hits = hits.at[slot].set(wall, mode="drop")
-        rank = jnp.cumsum(done, dtype=jnp.int32) - 1
-        queued = nxt + rank
-        taken = jnp.where(queued < k, order[jnp.minimum(queued, k - 1)], k)
-        beam = jnp.where(done, taken, beam)
-        c, t_max, t_delta, step, stop = load(beam, ~done, (c, t_max, t_delta, step, stop))
+        position = queued + jnp.cumsum(done, dtype=jnp.int32) - 1
+        ray = jnp.where(done, jnp.where(position < num_rays, order[jnp.minimum(position, num_rays - 1)], num_rays),
+                        ray)
+        fresh = start_of(ray)
+        lane = tuple(jnp.where(done.reshape((-1,) + (1,) * (a.ndim - 1)), b, a)
+                     for a, b in zip((c, t_max, t_delta, step, stop), fresh, strict=True))
         entry = jnp.where(done, jnp.zeros((), entry.dtype), entry)
-        return beam, c, t_max, t_delta, step, stop, entry, hit_cells, hits, nxt + jnp.sum(done, dtype=jnp.int32)
+        return ray, lane, entry, hit_cells, hits, queued + jnp.sum(done, dtype=jnp.int32)
 
-    b0 = jnp.minimum(beam0, k - 1)
-    state = (beam0, cells[b0], t_maxs[b0], t_deltas[b0], steps[b0], stops[b0], jnp.zeros((lanes,), directions.dtype),
-             jnp.zeros((k, 2), jnp.int32),
-             jnp.zeros((k,), bool), jnp.asarray(min(lanes, k), jnp.int32))
-    state = jax.lax.while_loop(cond, body, state)
-    hit_cells, hits = state[7], state[8]
+    first = jnp.arange(lanes, dtype=jnp.int32)
+    ray = jnp.where(first < num_rays, order[jnp.minimum(first, num_rays - 1)], num_rays)
+    state = (ray, start_of(ray), jnp.zeros((lanes,), directions.dtype), jnp.zeros((num_rays, 2), jnp.int32),
+             jnp.zeros((num_rays,), bool), jnp.asarray(min(lanes, num_rays), jnp.int32))
+    _, _, _, hit_cells, hits, _ = jax.lax.while_loop(cond, body, state)
     return jax.vmap(lambda p, u, c, h: _march_result(p, u, c, h, max_cells))(origins, directions, hit_cells, hits)
+
+
+def _stop_cells(stops, count: int, max_cells: float, resolution: float, dtype):
+    """``(count,)`` each ray's stop in cells: ``stops`` (meters) over the resolution, or ``max_cells`` for None."""
+    if stops is None:
+        return jnp.full((count,), max_cells, dtype)
+    return jnp.asarray(stops, dtype).reshape(-1) / jnp.asarray(resolution, dtype)
 
 
 @partial(jax.jit, static_argnames=("grid", "max_distance"))
@@ -372,10 +375,7 @@ def _march(walls, pos, beam_angles, grid: Grid, max_distance: float, stops=None)
     is_wall = jnp.asarray(walls) > 0
     max_cells = max_distance / grid.resolution
     directions = unit_dir(jnp.asarray(beam_angles, p.dtype))
-    if stops is None:
-        stop_cells = jnp.full(directions.shape[:1], max_cells, p.dtype)
-    else:
-        stop_cells = jnp.asarray(stops, p.dtype) / jnp.asarray(grid.resolution, p.dtype)
+    stop_cells = _stop_cells(stops, directions.shape[0], max_cells, grid.resolution, p.dtype)
     return jax.vmap(lambda u, stop: _march_one(is_wall, p, u, grid.shape, max_cells, stop))(
         directions, stop_cells) * grid.resolution
 
@@ -408,17 +408,14 @@ def march_ray_chords(walls, origins, beam_angles, grid: Grid, max_distance: floa
         lanes: traversals at once (static; :data:`MARCH_LANES`).
 
     Returns:
-        ``(R, 2)`` entry and exit distances in meters, JAX's default float dtype, ``entry <= exit <=
-        max_distance``. Never raises.
+        ``(R, 2)`` entry and exit distances in meters, JAX's default float dtype, each row's entry at most its exit,
+        both at most ``max_distance``. Never raises.
     """
     dtype = jnp.result_type(float)
     is_wall = jnp.asarray(walls) > 0
     origins = grid.to_cell_coords(jnp.asarray(origins, dtype).reshape(-1, 2))
     directions = unit_dir(jnp.asarray(beam_angles, dtype).reshape(-1))
     max_cells = max_distance / grid.resolution
-    if stops is None:
-        stop_cells = jnp.full(directions.shape[:1], max_cells, dtype)
-    else:
-        stop_cells = jnp.asarray(stops, dtype).reshape(-1) / jnp.asarray(grid.resolution, dtype)
+    stop_cells = _stop_cells(stops, directions.shape[0], max_cells, grid.resolution, dtype)
     lanes = max(1, min(int(lanes), directions.shape[0]))
     return _march_lanes(is_wall, origins, directions, grid.shape, max_cells, stop_cells, lanes) * grid.resolution
