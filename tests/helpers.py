@@ -1,5 +1,6 @@
 """Helpers shared by several test modules: scenes, checks and a CLI runner (not tests themselves)."""
 
+import dataclasses
 import os
 import sys
 from pathlib import Path
@@ -11,6 +12,7 @@ import numpy as np
 from bayesmap.cli import main
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raytable import build_ray_table
+from bayesmap.model import motion
 from bayesmap.model.generative import choices, make_params, multi_scan_model, scan_args, simulate_scan_readings
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -323,3 +325,25 @@ def four_cpu_devices_env() -> dict:
     (``make test`` runs most tests at another XLA optimization level, whose floats may differ in the last bit)."""
     flags = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4").strip()
     return dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu")
+
+
+def random_slam_scene(seed, beam_model="normal", num_scans=4, geometry="entry"):
+    """A random small grid and map (conftest.random_scene), a path of ``num_scans`` poses near its position,
+    odometry near the path, readings simulated at the path (some set to the max range)."""
+    rng = np.random.default_rng(seed)
+    grid, pos, walls, beam_angles = random_scene(rng, metric=bool(seed % 2))
+    params = make_params(0.3, 0.3, 1, grid, beam_model=beam_model)
+    step = 0.5 * grid.resolution
+    path = np.concatenate([np.tile(pos, (num_scans, 1)) + rng.normal(0, step, (num_scans, 2)),
+                           rng.uniform(-np.pi, np.pi, (num_scans, 1))], axis=1)
+    path[0, :2] = pos
+    odometry = path + rng.normal(0, [step, step, 0.1], path.shape)
+    odometry[0] = path[0]
+    inc, cov = motion.odometry_controls(odometry, motion.make_motion_params((0.2, 0.1, 0.2, 0.1), step, 0.1))
+    sensor_angles = np.tile(beam_angles[:12], (num_scans, 1)) - path[:, 2:3]
+    y = np.asarray(simulate_scan_readings(jax.random.key(seed), walls, path[:, :2], params,
+                                          path[:, 2:3] + sensor_angles), np.float64)
+    y = np.maximum(y, 0.0)
+    y[rng.random(y.shape) < 0.2] = params.max_range
+    # the readings are simulated in the entry geometry whatever ``geometry`` (any readings are data to condition on)
+    return dataclasses.replace(params, geometry=geometry), path, walls, inc, cov, sensor_angles, y, step

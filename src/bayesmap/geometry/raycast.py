@@ -232,9 +232,27 @@ def _march_start(p, u, shape):
     return cell, t_max, t_delta, step
 
 
-def _march_result(p, u, c, hit, max_cells):
+def _march_result(is_wall, p, u, c, hit, max_cells):
     """Entry and exit distance ``(2,)`` in cells of a traversal that ended in cell ``c``: its wall cell's if
-    ``hit``, both ``max_cells`` if not."""
+    ``hit``, both ``max_cells`` if not.
+
+    The first wall cell is the all-cells cast's (:func:`wall_hit_chords`): the wall cell of the smallest
+    :func:`cell_hit_distance`, ties by flat index. For a sensor inside a wall cell, that cell's distance is where the
+    ray leaves it, which is also where the next cell along the ray is entered: if that cell is a wall too, the two
+    are compared as the all-cells cast compares them (for a wall reached from outside, the next cell is entered
+    later, so nothing changes)."""
+    n = jnp.asarray(is_wall.shape, jnp.int32)
+    moving = jnp.abs(u) >= PARALLEL_TOL
+    faces = jnp.where(moving, (c.astype(p.dtype) + jnp.where(u > 0, 0.5, -0.5).astype(p.dtype) - p)
+                      / jnp.where(moving, u, 1.0), jnp.inf)
+    axis = jnp.argmin(faces)
+    nxt = c.at[axis].add(jnp.where(u[axis] > 0, 1, -1).astype(c.dtype))
+    inside = jnp.all((nxt >= 0) & (nxt < n))
+    safe = jnp.clip(nxt, 0, n - 1)
+    d_here, d_next = cell_hit_distance(p, u, c), cell_hit_distance(p, u, nxt)
+    flat_here, flat_next = c[0] * n[1] + c[1], nxt[0] * n[1] + nxt[1]
+    earlier = (d_next < d_here) | ((d_next == d_here) & (flat_next < flat_here))
+    c = jnp.where(hit & inside & is_wall[safe[0], safe[1]] & earlier, nxt, c)
     entry = jnp.where(hit, jnp.minimum(cell_hit_distance(p, u, c), max_cells), max_cells)
     exit_ = jnp.clip(cell_exit_distance(p, u, c.astype(p.dtype)), entry, max_cells)
     return jnp.stack([entry, jnp.where(hit, exit_, max_cells)])
@@ -264,7 +282,7 @@ def _march_one(is_wall, p, u, shape, max_cells, stop):
                 jnp.where(wall, entry, t_max[axis]), wall)
 
     c, _, _, hit = jax.lax.while_loop(cond, body, (cell, t_max, jnp.zeros((), p.dtype), jnp.bool_(False)))
-    return _march_result(p, u, c, hit, max_cells)
+    return _march_result(is_wall, p, u, c, hit, max_cells)
 
 
 def _march_lanes(is_wall, origins, directions, shape, max_cells, stops, lanes: int):
@@ -315,7 +333,8 @@ def _march_lanes(is_wall, origins, directions, shape, max_cells, stops, lanes: i
     state = (ray, start_of(ray), jnp.zeros((lanes,), directions.dtype), jnp.zeros((num_rays, 2), jnp.int32),
              jnp.zeros((num_rays,), bool), jnp.asarray(min(lanes, num_rays), jnp.int32))
     _, _, _, hit_cells, hits, _ = jax.lax.while_loop(cond, body, state)
-    return jax.vmap(lambda p, u, c, h: _march_result(p, u, c, h, max_cells))(origins, directions, hit_cells, hits)
+    return jax.vmap(lambda p, u, c, h: _march_result(is_wall, p, u, c, h, max_cells))(origins, directions,
+                                                                                      hit_cells, hits)
 
 
 def _stop_cells(stops, count: int, max_cells: float, resolution: float, dtype):

@@ -103,9 +103,7 @@ def scan_log_likelihood(walls, poses, sensor_angles, readings, params: ModelPara
         range, tested). Never raises.
     """
     walls = jnp.asarray(walls)
-    stops = None
-    if params.cut:  # a wall entered at or past y + cut counts as none: look one cell further, no more
-        stops = jnp.asarray(readings) + (params.cut_past_reading + params.grid.resolution)
+    stops = _cut_stops(readings, params)
 
     def one(pose):
         if params.geometry == "chord":
@@ -135,14 +133,20 @@ def scans_log_likelihood(walls, poses, sensor_angles, readings, params: ModelPar
     """
     poses, readings = jnp.asarray(poses), jnp.asarray(readings)
     m, k = readings.shape
-    stops = None
-    if params.cut:
-        stops = readings + (params.cut_past_reading + params.grid.resolution)
+    stops = _cut_stops(readings, params)
     origins = jnp.broadcast_to(poses[:, None, :2], (m, k, 2))
     chords = march_ray_chords(walls, origins, poses[:, 2:3] + sensor_angles, params.grid, params.max_range,
                               stops).reshape(m, k, 2)
     exits = chords[..., 1] if params.geometry == "chord" else None
     return jnp.sum(reading_log_likelihood(readings, chords[..., 0], params, exits), axis=1)
+
+
+def _cut_stops(readings, params: ModelParams):
+    """Where each beam's traversal may stop, meters (``readings``' shape), or None: with beams cut past their
+    readings a wall entered at or past ``y + cut`` counts as none, so a traversal looks one cell further, no more."""
+    if not params.cut:
+        return None
+    return jnp.asarray(readings) + (params.cut_past_reading + params.grid.resolution)
 
 
 def _motion_terms(t, candidates, poses, data: SlamData):
