@@ -98,10 +98,16 @@ def cell_exit_distance(p, u, cell, xp=jnp):
         ``(...)`` distance in cells, in the dtype of ``p`` and ``u`` (``inf`` for a ray that moves along neither
         axis). For a cell the ray does not cross the number has no meaning. Never raises.
     """
+    return xp.min(_face_distances(p, u, cell, xp), axis=-1)
+
+
+def _face_distances(p, u, cell, xp=jnp):
+    """``(..., 2)`` the ray parameter at which the ray reaches the cell's far face along each axis (``inf`` for an
+    axis it does not move along): :func:`cell_exit_distance` is their minimum, and the axis of the minimum is the
+    one along which the ray leaves the cell."""
     moving = xp.abs(u) >= PARALLEL_TOL
     face = xp.asarray(cell, dtype=p.dtype) + xp.where(u > 0, 0.5, -0.5).astype(p.dtype)
-    s = xp.where(moving, (face - p) / xp.where(moving, u, 1.0), xp.inf)
-    return xp.min(s, axis=-1)
+    return xp.where(moving, (face - p) / xp.where(moving, u, 1.0), xp.inf)
 
 
 def _ray_setup(walls, pos, grid: Grid):
@@ -232,6 +238,11 @@ def _march_start(p, u, shape):
     return cell, t_max, t_delta, step
 
 
+def _in_grid(c, n):
+    """Whether cell indices ``(..., 2)`` lie in a grid of shape ``n`` ``(2,)``: ``(...)`` bool."""
+    return jnp.all((c >= 0) & (c < n), axis=-1)
+
+
 def _march_result(is_wall, p, u, c, hit, max_cells):
     """Entry and exit distance ``(2,)`` in cells of a traversal that ended in cell ``c``: its wall cell's if
     ``hit``, both ``max_cells`` if not.
@@ -242,12 +253,9 @@ def _march_result(is_wall, p, u, c, hit, max_cells):
     are compared as the all-cells cast compares them (for a wall reached from outside, the next cell is entered
     later, so nothing changes)."""
     n = jnp.asarray(is_wall.shape, jnp.int32)
-    moving = jnp.abs(u) >= PARALLEL_TOL
-    faces = jnp.where(moving, (c.astype(p.dtype) + jnp.where(u > 0, 0.5, -0.5).astype(p.dtype) - p)
-                      / jnp.where(moving, u, 1.0), jnp.inf)
-    axis = jnp.argmin(faces)
+    axis = jnp.argmin(_face_distances(p, u, c))
     nxt = c.at[axis].add(jnp.where(u[axis] > 0, 1, -1).astype(c.dtype))
-    inside = jnp.all((nxt >= 0) & (nxt < n))
+    inside = _in_grid(nxt, n)
     safe = jnp.clip(nxt, 0, n - 1)
     d_here, d_next = cell_hit_distance(p, u, c), cell_hit_distance(p, u, nxt)
     flat_here, flat_next = c[0] * n[1] + c[1], nxt[0] * n[1] + nxt[1]
@@ -266,12 +274,9 @@ def _march_one(is_wall, p, u, shape, max_cells, stop):
     n = jnp.asarray(shape, jnp.int32)
     cell, t_max, t_delta, step = _march_start(p, u, shape)
 
-    def inside(c):
-        return jnp.all((c >= 0) & (c < n))
-
     def cond(carry):
         c, t_max, entry, hit = carry
-        return ~hit & inside(c) & (entry < max_cells) & (entry < stop)
+        return ~hit & _in_grid(c, n) & (entry < max_cells) & (entry < stop)
 
     def body(carry):
         c, t_max, entry, hit = carry
@@ -305,8 +310,7 @@ def _march_lanes(is_wall, origins, directions, shape, max_cells, stops, lanes: i
     def body(state):
         ray, (c, t_max, t_delta, step, stop), entry, hit_cells, hits, queued = state
         active = ray < num_rays
-        inside = jnp.all((c >= 0) & (c < n), axis=-1)
-        go = active & inside & (entry < max_cells) & (entry < stop)
+        go = active & _in_grid(c, n) & (entry < max_cells) & (entry < stop)
         cc = jnp.clip(c, 0, n - 1)
         wall = go & is_wall[cc[:, 0], cc[:, 1]]
         advance = go & ~wall
