@@ -146,18 +146,34 @@ def simulate_ranges(walls: np.ndarray, resolution: float, poses: np.ndarray, rng
     out = np.empty((len(poses), NUM_BEAMS))
     for s, (x, y, th) in enumerate(poses):
         a = th + angles
-        px = x + np.cos(a)[:, None] * steps[None, :]
-        py = y + np.sin(a)[:, None] * steps[None, :]
+        first = _first_wall_steps(walls, resolution, x, y, np.cos(a), np.sin(a), steps)
+        r = np.where(first >= 0, steps[np.maximum(first, 0)], MAX_RANGE)
+        noisy = r + rng.normal(0.0, RANGE_NOISE, size=r.shape)
+        out[s] = np.where(first >= 0, np.clip(noisy, MARCH_STEP, MAX_RANGE - MARCH_STEP), MAX_RANGE)
+    return out
+
+
+def _first_wall_steps(walls, resolution, x, y, cos, sin, steps, chunk: int = 256) -> np.ndarray:
+    """Per beam ``(K,)`` the index into ``steps`` of the first march step on a wall pixel, or -1: the steps marched
+    ``chunk`` at a time, each chunk only for the beams without a hit yet (the same indices as marching all at once,
+    in a tenth of the time indoors)."""
+    first = np.full(len(cos), -1, np.int64)
+    open_beams = np.arange(len(cos))
+    for lo in range(0, len(steps), chunk):
+        d = steps[lo:lo + chunk]
+        px = x + cos[open_beams, None] * d[None, :]
+        py = y + sin[open_beams, None] * d[None, :]
         i = np.floor(px / resolution).astype(np.int64)
         j = np.floor(py / resolution).astype(np.int64)
         inside = (i >= 0) & (i < walls.shape[0]) & (j >= 0) & (j < walls.shape[1])
         hit = np.zeros(i.shape, dtype=bool)
         hit[inside] = walls[i[inside], j[inside]]
-        first = np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
-        r = np.where(first >= 0, steps[np.maximum(first, 0)], MAX_RANGE)
-        noisy = r + rng.normal(0.0, RANGE_NOISE, size=r.shape)
-        out[s] = np.where(first >= 0, np.clip(noisy, MARCH_STEP, MAX_RANGE - MARCH_STEP), MAX_RANGE)
-    return out
+        any_hit = hit.any(axis=1)
+        first[open_beams[any_hit]] = lo + hit[any_hit].argmax(axis=1)
+        open_beams = open_beams[~any_hit]
+        if not len(open_beams):
+            break
+    return first
 
 
 def flaser_lines(ranges: np.ndarray, poses: np.ndarray) -> list[str]:

@@ -19,6 +19,10 @@ def slam_problem(small_log):
 RUN = {"rounds": 1, "burn_in": 0, "map_sweeps": 2, "pose_sweeps": 2, "seed": 5}
 
 
+WITH_FINAL = pytest.mark.xdist_group("slam_pipeline")
+"""The tests that use :func:`with_final`: on one xdist worker, so that its run happens once."""
+
+
 @pytest.fixture(scope="module")
 def with_final(slam_problem):
     # 20 sweeps (10 kept): at this slice's power (0.06, 12 scans from nearly one place) 6 sweeps left 3 of the
@@ -26,6 +30,7 @@ def with_final(slam_problem):
     return run_log_slam(slam_problem, final_map_sweeps=20, **RUN)
 
 
+@WITH_FINAL
 def test_final_map_leaves_the_chain_alone_and_differs_from_its_map(slam_problem, with_final):
     """Same seed with and without the final map: the same path samples and the same chain map (the final map's key
     is none of the chain's), and the reported map is another one, in the log's model (walls a beam can pass, the
@@ -49,6 +54,7 @@ def test_final_map_leaves_the_chain_alone_and_differs_from_its_map(slam_problem,
     assert np.mean(final[sure_wall] > 0.5) > 0.8 and np.mean(final[sure_free] < 0.5) > 0.95
 
 
+@WITH_FINAL
 def test_progress_reports_every_stage_and_leaves_the_result_alone(slam_problem, with_final):
     """With a progress callback: the stages in the pipeline's order (12 scans close no loop: no loop closure stage),
     each reported from 0 up to its total without going back, the final map once per sweep (after a report at its

@@ -150,7 +150,9 @@ def _run_keys(sweep_keys, initial_state, arrays, static, record, batch, progress
     into them while the next sweep runs (no second copy)."""
     num_sweeps = int(sweep_keys.shape[-1])
     total = done + num_sweeps if total is None else total
-    arrays = [jnp.asarray(a) for a in arrays]  # (copied to the device once, not once per sweep)
+    # (numpy arrays copied to the device once, not once per sweep; JAX arrays as they are: jnp.asarray of one took
+    # 0.14 ms, two thirds of a small sampler's sweep)
+    arrays = [a if isinstance(a, jax.Array) else jnp.asarray(a) for a in arrays]
     state, out, pending = initial_state, None, None
     axis = 0 if batch is None else 1
 
