@@ -82,10 +82,10 @@ starting point:
 * ``lambda_short = 0.1`` per meter: ROS ``amcl``'s / Nav2's default ``lambda_short``; over room-sized distances the
   short component is close to uniform on ``[0, d]``.
 
-The beam model's and the chord geometry's densities and samplers are ``jax.jit`` functions: a model that calls one
-inside a traced program (``assess``, ``simulate``, a vmap over cells) reuses its traced program for inputs of the same
-shapes instead of tracing its few hundred operations again (the same numbers, faster to compile:
-[speed](../validation/speed.md#the-test-suites-compilation)).
+The beam model's and the chord geometry's densities and samplers are ``jax.jit`` functions, inlined where they are
+called: a model traced again (``assess``, ``simulate``, a vmap over cells) reuses their traced programs for inputs of
+the same shapes instead of tracing their few hundred operations again, and the compiled program is the one without
+``jit`` (the same numbers, faster to compile: [speed](../validation/speed.md#test-by-test-ab83986-b26e4fd)).
 """
 
 from __future__ import annotations
@@ -192,7 +192,7 @@ def beam_log_max_mass(d, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max
     return jnp.logaddexp(jnp.log(z_max), log_tail)
 
 
-@jax.jit
+@functools.partial(jax.jit, inline=True)
 def beam_logpdf(y, d, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range):
     """Log-density of the robust beam mixture (PR eqs. 6.4-6.12, with the hit censored at ``max_range``; see the
     module docstring for the exact convention).
@@ -219,7 +219,7 @@ def beam_logpdf(y, d, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_ra
     return jnp.where(jnp.asarray(y) >= max_range, beam_log_max_mass(d, *args), continuous)
 
 
-@jax.jit
+@functools.partial(jax.jit, inline=True)
 def beam_sample(key, d, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range):
     """One draw from the beam mixture (see :func:`beam_logpdf` for the arguments; scalar ``d``).
 
@@ -289,7 +289,7 @@ def _chord_parts(a, b, sigma):
     return width, wide, jnp.where(wide, width, 1.0), 0.5 * (a + b)
 
 
-@jax.jit
+@functools.partial(jax.jit, inline=True)
 def chord_normal_logpdf(y, a, b, sigma):
     """The Normal averaged over the chord: ``log f(y | a, b)``, ``f = (Phi((y - a) / sigma) - Phi((y - b) / sigma))
     / (b - a)``, the density of ``x + sigma Z`` with ``x ~ Uniform[a, b]`` (see the module docstring).
@@ -361,7 +361,7 @@ def chord_beam_log_max_mass(a, b, sigma, z_hit, z_short, z_max, z_rand, lambda_s
     return jnp.logaddexp(jnp.log(z_max), log_tail)
 
 
-@jax.jit
+@functools.partial(jax.jit, inline=True)
 def chord_beam_logpdf(y, a, b, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range):
     """Log-density of the beam mixture with its hit averaged over the chord ``[a, b]`` of the first wall cell
     (module docstring; PR sec. 6.3 for the mixture, the chord averaging is bayesmap's).
@@ -394,7 +394,7 @@ def chord_normal_sample(key, a, b, sigma):
     return x + sigma * jax.random.normal(k_z, a.shape, a.dtype)
 
 
-@jax.jit
+@functools.partial(jax.jit, inline=True)
 def chord_beam_sample(key, a, b, sigma, z_hit, z_short, z_max, z_rand, lambda_short, max_range):
     """One draw of :func:`chord_beam_logpdf` (scalar ``a``, ``b``; meters). The hit draws the surface ``x`` from
     its law given ``y >= 0`` (density proportional to ``Phi(x / sigma)`` on ``[a, b]``: uniform proposals accepted
