@@ -156,7 +156,7 @@ def simulate_ranges(walls: np.ndarray, resolution: float, poses: np.ndarray, rng
 def _first_wall_steps(walls, resolution, x, y, cos, sin, steps, chunk: int = 256) -> np.ndarray:
     """Per beam ``(K,)`` the index into ``steps`` of the first march step on a wall pixel, or -1: the steps marched
     ``chunk`` at a time, each chunk only for the beams without a hit yet (the same indices as marching all at once,
-    in a tenth of the time indoors)."""
+    in a sixth of the time on the Willow tour: 2.6 s against 16.3 s)."""
     first = np.full(len(cos), -1, np.int64)
     open_beams = np.arange(len(cos))
     for lo in range(0, len(steps), chunk):
