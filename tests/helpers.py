@@ -328,7 +328,7 @@ def four_cpu_devices_env() -> dict:
 
 
 def random_slam_scene(seed, beam_model="normal", num_scans=4, geometry="entry"):
-    """A random small grid and map (conftest.random_scene), a path of ``num_scans`` poses near its position,
+    """A random small grid and map (:func:`random_scene`), a path of ``num_scans`` poses near its position,
     odometry near the path, readings simulated at the path (some set to the max range)."""
     rng = np.random.default_rng(seed)
     grid, pos, walls, beam_angles = random_scene(rng, metric=bool(seed % 2))
