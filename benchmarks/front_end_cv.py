@@ -13,6 +13,8 @@ motion model's log-density. Two of its settings are chosen here:
 * ``window``: the meters of travel whose scans make the local map
   (:data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`; 20 m was tried against the default 10 m and not adopted,
   docs/slam.md, "A longer local map").
+* ``consistency_gate``: not the front end's but the loop closure's, the squared norm up to which two loop edges
+  count as consistent (:data:`bayesmap.slam.posegraph.CONSISTENCY_GATE`).
 
 (A third, the weight of a uniform outlier component in a max-mixture with the motion model, was chosen here at commit
 a14f5a3 and removed: docs/slam.md, "Every other scan, and a robust motion term".)
@@ -38,7 +40,8 @@ none falls below a smaller one, and the run is the same computation; its records
 Each run is appended to ``--records FILE`` (JSON lines) as soon as it is done, and runs already in the file are not
 repeated, so the grid can be split between processes and resumed.
 
-Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F [--parameter power|min_hit_fraction|window]
+Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F
+           [--parameter power|min_hit_fraction|window|consistency_gate]
            [--values 1,0.3,0.1,0.03] [--seeds 0-2] [--logs intel,aces,csail] [--scans all,heldout]
 """
 
@@ -64,7 +67,7 @@ from bayesmap.slam import pipeline, posegraph, scanmatch  # noqa: E402
 from bayesmap.slam.problem import SLAM_LIKELIHOOD_POWER, log_slam_problem  # noqa: E402
 
 DEFAULTS = {"power": SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HIT_FRACTION,
-            "window": scanmatch.LOCAL_MAP_DISTANCE}
+            "window": scanmatch.LOCAL_MAP_DISTANCE, "consistency_gate": posegraph.CONSISTENCY_GATE}
 """The settings this script can vary, and the value each takes while the other is varied (the defaults of
 :func:`bayesmap.slam.pipeline.front_end`)."""
 
@@ -84,7 +87,7 @@ def start_path(log, truth, scans: str, parameter: str, value: float) -> dict:
     problem = log_slam_problem(log, kept, likelihood_power=setting["power"])
     data = pipeline.scan_data(problem)
     front = pipeline.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"], window=setting["window"])
-    closed, edges = posegraph.close_loops(front, data)
+    closed, edges, _ = posegraph.close_loops(front, data, consistency_gate=setting["consistency_gate"])
     truth = truth if kept is None else truth[kept]
     return {"parameter": parameter, "value": value, "scans": scans,
             "front_end_ate_m": absolute_trajectory_error(front, truth)["rmse_m"],

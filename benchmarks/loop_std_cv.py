@@ -38,7 +38,7 @@ def ates(name: str, seed: int, factors: list[float]) -> list[float]:
     try:
         for f in factors:
             posegraph.LOOP_STD = tuple(f * v for v in BASE)  # read by loop_edges at call time
-            path, _ = posegraph.close_loops(start, data)
+            path, _, _ = posegraph.close_loops(start, data)
             out.append(absolute_trajectory_error(path, truth)["rmse_m"])
     finally:
         posegraph.LOOP_STD = saved

@@ -57,7 +57,7 @@ def error_sources(log, truth, slip: float, reading_scale: float = 1.0) -> dict:
     scans = pipeline.scan_data(problem)
     scans = scans._replace(readings=np.asarray(scans.readings) * reading_scale)
     front = pipeline.front_end(problem, scans)
-    closed, edges = posegraph.close_loops(front, scans)
+    closed, edges, _ = posegraph.close_loops(front, scans)
     loop = np.arange(len(edges.i)) >= len(front) - 1  # close_loops puts the sequential edges first
     sequential = posegraph.Edges(*(a[~loop] for a in edges))
     loops = posegraph.Edges(*(a[loop] for a in edges))

@@ -14,6 +14,7 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.io.carmen import read_carmen
 from bayesmap.io.rosbag import read_bag
 from bayesmap.io.tum import read_tum, tum_stamps, write_tum
+from bayesmap.runs.slam import loop_hypotheses_summary
 from bayesmap.slam.keyframes import keyframe_problem, owners, select_keyframes
 from bayesmap.slam.pipeline import (
     FINAL_MAP_SWEEPS,
@@ -23,7 +24,7 @@ from bayesmap.slam.pipeline import (
     final_map_power,
     scan_data,
 )
-from bayesmap.slam.posegraph import SEQUENTIAL_STD
+from bayesmap.slam.posegraph import SEQUENTIAL_STD, LoopHypotheses
 from bayesmap.slam.problem import log_slam_problem
 from helpers import SHARED_DATA, run_cli, run_main
 
@@ -104,6 +105,7 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     # sequential edges over the keyframes and keyframe k's (x, y) block has trace at least 2 k SEQUENTIAL_STD[0]^2
     # (heading errors add); a scan between keyframes has its keyframe's and more
     assert settings["graph_cov_scale"] == GRAPH_COV_SCALE and summary["loop_edges"] == 0
+    assert summary["loop_hypotheses"] is None  # no loop edge, nothing to weigh
     k = owners(25, keyframes)
     assert np.all(cov[:, 0, 0] + cov[:, 1, 1] >= GRAPH_COV_SCALE**2 * 2 * k * SEQUENTIAL_STD[0] ** 2 - 1e-12)
     posterior = np.load(log_run / "posterior.npy")
@@ -303,3 +305,14 @@ def test_slam_and_evaluate_errors_are_one_line_exit_2(tmp_path, monkeypatch, cap
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and lines[0].startswith("error: ") and match in lines[0], err
     assert not (tmp_path / "o").exists()
+
+
+def test_summary_json_counts_the_loop_hypotheses_over_one_percent():
+    """summary.json's ``loop_hypotheses``: of three weighed hypotheses (0.98, 0.015, 0.005) two weigh over 1 %; the
+    weights and edge counts as they are, most probable first, plain JSON; no hypotheses (no loop edge): null."""
+    hypotheses = LoopHypotheses([np.array([0, 1, 2]), np.array([3]), np.zeros(0, np.int64)],
+                                np.array([0.98, 0.015, 0.005]), 2)
+    summary = json.loads(json.dumps(loop_hypotheses_summary(hypotheses)))
+    assert summary == {"above_1_percent": 2, "weighed": 3, "consistent_sets": 2, "weights": [0.98, 0.015, 0.005],
+                       "loop_edges": [3, 1, 0]}
+    assert loop_hypotheses_summary(None) is None

@@ -226,6 +226,19 @@ def slam_endpoints(problem: SlamProblem, path) -> np.ndarray:
     return ends.reshape(-1, 2) if mask is None else ends[~np.asarray(mask, bool)]
 
 
+def loop_hypotheses_summary(hypotheses) -> dict | None:
+    """The last loop-closure round's hypotheses (:class:`bayesmap.slam.posegraph.LoopHypotheses`) as summary.json
+    holds them: ``{"above_1_percent": how many weigh over 0.01, "weighed": how many were weighed (the empty set and
+    the largest consistent sets), "consistent_sets": the maximal consistent sets found, "weights": the weights of
+    the first five, "loop_edges": the loop edges of each of those}``; None without loop edges."""
+    if hypotheses is None:
+        return None
+    return {"above_1_percent": int(np.sum(hypotheses.weights > 0.01)), "weighed": len(hypotheses.sets),
+            "consistent_sets": int(hypotheses.enumerated),
+            "weights": [float(w) for w in hypotheses.weights[:5]],
+            "loop_edges": [len(c) for c in hypotheses.sets[:5]]}
+
+
 def grid_summary(grid) -> dict:
     """A grid as summary.json holds it: ``{"shape": [nx, ny], "resolution": m, "origin": [x, y]}``."""
     return {"shape": [int(n) for n in grid.shape], "resolution": float(grid.resolution),
@@ -260,6 +273,7 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
         "pose_samples": int(len(result.pose_samples)),
         "acceptance_rate": result.acceptance_rate,
         "loop_edges": result.loop_edges,
+        "loop_hypotheses": loop_hypotheses_summary(result.loop_hypotheses),
         "grid": grid_summary(grid),
         "trajectory_stamps": ("the scans' timestamps, seconds" if np.array_equal(all_stamps, carmen.timestamps)
                               else "scan indices of the log (its timestamps do not increase strictly)"),

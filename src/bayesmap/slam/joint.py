@@ -200,6 +200,8 @@ class SlamResult(NamedTuple):
         final_map_power: the likelihood power of that other map (real logs), or None.
         final_map_noise: its sensor noise, meters (real logs: the map model's plus the path's uncertainty,
             :func:`bayesmap.slam.pipeline.final_map_noise`), or None.
+        loop_hypotheses: the last loop-closure round's hypotheses about which loop edges are true (real logs,
+            :class:`bayesmap.slam.posegraph.LoopHypotheses`), or None (no loop edge found, or no loop closure).
     """
 
     pose_samples: np.ndarray
@@ -215,6 +217,7 @@ class SlamResult(NamedTuple):
     chain_posterior: np.ndarray | None = None
     final_map_power: float | None = None
     final_map_noise: float | None = None
+    loop_hypotheses: object = None
 
 
 def check_counts(sweeps, burn_in, chains) -> tuple[int, int, int]:

@@ -375,7 +375,7 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     pose_sweeps, _, _ = check_counts(pose_sweeps, 0, 1)
     start = time.perf_counter()
     scans = scan_data(problem)
-    path, edges = close_loops(front_end(problem, scans, progress=progress), scans, progress=progress)
+    path, edges, hypotheses = close_loops(front_end(problem, scans, progress=progress), scans, progress=progress)
     grid = fitted_grid(scans, path, problem.params.grid.resolution)
     walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, grid), path, seed,
                                                    (rounds, burn_in, map_sweeps, pose_sweeps), progress, tile_pairs)
@@ -391,7 +391,7 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
                       runtime_s=time.perf_counter() - start, last_walls=np.asarray(walls, np.float32), grid=grid,
                       loop_edges=len(edges.i) - (len(path) - 1), graph_cov=graph_cov,
                       chain_posterior=chain_posterior if final else None, final_map_power=final_power,
-                      final_map_noise=final_noise)
+                      final_map_noise=final_noise, loop_hypotheses=hypotheses)
 
 
 def run_keyframe_slam(problem, keyframes, progress: ProgressCallback | None = None, **kwargs) -> SlamResult:

@@ -26,6 +26,7 @@ The optimized path is a start for the joint chain only; the chain's target does 
 from __future__ import annotations
 
 import functools
+import itertools
 from typing import NamedTuple
 
 import jax
@@ -102,6 +103,20 @@ dropped and the graph optimized again without it (a false match: a corridor matc
 no consistent path). Five sigma of a 3-dimensional residual is far out (chi-square with 3 degrees of freedom
 exceeds 25 with probability 1e-5), so true loops are kept."""
 
+CONSISTENCY_GATE = 16.27
+"""Squared Mahalanobis norm up to which two loop edges are consistent (:func:`pairwise_consistency`): the 99.9 %
+quantile of the chi-square distribution with 3 degrees of freedom. Chosen among the 95, 99 and 99.9 % quantiles (7.81,
+11.34, 16.27) by leave-one-log-out cross-validation of the start path's ATE over Intel, ACES and CSAIL, odometry seeds
+0-4, every scan and every other scan (``benchmarks/front_end_cv.py --parameter consistency_gate``); the three agree
+to 0.002 m in the mean; [validation](../validation/defaults.md#consistency_gate)."""
+
+MAX_LOOP_SETS = 1000
+"""Most maximal consistent sets of loop edges enumerated (:func:`consistent_sets`); past it the largest set found so
+far stands for the largest (a bound on the enumeration's time, never reached on the shared logs)."""
+
+WEIGHED_LOOP_SETS = 16
+"""The largest maximal consistent sets weighed as hypotheses (:func:`loop_hypotheses`), besides the empty set."""
+
 MAX_ITERATIONS = 100
 """Most Levenberg-Marquardt iterations of one optimization (:func:`optimize_pose_graph`; the shared logs' graphs
 converge in 4-6)."""
@@ -111,6 +126,21 @@ COST_TOLERANCE = 1e-10
 
 SOLVE_COLUMNS = 384
 """Right-hand sides per sparse solve in :func:`marginal_covariances` (bounds its memory to ``3 S x 384``)."""
+
+
+class LoopHypotheses(NamedTuple):
+    """Hypotheses about which loop edges are true matches (:func:`loop_hypotheses`).
+
+    Attributes:
+        sets: the weighed hypotheses, each an ``(n,)`` int array of indices into the loop edges (sorted), the most
+            probable first; the empty set (every loop edge a false match) is always among them.
+        weights: ``(H,)`` float64 their posterior probabilities, normalized over ``sets`` (descending).
+        enumerated: how many maximal consistent sets the consistency graph has (at most :data:`MAX_LOOP_SETS`).
+    """
+
+    sets: list
+    weights: np.ndarray
+    enumerated: int
 
 
 class Edges(NamedTuple):
@@ -130,6 +160,23 @@ def relative(a, b) -> np.ndarray:
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1],
                      wrap_angle(b[..., 2] - a[..., 2])], axis=-1)
+
+
+def compose(a, b) -> np.ndarray:
+    """The pose ``b`` ``(..., 3)``, given in the frame of pose ``a`` ``(..., 3)``, in ``a``'s own frame: ``a (+) b``
+    (numpy float64; theta wrapped to ``[-pi, pi)``). ``compose(a, relative(a, b))`` is ``b``."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1], a[..., 1] + s * b[..., 0] + c * b[..., 1],
+                     wrap_angle(a[..., 2] + b[..., 2])], axis=-1)
+
+
+def invert(a) -> np.ndarray:
+    """The inverse ``(..., 3)`` of the relative poses ``a`` ``(..., 3)``: ``compose(a, invert(a))`` is the identity
+    (numpy float64; theta wrapped to ``[-pi, pi)``)."""
+    a = np.asarray(a, np.float64)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], wrap_angle(-a[..., 2])], axis=-1)
 
 
 def sequential_edges(path) -> Edges:
@@ -336,41 +383,254 @@ def optimize_pose_graph(path, edges: Edges, scale: float = CAUCHY_SCALE) -> np.n
     return x
 
 
-def optimize_with_loop_gate(path, sequential: Edges, loops: Edges) -> tuple[np.ndarray, Edges]:
-    """Optimize the graph of ``sequential`` and ``loops`` from ``path`` ``(S, 3)`` (:func:`optimize_pose_graph`),
-    then drop every loop edge whose whitened residual norm exceeds :data:`LOOP_GATE` and optimize again without them.
+def odometry_path(sequential: Edges) -> np.ndarray:
+    """The path ``(S, 3)`` float64 that the sequential edges ``t - 1 -> t`` chain, from the origin: the front end's
+    path up to one rigid motion.
 
-    Returns:
-        ``(path (S, 3) float64, the loop edges kept)``.
+    Raises:
+        BayesmapError: if the edges are not ``0 -> 1, 1 -> 2, ...`` in order.
     """
-    path = optimize_pose_graph(path, concat_edges(sequential, loops))
-    keep = np.linalg.norm(edge_residuals(path, loops), axis=1) <= LOOP_GATE
-    if keep.all():
-        return path, loops
-    loops = Edges(*(a[keep] for a in loops))
-    return optimize_pose_graph(path, concat_edges(sequential, loops)), loops
+    i, j = np.asarray(sequential.i), np.asarray(sequential.j)
+    if not (np.array_equal(i, np.arange(len(i))) and np.array_equal(j, i + 1)):
+        raise BayesmapError("sequential edges must be 0 -> 1, 1 -> 2, ... in order")
+    path = np.zeros((len(i) + 1, 3))
+    for k, z in enumerate(np.asarray(sequential.z, np.float64)):
+        path[k + 1] = compose(path[k], z)
+    return path
 
 
-def close_loops(path, data: ScanData, rounds: int = ROUNDS,
-                progress: ProgressCallback | None = None) -> tuple[np.ndarray, Edges]:
-    """Alternate loop detection (:func:`loop_edges`) and gated pose-graph optimization
-    (:func:`optimize_with_loop_gate`) ``rounds`` times from the front end's ``path`` (fewer if a round finds no loop
-    edge). ``progress`` gets ``Progress("loop closure r/rounds", done, P, "scan")`` per loop candidate matched in
-    round ``r`` (``P`` its candidates; nothing for a round without any).
+def _pivot_covariance(xy_var, theta_var, lever) -> np.ndarray:
+    """``(..., 3, 3)``: a relative pose's noise (``xy_var`` on each position component, ``theta_var`` on its angle)
+    carried to the end of a chain whose rest turns about the pose it ends at, ``lever`` ``(..., 2)`` the vector from
+    there to the end: ``xy_var I + theta_var g g^T``, ``g = (-lever_y, lever_x, 1)``."""
+    g = np.concatenate([-lever[..., 1:2], lever[..., 0:1], np.ones(lever.shape[:-1] + (1,))], axis=-1)
+    out = np.asarray(theta_var)[..., None, None] * g[..., :, None] * g[..., None, :]
+    out[..., 0, 0] += xy_var
+    out[..., 1, 1] += xy_var
+    return out
+
+
+def _rotation3(theta) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    r = np.zeros(np.shape(theta) + (3, 3))
+    r[..., 0, 0], r[..., 0, 1], r[..., 1, 0], r[..., 1, 1], r[..., 2, 2] = c, -s, s, c, 1.0
+    return r
+
+
+def _isotropic(edges: Edges, name: str) -> np.ndarray:
+    std = np.asarray(edges.std, np.float64)
+    if not np.allclose(std[:, 0], std[:, 1]):
+        raise BayesmapError(f"{name} edges must have equal x and y standard deviations for the consistency test")
+    return std
+
+
+def pairwise_consistency(sequential: Edges, loops: Edges) -> np.ndarray:
+    """How far each pair of loop edges is from agreeing, given the odometry between them (Mangelson et al. 2018,
+    "Pairwise consistency maximization for robust multi-robot map merging"): for loop edges ``a`` (``i_a -> j_a``)
+    and ``b`` (``i_b -> j_b``), the cycle ``i_a -> j_a`` (edge ``a``), ``j_a -> j_b`` (the sequential edges),
+    ``j_b -> i_b`` (edge ``b`` backwards), ``i_b -> i_a`` (the sequential edges) composes to the identity if both
+    are true; its error ``e`` (a pose in ``i_a``'s frame) has, to first order in the edges' noise, the covariance
+    ``Sigma = sum_k J_k Sigma_k J_k^T`` over the cycle's edges, and the result is ``e^T Sigma^-1 e``.
+
+    A noise ``(dx, dy, dtheta)`` on an edge moves the part of the cycle beyond the edge by ``(dx, dy)`` turned into
+    the cycle's frame and turns it by ``dtheta`` about the edge's pose ``j``, whichever way the cycle runs through
+    the edge, so each edge adds ``sigma_xy^2 I + sigma_theta^2 g g^T`` (equal x and y deviations) with ``g = (-l_y,
+    l_x, 1)``, ``l`` the lever from that pose to the cycle's end; the sums over a stretch of sequential edges are
+    differences of prefix sums (docs/slam.md). Checked against the covariance of Monte Carlo cycles (tests).
+
+    Args:
+        sequential: the sequential edges ``0 -> 1, 1 -> 2, ...`` (:func:`sequential_edges`), whose chain
+            (:func:`odometry_path`) is the odometry between the loop edges' ends.
+        loops: ``L`` loop edges of the same graph.
 
     Returns:
-        ``(path (S, 3) float64, the graph's edges)``: the sequential edges of the front end's ``path``
-        (:func:`sequential_edges`) followed by the loop edges kept in the last round.
+        ``(L, L)`` float64 squared Mahalanobis norms, zero on the diagonal.
+
+    Raises:
+        BayesmapError: on sequential edges out of order, or an edge whose x and y standard deviations differ.
+    """
+    path = odometry_path(sequential)
+    seq_std, loop_std = _isotropic(sequential, "sequential"), _isotropic(loops, "loop")
+    count = len(loops.i)
+    if count == 0:
+        return np.zeros((0, 0))
+
+    def prefix(values):
+        return np.concatenate([np.zeros((1,) + values.shape[1:]), np.cumsum(values, axis=0)])
+
+    pivots = path[1:, :2]  # sequential edge k - 1 ends at pose k
+    theta_var = seq_std[:, 2] ** 2
+    sums = (prefix(seq_std[:, 0] ** 2), prefix(theta_var), prefix(theta_var[:, None] * pivots),
+            prefix(theta_var[:, None, None] * pivots[:, :, None] * pivots[:, None, :]))
+    turn = np.array([[0.0, -1.0], [1.0, 0.0]])
+
+    def stretch(start, stop, frame, end):
+        """The covariance at the cycle's ``end`` of the sequential edges between poses ``start`` and ``stop``,
+        ``frame`` the transform from the odometry path's frame to the cycle's."""
+        low, high = np.minimum(start, stop), np.maximum(start, stop)
+        xy_var, weight, first, second = (s[high] - s[low] for s in sums)
+        anchor = compose(invert(frame), end)[..., :2]  # the cycle's end in the odometry path's frame
+        outer = (weight[:, None, None] * anchor[:, :, None] * anchor[:, None, :] - anchor[:, :, None] * first[:, None]
+                 - first[:, :, None] * anchor[:, None] + second)  # sum_k w_k (anchor - p_k)(anchor - p_k)^T
+        block = np.zeros((len(start), 3, 3))
+        block[:, :2, :2] = turn @ outer @ turn.T
+        block[:, 0, 0] += xy_var
+        block[:, 1, 1] += xy_var
+        block[:, :2, 2] = block[:, 2, :2] = (weight[:, None] * anchor - first) @ turn.T
+        block[:, 2, 2] = weight
+        rotation = _rotation3(frame[:, 2])
+        return rotation @ block @ np.swapaxes(rotation, -1, -2)
+
+    a, b = (k.ravel() for k in np.meshgrid(np.arange(count), np.arange(count), indexing="ij"))
+    i, j, z = np.asarray(loops.i), np.asarray(loops.j), np.asarray(loops.z, np.float64)
+    at_ja = z[a]
+    at_jb = compose(at_ja, relative(path[j[a]], path[j[b]]))
+    at_ib = compose(at_jb, invert(z[b]))
+    end = compose(at_ib, relative(path[i[b]], path[i[a]]))
+    cov = (_pivot_covariance(loop_std[a, 0] ** 2, loop_std[a, 2] ** 2, end[:, :2] - at_ja[:, :2])
+           + _pivot_covariance(loop_std[b, 0] ** 2, loop_std[b, 2] ** 2, end[:, :2] - at_jb[:, :2])
+           + stretch(j[a], j[b], compose(at_ja, invert(path[j[a]])), end)
+           + stretch(i[b], i[a], compose(at_ib, invert(path[i[b]])), end))
+    norms = np.einsum("ni,ni->n", end, np.linalg.solve(cov, end[:, :, None])[:, :, 0]).reshape(count, count)
+    np.fill_diagonal(norms, 0.0)
+    return norms
+
+
+def consistent_sets(norms, gate: float = CONSISTENCY_GATE, limit: int = MAX_LOOP_SETS) -> tuple[list, int]:
+    """The maximal sets of loop edges that are pairwise consistent (``norms <= gate`` for every pair in the set,
+    :func:`pairwise_consistency`): the maximal cliques of the consistency graph (Bron & Kerbosch 1973, with Tomita
+    et al.'s pivot, ``networkx.find_cliques``), at most ``limit`` of them.
+
+    Args:
+        norms: ``(L, L)`` squared norms (symmetrized by their larger value).
+        gate: the squared norm up to which a pair is consistent (:data:`CONSISTENCY_GATE`).
+        limit: the most sets enumerated, ``>= 1``.
+
+    Returns:
+        ``(sets, count)``: the sets (sorted ``(n,)`` int64 index arrays), largest first (ties in index order), and
+        how many were enumerated (``count == limit`` means there may be more). No loop edges: ``([], 0)``.
+    """
+    import networkx as nx  # the consistency graph's cliques; imported where used (the CLI's start time)
+
+    norms = np.asarray(norms, np.float64)
+    graph = nx.Graph()
+    graph.add_nodes_from(range(len(norms)))
+    first, second = np.nonzero(np.triu(np.maximum(norms, norms.T) <= gate, 1))
+    graph.add_edges_from(zip(first.tolist(), second.tolist()))
+    sets = [np.sort(np.asarray(c, np.int64)) for c in itertools.islice(nx.find_cliques(graph), limit)]
+    sets.sort(key=lambda c: (-len(c), c.tolist()))
+    return sets, len(sets)
+
+
+def _window_volume(levels=LOOP_LEVELS) -> float:
+    """The volume (m^2 rad) of the loop search's first lattice: where a false match can land."""
+    xy, theta, xy_steps, theta_steps = levels[0][:4]
+    return ((2 * xy_steps + 1) * xy) ** 2 * (2 * theta_steps + 1) * theta
+
+
+def log_evidence(path, sequential: Edges, loops: Edges, chosen) -> float:
+    """The log-probability of the loop edges' measurements if the edges ``chosen`` are true matches and the others
+    false ones, up to a constant shared by every choice: the chosen edges Gaussian about the graph's prediction
+    (their standard deviations), each other edge uniform over the loop search's window (:data:`LOOP_LEVELS`' first
+    lattice: a false match lands anywhere in it), the poses integrated out by the Laplace approximation of the graph
+    of ``sequential`` and the chosen edges (a flat prior on the poses after the first; Olson & Agarwal 2013 for the
+    mixture of a Gaussian and a broad component). The graph's minimum is one Gauss-Newton step from ``path``
+    ``(S, 3)``: exact for the graph linearized there.
+
+    ``log p = -chi2_min / 2 - log det H / 2 + sum_{chosen} (-3/2 log 2 pi - sum log std) - (L - n) log V``
+
+    Raises:
+        BayesmapError: as :func:`marginal_covariances` for a graph with an untied pose.
+    """
+    chosen = np.asarray(chosen, np.int64)
+    loops_in = Edges(*(np.asarray(a)[chosen] for a in loops))
+    edges = concat_edges(sequential, loops_in)
+    path = _check_graph(path, edges)
+    jacobian, lu = _information_lu(path, edges)
+    residual = edge_residuals(path, edges).reshape(-1)
+    gradient = jacobian.T @ residual
+    chi2 = float(residual @ residual - gradient @ lu.solve(gradient))
+    log_det = float(np.sum(np.log(np.abs(lu.U.diagonal()))))
+    normalizers = float(np.sum(-1.5 * np.log(2 * np.pi) - np.log(np.asarray(loops_in.std, np.float64)).sum(axis=1)))
+    return -0.5 * chi2 - 0.5 * log_det + normalizers - (len(loops.i) - len(chosen)) * np.log(_window_volume())
+
+
+def loop_hypotheses(path, sequential: Edges, loops: Edges, sets: tuple | None = None,
+                    weighed: int = WEIGHED_LOOP_SETS) -> LoopHypotheses:
+    """Which loop edges are true: the empty set and the ``weighed`` largest maximal pairwise-consistent sets
+    (``sets``, the output of :func:`consistent_sets`; by default of :func:`pairwise_consistency` at the defaults),
+    weighed by :func:`log_evidence` with equal prior odds of a true and a false match, and normalized over them. The
+    sets are weighed at ``path`` ``(S, 3)``, the empty set at the sequential edges' own chain from ``path[0]``
+    (:func:`odometry_path`), where it fits with zero residuals and its Laplace approximation is exact."""
+    sets, count = consistent_sets(pairwise_consistency(sequential, loops)) if sets is None else sets
+    sets = [np.zeros(0, np.int64), *sets[:weighed]]
+    odometry = compose(np.asarray(path, np.float64)[0], odometry_path(sequential))
+    logs = np.array([log_evidence(path if len(c) else odometry, sequential, loops, c) for c in sets])
+    order = np.argsort(-logs, kind="stable")
+    weights = np.exp(logs[order] - logs.max())
+    return LoopHypotheses([sets[k] for k in order], weights / weights.sum(), count)
+
+
+def optimize_with_loop_gate(path, sequential: Edges, loops: Edges,
+                            consistency_gate: float = CONSISTENCY_GATE) -> tuple[np.ndarray, Edges, LoopHypotheses]:
+    """Keep the loop edges of the most probable hypothesis (:func:`loop_hypotheses` of the sets consistent at
+    ``consistency_gate``, weighed at the graph's optimum with the largest of them), optimize the graph of
+    ``sequential`` and those edges from ``path`` ``(S, 3)`` (:func:`optimize_pose_graph`), then drop every kept loop
+    edge whose whitened residual norm exceeds :data:`LOOP_GATE` and optimize again without them.
+
+    Returns:
+        ``(path (S, 3) float64, the loop edges kept, the hypotheses)``.
+    """
+    def subset(chosen):
+        return Edges(*(np.asarray(a)[chosen] for a in loops))
+
+    sets = consistent_sets(pairwise_consistency(sequential, loops), consistency_gate)
+    largest = sets[0][0] if sets[0] else np.zeros(0, np.int64)
+    path = optimize_pose_graph(path, concat_edges(sequential, subset(largest)))
+    hypotheses = loop_hypotheses(path, sequential, loops, sets)
+    chosen = hypotheses.sets[0]
+    if not np.array_equal(chosen, largest):
+        path = optimize_pose_graph(path, concat_edges(sequential, subset(chosen)))
+    kept = subset(chosen)
+    keep = np.linalg.norm(edge_residuals(path, kept), axis=1) <= LOOP_GATE
+    if keep.all():
+        return path, kept, hypotheses
+    kept = Edges(*(a[keep] for a in kept))
+    return optimize_pose_graph(path, concat_edges(sequential, kept)), kept, hypotheses
+
+
+class LoopClosure(NamedTuple):
+    """The back end's result (:func:`close_loops`): ``path`` ``(S, 3)`` float64, ``edges`` the graph (the
+    sequential edges, then the loop edges kept in the last round), ``hypotheses`` the last round's
+    :class:`LoopHypotheses` (None if no round found a loop edge)."""
+
+    path: np.ndarray
+    edges: Edges
+    hypotheses: LoopHypotheses | None
+
+
+def close_loops(path, data: ScanData, rounds: int = ROUNDS, progress: ProgressCallback | None = None,
+                consistency_gate: float = CONSISTENCY_GATE) -> LoopClosure:
+    """Alternate loop detection (:func:`loop_edges`) and the choice of loop edges with pose-graph optimization
+    (:func:`optimize_with_loop_gate` at ``consistency_gate``) ``rounds`` times from the front end's ``path`` (fewer
+    if a round finds no loop edge). ``progress`` gets ``Progress("loop closure r/rounds", done, P, "scan")`` per
+    loop candidate matched in round ``r`` (``P`` its candidates; nothing for a round without any).
+
+    Returns:
+        A :class:`LoopClosure`: the optimized path, the graph's edges (the sequential edges of the front end's
+        ``path``, :func:`sequential_edges`, followed by the loop edges kept in the last round) and the last round's
+        hypotheses.
     """
     path = np.asarray(path, np.float64)
     sequential = sequential_edges(path)
     kept = Edges(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+    hypotheses = None
     for r in range(rounds):
         loops = loop_edges(path, data, progress, f"loop closure {r + 1}/{rounds}")
         if len(loops.i) == 0:
             break
-        path, kept = optimize_with_loop_gate(path, sequential, loops)
-    return path, concat_edges(sequential, kept)
+        path, kept, hypotheses = optimize_with_loop_gate(path, sequential, loops, consistency_gate)
+    return LoopClosure(path, concat_edges(sequential, kept), hypotheses)
 
 
 def edge_jacobians(path, edges: Edges) -> tuple[np.ndarray, np.ndarray]:
