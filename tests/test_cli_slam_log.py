@@ -309,10 +309,11 @@ def test_slam_and_evaluate_errors_are_one_line_exit_2(tmp_path, monkeypatch, cap
 
 def test_summary_json_counts_the_loop_hypotheses_over_one_percent():
     """summary.json's ``loop_hypotheses``: of three weighed hypotheses (0.98, 0.015, 0.005) two weigh over 1 %; the
-    weights and edge counts as they are, most probable first, plain JSON; no hypotheses (no loop edge): null."""
+    weights and edge counts as they are, most probable first, and the path samples each drew of 100, plain JSON; no
+    hypotheses (no loop edge): null."""
     hypotheses = LoopHypotheses([np.array([0, 1, 2]), np.array([3]), np.zeros(0, np.int64)],
                                 np.array([0.98, 0.015, 0.005]), 2)
-    summary = json.loads(json.dumps(loop_hypotheses_summary(hypotheses)))
+    summary = json.loads(json.dumps(loop_hypotheses_summary(hypotheses, 100)))
     assert summary == {"above_1_percent": 2, "weighed": 3, "consistent_sets": 2, "weights": [0.98, 0.015, 0.005],
-                       "loop_edges": [3, 1, 0]}
-    assert loop_hypotheses_summary(None) is None
+                       "loop_edges": [3, 1, 0], "samples": [98, 2, 0]}  # 1.5 and 0.5: the larger remainder first
+    assert loop_hypotheses_summary(None, 100) is None

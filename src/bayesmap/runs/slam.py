@@ -39,7 +39,14 @@ from bayesmap.runs.outputs import (
 )
 from bayesmap.slam.joint import SlamResult, run_slam
 from bayesmap.slam.keyframes import KEYFRAME_DISTANCE, KEYFRAME_TURN, keyframe_problem, select_keyframes
-from bayesmap.slam.pipeline import BURN_IN_ROUNDS, FINAL_MAP_SWEEPS, GRAPH_COV_SCALE, ROUNDS, run_keyframe_slam
+from bayesmap.slam.pipeline import (
+    BURN_IN_ROUNDS,
+    FINAL_MAP_SWEEPS,
+    GRAPH_COV_SCALE,
+    ROUNDS,
+    hypothesis_counts,
+    run_keyframe_slam,
+)
 from bayesmap.slam.problem import SLAM_ODOMETRY_ALPHAS, SlamProblem, log_slam_problem, slam_tutorial_problem
 from bayesmap.viz.common import figure_bytes
 from bayesmap.viz.maps import plot_occupancy_map
@@ -226,17 +233,19 @@ def slam_endpoints(problem: SlamProblem, path) -> np.ndarray:
     return ends.reshape(-1, 2) if mask is None else ends[~np.asarray(mask, bool)]
 
 
-def loop_hypotheses_summary(hypotheses) -> dict | None:
+def loop_hypotheses_summary(hypotheses, num_samples: int) -> dict | None:
     """The last loop-closure round's hypotheses (:class:`bayesmap.slam.posegraph.LoopHypotheses`) as summary.json
     holds them: ``{"above_1_percent": how many weigh over 0.01, "weighed": how many were weighed (the empty set and
     the largest consistent sets), "consistent_sets": the maximal consistent sets found, "weights": the weights of
-    the first five, "loop_edges": the loop edges of each of those}``; None without loop edges."""
+    the first five, "loop_edges": the loop edges of each of those, "samples": how many of the ``num_samples`` path
+    samples each of those drew}`` (:func:`bayesmap.slam.pipeline.hypothesis_counts`); None without loop edges."""
     if hypotheses is None:
         return None
     return {"above_1_percent": int(np.sum(hypotheses.weights > 0.01)), "weighed": len(hypotheses.sets),
             "consistent_sets": int(hypotheses.enumerated),
             "weights": [float(w) for w in hypotheses.weights[:5]],
-            "loop_edges": [len(c) for c in hypotheses.sets[:5]]}
+            "loop_edges": [len(c) for c in hypotheses.sets[:5]],
+            "samples": [int(c) for c in hypothesis_counts(num_samples, hypotheses.weights)[:5]]}
 
 
 def grid_summary(grid) -> dict:
@@ -273,7 +282,7 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
         "pose_samples": int(len(result.pose_samples)),
         "acceptance_rate": result.acceptance_rate,
         "loop_edges": result.loop_edges,
-        "loop_hypotheses": loop_hypotheses_summary(result.loop_hypotheses),
+        "loop_hypotheses": loop_hypotheses_summary(result.loop_hypotheses, len(result.pose_samples)),
         "grid": grid_summary(grid),
         "trajectory_stamps": ("the scans' timestamps, seconds" if np.array_equal(all_stamps, carmen.timestamps)
                               else "scan indices of the log (its timestamps do not increase strictly)"),

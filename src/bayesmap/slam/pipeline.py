@@ -34,6 +34,9 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
    squared. The reported covariance of a pose is the chain's plus the graph's; each pose sample is a chain sample
    plus a draw of the graph's correlated deviation of the whole path (:func:`bayesmap.slam.posegraph.
    sample_deviations`), in antithetic pairs so that the samples' mean is the chain's mean path (docs/slam.md).
+   Where the loop closure's other hypotheses about which loop edges are true (:func:`bayesmap.slam.posegraph.
+   loop_hypotheses`) weigh enough to get samples, those samples come from their own graphs: a mixture
+   (:func:`graph_uncertainty`).
 6. **The final map** (with ``problem.final_map_params``, which :func:`bayesmap.slam.problem.log_slam_problem` sets): the
    walls given the readings at the mean path, in the map model of a log at known poses
    (:func:`bayesmap.slam.problem.log_map_params`: the structured prior, wall cells a beam can pass, a likelihood power
@@ -64,11 +67,19 @@ from bayesmap.inference.chains import run_recorded_chains
 from bayesmap.inference.tiled import TILE_PAIRS, check_tile_pairs, tiled_map_chain
 from bayesmap.memory import drop_compiled_programs
 from bayesmap.model.generative import replace_params
+from bayesmap.model.motion import wrap_angle
 from bayesmap.progress import ProgressCallback, report
 from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
 from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
 from bayesmap.slam.keyframes import keyframe_problem, owners, place_scans, placed_uncertainty
-from bayesmap.slam.posegraph import close_loops, marginal_covariances, sample_deviations
+from bayesmap.slam.posegraph import (
+    Edges,
+    close_loops,
+    concat_edges,
+    marginal_covariances,
+    optimize_pose_graph,
+    sample_deviations,
+)
 from bayesmap.slam.poses import random_walk_pose_mh, slam_data
 from bayesmap.slam.scanmatch import (
     LOCAL_MAP_DISTANCE,
@@ -230,23 +241,52 @@ def final_map_noise(sensor_noise: float, pose_cov) -> float:
     return float(math.sqrt(sensor_noise**2 + float(variance.mean())))
 
 
-def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_SCALE):
+def hypothesis_counts(num: int, weights) -> np.ndarray:
+    """How many of ``num`` samples each hypothesis of ``weights`` ``(H,)`` (summing to 1) gets: the largest-remainder
+    apportionment (Hamilton's method) of ``num * weights``, remainders tied in order; ``(H,)`` int64 summing to
+    ``num``."""
+    weights = np.asarray(weights, np.float64)
+    quota = num * weights / weights.sum()
+    counts = np.floor(quota).astype(np.int64)
+    extra = np.argsort(-(quota - counts), kind="stable")[: num - int(counts.sum())]
+    counts[extra] += 1
+    return counts
+
+
+def _antithetic(seed: int, path, edges, num: int) -> np.ndarray:
+    """``num`` graph deviations of ``path`` (:func:`bayesmap.slam.posegraph.sample_deviations`) in antithetic pairs
+    (``ceil(num / 2)`` draws and their negatives); zeros for a single one."""
+    half = sample_deviations(seed, path, edges, (num + 1) // 2)
+    return np.concatenate([half, -half])[:num] if num > 1 else np.zeros((num, *np.shape(path)))
+
+
+def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_SCALE, hypotheses=None):
     """Stage 5 of the module docstring: the chain's pose samples with the pose graph's uncertainty (the graph's
-    Laplace approximation, Lu & Milios 1997; antithetic pairs, Hammersley & Morton 1956; docs/slam.md).
+    Laplace approximation, Lu & Milios 1997; antithetic pairs, Hammersley & Morton 1956; docs/slam.md), and with
+    the loop closure's other hypotheses where they weigh enough to get samples.
 
     Args:
-        seed: seed of the graph's draws (``numpy.random.default_rng``).
+        seed: seed of the graph's draws (``numpy.random.default_rng``; hypothesis ``h`` uses ``seed + h``).
         chain_samples: ``(N, S, 3)`` pose samples of the joint chain (x m, y m, theta rad), ``N >= 1``.
-        edges: the pose graph (:func:`bayesmap.slam.posegraph.close_loops`), every pose after the first on an
-            edge.
+        edges: the pose graph (:func:`bayesmap.slam.posegraph.close_loops`: the sequential edges first), every pose
+            after the first on an edge.
         scale: the factor on the graph's standard deviations, ``>= 0`` (:data:`GRAPH_COV_SCALE`).
+        hypotheses: None, or the loop closure's :class:`bayesmap.slam.posegraph.LoopHypotheses`, the first the
+            one ``edges`` holds. Hypothesis ``h`` gets :func:`hypothesis_counts` of the ``N`` samples (the chain's
+            samples in order: the first ones stay with the first hypothesis); one with any gets the graph of the
+            sequential edges and its loop edges, optimized from the chain's mean path, and its samples are that
+            path plus a chain sample's deviation from the chain's mean plus ``scale`` times that graph's deviation:
+            a mixture of the hypotheses' Laplace approximations, each with the chain's local spread.
 
     Returns:
-        ``(mean (S, 3), cov (S, 3, 3), samples (N, S, 3), graph_cov (S, 3, 3))`` float64: the chain's mean path
-        (:func:`bayesmap.slam.joint.pose_summary`), the chain's covariance plus ``scale ** 2`` times the graph's
-        (:func:`bayesmap.slam.posegraph.marginal_covariances` at the mean path), each chain sample plus
-        ``scale`` times a graph deviation (``ceil(N / 2)`` draws and their negatives, so for even ``N`` the samples'
-        mean position is the chain's; a single sample gets none), and the graph's covariance at unit scale.
+        ``(mean (S, 3), cov (S, 3, 3), samples (N, S, 3), graph_cov (S, 3, 3))`` float64. With one hypothesis
+        holding every sample: the chain's mean path (:func:`bayesmap.slam.joint.pose_summary`), the chain's
+        covariance plus ``scale ** 2`` times the graph's (:func:`bayesmap.slam.posegraph.marginal_covariances` at
+        the mean path), each chain sample plus ``scale`` times a graph deviation (``ceil(N / 2)`` draws and their
+        negatives, so for even ``N`` the samples' mean position is the chain's; a single sample gets none), and the
+        graph's covariance at unit scale. With several: the mixture's mean and covariance, each hypothesis weighted
+        by its share of the samples (headings averaged as differences from the first's, wrapped), and the first
+        hypothesis's ``graph_cov``.
 
     Raises:
         BayesmapError: on a negative or non-finite ``scale``, or a graph that leaves a pose without edges or is in
@@ -258,9 +298,29 @@ def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_
     mean, chain_cov = pose_summary(chain_samples)
     graph_cov = marginal_covariances(mean, edges)
     n = len(chain_samples)
-    half = sample_deviations(seed, mean, edges, (n + 1) // 2)
-    deviations = np.concatenate([half, -half])[:n] if n > 1 else np.zeros_like(chain_samples)
-    return mean, chain_cov + scale**2 * graph_cov, chain_samples + scale * deviations, graph_cov
+    counts = np.array([n]) if hypotheses is None else hypothesis_counts(n, hypotheses.weights)
+    if counts[0] == n:
+        deviations = _antithetic(seed, mean, edges, n)
+        return mean, chain_cov + scale**2 * graph_cov, chain_samples + scale * deviations, graph_cov
+    sequential = Edges(*(np.asarray(a)[: len(mean) - 1] for a in edges))
+    parts, starts = [], np.concatenate([[0], np.cumsum(counts)])
+    for h in np.flatnonzero(counts):
+        if h == 0:
+            path, graph, cov_h = mean, edges, graph_cov
+        else:
+            graph = concat_edges(sequential, Edges(*(np.asarray(a)[hypotheses.sets[h]] for a in hypotheses.loops)))
+            path = optimize_pose_graph(mean, graph)
+            cov_h = marginal_covariances(path, graph)
+        local = chain_samples[starts[h]: starts[h + 1]] - mean
+        local[:, :, 2] = wrap_angle(local[:, :, 2])
+        samples = path + local + scale * _antithetic(seed + int(h), path, graph, int(counts[h]))
+        parts.append((counts[h] / n, path, chain_cov + scale**2 * cov_h, samples))
+    offsets = [np.concatenate([p[:, :2] - mean[:, :2], wrap_angle(p[:, 2:] - mean[:, 2:])], axis=1)
+               for _, p, _, _ in parts]
+    shift = sum(f * o for (f, _, _, _), o in zip(parts, offsets))
+    mixture_cov = sum(f * (c + np.einsum("si,sj->sij", o - shift, o - shift))
+                      for (f, _, c, _), o in zip(parts, offsets))
+    return (mean + shift, mixture_cov, np.concatenate([s for _, _, _, s in parts]), graph_cov)
 
 
 @on_sweep_devices()  # the sweeps on the CPU, also where JAX's default device is a GPU (bayesmap.devices)
@@ -379,7 +439,7 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     grid = fitted_grid(scans, path, problem.params.grid.resolution)
     walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, grid), path, seed,
                                                    (rounds, burn_in, map_sweeps, pose_sweeps), progress, tile_pairs)
-    mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, graph_scale)
+    mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, graph_scale, hypotheses)
     chain_posterior = probs.astype(np.float64).mean(axis=0)
     posterior, final_power, final_noise = chain_posterior, None, None
     if final:

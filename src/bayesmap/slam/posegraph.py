@@ -136,11 +136,13 @@ class LoopHypotheses(NamedTuple):
             probable first; the empty set (every loop edge a false match) is always among them.
         weights: ``(H,)`` float64 their posterior probabilities, normalized over ``sets`` (descending).
         enumerated: how many maximal consistent sets the consistency graph has (at most :data:`MAX_LOOP_SETS`).
+        loops: the loop edges the sets index (:class:`Edges`), or None.
     """
 
     sets: list
     weights: np.ndarray
     enumerated: int
+    loops: Edges | None = None
 
 
 class Edges(NamedTuple):
@@ -568,7 +570,7 @@ def loop_hypotheses(path, sequential: Edges, loops: Edges, sets: tuple | None = 
     logs = np.array([log_evidence(path if len(c) else odometry, sequential, loops, c) for c in sets])
     order = np.argsort(-logs, kind="stable")
     weights = np.exp(logs[order] - logs.max())
-    return LoopHypotheses([sets[k] for k in order], weights / weights.sum(), count)
+    return LoopHypotheses([sets[k] for k in order], weights / weights.sum(), count, loops)
 
 
 def optimize_with_loop_gate(path, sequential: Edges, loops: Edges,
