@@ -311,17 +311,20 @@ def test_the_cycle_norm_is_the_cycles_monte_carlo_covariance():
                             np.tile(posegraph.LOOP_STD, (3, 1)))
 
     def cycle(seq_z, loop_z, a, b):
-        odometry = posegraph.odometry_path(seq._replace(z=seq_z))
-        at_jb = posegraph.compose(loop_z[a], posegraph.relative(odometry[pairs[a, 1]], odometry[pairs[b, 1]]))
-        at_ib = posegraph.compose(at_jb, posegraph.invert(loop_z[b]))
+        """The cycle's end for edges ``seq_z`` ``(..., 60, 3)`` and ``loop_z`` ``(..., 3, 3)`` (draws at once)."""
+        odometry = [np.zeros(seq_z.shape[:-2] + (3,))]
+        for k in range(seq_z.shape[-2]):
+            odometry.append(posegraph.compose(odometry[-1], seq_z[..., k, :]))
+        at_jb = posegraph.compose(loop_z[..., a, :], posegraph.relative(odometry[pairs[a, 1]], odometry[pairs[b, 1]]))
+        at_ib = posegraph.compose(at_jb, posegraph.invert(loop_z[..., b, :]))
         return posegraph.compose(at_ib, posegraph.relative(odometry[pairs[b, 0]], odometry[pairs[a, 0]]))
 
     moved = loops.z.copy()
     moved[0] = posegraph.compose(moved[0], np.array([0.0, 0.05, 0.0]))
     norms = posegraph.pairwise_consistency(seq, loops._replace(z=moved))
     for a, b in [(0, 1), (0, 2)]:
-        draws = np.array([cycle(seq.z + rng.standard_normal(seq.z.shape) * seq.std,
-                                loops.z + rng.standard_normal(loops.z.shape) * loops.std, a, b) for _ in range(4000)])
+        draws = cycle(seq.z + rng.standard_normal((4000, *seq.z.shape)) * seq.std,
+                      loops.z + rng.standard_normal((4000, *loops.z.shape)) * loops.std, a, b)
         e = cycle(seq.z, moved, a, b)
         assert np.abs(e[:2]).max() > 0.04  # the cycle is open by the move
         assert norms[a, b] == pytest.approx(e @ np.linalg.solve(np.cov(draws.T), e), rel=0.1)
