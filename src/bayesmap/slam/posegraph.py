@@ -112,7 +112,8 @@ to 0.002 m in the mean; [validation](../validation/defaults.md#consistency_gate)
 
 MAX_LOOP_SETS = 1000
 """Most maximal consistent sets of loop edges enumerated (:func:`consistent_sets`); past it the largest set found so
-far stands for the largest (a bound on the enumeration's time, never reached on the shared logs)."""
+far stands for the largest, and the hypotheses are weighed among the sets found: a bound on the enumeration's time.
+Intel, ACES and CSAIL have at most 16; Freiburg 079's keyframes (167 loop edges) reach it, in under 1 s a round."""
 
 WEIGHED_LOOP_SETS = 16
 """The largest maximal consistent sets weighed as hypotheses (:func:`loop_hypotheses`), besides the empty set."""
