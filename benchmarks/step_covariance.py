@@ -35,7 +35,6 @@ from karto_peer import parse_seeds  # noqa: E402
 from seeded_logs import chosen_logs, seeded_log  # noqa: E402
 
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage  # noqa: E402
-from bayesmap.geometry.grid import Grid  # noqa: E402
 from bayesmap.model.motion import motion_logpdf  # noqa: E402
 from bayesmap.slam import pipeline, posegraph  # noqa: E402
 from bayesmap.slam.problem import log_slam_problem  # noqa: E402
@@ -53,14 +52,7 @@ def lattice() -> tuple[jax.Array, jax.Array]:
                                         * THETA_STEP)
 
 
-def local_grid() -> Grid:
-    """The loop closure's local-map grid (:data:`bayesmap.slam.posegraph.LOCAL_MAP_HALF_WIDTH`, ``RESOLUTION``)."""
-    n = int(round(2 * posegraph.LOCAL_MAP_HALF_WIDTH / posegraph.LOCAL_MAP_RESOLUTION))
-    half = posegraph.LOCAL_MAP_HALF_WIDTH
-    return Grid(shape=(n, n), resolution=posegraph.LOCAL_MAP_RESOLUTION, origin=(-half, -half))
-
-
-def step_posterior(grid: Grid, xy, theta, local_poses, neighbour_scans, center, prev, increment, cov, scan, power):
+def step_posterior(grid, xy, theta, local_poses, neighbour_scans, center, prev, increment, cov, scan, power):
     """The mean ``(3,)`` and covariance ``(3, 3)`` of the front end's score ``power * S + L`` normalized over the
     lattice ``center + (xy, theta)`` (world frame shifted to the local map's center)."""
     fields = add_to_fields(empty_fields(grid), grid, local_poses, *neighbour_scans)
@@ -80,7 +72,7 @@ def run(name: str, seed: int, neighbours: int) -> str:
     data = pipeline.scan_data(problem)
     front = pipeline.front_end(problem, data)
     path, edges, _ = posegraph.close_loops(front, data)
-    grid, (xy, theta) = local_grid(), lattice()
+    grid, (xy, theta) = posegraph.local_map_grid(), lattice()
     posterior = jax.jit(step_posterior, static_argnums=0)
     angles, readings, returned = (np.asarray(a) for a in (data.sensor_angles, data.readings, data.returned))
     increments, covs = np.asarray(data.increments), np.asarray(data.covs)

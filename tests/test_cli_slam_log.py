@@ -24,7 +24,7 @@ from bayesmap.slam.pipeline import (
     final_map_power,
     scan_data,
 )
-from bayesmap.slam.posegraph import SEQUENTIAL_STD, LoopHypotheses
+from bayesmap.slam.posegraph import SEQUENTIAL_STD, Edges, LoopHypotheses
 from bayesmap.slam.problem import log_slam_problem
 from helpers import SHARED_DATA, run_cli, run_main
 
@@ -311,8 +311,9 @@ def test_summary_json_counts_the_loop_hypotheses_over_one_percent():
     """summary.json's ``loop_hypotheses``: of three weighed hypotheses (0.98, 0.015, 0.005) two weigh over 1 %; the
     weights and edge counts as they are, most probable first, and the path samples each drew of 100, plain JSON; no
     hypotheses (no loop edge): null."""
+    loops = Edges(np.arange(4), np.arange(40, 44), np.zeros((4, 3)), np.full((4, 3), 0.1))
     hypotheses = LoopHypotheses([np.array([0, 1, 2]), np.array([3]), np.zeros(0, np.int64)],
-                                np.array([0.98, 0.015, 0.005]), 2)
+                                np.array([0.98, 0.015, 0.005]), 2, loops)
     summary = json.loads(json.dumps(loop_hypotheses_summary(hypotheses, 100)))
     assert summary == {"above_1_percent": 2, "weighed": 3, "consistent_sets": 2, "weights": [0.98, 0.015, 0.005],
                        "loop_edges": [3, 1, 0], "samples": [98, 2, 0]}  # 1.5 and 0.5: the larger remainder first

@@ -10,6 +10,7 @@ from hypothesis import given, settings, strategies
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import march_first_hit
+from bayesmap.io.rosbag import compose_poses, invert_pose
 from bayesmap.model.motion import compose, make_motion_params, odometry_controls
 from bayesmap.progress import Progress
 from bayesmap.slam import posegraph
@@ -238,6 +239,15 @@ def drifted_square_loop():
     return truth, seq._replace(z=z), np.asarray(drifted)
 
 
+def square_loop_with_a_false_match():
+    """:func:`drifted_square_loop` and four loop edges, three measured exactly and the last (4 -> 12) a meter off
+    along x, as a corridor matched along its axis: ``(truth, seq, drifted, loops)``."""
+    truth, seq, drifted = drifted_square_loop()
+    i, j = np.array([0, 1, 0, 4]), np.array([15, 15, 14, 12])
+    measured = posegraph.relative(truth[i], truth[j])
+    measured[3, 0] += 1.0
+    return truth, seq, drifted, posegraph.Edges(i, j, measured, np.tile([0.05, 0.05, 0.02], (4, 1)))
+
 def test_pose_graph_closes_a_loop():
     """A square loop whose sequential edges carry a 0.15 rad heading error at one step (the path ends over 0.5 m off):
     with one correct loop edge (last -> first) the optimized path is within 0.25 m of the truth everywhere (the
@@ -259,11 +269,7 @@ def test_the_loop_gate_drops_a_false_loop_match():
     edges' a few) and drops only it, and the re-solved path is the solution of the graph without it (to 1 mm). The
     false edge matters: the robust solve that keeps it is twice as far from the truth on average (0.14 m against
     0.07 m, deterministic; the bound is 0.6 of it)."""
-    truth, seq, drifted = drifted_square_loop()
-    i, j = np.array([0, 1, 0, 4]), np.array([15, 15, 14, 12])
-    measured = posegraph.relative(truth[i], truth[j])
-    measured[3, 0] += 1.0
-    loops = posegraph.Edges(i, j, measured, np.tile([0.05, 0.05, 0.02], (4, 1)))
+    truth, seq, drifted, loops = square_loop_with_a_false_match()
     robust = posegraph.optimize_pose_graph(drifted, posegraph.concat_edges(seq, loops))
     gated, kept, _ = posegraph.optimize_with_loop_gate(drifted, seq, loops)
     assert list(zip(kept.i, kept.j)) == [(0, 15), (1, 15), (0, 14)]
@@ -279,11 +285,7 @@ def test_the_gate_keeps_the_hypothesis_without_the_false_loop_match():
     norms are 40-53; the true edges' cycles close exactly here), so the maximal consistent sets are the three true
     edges and the false one alone, and weighed against each other and the empty set the true three take all the
     weight (each true edge left out costs its Gaussian density against the search window's uniform one)."""
-    truth, seq, drifted = drifted_square_loop()
-    i, j = np.array([0, 1, 0, 4]), np.array([15, 15, 14, 12])
-    measured = posegraph.relative(truth[i], truth[j])
-    measured[3, 0] += 1.0
-    loops = posegraph.Edges(i, j, measured, np.tile([0.05, 0.05, 0.02], (4, 1)))
+    truth, seq, drifted, loops = square_loop_with_a_false_match()
     norms = posegraph.pairwise_consistency(seq, loops)
     gate = posegraph.CONSISTENCY_GATE
     assert np.all(norms[3, :3] > 2 * gate) and np.all(norms[:3, 3] > 2 * gate)
@@ -314,13 +316,14 @@ def test_the_cycle_norm_is_the_cycles_monte_carlo_covariance():
         """The cycle's end for edges ``seq_z`` ``(..., 60, 3)`` and ``loop_z`` ``(..., 3, 3)`` (draws at once)."""
         odometry = [np.zeros(seq_z.shape[:-2] + (3,))]
         for k in range(seq_z.shape[-2]):
-            odometry.append(posegraph.compose(odometry[-1], seq_z[..., k, :]))
-        at_jb = posegraph.compose(loop_z[..., a, :], posegraph.relative(odometry[pairs[a, 1]], odometry[pairs[b, 1]]))
-        at_ib = posegraph.compose(at_jb, posegraph.invert(loop_z[..., b, :]))
-        return posegraph.compose(at_ib, posegraph.relative(odometry[pairs[b, 0]], odometry[pairs[a, 0]]))
+            odometry.append(compose_poses(odometry[-1], seq_z[..., k, :]))
+        at_jb = compose_poses(loop_z[..., a, :], posegraph.relative(odometry[pairs[a, 1]], odometry[pairs[b, 1]]))
+        at_ib = compose_poses(at_jb, invert_pose(loop_z[..., b, :]))
+        end = compose_poses(at_ib, posegraph.relative(odometry[pairs[b, 0]], odometry[pairs[a, 0]]))
+        return np.concatenate([end[..., :2], posegraph.wrap_angle(end[..., 2:])], axis=-1)
 
     moved = loops.z.copy()
-    moved[0] = posegraph.compose(moved[0], np.array([0.0, 0.05, 0.0]))
+    moved[0] = compose_poses(moved[0], np.array([0.0, 0.05, 0.0]))
     norms = posegraph.pairwise_consistency(seq, loops._replace(z=moved))
     for a, b in [(0, 1), (0, 2)]:
         draws = cycle(seq.z + rng.standard_normal((4000, *seq.z.shape)) * seq.std,

@@ -37,6 +37,7 @@ import scipy.sparse.linalg
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
+from bayesmap.io.rosbag import compose_poses, invert_pose
 from bayesmap.model.motion import wrap_angle
 from bayesmap.progress import ProgressCallback, report
 from bayesmap.slam.scanmatch import (
@@ -129,23 +130,6 @@ SOLVE_COLUMNS = 384
 """Right-hand sides per sparse solve in :func:`marginal_covariances` (bounds its memory to ``3 S x 384``)."""
 
 
-class LoopHypotheses(NamedTuple):
-    """Hypotheses about which loop edges are true matches (:func:`loop_hypotheses`).
-
-    Attributes:
-        sets: the weighed hypotheses, each an ``(n,)`` int array of indices into the loop edges (sorted), the most
-            probable first; the empty set (every loop edge a false match) is always among them.
-        weights: ``(H,)`` float64 their posterior probabilities, normalized over ``sets`` (descending).
-        enumerated: how many maximal consistent sets the consistency graph has (at most :data:`MAX_LOOP_SETS`).
-        loops: the loop edges the sets index (:class:`Edges`), or None.
-    """
-
-    sets: list
-    weights: np.ndarray
-    enumerated: int
-    loops: Edges | None = None
-
-
 class Edges(NamedTuple):
     """Edges of a pose graph: ``i``, ``j`` ``(E,)`` int node indices, ``z`` ``(E, 3)`` measured pose of ``j`` in
     ``i``'s frame (m, m, rad), ``std`` ``(E, 3)`` its standard deviations."""
@@ -156,6 +140,23 @@ class Edges(NamedTuple):
     std: np.ndarray
 
 
+class LoopHypotheses(NamedTuple):
+    """Hypotheses about which loop edges are true matches (:func:`loop_hypotheses`).
+
+    Attributes:
+        sets: the weighed hypotheses, each an ``(n,)`` int array of indices into the loop edges (sorted), the most
+            probable first; the empty set (every loop edge a false match) is always among them.
+        weights: ``(H,)`` float64 their posterior probabilities, normalized over ``sets`` (descending).
+        enumerated: how many maximal consistent sets the consistency graph has (at most :data:`MAX_LOOP_SETS`).
+        loops: the loop edges the sets index (:class:`Edges`).
+    """
+
+    sets: list
+    weights: np.ndarray
+    enumerated: int
+    loops: Edges
+
+
 def relative(a, b) -> np.ndarray:
     """Pose ``b`` ``(..., 3)`` in the frame of pose ``a`` ``(..., 3)`` (numpy; theta wrapped to ``[-pi, pi)``)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
@@ -163,23 +164,6 @@ def relative(a, b) -> np.ndarray:
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1],
                      wrap_angle(b[..., 2] - a[..., 2])], axis=-1)
-
-
-def compose(a, b) -> np.ndarray:
-    """The pose ``b`` ``(..., 3)``, given in the frame of pose ``a`` ``(..., 3)``, in ``a``'s own frame: ``a (+) b``
-    (numpy float64; theta wrapped to ``[-pi, pi)``). ``compose(a, relative(a, b))`` is ``b``."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1], a[..., 1] + s * b[..., 0] + c * b[..., 1],
-                     wrap_angle(a[..., 2] + b[..., 2])], axis=-1)
-
-
-def invert(a) -> np.ndarray:
-    """The inverse ``(..., 3)`` of the relative poses ``a`` ``(..., 3)``: ``compose(a, invert(a))`` is the identity
-    (numpy float64; theta wrapped to ``[-pi, pi)``)."""
-    a = np.asarray(a, np.float64)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack([-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], wrap_angle(-a[..., 2])], axis=-1)
 
 
 def sequential_edges(path) -> Edges:
@@ -203,7 +187,9 @@ def loop_candidates(path) -> np.ndarray:
     return np.asarray(pairs, np.int64).reshape(-1, 2)
 
 
-def _local_grid() -> Grid:
+def local_map_grid() -> Grid:
+    """The square grid of a local map (:func:`match_to_local_maps`): +-:data:`LOCAL_MAP_HALF_WIDTH` meters around
+    its center (the origin), cells of :data:`LOCAL_MAP_RESOLUTION`."""
     n = int(round(2 * LOCAL_MAP_HALF_WIDTH / LOCAL_MAP_RESOLUTION))
     return Grid(shape=(n, n), resolution=LOCAL_MAP_RESOLUTION, origin=(-LOCAL_MAP_HALF_WIDTH, -LOCAL_MAP_HALF_WIDTH))
 
@@ -272,7 +258,7 @@ def match_to_local_maps(path, data: ScanData, scans, neighbours, starts, centers
     for name, index in (("scans", scans), ("neighbours", neighbours)):
         if index.size and (index.min() < 0 or index.max() >= count):
             raise BayesmapError(f"{name} must index the {count} scans of the data, got {index.min()}..{index.max()}")
-    grid = _local_grid()
+    grid = local_map_grid()
     steps = lattices(levels)
     angles, readings, returned = (jnp.asarray(np.asarray(a)) for a in (data.sensor_angles, data.readings,
                                                                        data.returned))
@@ -387,8 +373,9 @@ def optimize_pose_graph(path, edges: Edges, scale: float = CAUCHY_SCALE) -> np.n
 
 
 def odometry_path(sequential: Edges) -> np.ndarray:
-    """The path ``(S, 3)`` float64 that the sequential edges ``t - 1 -> t`` chain, from the origin: the front end's
-    path up to one rigid motion.
+    """The path ``(S, 3)`` float64 that the sequential edges ``t - 1 -> t`` chain, from the origin
+    (:func:`bayesmap.io.rosbag.compose_poses`, headings summed, not wrapped): the front end's path up to one rigid
+    motion.
 
     Raises:
         BayesmapError: if the edges are not ``0 -> 1, 1 -> 2, ...`` in order.
@@ -398,7 +385,7 @@ def odometry_path(sequential: Edges) -> np.ndarray:
         raise BayesmapError("sequential edges must be 0 -> 1, 1 -> 2, ... in order")
     path = np.zeros((len(i) + 1, 3))
     for k, z in enumerate(np.asarray(sequential.z, np.float64)):
-        path[k + 1] = compose(path[k], z)
+        path[k + 1] = compose_poses(path[k], z)
     return path
 
 
@@ -472,7 +459,7 @@ def pairwise_consistency(sequential: Edges, loops: Edges) -> np.ndarray:
         ``frame`` the transform from the odometry path's frame to the cycle's."""
         low, high = np.minimum(start, stop), np.maximum(start, stop)
         xy_var, weight, first, second = (s[high] - s[low] for s in sums)
-        anchor = compose(invert(frame), end)[..., :2]  # the cycle's end in the odometry path's frame
+        anchor = compose_poses(invert_pose(frame), end)[..., :2]  # the cycle's end in the odometry path's frame
         outer = (weight[:, None, None] * anchor[:, :, None] * anchor[:, None, :] - anchor[:, :, None] * first[:, None]
                  - first[:, :, None] * anchor[:, None] + second)  # sum_k w_k (anchor - p_k)(anchor - p_k)^T
         block = np.zeros((len(start), 3, 3))
@@ -487,13 +474,14 @@ def pairwise_consistency(sequential: Edges, loops: Edges) -> np.ndarray:
     a, b = (k.ravel() for k in np.meshgrid(np.arange(count), np.arange(count), indexing="ij"))
     i, j, z = np.asarray(loops.i), np.asarray(loops.j), np.asarray(loops.z, np.float64)
     at_ja = z[a]
-    at_jb = compose(at_ja, relative(path[j[a]], path[j[b]]))
-    at_ib = compose(at_jb, invert(z[b]))
-    end = compose(at_ib, relative(path[i[b]], path[i[a]]))
+    at_jb = compose_poses(at_ja, relative(path[j[a]], path[j[b]]))
+    at_ib = compose_poses(at_jb, invert_pose(z[b]))
+    end = compose_poses(at_ib, relative(path[i[b]], path[i[a]]))
+    end[:, 2] = wrap_angle(end[:, 2])  # the cycle's error: its heading in [-pi, pi)
     cov = (_pivot_covariance(loop_std[a, 0] ** 2, loop_std[a, 2] ** 2, end[:, :2] - at_ja[:, :2])
            + _pivot_covariance(loop_std[b, 0] ** 2, loop_std[b, 2] ** 2, end[:, :2] - at_jb[:, :2])
-           + stretch(j[a], j[b], compose(at_ja, invert(path[j[a]])), end)
-           + stretch(i[b], i[a], compose(at_ib, invert(path[i[b]])), end))
+           + stretch(j[a], j[b], compose_poses(at_ja, invert_pose(path[j[a]])), end)
+           + stretch(i[b], i[a], compose_poses(at_ib, invert_pose(path[i[b]])), end))
     norms = np.einsum("ni,ni->n", end, np.linalg.solve(cov, end[:, :, None])[:, :, 0]).reshape(count, count)
     np.fill_diagonal(norms, 0.0)
     return norms
@@ -567,7 +555,7 @@ def loop_hypotheses(path, sequential: Edges, loops: Edges, sets: tuple | None = 
     (:func:`odometry_path`), where it fits with zero residuals and its Laplace approximation is exact."""
     sets, count = consistent_sets(pairwise_consistency(sequential, loops)) if sets is None else sets
     sets = [np.zeros(0, np.int64), *sets[:weighed]]
-    odometry = compose(np.asarray(path, np.float64)[0], odometry_path(sequential))
+    odometry = compose_poses(np.asarray(path, np.float64)[0], odometry_path(sequential))
     logs = np.array([log_evidence(path if len(c) else odometry, sequential, loops, c) for c in sets])
     order = np.argsort(-logs, kind="stable")
     weights = np.exp(logs[order] - logs.max())
