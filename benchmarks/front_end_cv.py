@@ -86,7 +86,8 @@ def start_path(log, truth, scans: str, parameter: str, value: float) -> dict:
     setting = {**DEFAULTS, parameter: value}
     problem = log_slam_problem(log, kept, likelihood_power=setting["power"])
     data = pipeline.scan_data(problem)
-    front = pipeline.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"], window=setting["window"])
+    front = pipeline.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"],
+                               window=setting["window"]).path
     closed, edges, _ = posegraph.close_loops(front, data, consistency_gate=setting["consistency_gate"])
     truth = truth if kept is None else truth[kept]
     return {"parameter": parameter, "value": value, "scans": scans,

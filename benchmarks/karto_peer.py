@@ -22,8 +22,8 @@ Usage: PYTHONPATH=src python benchmarks/karto_peer.py [--seeds 0-4] [--logs inte
 with the same folder loads it instead of running the methods again (delete a file to rerun it): a long grid can be
 split between processes (``--logs``) or stopped and resumed, and one last call with every log prints the whole
 table. bayesmap's run also leaves ``DIR/LOG-sSEED.npz``, the arrays ``pose_cov_cv.py --cache DIR`` reads (mean path,
-the chain's and the unit-scale graph's covariances, the truth), so that the coverage factor can be refitted on the
-same runs.
+the chain's and the graph's covariances, the truth), so that the ellipses' calibration can be checked on the same
+runs.
 
 Runtime is each method's own measurement in seconds: for Karto the time spent in ``GraphSlam.process_scan`` over
 all scans (the Karto venv's interpreter start-up, imports and file exchange, about 0.5 s per run, are excluded;
@@ -50,7 +50,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage
 from bayesmap.io.carmen import beam_offsets, read_carmen
 from bayesmap.io.rosbag import compose_poses, invert_pose
-from bayesmap.slam.pipeline import GRAPH_COV_SCALE, run_log_slam
+from bayesmap.slam.pipeline import run_log_slam
 from bayesmap.slam.problem import log_slam_problem
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -213,7 +213,7 @@ def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
     result = run_log_slam(slam_problem, seed=problem.seed, final_map_sweeps=0)  # the path is scored, not the map
     extra["coverage"] = ellipse_coverage(result.mean_path, result.pose_cov, problem.truth)
     extra["position_sd_median_m"] = float(np.median(np.sqrt(result.pose_cov[:, 0, 0] + result.pose_cov[:, 1, 1])))
-    extra[ARRAYS] = slam_run_arrays(result, problem.truth, GRAPH_COV_SCALE)
+    extra[ARRAYS] = slam_run_arrays(result, problem.truth)
     return result.mean_path, result.runtime_s
 
 

@@ -32,7 +32,7 @@ def ates(name: str, seed: int, factors: list[float]) -> list[float]:
     log, truth = seeded_log(name, seed)
     problem = log_slam_problem(log)
     data = scan_data(problem)
-    start = front_end(problem, data)
+    start = front_end(problem, data).path
     out = []
     saved = posegraph.LOOP_STD
     try:

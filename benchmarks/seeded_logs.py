@@ -88,15 +88,15 @@ def add_log_seed_options(parser: argparse.ArgumentParser, json_option: bool = Tr
 
 def run_file(cache: Path, name: str, seed: int, suffix: str) -> Path:
     """Where a benchmark keeps one (log, seed) run in its cache folder: ``cache/NAME-sSEED.SUFFIX`` (``karto_peer.py``
-    writes its records and bayesmap's arrays there, ``pose_cov_cv.py`` reads and writes the arrays)."""
+    writes its records and bayesmap's arrays there)."""
     return cache / f"{name}-s{seed}.{suffix}"
 
 
-def slam_run_arrays(result, truth: np.ndarray, graph_scale: float) -> dict:
-    """The arrays of one ``run_log_slam`` result that ``pose_cov_cv.py`` refits the graph's scale on: the mean path,
-    the chain's covariance (the reported one less ``graph_scale**2`` times the graph's), the graph's covariance at
-    unit scale, the true poses and the runtime; ``graph_scale`` the scale the run was made with."""
-    return {"mean": result.mean_path, "chain_cov": result.pose_cov - graph_scale**2 * result.graph_cov,
+def slam_run_arrays(result, truth: np.ndarray) -> dict:
+    """The arrays of one ``run_log_slam`` result: the mean path, the chain's covariance (the reported one less the
+    graph's, exact where one loop-closure hypothesis holds every sample), the graph's covariance, the true poses and
+    the runtime."""
+    return {"mean": result.mean_path, "chain_cov": result.pose_cov - result.graph_cov,
             "graph_cov": result.graph_cov, "truth": truth, "runtime_s": result.runtime_s}
 
 

@@ -56,11 +56,11 @@ def error_sources(log, truth, slip: float, reading_scale: float = 1.0) -> dict:
     problem = log_slam_problem(log)
     scans = pipeline.scan_data(problem)
     scans = scans._replace(readings=np.asarray(scans.readings) * reading_scale)
-    front = pipeline.front_end(problem, scans)
+    front = pipeline.front_end(problem, scans).path
     closed, edges, _ = posegraph.close_loops(front, scans)
     loop = np.arange(len(edges.i)) >= len(front) - 1  # close_loops puts the sequential edges first
-    sequential = posegraph.Edges(*(a[~loop] for a in edges))
-    loops = posegraph.Edges(*(a[loop] for a in edges))
+    sequential = edges.take(~loop)
+    loops = edges.take(loop)
     true_loops = loops._replace(z=posegraph.relative(truth[loops.i], truth[loops.j]))
     true_steps = sequential._replace(z=posegraph.relative(truth[:-1], truth[1:]))
     loop_error = loops.z - true_loops.z

@@ -17,14 +17,14 @@ from bayesmap.io.tum import read_tum, tum_stamps, write_tum
 from bayesmap.runs.slam import loop_hypotheses_summary
 from bayesmap.slam.keyframes import keyframe_problem, owners, select_keyframes
 from bayesmap.slam.pipeline import (
+    FINAL_MAP_NOISE,
     FINAL_MAP_SWEEPS,
-    GRAPH_COV_SCALE,
     POSE_SWEEPS,
-    final_map_noise,
     final_map_power,
+    front_end,
     scan_data,
 )
-from bayesmap.slam.posegraph import SEQUENTIAL_STD, Edges, LoopHypotheses
+from bayesmap.slam.posegraph import Edges, LoopHypotheses
 from bayesmap.slam.problem import log_slam_problem
 from helpers import SHARED_DATA, run_cli, run_main
 
@@ -72,7 +72,17 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     samples = np.load(log_run / "trajectory_samples.npy")
     cov = np.load(log_run / "pose_cov.npy")
     assert samples.shape == (2 * POSE_SWEEPS, 25, 3) and cov.shape == (25, 3, 3)  # both rounds kept
-    assert np.allclose(poses[:, :2], samples[:, :, :2].mean(axis=0), atol=1e-5)  # the TUM file's 6 decimals
+    # the samples' mean is the mean path (the TUM file's 6 decimals): a keyframe's samples are the chain's plus the
+    # graph's deviations in antithetic pairs; a scan between keyframes is its keyframe's sample composed with its
+    # offset, whose mean turns the offset by E[R(delta)] instead of R(0), off by at most |offset| E[delta^2] / 2
+    # (delta the keyframe's heading deviation; |exp(i d) - 1 - i d| <= d^2 / 2, E[delta] = 0)
+    own = select_keyframes(log.poses[:25])[owners(25, select_keyframes(log.poses[:25]))]
+    delta = samples[:, own, 2] - poses[own, 2]
+    delta = (delta + np.pi) % (2 * np.pi) - np.pi
+    reach = np.linalg.norm(poses[:, :2] - poses[own, :2], axis=1)
+    off = np.linalg.norm(poses[:, :2] - samples[:, :, :2].mean(axis=0), axis=1)
+    assert np.all(off <= 2e-5 + reach * np.mean(delta**2, axis=0) / 2), off
+    assert np.all(off[own == np.arange(25)] <= 2e-5)
     assert np.allclose(poses[0], log.poses[0], atol=1e-5)  # the first pose anchors the frame: the odometry's
     summary = json.loads((log_run / "summary.json").read_text())
     settings = summary["settings"]
@@ -83,12 +93,10 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert final["sweeps"] == FINAL_MAP_SWEEPS and final["geometry"] == "chord"
     for name in ("coupling", "wall_pass_prob"):
         assert final[name] == pytest.approx(float(getattr(known.params, name))) and final[name] > 0, name
-    # its noise is the model's widened by the keyframes' mean position variance (pose_cov.npy, as written; 23 of
-    # the 25 scans are keyframes, settings["keyframes"])
+    # its noise is the model's widened for the path's error (FINAL_MAP_NOISE); 23 of the 25 scans are keyframes
     keyframes = select_keyframes(log.poses[:25])
     assert settings["keyframes"] == len(keyframes) == 23
-    assert final["sensor_noise"] == pytest.approx(final_map_noise(float(known.params.sensor_noise), cov[keyframes]),
-                                                  rel=1e-9)
+    assert final["sensor_noise"] == FINAL_MAP_NOISE
     assert final["sensor_noise"] > float(known.params.sensor_noise)
     # its power follows the readings' density at the mean path (trajectory.tum, rounded to 1e-6: a few endpoints
     # may change cells, hence rel 1e-2), not at the odometry, whose endpoints smear over twice the cells here
@@ -101,13 +109,20 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert final_map_power(slam_problem, data, slam_problem.odometry, wide) == pytest.approx(known.likelihood_power)
     assert abs(at_mean - known.likelihood_power) > 0.2 * known.likelihood_power
     assert summary["pose_samples"] == len(samples) and 0 <= summary["acceptance_rate"] <= 1
-    # the pose graph's spread is in the covariances: 25 scans close no loop (LOOP_GAP), so the graph is a chain of
-    # sequential edges over the keyframes and keyframe k's (x, y) block has trace at least 2 k SEQUENTIAL_STD[0]^2
-    # (heading errors add); a scan between keyframes has its keyframe's and more
-    assert settings["graph_cov_scale"] == GRAPH_COV_SCALE and summary["loop_edges"] == 0
+    # the pose graph's spread is in the covariances, with no factor: 25 scans close no loop (LOOP_GAP), so the graph
+    # is a chain of sequential edges over the keyframes, each with its front-end step's posterior covariance
+    # Sigma_t, and keyframe k's (x, y) block is the sum over steps 1..k of [R, l] Sigma_t [R, l]^T (R a rotation, l
+    # the lever arm to keyframe k), whose trace is at least that of the (x, y) block given the heading, the Schur
+    # complement Sigma_xy - Sigma_xt Sigma_tx / Sigma_tt (its minimum over l); a scan between keyframes has its
+    # keyframe's and more
+    assert "graph_cov_scale" not in settings and summary["loop_edges"] == 0
     assert summary["loop_hypotheses"] is None  # no loop edge, nothing to weigh
+    steps = front_end(chain, scan_data(chain)).step_cov
+    given_heading = steps[:, :2, :2] - np.einsum("si,sj->sij", steps[:, :2, 2], steps[:, :2, 2]) / steps[:, 2:, 2:]
+    accumulated = np.concatenate([[0.0], np.cumsum(np.trace(given_heading, axis1=1, axis2=2))])
     k = owners(25, keyframes)
-    assert np.all(cov[:, 0, 0] + cov[:, 1, 1] >= GRAPH_COV_SCALE**2 * 2 * k * SEQUENTIAL_STD[0] ** 2 - 1e-12)
+    assert np.all(cov[:, 0, 0] + cov[:, 1, 1] >= accumulated[k] * (1 - 1e-6))
+    assert accumulated[-1] > 20 * 2 * 0.012**2 / 12  # the steps are wider than the lattice's floor
     posterior = np.load(log_run / "posterior.npy")
     assert list(posterior.shape) == summary["grid"]["shape"] and summary["grid"]["resolution"] == 0.2
     assert posterior.min() >= 0 and posterior.max() <= 1

@@ -19,6 +19,9 @@ from bayesmap.slam.posegraph import (
     optimize_pose_graph,
     relative,
     sample_deviations,
+    whitening_matrices,
+    with_covariances,
+    with_step_covariances,
 )
 
 
@@ -39,8 +42,24 @@ def _graph(seed=0, count=9):
     return path, Edges(i, j, z, std)
 
 
-def test_marginal_covariances_are_the_inverse_of_the_numerical_information():
+def _covariances(rng, count):
+    """``count`` random correlated covariances ``(count, 3, 3)``: standard deviations 0.02-0.1, correlations
+    from a random factor."""
+    factor = rng.normal(0, 1, (count, 3, 3)) + 2 * np.eye(3)
+    cov = factor @ np.swapaxes(factor, 1, 2)
+    sd = np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
+    correlation = cov / (sd[:, :, None] * sd[:, None, :])
+    wanted = rng.uniform(0.02, 0.1, (count, 3))
+    return correlation * wanted[:, :, None] * wanted[:, None, :]
+
+
+@pytest.mark.parametrize("full", [False, True])
+def test_marginal_covariances_are_the_inverse_of_the_numerical_information(full):
+    """Independent edge components (``std``), or full covariances on every sequential edge (the front end's step
+    posteriors: ``W e`` whitened by the Cholesky factor's inverse)."""
     path, edges = _graph()
+    if full:
+        edges = with_step_covariances(edges, _covariances(np.random.default_rng(3), len(path) - 1))
     count = len(path)
 
     def residuals(x):
@@ -94,7 +113,7 @@ def test_graph_errors_name_the_value():
     path, edges = _graph()
     with pytest.raises(BayesmapError, match="pose 4 has no edge"):
         keep = (edges.i != 4) & (edges.j != 4)
-        marginal_covariances(path, Edges(*(a[keep] for a in edges)))
+        marginal_covariances(path, edges.take(keep))
     with pytest.raises(BayesmapError, match="positive and finite"):
         marginal_covariances(path, edges._replace(std=np.where(np.arange(len(edges.i))[:, None] == 2, 0.0, edges.std)))
     pieces = Edges(np.array([0, 2, 3]), np.array([1, 3, 4]), np.zeros((3, 3)), np.full((3, 3), 0.1))
@@ -106,26 +125,50 @@ def test_graph_errors_name_the_value():
         marginal_covariances(path[:, :2], edges)
 
 
+def test_full_covariances_whiten_as_their_inverse():
+    """with_covariances: ``W^T W = Sigma^-1`` for each edge, ``std`` the diagonal's roots; a diagonal covariance
+    gives the same residuals, Jacobians and marginal covariances as ``std`` itself (to rounding); the loop edges of
+    with_step_covariances keep their ``std``; a covariance that is not positive definite is named."""
+    path, edges = _graph(seed=1)
+    cov = _covariances(np.random.default_rng(5), len(edges.i))
+    full = with_covariances(edges, cov)
+    w = whitening_matrices(full)
+    np.testing.assert_allclose(np.swapaxes(w, 1, 2) @ w, np.linalg.inv(cov), rtol=1e-9)
+    np.testing.assert_allclose(full.std, np.sqrt(np.diagonal(cov, axis1=1, axis2=2)), rtol=1e-12)
+    diagonal = with_covariances(edges, np.einsum("ei,ij->eij", np.square(edges.std), np.eye(3)))
+    np.testing.assert_allclose(edge_residuals(path, diagonal), edge_residuals(path, edges), rtol=1e-12)
+    for got, want in zip(edge_jacobians(path, diagonal), edge_jacobians(path, edges)):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(marginal_covariances(path, diagonal), marginal_covariances(path, edges), rtol=1e-9)
+    steps = with_step_covariances(edges, cov[: len(path) - 1])
+    assert steps.whitening.shape == (len(edges.i), 3, 3)
+    np.testing.assert_array_equal(steps.std[len(path) - 1:], edges.std[len(path) - 1:])
+    np.testing.assert_allclose(whitening_matrices(steps)[len(path) - 1:],
+                               np.eye(3) / edges.std[len(path) - 1:, :, None], rtol=1e-12)
+    bad = cov.copy()
+    bad[4] = np.diag([0.01, -0.01, 0.01])
+    with pytest.raises(BayesmapError, match="edge 4's covariance is not positive definite"):
+        with_covariances(edges, bad)
+    with pytest.raises(BayesmapError, match="cov must have shape"):
+        with_covariances(edges, cov[:3])
+
+
 def test_reported_uncertainty_is_the_chains_plus_the_graphs():
-    """graph_uncertainty keeps the chain's mean path (antithetic deviations), adds scale^2 times the graph's
-    covariance to the chain's, and its samples spread as that sum: 2000 samples are 1000 antithetic pairs, so a
+    """graph_uncertainty keeps the chain's mean path (antithetic deviations), adds the graph's covariance to the
+    chain's, and its samples spread as that sum: 2000 samples are 1000 antithetic pairs, so a
     variance estimate's relative standard error is sqrt(2 / 1000) = 4.5 %; allow 4 of them."""
     path, edges = _graph(seed=2)
     rng = np.random.default_rng(0)
     chain = path + rng.normal(0, 0.001, (2000, len(path), 3))
     chain[:, 0] = path[0]
-    mean, cov, samples, graph_cov = graph_uncertainty(5, chain, edges, scale=0.5)
+    mean, cov, samples, graph_cov = graph_uncertainty(5, chain, edges)
     chain_mean, chain_cov = pose_summary(chain)
     np.testing.assert_allclose(mean, chain_mean, atol=1e-12)
     np.testing.assert_allclose(pose_summary(samples)[0][:, :2], chain_mean[:, :2], atol=1e-9)
     np.testing.assert_allclose(graph_cov, marginal_covariances(chain_mean, edges), rtol=1e-12)
-    np.testing.assert_allclose(cov, chain_cov + 0.25 * graph_cov, rtol=1e-12)
+    np.testing.assert_allclose(cov, chain_cov + graph_cov, rtol=1e-12)
     emp = pose_summary(samples)[1][1:, [0, 1, 2], [0, 1, 2]]
     np.testing.assert_allclose(emp / cov[1:, [0, 1, 2], [0, 1, 2]], 1.0, atol=4 * np.sqrt(2 / 1000))
-    zero = graph_uncertainty(5, chain, edges, scale=0.0)
-    np.testing.assert_allclose(zero[1], chain_cov, rtol=1e-12)
-    with pytest.raises(BayesmapError, match="scale must be a finite number >= 0, got -1"):
-        graph_uncertainty(5, chain, edges, scale=-1)
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -172,20 +215,21 @@ def test_a_second_loop_hypothesis_gets_its_share_of_the_samples():
     errors of a variance from 1,000 antithetic pairs, as above; the mean within 4 standard errors of the samples'
     spread). A second hypothesis without any weight changes nothing, to the bit."""
     path, edges = _graph(seed=2)
+    edges = with_step_covariances(edges, _covariances(np.random.default_rng(4), len(path) - 1))
     rng = np.random.default_rng(1)
     chain = path + rng.normal(0, 0.001, (2000, len(path), 3))
     chain[:, 0] = path[0]
-    loops = Edges(*(np.asarray(a)[len(path) - 1:] for a in edges))
+    loops = edges.take(slice(len(path) - 1, None))
     false = relative(path[2:3], path[7:8]) + np.array([[1.0, 0.0, 0.0]])
     loops = Edges(np.append(loops.i, 2), np.append(loops.j, 7), np.concatenate([loops.z, false]),
                   np.concatenate([loops.std, loops.std[1:]]))
     two = LoopHypotheses([np.array([0, 1]), np.array([0, 2])], np.array([0.75, 0.25]), 2, loops)
     assert hypothesis_counts(2000, two.weights).tolist() == [1500, 500]
     assert hypothesis_counts(7, [0.5, 0.3, 0.2]).tolist() == [4, 2, 1]
-    mean, cov, samples, graph_cov = graph_uncertainty(5, chain, edges, scale=0.5, hypotheses=two)
+    mean, cov, samples, graph_cov = graph_uncertainty(5, chain, edges, hypotheses=two)
     chain_mean, chain_cov = pose_summary(chain)
-    sequential = Edges(*(np.asarray(a)[: len(path) - 1] for a in edges))
-    second = optimize_pose_graph(chain_mean, concat_edges(sequential, Edges(*(a[[0, 2]] for a in loops))))
+    sequential = edges.take(slice(0, len(path) - 1))  # the step covariances: the second graph's sequential edges
+    second = optimize_pose_graph(chain_mean, concat_edges(sequential, loops.take([0, 2])))
     assert np.abs(second[:, :2] - chain_mean[:, :2]).max() > 0.3  # the false edge bends the path
     pairs = (samples[1500:1750] + samples[1750:]) / 2 - (chain[1500:1750] + chain[1750:]) / 2 + chain_mean
     np.testing.assert_allclose(pairs, np.broadcast_to(second, pairs.shape), atol=1e-9)
@@ -197,5 +241,5 @@ def test_a_second_loop_hypothesis_gets_its_share_of_the_samples():
     np.testing.assert_allclose(sample_cov[1:, [0, 1, 2], [0, 1, 2]] / cov[1:, [0, 1, 2], [0, 1, 2]], 1.0,
                                atol=4 * np.sqrt(2 / 1000))
     nothing = LoopHypotheses([np.array([0, 1]), np.array([0, 2])], np.array([1.0, 0.0]), 2, loops)
-    for got, want in zip(graph_uncertainty(5, chain, edges, 0.5, nothing), graph_uncertainty(5, chain, edges, 0.5)):
+    for got, want in zip(graph_uncertainty(5, chain, edges, nothing), graph_uncertainty(5, chain, edges)):
         np.testing.assert_array_equal(got, want)

@@ -14,7 +14,15 @@ from bayesmap.io.rosbag import compose_poses, invert_pose
 from bayesmap.model.motion import compose, make_motion_params, odometry_controls
 from bayesmap.progress import Progress
 from bayesmap.slam import posegraph
-from bayesmap.slam.scanmatch import LOCAL_MAP_DISTANCE, MIN_HIT_FRACTION, ScanData, correlative_path
+from bayesmap.slam.scanmatch import (
+    LOCAL_MAP_DISTANCE,
+    MIN_HIT_FRACTION,
+    ScanData,
+    correlative_path,
+    empty_fields,
+    step_lattice,
+    step_posterior,
+)
 
 pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
 
@@ -65,7 +73,7 @@ def test_correlative_path_recovers_the_true_path(window):
     grid, truth, odometry, beams, readings = room_scans()
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
     data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov))
-    path = correlative_path(odometry[0], data, grid.resolution, window=window)
+    path = correlative_path(odometry[0], data, grid.resolution, window=window).path
     assert np.abs(odometry - truth)[:, :2].max() > 0.1
     assert np.abs(path - truth)[:, :2].max() < 0.03
     assert np.abs(path - truth)[:, 2].max() < 0.02
@@ -98,12 +106,13 @@ def test_the_fields_follow_the_robot_down_a_corridor():
     odometry = noisy_odometry(truth, np.random.default_rng(1))
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
     data = ScanData(beams, readings, readings < 2.49, np.asarray(inc), np.asarray(cov))
-    small = correlative_path(odometry[0], data, grid.resolution, half_width=3.0)
-    large = correlative_path(odometry[0], data, grid.resolution, half_width=30.0)
+    small, small_cov = correlative_path(odometry[0], data, grid.resolution, half_width=3.0)
+    large, large_cov = correlative_path(odometry[0], data, grid.resolution, half_width=30.0)
     np.testing.assert_array_equal(small, large)
+    np.testing.assert_array_equal(small_cov, large_cov)
     seen = []
     np.testing.assert_array_equal(correlative_path(odometry[0], data, grid.resolution, half_width=3.0,
-                                                   progress=seen.append), small)
+                                                   progress=seen.append).path, small)
     assert seen == [Progress("front end", done, 30, "scan") for done in range(31)]
     odometry_error = np.abs(odometry - truth)[:, :2].max()
     assert odometry_error > 0.4
@@ -119,7 +128,7 @@ def test_a_window_shorter_than_every_step_leaves_the_odometry():
     grid, truth, odometry, beams, readings = room_scans()
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
     data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov))
-    path = correlative_path(odometry[0], data, grid.resolution, window=1e-6)
+    path = correlative_path(odometry[0], data, grid.resolution, window=1e-6).path
     steps = np.arange(len(path))[:, None] * np.array([0.003, 0.003, 0.0008]) + 1e-5
     assert np.all(np.abs(path - odometry) <= steps)
     assert np.abs(path - truth)[:, :2].max() > 0.1
@@ -138,7 +147,7 @@ def test_the_likelihood_power_weighs_the_scan_against_the_motion_model():
 
     def path(power, scale=1.0):
         data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov) * scale)
-        return correlative_path(odometry[0], data, grid.resolution, half_width=6.0, likelihood_power=power)
+        return correlative_path(odometry[0], data, grid.resolution, half_width=6.0, likelihood_power=power).path
 
     steps = np.arange(len(truth))[:, None] * np.array([0.003, 0.003, 0.0008]) + 1e-5
     tempered, tiny = path(0.1), path(1e-6)
@@ -184,14 +193,62 @@ def test_a_scan_that_misses_its_local_map_takes_the_odometrys_step():
     readings[6] = np.random.default_rng(3).uniform(0.3, 1.0, readings.shape[1])
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
     data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov))
-    guarded = correlative_path(odometry[0], data, grid.resolution, min_hit_fraction=0.3)
-    trusting = correlative_path(odometry[0], data, grid.resolution, min_hit_fraction=0.0)
+    guarded, guarded_cov = correlative_path(odometry[0], data, grid.resolution, min_hit_fraction=0.3)
+    trusting = correlative_path(odometry[0], data, grid.resolution, min_hit_fraction=0.0).path
     followed = np.abs(posegraph.relative(guarded[5], guarded[6]) - inc[5])
     assert followed.max() < 1e-4
     assert np.abs(posegraph.relative(trusting[5], trusting[6]) - inc[5]).max() > 1e-3
     later = np.r_[np.arange(6), np.arange(7, len(truth))]
     assert np.abs(guarded - truth)[later, :2].max() < 0.03
     assert np.abs(guarded - truth)[later, 2].max() < 0.02
+    # the step to the untrusted scan 6 has the motion model's covariance (plus the lattice's floor); a trusted step
+    # is far tighter than the odometry
+    np.testing.assert_allclose(guarded_cov[5], np.asarray(cov[5]) + np.asarray(step_lattice()[-1]), rtol=1e-5)
+    assert np.all(guarded_cov[6, [0, 1], [0, 1]] < np.asarray(cov[6])[[0, 1], [0, 1]] / 4)
+
+
+@pytest.mark.parametrize("heading", [0.0, 2.3])
+def test_a_step_posterior_without_a_map_is_the_motion_models(heading):
+    """With empty fields every candidate's scan score is the same, so the step's posterior is the motion model's
+    Gaussian: its covariance, in the previous pose's frame, is the step's covariance (correlations included, the
+    previous pose turned by 0 or 2.3 rad: a missing or wrong rotation into that frame fails), to the quadrature error
+    of the 13 x 13 x 9 lattice plus its floor (measured 0.1-0.5 % on these standard deviations of 3-5 cm and 0.01 rad;
+    the tolerance 2 % of each variance and 2 % of the scale of each covariance). Narrower than the lattice's
+    innermost cell, a deterministic step reads as the floor."""
+    grid = Grid(shape=(64, 64), resolution=0.05, origin=(0.0, 0.0))
+    sd = np.array([0.05, 0.03, 0.01])
+    corr = np.array([[1.0, 0.4, -0.3], [0.4, 1.0, 0.2], [-0.3, 0.2, 1.0]])
+    cov = corr * np.outer(sd, sd)
+    increment = np.array([0.3, 0.05, 0.1])
+    prev = np.array([1.6, 1.6, heading])
+    center = np.asarray(compose(jnp.asarray(prev), jnp.asarray(increment)))
+    lattice = step_lattice()
+    beams, ranges = jnp.linspace(-1.0, 1.0, 8), jnp.full(8, 2.0)
+    got = np.asarray(step_posterior(empty_fields(grid), grid, jnp.asarray(center), jnp.asarray(prev),
+                                    jnp.asarray(increment), jnp.asarray(cov), beams, ranges, ranges > 0, 0.1, lattice),
+                     np.float64)
+    want = cov + np.asarray(lattice[-1])
+    np.testing.assert_allclose(got, want, atol=0.02 * np.outer(sd, sd).max(), rtol=0.02)
+    np.testing.assert_allclose(np.diag(got), np.diag(want), rtol=0.02)
+    fixed = step_posterior(empty_fields(grid), grid, jnp.asarray(center), jnp.asarray(prev), jnp.asarray(increment),
+                           jnp.zeros((3, 3)), beams, ranges, ranges > 0, 0.1, lattice)
+    np.testing.assert_allclose(np.asarray(fixed), np.asarray(lattice[-1]), rtol=1e-6)
+
+
+def test_the_step_lattice_is_dense_near_the_match_and_checks_its_nodes():
+    """STEP_POSTERIOR_NODES: 13 x 13 positions and 9 headings, the innermost nodes at 0.012 m and 0.005 rad, the
+    outermost at 0.3 m and 0.05 rad, gaps growing outwards; the cell volumes tile the lattice's span (the widths of
+    one axis sum to its extent)."""
+    xy, theta, log_volume, floor = (np.asarray(a, np.float64) for a in step_lattice())
+    x = np.unique(xy[:, 0])
+    assert xy.shape == (169, 2) and theta.shape == (9,) and log_volume.shape == (169 * 9,)
+    np.testing.assert_allclose([x[7], x[-1], theta[5], theta[-1]], [0.012, 0.3, 0.005, 0.05], rtol=1e-6)
+    assert np.all(np.diff(np.diff(x[6:])) > 0)
+    np.testing.assert_allclose(np.exp(log_volume).sum(), 0.6**2 * 0.1, rtol=1e-6)
+    np.testing.assert_allclose(np.diag(floor), np.array([0.012, 0.012, 0.005]) ** 2 / 12)
+    for bad in (((0.3, 0.012, 6), (0.005, 0.05, 4)), ((0.012, 0.3, 1), (0.005, 0.05, 4))):
+        with pytest.raises(BayesmapError, match="step lattice nodes"):
+            step_lattice(bad)
 
 
 def test_correlative_path_checks_shapes():
@@ -273,7 +330,7 @@ def test_the_loop_gate_drops_a_false_loop_match():
     robust = posegraph.optimize_pose_graph(drifted, posegraph.concat_edges(seq, loops))
     gated, kept, _ = posegraph.optimize_with_loop_gate(drifted, seq, loops)
     assert list(zip(kept.i, kept.j)) == [(0, 15), (1, 15), (0, 14)]
-    true_loops = posegraph.Edges(*(a[:3] for a in loops))
+    true_loops = loops.take(slice(0, 3))
     clean = posegraph.optimize_pose_graph(drifted, posegraph.concat_edges(seq, true_loops))
     np.testing.assert_allclose(gated[:, :2], clean[:, :2], atol=1e-3)
     error, robust_error = (np.hypot(*(p - truth)[:, :2].T).mean() for p in (gated, robust))
@@ -400,7 +457,7 @@ def test_a_second_run_of_the_same_shapes_compiles_nothing(caplog):
 
     def run(ranges):
         data = ScanData(beams, ranges, ranges < 19.9, np.asarray(inc), np.asarray(cov))
-        path = correlative_path(odometry[0], data, grid.resolution, half_width=6.0)
+        path = correlative_path(odometry[0], data, grid.resolution, half_width=6.0).path
         return path, posegraph.match_loops(path, data, np.array([[0, 4], [1, 6]]))
 
     first, _ = run(readings)

@@ -42,7 +42,6 @@ from bayesmap.slam.keyframes import KEYFRAME_DISTANCE, KEYFRAME_TURN, keyframe_p
 from bayesmap.slam.pipeline import (
     BURN_IN_ROUNDS,
     FINAL_MAP_SWEEPS,
-    GRAPH_COV_SCALE,
     ROUNDS,
     hypothesis_counts,
     run_keyframe_slam,
@@ -214,8 +213,7 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
                 "range_offset_m": float(problem.range_offset),
                 "likelihood_power": float(problem.likelihood_power), "max_range_m": float(p.max_range),
                 "motion": {name: float(getattr(problem.motion, name))
-                           for name in ("a1", "a2", "a3", "a4", "floor_xy", "floor_theta")},
-                "graph_cov_scale": GRAPH_COV_SCALE}
+                           for name in ("a1", "a2", "a3", "a4", "floor_xy", "floor_theta")}}
     final = problem.final_map_params
     if result.chain_posterior is not None:  # posterior.npy is the final map at the mean path (run_log_slam stage 6)
         settings["final_map"] = {"sweeps": FINAL_MAP_SWEEPS, "burn_in": FINAL_MAP_SWEEPS // 2,

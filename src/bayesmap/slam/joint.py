@@ -198,8 +198,8 @@ class SlamResult(NamedTuple):
             ``posterior`` is another map's (real logs: the final map at the mean path,
             :func:`bayesmap.slam.pipeline.run_log_slam`), or None (``posterior`` is the chain's).
         final_map_power: the likelihood power of that other map (real logs), or None.
-        final_map_noise: its sensor noise, meters (real logs: the map model's plus the path's uncertainty,
-            :func:`bayesmap.slam.pipeline.final_map_noise`), or None.
+        final_map_noise: its sensor noise, meters (real logs: :data:`bayesmap.slam.pipeline.FINAL_MAP_NOISE`), or
+            None.
         loop_hypotheses: the last loop-closure round's hypotheses about which loop edges are true (real logs,
             :class:`bayesmap.slam.posegraph.LoopHypotheses`), or None (no loop edge found, or no loop closure).
     """

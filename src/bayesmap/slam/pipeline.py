@@ -30,20 +30,22 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
    and its neighbours (about 1 cm on the three logs), not how far the path as a whole can bend with the map: the
    chain cannot move hundreds of poses together. That spread comes from the pose graph of stage 2, the Laplace
    approximation of the path's posterior with the map marginalized (:func:`bayesmap.slam.posegraph.
-   marginal_covariances`), linearized at the chain's mean path, its covariance scaled by :data:`GRAPH_COV_SCALE`
-   squared. The reported covariance of a pose is the chain's plus the graph's; each pose sample is a chain sample
-   plus a draw of the graph's correlated deviation of the whole path (:func:`bayesmap.slam.posegraph.
-   sample_deviations`), in antithetic pairs so that the samples' mean is the chain's mean path (docs/slam.md).
-   Where the loop closure's other hypotheses about which loop edges are true (:func:`bayesmap.slam.posegraph.
-   loop_hypotheses`) weigh enough to get samples, those samples come from their own graphs: a mixture
-   (:func:`graph_uncertainty`).
+   marginal_covariances`), linearized at the chain's mean path, with each sequential edge's covariance the
+   posterior covariance of the front end's step (:func:`bayesmap.slam.scanmatch.step_posterior`: the target's
+   tempered scan likelihood against the local map, times the motion model, integrated over a lattice around the
+   match; Olson 2009) and the loop edges' :data:`bayesmap.slam.posegraph.LOOP_STD`. No factor is fitted on truth.
+   The reported covariance of a pose is the chain's plus the graph's; each pose sample is a chain sample plus a
+   draw of the graph's correlated deviation of the whole path (:func:`bayesmap.slam.posegraph.sample_deviations`),
+   in antithetic pairs so that the samples' mean is the chain's mean path (docs/slam.md). Where the loop closure's
+   other hypotheses about which loop edges are true (:func:`bayesmap.slam.posegraph.loop_hypotheses`) weigh enough
+   to get samples, those samples come from their own graphs: a mixture (:func:`graph_uncertainty`).
 6. **The final map** (with ``problem.final_map_params``, which :func:`bayesmap.slam.problem.log_slam_problem` sets): the
    walls given the readings at the mean path, in the map model of a log at known poses
    (:func:`bayesmap.slam.problem.log_map_params`: the structured prior, wall cells a beam can pass, a likelihood power
    that follows the readings' density at the path, :func:`final_map_power`; cross-validated across logs), with the
-   model's 0.05 m sensor noise widened by the path's own position uncertainty (:func:`final_map_noise`),
-   :data:`FINAL_MAP_SWEEPS` cellwise sweeps from the chain's last map. This is what
-   a SLAM system's map is, occupancy mapping at the estimated path, in bayesmap's best map model of known poses;
+   model's 0.05 m sensor noise widened to :data:`FINAL_MAP_NOISE` (a reading at the mean path errs by the sensor's
+   noise and the path's error together), :data:`FINAL_MAP_SWEEPS` cellwise sweeps from the chain's last map. This is
+   what a SLAM system's map is, occupancy mapping at the estimated path, in bayesmap's best map model of known poses;
    the joint chain's own map (the SLAM model's, whose walls stop every beam as its pose moves need) stays in
    ``chain_posterior``. Scored at the true poses on held-out beams it ranks the cells better than the chain's
    ([validation](../validation/slam.md)).
@@ -51,7 +53,6 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
 
 from __future__ import annotations
 
-import math
 import time
 
 import jax
@@ -73,17 +74,18 @@ from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
 from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
 from bayesmap.slam.keyframes import keyframe_problem, owners, place_scans, placed_uncertainty
 from bayesmap.slam.posegraph import (
-    Edges,
     close_loops,
     concat_edges,
     marginal_covariances,
     optimize_pose_graph,
     sample_deviations,
+    with_step_covariances,
 )
 from bayesmap.slam.poses import random_walk_pose_mh, slam_data
 from bayesmap.slam.scanmatch import (
     LOCAL_MAP_DISTANCE,
     MIN_HIT_FRACTION,
+    MatchedPath,
     ScanData,
     correlative_path,
 )
@@ -109,6 +111,15 @@ MAP_SWEEPS = 4
 POSE_SWEEPS = 8
 """Pose sweeps (every pose once) per round."""
 
+FINAL_MAP_NOISE = 0.15
+"""The sensor noise of the final map (stage 6), meters: the map model's 0.05 m widened by the mean path's own
+position error, since a beam cast from the mean pose ends where the true pose's beam ends plus that error (the
+propagation of a pose's uncertainty into a measurement's noise, *Probabilistic Robotics* sec. 10.2). Chosen by
+leave-one-log-out cross-validation of the final map's held-out AUC at the true poses over 0.05, 0.1, 0.15 and
+0.2 m and the noise widened by the reported path covariance (every fold chose 0.15 m; the reported covariance,
+about twice as wide as the path's errors, blurred the maps) on Intel, ACES and CSAIL, odometry seed 0
+([validation](../validation/slam.md#the-final-map-with-the-paths-uncertainty))."""
+
 FINAL_MAP_SWEEPS = 40
 """Cellwise sweeps of the final map (stage 6; the first half burn-in): the sweeps with which the map model of a log
 at known poses was cross-validated ([validation](../validation/defaults.md#final_map_sweeps))."""
@@ -119,14 +130,6 @@ next blocks' tables, at slightly moved poses, fit them and reuse one compiled sw
 on two cores). A speed knob, not a model setting: padding changes no draw (tested). On the shared logs a width
 group's cells vary by up to 8 % from one round to the next (a few percent for the large groups); blocks that do not
 fit compile anew ([scale page](../validation/scale.md#where-the-slam-time-went-on-intel-and-what-was-cut))."""
-
-GRAPH_COV_SCALE = 0.36
-"""The factor on the pose graph's standard deviations in the reported uncertainty (module docstring, stage 5): its
-edges' standard deviations (:data:`bayesmap.slam.posegraph.SEQUENTIAL_STD`, ``LOOP_STD``) are the front end's
-error scale, not a calibrated noise model. Chosen as the factor whose 95 % ellipses hold 95 % of the true positions
-over Intel, ACES and CSAIL with odometry seeds 0 and 1, a rule cross-validated leaving one log out
-(``benchmarks/pose_cov_cv.py``; [validation](../validation/defaults.md#graph_cov_scale))."""
-
 
 def scan_data(problem) -> ScanData:
     """The :class:`~bayesmap.slam.scanmatch.ScanData` of a :class:`bayesmap.slam.problem.SlamProblem` (odometry
@@ -156,8 +159,9 @@ def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MAR
 
 
 def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTION,
-              window: float = LOCAL_MAP_DISTANCE, progress: ProgressCallback | None = None) -> np.ndarray:
-    """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad): correlative scan matching from the first
+              window: float = LOCAL_MAP_DISTANCE, progress: ProgressCallback | None = None) -> MatchedPath:
+    """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad) and its steps' posterior covariances
+    (:class:`bayesmap.slam.scanmatch.MatchedPath`): correlative scan matching from the first
     odometry pose on fields of :data:`FRONT_END_RESOLUTION` meters that follow the robot
     (:data:`bayesmap.slam.scanmatch.MATCH_GRID_HALF_WIDTH`), each scan's field score raised to the problem's
     likelihood power against the motion model, as the target tempers the readings (docs/slam.md: at power 1 the
@@ -214,33 +218,6 @@ def final_map_power(problem, data: ScanData, path, grid: Grid) -> float:
     return log_likelihood_power(endpoints_per_cell(_returned_endpoints(data, path), grid))
 
 
-def final_map_noise(sensor_noise: float, pose_cov) -> float:
-    """The sensor noise of the final map drawn at the posterior mean path, meters: ``sqrt(sensor_noise^2 + v)`` with
-    ``v`` the mean over the scans of the posterior variance of a pose's position per axis, ``(Sigma_xx + Sigma_yy) /
-    2`` of ``pose_cov`` ``(S, 3, 3)`` (m^2; the chain's spread plus the scaled pose graph's, whose 95 % ellipses
-    were fitted to hold 95 % of the true positions). A beam cast from the mean pose ends where the true pose's beam
-    ends plus the pose's position error, so at the mean path a reading's error is the sensor's plus the path's, the
-    usual propagation of a pose's uncertainty into a measurement's noise (*Probabilistic Robotics* sec. 10.2, the
-    EKF's ``Q + H Sigma H^T``, here isotropic and the same for every beam; the heading's lever arm, range times the
-    heading's deviation, is left out). Chosen over the map model's own noise, 0.1 m and the median instead of the
-    mean by leave-one-log-out on the held-out AUC at the true poses (docs/slam.md, "The final map's noise").
-
-    Raises:
-        BayesmapError: if ``sensor_noise`` is not a finite number > 0 or ``pose_cov`` is not ``(S, 3, 3)`` with
-            finite, non-negative position variances.
-    """
-    if (isinstance(sensor_noise, bool) or not isinstance(sensor_noise, (int, float))
-            or not math.isfinite(sensor_noise) or sensor_noise <= 0):
-        raise BayesmapError(f"sensor_noise must be a finite number of meters > 0, got {sensor_noise!r}")
-    cov = np.asarray(pose_cov, np.float64)
-    if cov.ndim != 3 or cov.shape[1:] != (3, 3) or len(cov) == 0:
-        raise BayesmapError(f"pose_cov must be (S, 3, 3) with S >= 1, got shape {cov.shape}")
-    variance = (cov[:, 0, 0] + cov[:, 1, 1]) / 2
-    if not np.all(np.isfinite(variance)) or np.any(variance < 0):
-        raise BayesmapError("pose_cov must have finite, non-negative position variances")
-    return float(math.sqrt(sensor_noise**2 + float(variance.mean())))
-
-
 def hypothesis_counts(num: int, weights) -> np.ndarray:
     """How many of ``num`` samples each hypothesis of ``weights`` ``(H,)`` (summing to 1) gets: the largest-remainder
     apportionment (Hamilton's method) of ``num * weights``, remainders tied in order; ``(H,)`` int64 summing to
@@ -260,7 +237,7 @@ def _antithetic(seed: int, path, edges, num: int) -> np.ndarray:
     return np.concatenate([half, -half])[:num] if num > 1 else np.zeros((num, *np.shape(path)))
 
 
-def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_SCALE, hypotheses=None):
+def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None):
     """Stage 5 of the module docstring: the chain's pose samples with the pose graph's uncertainty (the graph's
     Laplace approximation, Lu & Milios 1997; antithetic pairs, Hammersley & Morton 1956; docs/slam.md), and with
     the loop closure's other hypotheses where they weigh enough to get samples.
@@ -268,53 +245,49 @@ def graph_uncertainty(seed: int, chain_samples, edges, scale: float = GRAPH_COV_
     Args:
         seed: seed of the graph's draws (``numpy.random.default_rng``; hypothesis ``h`` uses ``seed + h``).
         chain_samples: ``(N, S, 3)`` pose samples of the joint chain (x m, y m, theta rad), ``N >= 1``.
-        edges: the pose graph (:func:`bayesmap.slam.posegraph.close_loops`: the sequential edges first), every pose
-            after the first on an edge.
-        scale: the factor on the graph's standard deviations, ``>= 0`` (:data:`GRAPH_COV_SCALE`).
+        edges: the pose graph (:func:`bayesmap.slam.posegraph.close_loops`: the ``S - 1`` sequential edges first,
+            here with the front end's step covariances, :func:`bayesmap.slam.posegraph.with_step_covariances`),
+            every pose after the first on an edge.
         hypotheses: None, or the loop closure's :class:`bayesmap.slam.posegraph.LoopHypotheses`, the first the
             one ``edges`` holds. Hypothesis ``h`` gets :func:`hypothesis_counts` of the ``N`` samples (the chain's
             samples in order: the first ones stay with the first hypothesis); one with any gets the graph of the
             sequential edges and its loop edges, optimized from the chain's mean path, and its samples are that
-            path plus a chain sample's deviation from the chain's mean plus ``scale`` times that graph's deviation:
-            a mixture of the hypotheses' Laplace approximations, each with the chain's local spread.
+            path plus a chain sample's deviation from the chain's mean plus that graph's deviation: a mixture of
+            the hypotheses' Laplace approximations, each with the chain's local spread.
 
     Returns:
         ``(mean (S, 3), cov (S, 3, 3), samples (N, S, 3), graph_cov (S, 3, 3))`` float64. With one hypothesis
         holding every sample: the chain's mean path (:func:`bayesmap.slam.joint.pose_summary`), the chain's
-        covariance plus ``scale ** 2`` times the graph's (:func:`bayesmap.slam.posegraph.marginal_covariances` at
-        the mean path), each chain sample plus ``scale`` times a graph deviation (``ceil(N / 2)`` draws and their
-        negatives, so for even ``N`` the samples' mean position is the chain's; a single sample gets none), and the
-        graph's covariance at unit scale. With several: the mixture's mean and covariance, each hypothesis weighted
-        by its share of the samples (headings averaged as differences from the first's, wrapped), and the first
-        hypothesis's ``graph_cov``.
+        covariance plus the graph's (:func:`bayesmap.slam.posegraph.marginal_covariances` at the mean path), each
+        chain sample plus a graph deviation (``ceil(N / 2)`` draws and their negatives, so for even ``N`` the
+        samples' mean position is the chain's; a single sample gets none), and the graph's covariance. With
+        several: the mixture's mean and covariance, each hypothesis weighted by its share of the samples (headings
+        averaged as differences from the first's, wrapped), and the first hypothesis's ``graph_cov``.
 
     Raises:
-        BayesmapError: on a negative or non-finite ``scale``, or a graph that leaves a pose without edges or is in
-            pieces (:func:`bayesmap.slam.posegraph.marginal_covariances`).
+        BayesmapError: on a graph that leaves a pose without edges or is in pieces
+            (:func:`bayesmap.slam.posegraph.marginal_covariances`).
     """
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale < 0:
-        raise BayesmapError(f"scale must be a finite number >= 0, got {scale!r}")
     chain_samples = np.asarray(chain_samples, np.float64)
     mean, chain_cov = pose_summary(chain_samples)
     graph_cov = marginal_covariances(mean, edges)
     n = len(chain_samples)
     counts = np.array([n]) if hypotheses is None else hypothesis_counts(n, hypotheses.weights)
     if counts[0] == n:
-        deviations = _antithetic(seed, mean, edges, n)
-        return mean, chain_cov + scale**2 * graph_cov, chain_samples + scale * deviations, graph_cov
-    sequential = Edges(*(np.asarray(a)[: len(mean) - 1] for a in edges))
+        return mean, chain_cov + graph_cov, chain_samples + _antithetic(seed, mean, edges, n), graph_cov
+    sequential = edges.take(slice(0, len(mean) - 1))
     parts, starts = [], np.concatenate([[0], np.cumsum(counts)])
     for h in np.flatnonzero(counts):
         if h == 0:
             path, graph, cov_h = mean, edges, graph_cov
         else:
-            graph = concat_edges(sequential, Edges(*(np.asarray(a)[hypotheses.sets[h]] for a in hypotheses.loops)))
+            graph = concat_edges(sequential, hypotheses.loops.take(hypotheses.sets[h]))
             path = optimize_pose_graph(mean, graph)
             cov_h = marginal_covariances(path, graph)
         local = chain_samples[starts[h]: starts[h + 1]] - mean
         local[:, :, 2] = wrap_angle(local[:, :, 2])
-        samples = path + local + scale * _antithetic(seed + int(h), path, graph, int(counts[h]))
-        parts.append((counts[h] / n, path, chain_cov + scale**2 * cov_h, samples))
+        samples = path + local + _antithetic(seed + int(h), path, graph, int(counts[h]))
+        parts.append((counts[h] / n, path, chain_cov + cov_h, samples))
     offsets = [np.concatenate([p[:, :2] - mean[:, :2], wrap_angle(p[:, 2:] - mean[:, 2:])], axis=1)
                for _, p, _, _ in parts]
     shift = sum(f * o for (f, _, _, _), o in zip(parts, offsets))
@@ -360,18 +333,18 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
     return walls, np.concatenate(samples), np.concatenate(probs), np.concatenate(accepted)
 
 
-def _final_map(problem, scans: ScanData, grid: Grid, mean, cov, walls, key, sweeps: int,
+def _final_map(problem, scans: ScanData, grid: Grid, mean, walls, key, sweeps: int,
                progress: ProgressCallback | None, tile_pairs: int = TILE_PAIRS) -> tuple[np.ndarray, float, float]:
     """Stage 6 of the module docstring: ``sweeps`` cellwise sweeps (the first half burn-in) at the mean path
     ``mean`` ``(S, 3)`` from the chain's last ``walls``, in the map model of ``problem.final_map_params`` with the
-    noise widened by the path's covariance ``cov`` ``(S, 3, 3)``, reported as stage ``"final map"`` per sweep, in
-    tiles of at most ``tile_pairs`` pairs.
+    noise :data:`FINAL_MAP_NOISE`, reported as stage ``"final map"`` per sweep, in tiles of at most ``tile_pairs``
+    pairs.
 
     Returns:
         ``(posterior (nx, ny) float64, likelihood power, sensor noise m)``.
     """
     power = final_map_power(problem, scans, mean, grid)
-    noise = final_map_noise(float(problem.final_map_params.sensor_noise), cov)
+    noise = FINAL_MAP_NOISE
     params = replace_params(with_grid(problem.final_map_params, grid), sensor_noise=noise)
     # the final map's model compiles its own sweep: drop the joint chain's compiled sweeps first, and what they hold
     # (on 300 scans of Intel the final map's peak 1,286 -> 929 MB)
@@ -389,7 +362,7 @@ def _check_final_map_sweeps(final_map_sweeps) -> None:
 
 def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, seed: int = 0,
                  progress: ProgressCallback | None = None, map_sweeps: int = MAP_SWEEPS, pose_sweeps: int = POSE_SWEEPS,
-                 graph_scale: float = GRAPH_COV_SCALE, final_map_sweeps: int = FINAL_MAP_SWEEPS,
+                 final_map_sweeps: int = FINAL_MAP_SWEEPS,
                  tile_pairs: int = TILE_PAIRS) -> SlamResult:
     """Infer the path and the map of a real log (:func:`bayesmap.slam.problem.log_slam_problem`) with the pipeline
     of the module docstring.
@@ -408,8 +381,6 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
             bit. None: no reports.
         map_sweeps: cellwise map sweeps per round, >= 1.
         pose_sweeps: pose sweeps per round, >= 1.
-        graph_scale: the factor on the pose graph's standard deviations (:data:`GRAPH_COV_SCALE`; 0: the chain's
-            spread alone).
         final_map_sweeps: cellwise sweeps of the final map at the mean path (stage 6, :data:`FINAL_MAP_SWEEPS`),
             >= 2, or 0: no final map (``posterior`` is the chain's). Without ``problem.final_map_params`` there is
             no final map.
@@ -421,11 +392,10 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         A :class:`bayesmap.slam.joint.SlamResult`: ``pose_samples`` ``(N, S, 3)`` with ``N = (rounds - burn_in)
         pose_sweeps`` and ``pose_cov`` with the graph's uncertainty (:func:`graph_uncertainty`), ``posterior`` on
         ``grid``, the grid fitted to the start path (the final map's, or the chain's without one; the chain's is
-        ``chain_posterior``), ``graph_cov`` the graph's covariance at unit scale.
+        ``chain_posterior``), ``graph_cov`` the graph's covariance.
 
     Raises:
-        BayesmapError: on bad counts, a bad ``graph_scale``, ``final_map_sweeps`` or ``tile_pairs`` (the message
-            names the value).
+        BayesmapError: on bad counts, a bad ``final_map_sweeps`` or ``tile_pairs`` (the message names the value).
     """
     _check_final_map_sweeps(final_map_sweeps)
     check_tile_pairs(tile_pairs)
@@ -435,17 +405,19 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     pose_sweeps, _, _ = check_counts(pose_sweeps, 0, 1)
     start = time.perf_counter()
     scans = scan_data(problem)
-    path, edges, hypotheses = close_loops(front_end(problem, scans, progress=progress), scans, progress=progress)
+    front = front_end(problem, scans, progress=progress)
+    path, edges, hypotheses = close_loops(front.path, scans, progress=progress)
     grid = fitted_grid(scans, path, problem.params.grid.resolution)
     walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, grid), path, seed,
                                                    (rounds, burn_in, map_sweeps, pose_sweeps), progress, tile_pairs)
-    mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, graph_scale, hypotheses)
+    mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, with_step_covariances(edges, front.step_cov),
+                                                      hypotheses)
     chain_posterior = probs.astype(np.float64).mean(axis=0)
     posterior, final_power, final_noise = chain_posterior, None, None
     if final:
         key = jax.random.fold_in(jax.random.key(seed), 2 * rounds)  # none of the chain's keys
-        posterior, final_power, final_noise = _final_map(problem, scans, grid, mean, cov, walls, key,
-                                                         final_map_sweeps, progress, tile_pairs)
+        posterior, final_power, final_noise = _final_map(problem, scans, grid, mean, walls, key, final_map_sweeps,
+                                                         progress, tile_pairs)
     return SlamResult(pose_samples=samples, mean_path=mean, pose_cov=cov, posterior=posterior,
                       acceptance_rate=float(accepted.mean()) if accepted.size else 1.0,
                       runtime_s=time.perf_counter() - start, last_walls=np.asarray(walls, np.float32), grid=grid,

@@ -132,12 +132,52 @@ SOLVE_COLUMNS = 384
 
 class Edges(NamedTuple):
     """Edges of a pose graph: ``i``, ``j`` ``(E,)`` int node indices, ``z`` ``(E, 3)`` measured pose of ``j`` in
-    ``i``'s frame (m, m, rad), ``std`` ``(E, 3)`` its standard deviations."""
+    ``i``'s frame (m, m, rad), ``std`` ``(E, 3)`` its standard deviations, ``whitening`` None (independent
+    components: the square-root information is ``diag(1 / std)``) or ``(E, 3, 3)`` each edge's square-root
+    information ``W``, ``W^T W = Sigma^-1`` for a full covariance ``Sigma`` (:func:`with_covariances`; ``std`` then
+    the square roots of its diagonal)."""
 
     i: np.ndarray
     j: np.ndarray
     z: np.ndarray
     std: np.ndarray
+    whitening: np.ndarray | None = None
+
+    def take(self, index) -> Edges:
+        """The edges ``index`` (an int array or a boolean mask over the edges)."""
+        return Edges(*(None if a is None else np.asarray(a)[index] for a in self))
+
+
+def whitening_matrices(edges: Edges) -> np.ndarray:
+    """``(E, 3, 3)`` float64: each edge's square-root information ``W`` (``edges.whitening``, or ``diag(1 / std)``)."""
+    if edges.whitening is not None:
+        return np.asarray(edges.whitening, np.float64)
+    std = np.asarray(edges.std, np.float64)
+    return np.eye(3) / std[:, :, None] if std.size else np.zeros((0, 3, 3))
+
+
+def with_covariances(edges: Edges, cov) -> Edges:
+    """``edges`` with full covariances ``cov`` ``(E, 3, 3)`` (m^2, m rad, rad^2; each symmetric positive definite):
+    ``W = L^-1`` for the Cholesky factor ``Sigma = L L^T``, ``std`` the square roots of the diagonal.
+
+    Raises:
+        BayesmapError: if ``cov`` is not ``(E, 3, 3)`` or a covariance is not finite and positive definite (the
+            message names the first such edge).
+    """
+    cov = np.asarray(cov, np.float64)
+    if cov.shape != (len(edges.i), 3, 3):
+        raise BayesmapError(f"cov must have shape ({len(edges.i)}, 3, 3), got {cov.shape}")
+    bad = ~np.isfinite(cov).all(axis=(1, 2))
+    if bad.any():
+        raise BayesmapError(f"edge {int(np.flatnonzero(bad)[0])}'s covariance is not finite")
+    cov = (cov + np.swapaxes(cov, 1, 2)) / 2
+    try:
+        chol = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        first = next(e for e in range(len(cov)) if np.linalg.eigvalsh(cov[e])[0] <= 0)
+        raise BayesmapError(f"edge {first}'s covariance is not positive definite") from None
+    whitening = np.linalg.solve(chol, np.broadcast_to(np.eye(3), cov.shape))
+    return edges._replace(std=np.sqrt(np.diagonal(cov, axis1=1, axis2=2)), whitening=whitening)
 
 
 class LoopHypotheses(NamedTuple):
@@ -311,18 +351,35 @@ def loop_edges(path, data: ScanData, progress: ProgressCallback | None = None, s
     return Edges(s, t, relative(np.asarray(path)[s], poses[ok]), np.tile(np.asarray(LOOP_STD), (int(ok.sum()), 1)))
 
 
+def with_step_covariances(edges: Edges, step_cov) -> Edges:
+    """The graph ``edges`` (its ``S - 1`` sequential edges first, as :func:`close_loops` returns it) with the
+    sequential edges' covariances ``step_cov`` ``(S - 1, 3, 3)`` (:func:`with_covariances`; the front end's step
+    posteriors, :class:`bayesmap.slam.scanmatch.MatchedPath`), the loop edges as they are.
+
+    Raises:
+        BayesmapError: as :func:`with_covariances`.
+    """
+    count = len(np.asarray(step_cov))
+    return concat_edges(with_covariances(edges.take(slice(0, count)), step_cov), edges.take(slice(count, None)))
+
+
 def concat_edges(*edges: Edges) -> Edges:
-    """All edges of several :class:`Edges` in one."""
-    return Edges(*(np.concatenate(parts) for parts in zip(*edges)))
+    """All edges of several :class:`Edges` in one (with full square-root informations if any has them)."""
+    joined = Edges(*(np.concatenate(parts) for parts in zip(*(e[:4] for e in edges))))
+    if all(e.whitening is None for e in edges):
+        return joined
+    return joined._replace(whitening=np.concatenate([whitening_matrices(e) for e in edges]))
 
 
 def edge_residuals(path, edges: Edges) -> np.ndarray:
-    """``(E, 3)`` whitened residuals ``(relative(x_i, x_j) - z_ij) / std`` of ``edges`` at ``path`` ``(S, 3)``
-    (the angle difference wrapped to ``[-pi, pi)`` first)."""
+    """``(E, 3)`` whitened residuals ``W (relative(x_i, x_j) - z_ij)`` of ``edges`` at ``path`` ``(S, 3)`` (the angle
+    difference wrapped to ``[-pi, pi)`` first; ``W`` :func:`whitening_matrices`, ``diag(1 / std)`` by default)."""
     path = np.asarray(path, np.float64)
     e = relative(path[edges.i], path[edges.j]) - edges.z
     e[:, 2] = wrap_angle(e[:, 2])
-    return e / edges.std
+    if edges.whitening is None:
+        return e / edges.std
+    return np.einsum("eij,ej->ei", whitening_matrices(edges), e)
 
 
 def robust_cost(path, edges: Edges, scale: float = CAUCHY_SCALE) -> float:
@@ -409,6 +466,8 @@ def _rotation3(theta) -> np.ndarray:
 
 def _isotropic(edges: Edges, name: str) -> np.ndarray:
     std = np.asarray(edges.std, np.float64)
+    if edges.whitening is not None:
+        raise BayesmapError(f"{name} edges must have independent components (no whitening) for the consistency test")
     if not np.allclose(std[:, 0], std[:, 1]):
         raise BayesmapError(f"{name} edges must have equal x and y standard deviations for the consistency test")
     return std
@@ -528,13 +587,14 @@ def log_evidence(path, sequential: Edges, loops: Edges, chosen) -> float:
     mixture of a Gaussian and a broad component). The graph's minimum is one Gauss-Newton step from ``path``
     ``(S, 3)``: exact for the graph linearized there.
 
-    ``log p = -chi2_min / 2 - log det H / 2 + sum_{chosen} (-3/2 log 2 pi - sum log std) - (L - n) log V``
+    ``log p = -chi2_min / 2 - log det H / 2 + sum_{chosen} (-3/2 log 2 pi + log det W) - (L - n) log V`` (``W``
+    an edge's square-root information, ``diag(1 / std)`` by default)
 
     Raises:
         BayesmapError: as :func:`marginal_covariances` for a graph with an untied pose.
     """
     chosen = np.asarray(chosen, np.int64)
-    loops_in = Edges(*(np.asarray(a)[chosen] for a in loops))
+    loops_in = loops.take(chosen)
     edges = concat_edges(sequential, loops_in)
     path = _check_graph(path, edges)
     jacobian, lu = _information_lu(path, edges)
@@ -542,7 +602,8 @@ def log_evidence(path, sequential: Edges, loops: Edges, chosen) -> float:
     gradient = jacobian.T @ residual
     chi2 = float(residual @ residual - gradient @ lu.solve(gradient))
     log_det = float(np.sum(np.log(np.abs(lu.U.diagonal()))))
-    normalizers = float(np.sum(-1.5 * np.log(2 * np.pi) - np.log(np.asarray(loops_in.std, np.float64)).sum(axis=1)))
+    log_det_w = np.linalg.slogdet(whitening_matrices(loops_in))[1] if len(chosen) else np.zeros(0)
+    normalizers = float(np.sum(-1.5 * np.log(2 * np.pi) + log_det_w))
     return -0.5 * chi2 - 0.5 * log_det + normalizers - (len(loops.i) - len(chosen)) * np.log(_window_volume())
 
 
@@ -572,8 +633,7 @@ def optimize_with_loop_gate(path, sequential: Edges, loops: Edges,
     Returns:
         ``(path (S, 3) float64, the loop edges kept, the hypotheses)``.
     """
-    def subset(chosen):
-        return Edges(*(np.asarray(a)[chosen] for a in loops))
+    subset = loops.take
 
     sets = consistent_sets(pairwise_consistency(sequential, loops), consistency_gate)
     largest = sets[0][0] if sets[0] else np.zeros(0, np.int64)
@@ -586,7 +646,7 @@ def optimize_with_loop_gate(path, sequential: Edges, loops: Edges,
     keep = np.linalg.norm(edge_residuals(path, kept), axis=1) <= LOOP_GATE
     if keep.all():
         return path, kept, hypotheses
-    kept = Edges(*(a[keep] for a in kept))
+    kept = kept.take(keep)
     return optimize_pose_graph(path, concat_edges(sequential, kept)), kept, hypotheses
 
 
@@ -638,8 +698,11 @@ def edge_jacobians(path, edges: Edges) -> tuple[np.ndarray, np.ndarray]:
     second[:, :2, :2], first[:, :2, :2] = rotation_t, -rotation_t
     first[:, 0, 2], first[:, 1, 2] = rel[:, 1], -rel[:, 0]
     first[:, 2, 2], second[:, 2, 2] = -1.0, 1.0
-    weight = 1.0 / np.asarray(edges.std, np.float64)[:, :, None]
-    return first * weight, second * weight
+    if edges.whitening is None:
+        weight = 1.0 / np.asarray(edges.std, np.float64)[:, :, None]
+        return first * weight, second * weight
+    whitening = whitening_matrices(edges)
+    return whitening @ first, whitening @ second
 
 
 def _edge_matrix(blocks, edges: Edges, count: int) -> scipy.sparse.coo_matrix:
@@ -668,6 +731,8 @@ def _check_graph(path, edges: Edges) -> np.ndarray:
     std = np.asarray(edges.std, np.float64)
     if std.size and not (np.isfinite(std).all() and (std > 0).all()):
         raise BayesmapError(f"edge standard deviations must be positive and finite, got minimum {std.min()!r}")
+    if edges.whitening is not None and not np.isfinite(edges.whitening).all():
+        raise BayesmapError("edge square-root informations (whitening) must be finite")
     touched = np.zeros(len(path), bool)
     touched[np.asarray(edges.i)], touched[np.asarray(edges.j)] = True, True
     if not touched[1:].all():
