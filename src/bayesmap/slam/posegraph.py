@@ -174,7 +174,7 @@ def with_covariances(edges: Edges, cov) -> Edges:
     try:
         chol = np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
-        first = next(e for e in range(len(cov)) if np.linalg.eigvalsh(cov[e])[0] <= 0)
+        first = int(np.argmin(np.linalg.eigvalsh(cov)[:, 0]))  # the least definite
         raise BayesmapError(f"edge {first}'s covariance is not positive definite") from None
     whitening = np.linalg.solve(chol, np.broadcast_to(np.eye(3), cov.shape))
     return edges._replace(std=np.sqrt(np.diagonal(cov, axis1=1, axis2=2)), whitening=whitening)
