@@ -255,6 +255,13 @@ def lattice_scores(field, grid: Grid, center, xy, theta, sensor_angles, readings
     return jnp.sum(jnp.where(returned, value, 0.0), axis=-1)
 
 
+def lattice_poses(center, xy, theta):
+    """``(A B, 3)`` the candidate poses ``center + (xy[a], theta[b])`` in the order of :func:`lattice_scores`
+    (``a * len(theta) + b``). Jittable."""
+    return jnp.concatenate([jnp.repeat(center[:2] + xy, len(theta), axis=0),
+                            jnp.tile(center[2] + theta, len(xy))[:, None]], axis=1)
+
+
 def log_field(field):
     """``log(field + FIELD_FLOOR)`` per cell, what :func:`search` reads for a level that looks up the nearest cell
     when given it: worth it when a search looks up more endpoints than the grid has cells (the loop closure's wide
@@ -337,8 +344,7 @@ def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned,
         scores = lattice_scores(fields[f], grid, best, xy, theta, sensor_angles, readings, returned,
                                  interpolate=f == 0, window=window,
                                  log_field=None if log_fields is None else log_fields[f], shift=shift)
-        cands = jnp.concatenate([jnp.repeat(best[:2] + xy, len(theta), axis=0),
-                                 jnp.tile(best[2] + theta, len(xy))[:, None]], axis=1)
+        cands = lattice_poses(best, xy, theta)
         if log_prior is not None:
             scores = scores + log_prior(cands)
         j = jnp.argmax(scores)
@@ -398,8 +404,7 @@ def step_posterior(fields: tuple, grid: Grid, center, prev, increment, cov, sens
     xy, theta, log_volume, floor = lattice
     scores = lattice_scores(fields[0], grid, center, xy, theta, sensor_angles, readings, returned, interpolate=True,
                             window=window, shift=shift)
-    cands = jnp.concatenate([jnp.repeat(center[:2] + xy, len(theta), axis=0),
-                             jnp.tile(center[2] + theta, len(xy))[:, None]], axis=1)
+    cands = lattice_poses(center, xy, theta)
     weights = jax.nn.softmax(power * scores + motion_logpdf(prev, cands, increment, cov) + log_volume)
     mean = weights @ cands
     world = jnp.einsum("n,ni,nj->ij", weights, cands - mean, cands - mean)
