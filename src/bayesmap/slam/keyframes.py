@@ -51,7 +51,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.model.motion import MotionParams, compose, composed_steps, motion_logpdf
-from bayesmap.slam.posegraph import relative
+from bayesmap.slam.posegraph import relative, rotation3
 from bayesmap.slam.scanmatch import (
     MATCH_LEVELS,
     MIN_HIT_FRACTION,
@@ -270,9 +270,7 @@ def placed_uncertainty(poses, keyframes, odometry, keyframe_cov, keyframe_sample
     own = owners(len(poses), keyframes)
     _, step_covs = step_moves(odometry, keyframes, motion)
     heading = poses[np.asarray(keyframes)][own, 2]
-    rot = np.zeros((len(poses), 3, 3))
-    c, s = np.cos(heading), np.sin(heading)
-    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1], rot[:, 2, 2] = c, -s, s, c, 1.0
+    rot = rotation3(heading)
     cov = keyframe_cov[own] + rot @ step_covs @ np.swapaxes(rot, 1, 2)
     cov = (cov + np.swapaxes(cov, 1, 2)) / 2  # exactly symmetric (the steps' covariances are float32)
     kf_mean = poses[np.asarray(keyframes)][own]

@@ -457,7 +457,9 @@ def _pivot_covariance(xy_var, theta_var, lever) -> np.ndarray:
     return out
 
 
-def _rotation3(theta) -> np.ndarray:
+def rotation3(theta) -> np.ndarray:
+    """``(..., 3, 3)`` float64: the rotation of a pose's frame by ``theta`` ``(...)`` (radians), acting on ``(x, y)``
+    and leaving the heading: what turns a covariance in a pose's frame into the world's, ``R Sigma R^T``."""
     c, s = np.cos(theta), np.sin(theta)
     r = np.zeros(np.shape(theta) + (3, 3))
     r[..., 0, 0], r[..., 0, 1], r[..., 1, 0], r[..., 1, 1], r[..., 2, 2] = c, -s, s, c, 1.0
@@ -527,7 +529,7 @@ def pairwise_consistency(sequential: Edges, loops: Edges) -> np.ndarray:
         block[:, 1, 1] += xy_var
         block[:, :2, 2] = block[:, 2, :2] = (weight[:, None] * anchor - first) @ turn.T
         block[:, 2, 2] = weight
-        rotation = _rotation3(frame[:, 2])
+        rotation = rotation3(frame[:, 2])
         return rotation @ block @ np.swapaxes(rotation, -1, -2)
 
     a, b = (k.ravel() for k in np.meshgrid(np.arange(count), np.arange(count), indexing="ij"))

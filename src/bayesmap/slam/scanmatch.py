@@ -50,6 +50,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.optimize
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
@@ -355,12 +356,9 @@ def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned,
 def _sinh_nodes(first: float, last: float, per_side: int) -> tuple[np.ndarray, np.ndarray]:
     """``2 per_side + 1`` nodes ``a sinh(b k)``, ``k = -per_side .. per_side``, the first at ``first`` and the last
     at ``last``, with each node's width (half the distance between its neighbours; half a gap at the ends)."""
-    ratio = last / first
-    lo, hi = 1e-9, 10.0  # sinh(n b) / sinh(b) grows from n to beyond any ratio used: bisect for b
-    for _ in range(200):
-        mid = (lo + hi) / 2
-        lo, hi = (mid, hi) if math.sinh(per_side * mid) / math.sinh(mid) < ratio else (lo, mid)
-    b = (lo + hi) / 2
+    # sinh(n b) / sinh(b) grows from n (b -> 0) past any ratio used (b = 10): its root by Brent's method
+    b = scipy.optimize.brentq(lambda b: math.sinh(per_side * b) / math.sinh(b) - last / first, 1e-9, 10.0,
+                              xtol=1e-15)
     nodes = first / math.sinh(b) * np.sinh(b * np.arange(-per_side, per_side + 1))
     width = np.empty_like(nodes)
     width[1:-1] = (nodes[2:] - nodes[:-2]) / 2
