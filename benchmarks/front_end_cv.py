@@ -15,6 +15,8 @@ motion model's log-density. Two of its settings are chosen here:
   docs/slam.md, "A longer local map").
 * ``consistency_gate``: not the front end's but the loop closure's, the squared norm up to which two loop edges
   count as consistent (:data:`bayesmap.slam.posegraph.CONSISTENCY_GATE`).
+* ``particles``: how many hypotheses the front end keeps (:data:`bayesmap.slam.pipeline.FRONT_END_PARTICLES`;
+  :mod:`bayesmap.slam.particles`).
 
 (A third, the weight of a uniform outlier component in a max-mixture with the motion model, was chosen here at commit
 a14f5a3 and removed: docs/slam.md, "Every other scan, and a robust motion term".)
@@ -41,7 +43,7 @@ Each run is appended to ``--records FILE`` (JSON lines) as soon as it is done, a
 repeated, so the grid can be split between processes and resumed.
 
 Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F
-           [--parameter power|min_hit_fraction|window|consistency_gate]
+           [--parameter power|min_hit_fraction|window|consistency_gate|particles]
            [--values 1,0.3,0.1,0.03] [--seeds 0-2] [--logs intel,aces,csail] [--scans all,heldout]
 """
 
@@ -67,7 +69,8 @@ from bayesmap.slam import pipeline, posegraph, scanmatch  # noqa: E402
 from bayesmap.slam.problem import SLAM_LIKELIHOOD_POWER, log_slam_problem  # noqa: E402
 
 DEFAULTS = {"power": SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HIT_FRACTION,
-            "window": scanmatch.LOCAL_MAP_DISTANCE, "consistency_gate": posegraph.CONSISTENCY_GATE}
+            "window": scanmatch.LOCAL_MAP_DISTANCE, "consistency_gate": posegraph.CONSISTENCY_GATE,
+            "particles": pipeline.FRONT_END_PARTICLES}
 """The settings this script can vary, and the value each takes while the other is varied (the defaults of
 :func:`bayesmap.slam.pipeline.front_end`)."""
 
@@ -86,15 +89,17 @@ def start_path(log, truth, scans: str, parameter: str, value: float) -> dict:
     setting = {**DEFAULTS, parameter: value}
     problem = log_slam_problem(log, kept, likelihood_power=setting["power"])
     data = pipeline.scan_data(problem)
-    front = pipeline.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"],
-                               window=setting["window"]).path
+    matched = pipeline.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"],
+                                 window=setting["window"], particles=int(setting["particles"]))
+    front = matched.path
     closed, edges, _ = posegraph.close_loops(front, data, consistency_gate=setting["consistency_gate"])
     truth = truth if kept is None else truth[kept]
     return {"parameter": parameter, "value": value, "scans": scans,
             "front_end_ate_m": absolute_trajectory_error(front, truth)["rmse_m"],
             "start_ate_m": absolute_trajectory_error(closed, truth)["rmse_m"], "slips": count_slips(front, truth),
             "odometry_steps": odometry_steps(front, np.asarray(data.increments)),
-            "loop_edges": int(len(edges.i) - (len(front) - 1)), "seconds": time.perf_counter() - began}
+            "loop_edges": int(len(edges.i) - (len(front) - 1)), "hypotheses": matched.hypotheses,
+            "seconds": time.perf_counter() - began}
 
 
 def odometry_steps(path, increments, tolerance: float = 1e-4) -> int:

@@ -117,6 +117,7 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     # keyframe's and more
     assert "graph_cov_scale" not in settings and summary["loop_edges"] == 0
     assert summary["loop_hypotheses"] is None  # no loop edge, nothing to weigh
+    assert settings["front_end_particles"] == 1 and summary["front_end_hypotheses"] == 1  # the single track
     steps = front_end(chain, scan_data(chain)).step_cov
     given_heading = steps[:, :2, :2] - np.einsum("si,sj->sij", steps[:, :2, 2], steps[:, :2, 2]) / steps[:, 2:, 2:]
     accumulated = np.concatenate([[0.0], np.cumsum(np.trace(given_heading, axis1=1, axis2=2))])
@@ -299,6 +300,8 @@ def test_evaluate_pairs_a_longer_truth_by_timestamp(tmp_path, monkeypatch, capsy
     (lambda t: ["slam", "--scans", "0:5"], "--scans"),
     (lambda t: ["slam", "--tile-pairs", "1000"], "--tile-pairs"),
     (lambda t: ["slam", "--log", t / "square.log", "--tile-pairs", "0"], "--tile-pairs must be an integer >= 1, got 0"),
+    (lambda t: ["slam", "--particles", "8"], "--particles"),
+    (lambda t: ["slam", "--log", t / "square.log", "--particles", "0"], "--particles must be at least 1, got 0"),
     (lambda t: ["slam", "--log", t / "square.log", "--sweeps", "4", "--burn-in", "4"], "--burn-in"),
     (lambda t: ["evaluate", "--truth-trajectory", t / "truth.tum"], "needs --log"),
     (lambda t: ["evaluate", "--log", t / "square.log", "--truth-trajectory", t / "missing.tum"], "missing.tum"),

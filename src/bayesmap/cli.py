@@ -27,6 +27,7 @@ from bayesmap.runs import slam as slam_run
 from bayesmap.runs.inputs import parse_scans, read_log_or_bag, select_scans
 from bayesmap.runs.outputs import check_output_file, write_json
 from bayesmap.slam.keyframes import KEYFRAME_DISTANCE, KEYFRAME_TURN
+from bayesmap.slam.pipeline import FRONT_END_PARTICLES
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Bayesian occupancy-grid mapping from range scans, with honest uncertainty.")
@@ -125,6 +126,10 @@ TilePairsOpt = _opt(Optional[int], "--tile-pairs", help="--log / --bag (several 
                     "the map's sampler holds at once (about 35 bytes each); a map whose beams cross more cells is "
                     "swept a tile of the grid at a time, each with its own table (infer: the cellwise sampler); lower "
                     f"it to bound memory; default {TILE_PAIRS:,}")
+ParticlesOpt = _opt(Optional[int], "--particles", help="--log / --bag: hypotheses the front end keeps (a particle "
+                    "filter over the path, each particle with its own local map); on a CPU its time grows about "
+                    "linearly with them and its memory by about 30 MB a particle, on a GPU little; default "
+                    f"{FRONT_END_PARTICLES}, the single-track front end")
 PowerOpt = _opt(Optional[float], "--likelihood-power", help="--log: power eta in (0, 1] of the likelihood, sampling "
                 "p(walls) p(readings | walls)^eta (a power posterior for beams that are not independent evidence; 1 "
                 f"is the plain posterior; default for logs: {scenes.LOG_READINGS_PER_CELL:g} over the mean number "
@@ -464,6 +469,7 @@ def slam(
     keyframe_distance: KeyframeDistanceOpt = None,
     keyframe_turn: KeyframeTurnOpt = None,
     tile_pairs: TilePairsOpt = None,
+    particles: ParticlesOpt = None,
     rosmap: RosmapOpt = False,
     maps: MapsOpt = False,
     report: SlamReportOpt = False,

@@ -106,8 +106,8 @@ def test_the_fields_follow_the_robot_down_a_corridor():
     odometry = noisy_odometry(truth, np.random.default_rng(1))
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
     data = ScanData(beams, readings, readings < 2.49, np.asarray(inc), np.asarray(cov))
-    small, small_cov = correlative_path(odometry[0], data, grid.resolution, half_width=3.0)
-    large, large_cov = correlative_path(odometry[0], data, grid.resolution, half_width=30.0)
+    small, small_cov, _ = correlative_path(odometry[0], data, grid.resolution, half_width=3.0)
+    large, large_cov, _ = correlative_path(odometry[0], data, grid.resolution, half_width=30.0)
     np.testing.assert_array_equal(small, large)
     np.testing.assert_array_equal(small_cov, large_cov)
     seen = []
@@ -193,7 +193,7 @@ def test_a_scan_that_misses_its_local_map_takes_the_odometrys_step():
     readings[6] = np.random.default_rng(3).uniform(0.3, 1.0, readings.shape[1])
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
     data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov))
-    guarded, guarded_cov = correlative_path(odometry[0], data, grid.resolution, min_hit_fraction=0.3)
+    guarded, guarded_cov, _ = correlative_path(odometry[0], data, grid.resolution, min_hit_fraction=0.3)
     trusting = correlative_path(odometry[0], data, grid.resolution, min_hit_fraction=0.0).path
     followed = np.abs(posegraph.relative(guarded[5], guarded[6]) - inc[5])
     assert followed.max() < 1e-4

@@ -42,6 +42,7 @@ from bayesmap.slam.keyframes import KEYFRAME_DISTANCE, KEYFRAME_TURN, keyframe_p
 from bayesmap.slam.pipeline import (
     BURN_IN_ROUNDS,
     FINAL_MAP_SWEEPS,
+    FRONT_END_PARTICLES,
     ROUNDS,
     hypothesis_counts,
     run_keyframe_slam,
@@ -80,6 +81,7 @@ class SlamRequest:
     keyframe_distance: Optional[float] = None
     keyframe_turn: Optional[float] = None
     tile_pairs: Optional[int] = None
+    particles: Optional[int] = None
     rosmap: bool = False
     maps: bool = False
     report: bool = False
@@ -174,11 +176,12 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
              sweeps: Optional[int] = None, burn_in: Optional[int] = None, seed: int = 0, final_map: bool = True,
              progress: Optional[ProgressCallback] = None, notify: Optional[Callable[[str], None]] = None,
              keyframe_distance: float = KEYFRAME_DISTANCE, keyframe_turn: float = KEYFRAME_TURN,
-             tile_pairs: int = TILE_PAIRS):
+             tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES):
     """Run :func:`bayesmap.slam.pipeline.run_keyframe_slam` on the ``scans`` (a :func:`parse_scans` spec) of a log
     read from ``path``, its keyframes chosen by ``keyframe_distance`` meters and ``keyframe_turn`` radians
     (:func:`bayesmap.slam.keyframes.select_keyframes`; 0: every scan), its map blocks in tiles of at most
-    ``tile_pairs`` pairs (:data:`bayesmap.inference.tiled.TILE_PAIRS`); without ``final_map``, no final map (for
+    ``tile_pairs`` pairs (:data:`bayesmap.inference.tiled.TILE_PAIRS`), its front end keeping ``particles``
+    hypotheses (:data:`bayesmap.slam.pipeline.FRONT_END_PARTICLES`); without ``final_map``, no final map (for
     scoring the path alone).
 
     Args:
@@ -203,11 +206,13 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
     if notify is not None:
         notify(f"bayesmap slam: {path.name}, {len(chosen)} scans ({len(keyframes)} keyframes), {sweeps} sweeps ...")
     result = run_keyframe_slam(problem, keyframes, rounds=sweeps, burn_in=burn_in, seed=seed, progress=progress,
-                               final_map_sweeps=FINAL_MAP_SWEEPS if final_map else 0, tile_pairs=tile_pairs)
+                               final_map_sweeps=FINAL_MAP_SWEEPS if final_map else 0, tile_pairs=tile_pairs,
+                               particles=particles)
     p = problem.params
     settings = {"scans": scans if scans is not None else "all", "resolution": resolution,
                 "keyframe_distance_m": float(keyframe_distance), "keyframe_turn_rad": float(keyframe_turn),
-                "keyframes": int(len(keyframes)), "tile_pairs": int(tile_pairs), "sweeps": sweeps,
+                "keyframes": int(len(keyframes)), "tile_pairs": int(tile_pairs),
+                "front_end_particles": int(particles), "sweeps": sweeps,
                 "burn_in": burn_in, "seed": seed, "prior_wall_prob": float(p.prior_wall_prob),
                 "sensor_noise": float(p.sensor_noise), "beam_model": p.beam_model, "geometry": p.geometry,
                 "range_offset_m": float(problem.range_offset),
@@ -257,9 +262,9 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
                      progress: Optional[ProgressCallback] = None,
                      notify: Optional[Callable[[str], None]] = None,
                      keyframes: tuple[float, float] = (KEYFRAME_DISTANCE, KEYFRAME_TURN),
-                     tile_pairs: int = TILE_PAIRS) -> SlamRun:
+                     tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES) -> SlamRun:
     """SLAM on a real log or bag (:func:`log_slam`, its keyframes at ``keyframes`` = (meters, radians), its map
-    blocks in tiles of at most ``tile_pairs`` pairs), with its
+    blocks in tiles of at most ``tile_pairs`` pairs, its front end keeping ``particles`` hypotheses), with its
     summary; trajectory.tum's stamps are the scans' timestamps where they increase strictly, else their indices
     (:func:`bayesmap.io.tum.tum_stamps`).
 
@@ -268,7 +273,8 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
     """
     problem, result, chosen, settings = log_slam(carmen, path, scans, resolution, sweeps, burn_in, seed,
                                                  progress=progress, notify=notify, keyframe_distance=keyframes[0],
-                                                 keyframe_turn=keyframes[1], tile_pairs=tile_pairs)
+                                                 keyframe_turn=keyframes[1], tile_pairs=tile_pairs,
+                                                 particles=particles)
     all_stamps = tum_stamps(carmen.timestamps)
     grid = result.grid if result.grid is not None else problem.params.grid
     summary = {
@@ -281,6 +287,7 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
         "acceptance_rate": result.acceptance_rate,
         "loop_edges": result.loop_edges,
         "loop_hypotheses": loop_hypotheses_summary(result.loop_hypotheses, len(result.pose_samples)),
+        "front_end_hypotheses": result.front_end_hypotheses,
         "grid": grid_summary(grid),
         "trajectory_stamps": ("the scans' timestamps, seconds" if np.array_equal(all_stamps, carmen.timestamps)
                               else "scan indices of the log (its timestamps do not increase strictly)"),
@@ -351,12 +358,14 @@ def check_slam_request(req: SlamRequest) -> None:
         raise BayesmapError("give either --log or --bag, not both")
     if req.log is None and req.bag is None:
         if (req.scans is not None or req.resolution is not None or req.keyframe_distance is not None
-                or req.keyframe_turn is not None or req.tile_pairs is not None):
-            raise BayesmapError("--scans, --resolution, --tile-pairs and the keyframe options need --log FILE (or "
-                                "--bag PATH)")
+                or req.keyframe_turn is not None or req.tile_pairs is not None or req.particles is not None):
+            raise BayesmapError("--scans, --resolution, --tile-pairs, --particles and the keyframe options need --log "
+                                "FILE (or --bag PATH)")
     elif req.num_poses is not None:
         raise BayesmapError("--num-poses applies to the tutorial scene, not to --log / --bag")
     check_tile_pairs_option(req.tile_pairs)
+    if req.particles is not None and req.particles < 1:
+        raise BayesmapError(f"--particles must be at least 1, got {req.particles}")
     check_output_dir(req.out, req.force, owned=SLAM_OWNED_FILES)
 
 
@@ -382,7 +391,8 @@ def slam(req: SlamRequest, progress: Optional[ProgressCallback] = None,
         keyframes = (KEYFRAME_DISTANCE if req.keyframe_distance is None else req.keyframe_distance,
                      KEYFRAME_TURN if req.keyframe_turn is None else req.keyframe_turn)
         run = run_log_slam_job(carmen, path, req.scans, req.resolution, req.sweeps, req.burn_in, req.seed,
-                               stages, notify, keyframes, TILE_PAIRS if req.tile_pairs is None else req.tile_pairs)
+                               stages, notify, keyframes, TILE_PAIRS if req.tile_pairs is None else req.tile_pairs,
+                               FRONT_END_PARTICLES if req.particles is None else req.particles)
     files = slam_files(run, report=req.report, rosmap=req.rosmap, maps=req.maps, stages=stages)
     return run, write_outputs(req.out, files, owned=SLAM_OWNED_FILES)
 

@@ -202,6 +202,8 @@ class SlamResult(NamedTuple):
             None.
         loop_hypotheses: the last loop-closure round's hypotheses about which loop edges are true (real logs,
             :class:`bayesmap.slam.posegraph.LoopHypotheses`), or None (no loop edge found, or no loop closure).
+        front_end_hypotheses: how many distinct front-end paths carried at least 1 % of the weight (real logs: 1
+            for the single track; :func:`bayesmap.slam.particles.hypotheses`), or None.
     """
 
     pose_samples: np.ndarray
@@ -218,6 +220,7 @@ class SlamResult(NamedTuple):
     final_map_power: float | None = None
     final_map_noise: float | None = None
     loop_hypotheses: object = None
+    front_end_hypotheses: int | None = None
 
 
 def check_counts(sweeps, burn_in, chains) -> tuple[int, int, int]:

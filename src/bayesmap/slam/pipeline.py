@@ -73,6 +73,7 @@ from bayesmap.progress import ProgressCallback, report
 from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
 from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
 from bayesmap.slam.keyframes import keyframe_problem, owners, place_scans, placed_uncertainty
+from bayesmap.slam.particles import particle_path
 from bayesmap.slam.posegraph import (
     close_loops,
     concat_edges,
@@ -93,6 +94,13 @@ from bayesmap.slam.scanmatch import (
 FRONT_END_RESOLUTION = 0.05
 """Cell size of the front end's likelihood fields, meters (finer than the map: the fields resolve sub-cell
 shifts)."""
+
+FRONT_END_PARTICLES = 1
+"""Hypotheses the front end keeps (:func:`bayesmap.slam.particles.particle_path`); 1: the single-track correlative
+front end, the same path as before the particles existed. Time and memory grow about linearly with it on a CPU
+(about 30 MB a particle). Chosen by leave-one-log-out cross-validation of the start path's ATE between 1 and 8 over
+Intel, ACES and CSAIL, odometry seeds 0-2, every scan and every other scan (``benchmarks/front_end_cv.py
+--parameter particles``; [validation](../validation/slam.md#several-hypotheses-in-the-front-end))."""
 
 MAP_MARGIN = 2.0
 """Meters around the matched path's endpoints for the final grid (room for the chain's pose moves)."""
@@ -159,7 +167,8 @@ def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MAR
 
 
 def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTION,
-              window: float = LOCAL_MAP_DISTANCE, progress: ProgressCallback | None = None) -> MatchedPath:
+              window: float = LOCAL_MAP_DISTANCE, particles: int = FRONT_END_PARTICLES, seed: int = 0,
+              progress: ProgressCallback | None = None) -> MatchedPath:
     """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad) and its steps' posterior covariances
     (:class:`bayesmap.slam.scanmatch.MatchedPath`): correlative scan matching from the first
     odometry pose on fields of :data:`FRONT_END_RESOLUTION` meters that follow the robot
@@ -169,14 +178,20 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
     leave-one-log-out cross-validation, ``benchmarks/front_end_cv.py``); a scan whose match puts fewer than
     ``min_hit_fraction`` of its endpoints on the local map takes the odometry's prediction
     (:data:`bayesmap.slam.scanmatch.MIN_HIT_FRACTION`, chosen the same way). The local map holds the scans of
-    the last ``window`` meters of travel (:data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`). ``progress`` gets
-    ``Progress("front end", done, S - 1, "scan")`` as the scans are matched.
+    the last ``window`` meters of travel (:data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`). With ``particles``
+    above 1, that many hypotheses (:func:`bayesmap.slam.particles.particle_path`, random seed ``seed``), the
+    heaviest particle's path returned and the distinct heavy paths counted (:data:`FRONT_END_PARTICLES`).
+    ``progress`` gets ``Progress("front end", done, S - 1, "scan")`` as the scans are matched.
 
     Raises:
-        BayesmapError: as :func:`bayesmap.slam.scanmatch.correlative_path`."""
+        BayesmapError: as :func:`bayesmap.slam.scanmatch.correlative_path` and
+            :func:`bayesmap.slam.particles.particle_path`."""
     odometry = np.asarray(problem.odometry, np.float64)
-    return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, likelihood_power=problem.likelihood_power,
-                            min_hit_fraction=min_hit_fraction, window=window, progress=progress)
+    options = dict(likelihood_power=problem.likelihood_power, min_hit_fraction=min_hit_fraction, window=window,
+                   progress=progress)
+    if isinstance(particles, (int, np.integer)) and not isinstance(particles, bool) and particles == 1:
+        return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, **options)
+    return particle_path(odometry[0], data, FRONT_END_RESOLUTION, particles, seed=seed, **options).matched
 
 
 def with_grid(params, grid: Grid):
@@ -363,7 +378,7 @@ def _check_final_map_sweeps(final_map_sweeps) -> None:
 def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, seed: int = 0,
                  progress: ProgressCallback | None = None, map_sweeps: int = MAP_SWEEPS, pose_sweeps: int = POSE_SWEEPS,
                  final_map_sweeps: int = FINAL_MAP_SWEEPS,
-                 tile_pairs: int = TILE_PAIRS) -> SlamResult:
+                 tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES) -> SlamResult:
     """Infer the path and the map of a real log (:func:`bayesmap.slam.problem.log_slam_problem`) with the pipeline
     of the module docstring.
 
@@ -387,6 +402,7 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         tile_pairs: the most (beam, cell) pairs a map block holds at once: a block whose table would hold more is
             swept a tile of the grid at a time (:data:`bayesmap.inference.tiled.TILE_PAIRS`), >= 1. Bounds the map
             blocks' memory; any value samples the same posterior.
+        particles: hypotheses the front end keeps (:func:`front_end`, :data:`FRONT_END_PARTICLES`), >= 1.
 
     Returns:
         A :class:`bayesmap.slam.joint.SlamResult`: ``pose_samples`` ``(N, S, 3)`` with ``N = (rounds - burn_in)
@@ -405,7 +421,7 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     pose_sweeps, _, _ = check_counts(pose_sweeps, 0, 1)
     start = time.perf_counter()
     scans = scan_data(problem)
-    front = front_end(problem, scans, progress=progress)
+    front = front_end(problem, scans, particles=particles, seed=seed, progress=progress)
     path, edges, hypotheses = close_loops(front.path, scans, progress=progress)
     grid = fitted_grid(scans, path, problem.params.grid.resolution)
     walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, grid), path, seed,
@@ -423,7 +439,8 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
                       runtime_s=time.perf_counter() - start, last_walls=np.asarray(walls, np.float32), grid=grid,
                       loop_edges=len(edges.i) - (len(path) - 1), graph_cov=graph_cov,
                       chain_posterior=chain_posterior if final else None, final_map_power=final_power,
-                      final_map_noise=final_noise, loop_hypotheses=hypotheses)
+                      final_map_noise=final_noise, loop_hypotheses=hypotheses,
+                      front_end_hypotheses=front.hypotheses)
 
 
 def run_keyframe_slam(problem, keyframes, progress: ProgressCallback | None = None, **kwargs) -> SlamResult:

@@ -389,27 +389,55 @@ def step_lattice(nodes=STEP_POSTERIOR_NODES) -> tuple[jax.Array, jax.Array, jax.
     return jnp.asarray(xy), jnp.asarray(t), jnp.asarray(np.log(volume).reshape(-1)), jnp.asarray(floor)
 
 
-def step_posterior(fields: tuple, grid: Grid, center, prev, increment, cov, sensor_angles, readings, returned,
-                   power, lattice, window=None, shift=None):
-    """The covariance ``(3, 3)`` of one step's posterior in the frame of the previous pose (the sequential edge's
-    frame; m^2, m rad, rad^2): the density ``exp(power S(x) + log p(x | prev, increment, cov))``, ``S`` the scan's
-    field score against the local map (:func:`lattice_scores`, fine field, interpolated) and ``p`` the motion model
-    (:func:`bayesmap.model.motion.motion_logpdf`), integrated on the non-uniform ``lattice`` (:func:`step_lattice`,
-    its ``floor`` added) around ``center``, the match; ``prev``, ``center`` ``(3,)`` in the frame of ``shift``
-    (:func:`search`). The covariance of a correlative match's response (Olson 2009, sec. IV-B) with the likelihood
-    tempered as the front end's score is. A step whose motion covariance is exactly zero gets ``floor``. Jittable.
-    """
-    xy, theta, log_volume, floor = lattice
+def step_cell_widths(nodes=STEP_POSTERIOR_NODES) -> jax.Array:
+    """``(A B, 3)`` the widths (m, m, rad) of each candidate's cell of :func:`step_lattice`, in its order: a draw
+    from the lattice density uniform within the drawn node's cell (:mod:`bayesmap.slam.particles`)."""
+    (_, wx), (_, wt) = (_sinh_nodes(*node) for node in nodes)
+    wxy = np.stack(np.meshgrid(wx, wx, indexing="ij"), axis=-1).reshape(-1, 2)
+    return jnp.asarray(np.concatenate([np.repeat(wxy, len(wt), axis=0), np.tile(wt, len(wxy))[:, None]], axis=1))
+
+
+def step_logits(fields: tuple, grid: Grid, center, prev, increment, cov, sensor_angles, readings, returned, power,
+                lattice, window=None, shift=None):
+    """The candidates ``(A B, 3)`` of the step ``lattice`` (:func:`step_lattice`) around ``center`` and their log
+    densities ``(A B,)``: ``power S(x) + log p(x | prev, increment, cov) + log_volume``, ``S`` the scan's field score
+    against the local map (:func:`lattice_scores`, fine field, interpolated) and ``p`` the motion model
+    (:func:`bayesmap.model.motion.motion_logpdf`), each candidate's cell volume the quadrature weight: a softmax gives
+    the step's posterior on the lattice, a logsumexp the log of its integral (the evidence of the step: the weight
+    update of Grisetti et al. 2007's improved proposal). ``prev``, ``center`` ``(3,)`` in the frame of ``shift``
+    (:func:`search`). Jittable."""
+    xy, theta, log_volume, _ = lattice
     scores = lattice_scores(fields[0], grid, center, xy, theta, sensor_angles, readings, returned, interpolate=True,
                             window=window, shift=shift)
     cands = lattice_poses(center, xy, theta)
-    weights = jax.nn.softmax(power * scores + motion_logpdf(prev, cands, increment, cov) + log_volume)
+    return cands, power * scores + motion_logpdf(prev, cands, increment, cov) + log_volume
+
+
+def step_covariance(cands, logits, prev, cov, floor):
+    """The covariance ``(3, 3)`` in the frame of ``prev`` ``(3,)`` of the lattice density ``softmax(logits)`` over
+    ``cands`` ``(M, 3)`` (:func:`step_logits`), plus ``floor`` ``(3, 3)``; a step whose motion covariance ``cov`` is
+    exactly zero gets ``floor`` alone. Jittable."""
+    weights = jax.nn.softmax(logits)
     mean = weights @ cands
     world = jnp.einsum("n,ni,nj->ij", weights, cands - mean, cands - mean)
     c, s = jnp.cos(prev[2]), jnp.sin(prev[2])
     turn = jnp.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], world.dtype)
     deterministic = jnp.all(jnp.asarray(cov) == 0)  # a step the motion model fixes: the lattice cell alone
     return jnp.where(deterministic, floor, turn.T @ world @ turn + floor)
+
+
+def step_posterior(fields: tuple, grid: Grid, center, prev, increment, cov, sensor_angles, readings, returned,
+                   power, lattice, window=None, shift=None):
+    """The covariance ``(3, 3)`` of one step's posterior in the frame of the previous pose (the sequential edge's
+    frame; m^2, m rad, rad^2): the density ``exp(power S(x) + log p(x | prev, increment, cov))`` of
+    :func:`step_logits` integrated on the non-uniform ``lattice`` (:func:`step_lattice`, its ``floor`` added) around
+    ``center``, the match (:func:`step_covariance`). The covariance of a correlative match's response (Olson 2009,
+    sec. IV-B) with the likelihood tempered as the front end's score is. A step whose motion covariance is exactly
+    zero gets ``floor``. Jittable.
+    """
+    cands, logits = step_logits(fields, grid, center, prev, increment, cov, sensor_angles, readings, returned, power,
+                                lattice, window, shift)
+    return step_covariance(cands, logits, prev, cov, lattice[-1])
 
 
 def hit_fraction(fields: tuple, grid: Grid, pose, sensor_angles, readings, returned, window=None, shift=None):
@@ -428,10 +456,13 @@ class MatchedPath(NamedTuple):
         step_cov: ``(S - 1, 3, 3)`` float64: each step's posterior covariance in the frame of the pose before it
             (:func:`step_posterior`; a step whose match was not trusted: the motion model's covariance, plus the
             lattice's ``floor``).
+        hypotheses: how many distinct paths carry at least 1 % of the weight (1 for the single track;
+            :func:`bayesmap.slam.particles.hypotheses` for the particle front end).
     """
 
     path: np.ndarray
     step_cov: np.ndarray
+    hypotheses: int = 1
 
 
 def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH_LEVELS,
@@ -468,6 +499,52 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
             grid would have fewer than 8 cells a side, ``likelihood_power`` is not in (0, 1], or
             ``min_hit_fraction`` is not in [0, 1).
     """
+    setup = front_end_setup(first_pose, data, resolution, window, half_width, likelihood_power, min_hit_fraction)
+    run = functools.partial(_correlative_steps, d=setup.scans, frame=setup.frame, span=setup.span,
+                            prior_weight=setup.prior_weight, min_hit=setup.min_hit, steps=lattices(levels),
+                            grid=setup.grid, half_width=float(half_width), power=setup.power,
+                            posterior=step_lattice())
+    start = functools.partial(start_window, setup.first_pose, setup.scans, setup.frame, setup.grid)
+    carry = _run_in_steps(run, start, data.readings.shape[0], progress)
+    return MatchedPath(np.asarray(carry[0], np.float64), np.asarray(carry[-1], np.float64)[1:])
+
+
+class FrontEndSetup(NamedTuple):
+    """What the front end's jitted loops take (:func:`front_end_setup`).
+
+    Attributes:
+        scans: the scans as :class:`FrontEndScans` (arrays of JAX's default float; bool ``returned``).
+        first_pose: ``(3,)`` the first pose, world coordinates.
+        frame: ``(3,)`` the world position of the first pose with a heading of 0: every match is computed in this
+            frame (the poses less ``frame``).
+        grid: the fields' square grid (origin 0; its cell ``(i, j)`` is the frame's cell ``offset + (i, j)``).
+        span: meters of travel of the local map (``inf``: every scan).
+        power: the likelihood power ``p``.
+        prior_weight: ``1 / p``, the motion term's weight in the search's score (scaling it instead of the field
+            score leaves the argmax the same).
+        min_hit: the least hit fraction of a trusted match.
+    """
+
+    scans: "FrontEndScans"
+    first_pose: jax.Array
+    frame: jax.Array
+    grid: Grid
+    span: jax.Array
+    power: jax.Array
+    prior_weight: jax.Array
+    min_hit: jax.Array
+
+
+def front_end_setup(first_pose, data: ScanData, resolution: float, window: float | None = LOCAL_MAP_DISTANCE,
+                    half_width: float = MATCH_GRID_HALF_WIDTH, likelihood_power: float = 1.0,
+                    min_hit_fraction: float = MIN_HIT_FRACTION) -> FrontEndSetup:
+    """Check the front end's arguments (:func:`correlative_path`'s) and build what its loops take.
+
+    Raises:
+        BayesmapError: if the shapes disagree, ``resolution`` or ``half_width`` is not a finite number > 0 or the
+            grid would have fewer than 8 cells a side, ``likelihood_power`` is not in (0, 1], or
+            ``min_hit_fraction`` is not in [0, 1).
+    """
     s, k = data.readings.shape
     if data.sensor_angles.shape != (s, k) or data.returned.shape != (s, k) or data.increments.shape != (s - 1, 3):
         raise BayesmapError(f"scan data shapes disagree: readings {data.readings.shape}, angles "
@@ -483,22 +560,27 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     n = int(math.ceil(2 * half_width / resolution))
     if n < 8:
         raise BayesmapError(f"half_width {half_width!r} m is under 4 cells of {resolution!r} m")
-    grid = Grid(shape=(n, n), resolution=resolution, origin=(0.0, 0.0))
-    steps = lattices(levels)
     dtype = jnp.result_type(float)
     first_pose = np.asarray(first_pose, np.float64)
     travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.asarray(data.increments, np.float64)[:, :2].T))])
-    span = np.inf if window is None else float(window)
     arrays = ScanData(*(jnp.asarray(a, dtype=bool if a.dtype == bool else dtype) for a in map(np.asarray, data)))
-    arrays = _Scans(*arrays, travelled=jnp.asarray(travelled, dtype))
-    frame = jnp.asarray(np.append(first_pose[:2], 0.0), dtype)  # the frame the matches are computed in (a pose)
-    run = functools.partial(_correlative_steps, d=arrays, frame=frame, span=jnp.asarray(span, dtype),
-                            prior_weight=jnp.asarray(1.0 / power, dtype), min_hit=jnp.asarray(min_hit_fraction, dtype),
-                            steps=steps, grid=grid, half_width=float(half_width),
-                            power=jnp.asarray(power, dtype), posterior=step_lattice())
-    start = functools.partial(_correlative_start, jnp.asarray(first_pose, dtype), arrays, frame, grid)
-    carry = _run_in_steps(run, start, s, progress)
-    return MatchedPath(np.asarray(carry[0], np.float64), np.asarray(carry[-1], np.float64)[1:])
+    return FrontEndSetup(scans=FrontEndScans(*arrays, travelled=jnp.asarray(travelled, dtype)),
+                         first_pose=jnp.asarray(first_pose, dtype),
+                         frame=jnp.asarray(np.append(first_pose[:2], 0.0), dtype),
+                         grid=Grid(shape=(n, n), resolution=resolution, origin=(0.0, 0.0)),
+                         span=jnp.asarray(np.inf if window is None else float(window), dtype),
+                         power=jnp.asarray(power, dtype),
+                         prior_weight=jnp.asarray(1.0 / power, dtype), min_hit=jnp.asarray(min_hit_fraction, dtype))
+
+
+def recentred(predicted, offset, grid: Grid, half_width: float):
+    """Whether the fields' window must move before matching at ``predicted`` ``(3,)`` (in the front end's frame) and
+    its offset ``(2,)`` int32 after: it moves, by whole cells, to center on ``predicted`` when that lies more than a
+    quarter of ``half_width`` from its center (:data:`MATCH_GRID_HALF_WIDTH`). Jittable."""
+    n = grid.shape[0]
+    cells = jnp.round(predicted[:2] / grid.resolution - offset - n / 2).astype(jnp.int32)  # from the center
+    far = jnp.max(jnp.abs(cells)) * grid.resolution > half_width / 4
+    return far, jnp.where(far, offset + cells, offset)
 
 
 PROGRESS_REPORTS = 100
@@ -523,7 +605,7 @@ def _run_in_steps(run, start, count: int, progress: ProgressCallback | None):
     return carry
 
 
-def _add_matched(d, grid: Grid, frame, world, u, offset, carry):
+def add_matched(d, grid: Grid, frame, world, u, offset, carry):
     """The fields and stamps ``carry`` of the window at ``offset`` with scan ``u`` of ``d`` added at its matched
     pose ``world`` ``(3,)``: its endpoints' fields (:func:`add_to_fields`), and its path length scatter-maxed into
     the cells its broad field reaches (the stamps). Computed in the front end's frame (world coordinates less
@@ -543,10 +625,10 @@ def _rebuild(d, grid: Grid, frame, path, t, offset):
     ``path``: those of a grid covering everything, restricted to the window (the stamps mask all but the local
     map)."""
     empty = (empty_fields(grid), jnp.full(grid.shape, -jnp.inf, frame.dtype))
-    return jax.lax.fori_loop(0, t, lambda u, carry: _add_matched(d, grid, frame, path[u], u, offset, carry), empty)
+    return jax.lax.fori_loop(0, t, lambda u, carry: add_matched(d, grid, frame, path[u], u, offset, carry), empty)
 
 
-def _moved(d, grid: Grid, frame, path, t, fields, stamps, old, new):
+def moved_window(d, grid: Grid, frame, path, t, fields, stamps, old, new):
     """:func:`_rebuild` at offset ``new``, from the fields and stamps at offset ``old``, the same to the bit: a cell
     that lies at least a stencil's reach (the broad field's radius in cells, plus one) inside both windows has the
     same value in either (every endpoint that reaches it lies inside both), so it is moved; every other cell is
@@ -573,14 +655,14 @@ def _moved(d, grid: Grid, frame, path, t, fields, stamps, old, new):
     scans = jnp.nonzero(again, size=len(path), fill_value=0)[0]
 
     def add(i, carry):
-        return _add_matched(d, grid, frame, path[scans[i]], scans[i], new, carry)
+        return add_matched(d, grid, frame, path[scans[i]], scans[i], new, carry)
 
     moved = (tuple(shifted(field, 0.0) for field in fields), shifted(stamps, -jnp.inf))
     return jax.lax.fori_loop(0, jnp.sum(again), add, moved)
 
 
 @functools.partial(jax.jit, static_argnames=("grid",))
-def _correlative_start(first, d, frame, grid: Grid):
+def start_window(first, d, frame, grid: Grid):
     """The carry of the front end's loop before scan 1: ``(path (S, 3)`` with row 0 ``first``, the fields and stamps
     of scan 0 at it, the window's offset: the frame's cell of its first cell, so that ``first`` is at its center;
     the steps' covariances ``(S, 3, 3)``, row ``t`` the step to scan ``t``, zeros)."""
@@ -603,16 +685,12 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
     the argmax the same); ``min_hit`` the least hit fraction of a trusted match; ``power`` the likelihood power and
     ``posterior`` the lattice (:func:`step_lattice`) of each step's covariance (:func:`step_posterior`), the last
     entry of the carry."""
-    n = grid.shape[0]
-
     def body(t, carry):
         path, fields, stamps, offset, step_cov = carry
         prev = path[t - 1] - frame
         predicted = compose(prev, d.increments[t - 1])
-        cells = jnp.round(predicted[:2] / grid.resolution - offset - n / 2).astype(jnp.int32)  # from the center
-        far = jnp.max(jnp.abs(cells)) * grid.resolution > half_width / 4
-        moved = jnp.where(far, offset + cells, offset)
-        fields, stamps = jax.lax.cond(far, lambda: _moved(d, grid, frame, path, t, fields, stamps, offset, moved),
+        far, moved = recentred(predicted, offset, grid, half_width)
+        fields, stamps = jax.lax.cond(far, lambda: moved_window(d, grid, frame, path, t, fields, stamps, offset, moved),
                                       lambda: (fields, stamps))
 
         def log_prior(cands):
@@ -626,13 +704,13 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
         cov = step_posterior(fields, grid, best, prev, d.increments[t - 1], d.covs[t - 1], *scan, power, posterior,
                              window, moved)
         cov = jnp.where(hits < min_hit, d.covs[t - 1] + posterior[-1], cov)
-        fields, stamps = _add_matched(d, grid, frame, world, t, moved, (fields, stamps))
+        fields, stamps = add_matched(d, grid, frame, world, t, moved, (fields, stamps))
         return path.at[t].set(world), fields, stamps, moved, step_cov.at[t].set(cov)
 
     return jax.lax.fori_loop(lo, hi, body, carry)
 
 
-class _Scans(NamedTuple):
+class FrontEndScans(NamedTuple):
     sensor_angles: jax.Array
     readings: jax.Array
     returned: jax.Array
