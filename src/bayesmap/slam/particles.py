@@ -240,15 +240,15 @@ def step(key, state: ParticleState, context: ParticleContext) -> tuple[ParticleS
     log_weights = log_weights - gained
     ess = 1.0 / jnp.sum(jnp.exp(2 * log_weights))
     resampled = ess < RESAMPLE_ESS * num
-    ancestors = jnp.where(resampled, systematic_resample(resample_key, log_weights), jnp.arange(num))
 
-    def take(a):
-        return jnp.where(resampled, a[ancestors], a)
+    def resample(carried):  # copies every particle's local map: only when resampling
+        ancestors = systematic_resample(resample_key, log_weights)
+        return jax.tree_util.tree_map(lambda a: a[ancestors], carried), jnp.full(num, -math.log(num), gained.dtype)
 
-    log_weights = jnp.where(resampled, jnp.full(num, -math.log(num), log_weights.dtype), log_weights)
-    state = ParticleState(t=t + 1, paths=take(paths), fields=tuple(map(take, fields)), stamps=take(stamps),
-                          offset=moved, log_weights=log_weights, step_cov=take(step_cov),
-                          resamples=state.resamples + resampled.astype(jnp.int32),
+    (paths, fields, stamps, step_cov), log_weights = jax.lax.cond(
+        resampled, resample, lambda carried: (carried, log_weights), (paths, fields, stamps, step_cov))
+    state = ParticleState(t=t + 1, paths=paths, fields=fields, stamps=stamps, offset=moved, log_weights=log_weights,
+                          step_cov=step_cov, resamples=state.resamples + resampled.astype(jnp.int32),
                           log_evidence=state.log_evidence + gained)
     return state, ParticleInfo(ess=ess, resampled=resampled, evidence=evidence, trusted=trusted)
 
@@ -293,8 +293,9 @@ def particle_path(first_pose, data: ScanData, resolution: float, particles: int,
     """Sequential Monte Carlo over the front end's path (the module docstring) with ``particles`` particles.
 
     Args:
-        first_pose, data, resolution, levels, window, half_width, likelihood_power, min_hit_fraction: as
-            :func:`bayesmap.slam.scanmatch.correlative_path`.
+        first_pose: ``(3,)`` the fixed first pose (x m, y m, theta rad).
+        data: the scans and odometry (:class:`bayesmap.slam.scanmatch.ScanData`).
+        resolution: the fields' cell size, meters.
         particles: ``N >= 1``; memory grows by about 30 MB a particle (a particle's fields on a 0.05 m grid of
             +-40 m), time about linearly on a CPU.
         seed: the random seed (``jax.random.key(seed)``; scan ``t``'s key is ``fold_in(key, t)``).
@@ -302,6 +303,13 @@ def particle_path(first_pose, data: ScanData, resolution: float, particles: int,
             particles then differing by the basins their searches found (on every other scan of ACES and CSAIL,
             odometry seeds 0-4, the start path's ATE was lower with False on 7 of 10 runs;
             [validation](../validation/slam.md#several-hypotheses-in-the-front-end)).
+        levels: the coarse-to-fine search (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`).
+        window: meters of travel of each particle's local map (:data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`;
+            None: every earlier scan).
+        half_width: meters, the fields' half width (:data:`bayesmap.slam.scanmatch.MATCH_GRID_HALF_WIDTH`).
+        likelihood_power: ``p`` in (0, 1], the field score's power against the motion model.
+        min_hit_fraction: a match that puts fewer of the scan's endpoints on the particle's local map is not
+            trusted (:data:`bayesmap.slam.scanmatch.MIN_HIT_FRACTION`).
         progress: called with ``Progress("front end", done, S - 1, "scan")`` as blocks of scans are matched (the
             same result); None: one call.
 

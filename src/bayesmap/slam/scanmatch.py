@@ -629,11 +629,13 @@ def _rebuild(d, grid: Grid, frame, path, t, offset):
 
 
 def moved_window(d, grid: Grid, frame, path, t, fields, stamps, old, new):
-    """:func:`_rebuild` at offset ``new``, from the fields and stamps at offset ``old``, the same to the bit: a cell
-    that lies at least a stencil's reach (the broad field's radius in cells, plus one) inside both windows has the
-    same value in either (every endpoint that reaches it lies inside both), so it is moved; every other cell is
-    cleared and filled again from the scans ``< t`` whose endpoints reach it (by their bounding box plus the
-    reach; adding a scan twice changes nothing). Scans far from the windows' edges, most of them, are skipped."""
+    """The fields and stamps of the window at offset ``new`` (``(2,)`` int32; those of a grid covering every scan
+    ``< t`` of ``d`` at its pose in ``path`` ``(S, 3)``, restricted to the window), from those at offset ``old``,
+    the same to the bit as a rebuild from every scan. Jittable. A cell that lies at least a stencil's reach (the
+    broad field's radius in cells, plus one) inside both windows has the same value in either (every endpoint
+    that reaches it lies inside both), so it is moved; every other cell is cleared and filled again from the
+    scans ``< t`` whose endpoints reach it (by their bounding box plus the reach; adding a scan twice changes
+    nothing). Scans far from the windows' edges, most of them, are skipped."""
     n = grid.shape[0]
     delta = new - old
     margin = _stencil_reach(grid.resolution, FIELDS[-1][1]) + 1
@@ -711,6 +713,10 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
 
 
 class FrontEndScans(NamedTuple):
+    """The scans as the front end's jitted loops read them: :class:`ScanData`'s arrays (JAX's default float; bool
+    ``returned``) and ``travelled`` ``(S,)``, the odometry's path length at each scan, meters (the stamps of the local
+    map, :func:`add_matched`)."""
+
     sensor_angles: jax.Array
     readings: jax.Array
     returned: jax.Array
