@@ -97,10 +97,11 @@ shifts)."""
 
 FRONT_END_PARTICLES = 1
 """Hypotheses the front end keeps (:func:`bayesmap.slam.particles.particle_path`); 1: the single-track correlative
-front end, the same path as before the particles existed. Time and memory grow about linearly with it on a CPU
-(about 30 MB a particle). Chosen by leave-one-log-out cross-validation of the start path's ATE between 1 and 8 over
-Intel, ACES and CSAIL, odometry seeds 0-2, every scan and every other scan (``benchmarks/front_end_cv.py
---parameter particles``; [validation](../validation/slam.md#several-hypotheses-in-the-front-end))."""
+front end, the same path as before the particles existed. On a CPU time grows about linearly with it, memory by about
+30 MB a particle. Kept at 1 by leave-one-log-out cross-validation of the start path's ATE between 1 and 8 over Intel,
+ACES and CSAIL, odometry seeds 0-2, every scan and every other scan (``benchmarks/front_end_cv.py --parameter
+particles``; [validation](../validation/defaults.md#front_end_particles))."""
+
 
 MAP_MARGIN = 2.0
 """Meters around the matched path's endpoints for the final grid (room for the chain's pose moves)."""
