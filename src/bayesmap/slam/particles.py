@@ -64,6 +64,7 @@ from bayesmap.slam.scanmatch import (
     hit_fraction,
     lattice_scores,
     lattices,
+    local_map,
     moved_window,
     recentred,
     search,
@@ -176,15 +177,15 @@ def _move(context: ParticleContext, key, k, t, prev, fields, stamps, shift):
 
     predicted = compose(prev, u)
     start = jnp.where(k % 2 == 0, predicted, motion_draw(start_key))
-    window = (stamps, d.travelled[t] - setup.span)
+    seen = local_map(fields, stamps, d.travelled[t] - setup.span)
     scan = (d.sensor_angles[t], d.readings[t], d.returned[t])
 
     def log_prior(cands):
         return setup.prior_weight * motion_logpdf(prev, cands, u, cov)
 
-    best, _ = search(fields, grid, start, *scan, context.levels, log_prior, window, shift=shift)
-    trusted = hit_fraction(fields, grid, best, *scan, window, shift=shift) >= setup.min_hit
-    cands, logits = step_logits(fields, grid, best, prev, u, cov, *scan, setup.power, context.lattice, window, shift)
+    best, _ = search(seen, grid, start, *scan, context.levels, log_prior, shift=shift)
+    trusted = hit_fraction(seen, grid, best, *scan, shift=shift) >= setup.min_hit
+    cands, logits = step_logits(seen, grid, best, prev, u, cov, *scan, setup.power, context.lattice, shift=shift)
     if context.draw:
         node = jax.random.categorical(node_key, logits)
         jitter = jax.random.uniform(cell_key, (3,), cands.dtype, -0.5, 0.5)
@@ -192,8 +193,8 @@ def _move(context: ParticleContext, key, k, t, prev, fields, stamps, shift):
     else:
         matched = best
     drawn = motion_draw(motion_key) if context.draw else predicted
-    at_drawn = lattice_scores(fields[0], grid, drawn, jnp.zeros((1, 2), drawn.dtype), jnp.zeros(1, drawn.dtype),
-                              *scan, interpolate=True, window=window, shift=shift)[0]
+    at_drawn = lattice_scores(seen[0], grid, drawn, jnp.zeros((1, 2), drawn.dtype), jnp.zeros(1, drawn.dtype),
+                              *scan, interpolate=True, shift=shift)[0]
     floor = context.lattice[-1]
     step_cov = jnp.where(trusted, step_covariance(cands, logits, prev, cov, floor), cov + floor)
     evidence = jnp.where(trusted, jax.nn.logsumexp(logits), setup.power * at_drawn)
