@@ -48,13 +48,12 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.model.motion import compose, motion_logpdf
-from bayesmap.progress import ProgressCallback, report
+from bayesmap.progress import ProgressCallback
 from bayesmap.slam.scanmatch import (
     LOCAL_MAP_DISTANCE,
     MATCH_GRID_HALF_WIDTH,
     MATCH_LEVELS,
     MIN_HIT_FRACTION,
-    PROGRESS_REPORTS,
     FrontEndSetup,
     Lattices,
     MatchedPath,
@@ -67,6 +66,7 @@ from bayesmap.slam.scanmatch import (
     local_map,
     moved_window,
     recentred,
+    run_in_blocks,
     search,
     start_window,
     step_cell_widths,
@@ -255,15 +255,16 @@ def step(key, state: ParticleState, context: ParticleContext) -> tuple[ParticleS
 
 
 @functools.partial(jax.jit, donate_argnames=("state",), static_argnames=("grid", "half_width", "draw"))
-def _steps(state, hi, key, setup_arrays, grid, levels, lattice, widths, half_width, draw):
-    """:func:`step` from ``state`` up to scan ``hi`` (exclusive), the key of scan ``t`` ``fold_in(key, t)``."""
+def _steps(state, lo, hi, key, setup_arrays, grid, levels, lattice, widths, half_width, draw):
+    """:func:`step` over the scans ``lo <= t < hi`` from ``state`` (whose ``t`` is ``lo``), the key of scan ``t``
+    ``fold_in(key, t)``."""
     setup = FrontEndSetup(*setup_arrays[:3], grid, *setup_arrays[3:])
     context = ParticleContext(setup, levels, lattice, widths, half_width, draw)
 
     def body(t, state):
         return step(jax.random.fold_in(key, t), state, context)[0]
 
-    return jax.lax.fori_loop(state.t, hi, body, state)
+    return jax.lax.fori_loop(lo, hi, body, state)
 
 
 class ParticlePath(NamedTuple):
@@ -332,16 +333,11 @@ def particle_path(first_pose, data: ScanData, resolution: float, particles: int,
     run = functools.partial(_steps, key=key, setup_arrays=arrays, grid=setup.grid, levels=context.levels,
                             lattice=context.lattice, widths=context.widths, half_width=context.half_width,
                             draw=context.draw)
-    state = init(context, int(particles))
-    state = jax.tree_util.tree_map(jnp.array, state)  # its own buffers: the loop donates them
-    if progress is None or count < 2:
-        state = run(state, count)
-    else:
-        report(progress, "front end", 0, count - 1, "scan")
-        block = max(1, -(-(count - 1) // PROGRESS_REPORTS))
-        for hi in range(1 + block, count + block, block):
-            state = jax.block_until_ready(run(state, min(hi, count)))
-            report(progress, "front end", min(hi, count) - 1, count - 1, "scan")
+
+    def start():
+        return jax.tree_util.tree_map(jnp.array, init(context, int(particles)))  # its own buffers: the loop donates
+
+    state = run_in_blocks(run, start, count, progress)
     log_weights = np.asarray(state.log_weights, np.float64)
     paths = np.asarray(state.paths, np.float64)
     best = int(np.argmax(log_weights))

@@ -515,7 +515,7 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
                             grid=setup.grid, half_width=float(half_width), power=setup.power,
                             posterior=step_lattice())
     start = functools.partial(start_window, setup.first_pose, setup.scans, setup.frame, setup.grid)
-    carry = _run_in_steps(run, start, data.readings.shape[0], progress)
+    carry = run_in_blocks(run, start, data.readings.shape[0], progress)
     return MatchedPath(np.asarray(carry[0], np.float64), np.asarray(carry[-1], np.float64)[1:])
 
 
@@ -599,10 +599,11 @@ costs about 3.5 ms on the 2-core machine, a third of a scan's matching, so a cal
 by a third."""
 
 
-def _run_in_steps(run, start, count: int, progress: ProgressCallback | None):
-    """``run(start(), 1, count)``, the front end's loop over the scans ``1 .. count - 1`` from the carry ``start()``
-    makes; with ``progress``, in about :data:`PROGRESS_REPORTS` blocks of scans, one call each (the same carry: the
-    loop's bounds are arguments, one compilation), reporting the scans matched after each."""
+def run_in_blocks(run, start, count: int, progress: ProgressCallback | None):
+    """``run(start(), 1, count)``, a front end's loop over the scans ``1 .. count - 1`` from the carry
+    ``start()`` makes (the single track's and the particles', :mod:`bayesmap.slam.particles`); with ``progress``,
+    in about :data:`PROGRESS_REPORTS` blocks of scans, one call each (the same carry: the loop's bounds are
+    arguments, one compilation), reporting the scans matched after each."""
     if progress is None or count < 2:
         return run(start(), 1, count)
     report(progress, "front end", 0, count - 1, "scan")
