@@ -15,6 +15,9 @@ motion model's log-density. Two of its settings are chosen here:
   docs/slam.md, "A longer local map").
 * ``consistency_gate``: not the front end's but the loop closure's, the squared norm up to which two loop edges
   count as consistent (:data:`bayesmap.slam.posegraph.CONSISTENCY_GATE`).
+* ``loop_window_sigmas``: the loop closure's too, how many standard deviations of a candidate's drift along the
+  chain the first round's search window covers (:data:`bayesmap.slam.posegraph.LOOP_WINDOW_SIGMAS`; 0: every
+  window +-1.5 m). The loop closure's settings reuse one front end per (log, seed, scans).
 * ``particles``: how many hypotheses the front end keeps (:data:`bayesmap.slam.pipeline.FRONT_END_PARTICLES`;
   :mod:`bayesmap.slam.particles`).
 
@@ -43,7 +46,7 @@ Each run is appended to ``--records FILE`` (JSON lines) as soon as it is done, a
 repeated, so the grid can be split between processes and resumed.
 
 Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F
-           [--parameter power|min_hit_fraction|window|consistency_gate|particles]
+           [--parameter power|min_hit_fraction|window|consistency_gate|particles|loop_window_sigmas]
            [--values 1,0.3,0.1,0.03] [--seeds 0-2] [--logs intel,aces,csail] [--scans all,heldout]
 """
 
@@ -70,7 +73,7 @@ from bayesmap.slam.problem import SLAM_LIKELIHOOD_POWER, log_slam_problem  # noq
 
 DEFAULTS = {"power": SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HIT_FRACTION,
             "window": scanmatch.LOCAL_MAP_DISTANCE, "consistency_gate": posegraph.CONSISTENCY_GATE,
-            "particles": pipeline.FRONT_END_PARTICLES}
+            "particles": pipeline.FRONT_END_PARTICLES, "loop_window_sigmas": posegraph.LOOP_WINDOW_SIGMAS}
 """The settings this script can vary, and the value each takes while the other is varied (the defaults of
 :func:`bayesmap.slam.pipeline.front_end`)."""
 
@@ -79,20 +82,29 @@ SCAN_SETS = ("all", "heldout", "every2")
 ``every2``: every other scan."""
 
 
-def start_path(log, truth, scans: str, parameter: str, value: float) -> dict:
+FRONT_ENDS: dict = {}
+"""The last front end run (:func:`start_path`), by the log and the front end's settings."""
+
+
+def start_path(log, truth, scans: str, parameter: str, value: float, name: tuple = ()) -> dict:
     """One run's figures: the start path of ``run_log_slam`` (:func:`bayesmap.slam.pipeline.front_end`, then loop
     closure) for the log's SLAM problem on the scans ``scans`` (:data:`SCAN_SETS`), with the front-end setting
     ``parameter`` at ``value``. The power is passed as the problem's likelihood power, which only the front end
-    reads here."""
+    reads here. ``name`` (the log's name and seed) keys the front end kept for the loop closure's settings."""
     began = time.perf_counter()
     kept = {"all": None, "heldout": heldout_split(len(log), 10)[0], "every2": np.arange(0, len(log), 2)}[scans]
     setting = {**DEFAULTS, parameter: value}
     problem = log_slam_problem(log, kept, likelihood_power=setting["power"])
     data = pipeline.scan_data(problem)
-    matched = pipeline.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"],
-                                 window=setting["window"], particles=int(setting["particles"]))
+    key = (name, scans, *(setting[k] for k in ("power", "min_hit_fraction", "window", "particles")))
+    if not name or key not in FRONT_ENDS:  # the loop closure's settings share one front end
+        FRONT_ENDS.clear()
+        FRONT_ENDS[key] = pipeline.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"],
+                                             window=setting["window"], particles=int(setting["particles"]))
+    matched = FRONT_ENDS[key]
     front = matched.path
-    closed, edges, _ = posegraph.close_loops(front, data, consistency_gate=setting["consistency_gate"])
+    closed, edges, _ = posegraph.close_loops(front, data, consistency_gate=setting["consistency_gate"],
+                                             window_sigmas=setting["loop_window_sigmas"])
     truth = truth if kept is None else truth[kept]
     return {"parameter": parameter, "value": value, "scans": scans,
             "front_end_ate_m": absolute_trajectory_error(front, truth)["rmse_m"],
@@ -163,7 +175,8 @@ def main(argv: list[str] | None = None) -> int:
             for scans, value in todo:
                 if (name, seed, scans, args.parameter, value) in have:
                     continue
-                record = {"log": name, "seed": seed, **start_path(log, truth, scans, args.parameter, value)}
+                figures = start_path(log, truth, scans, args.parameter, value, (name, seed))
+                record = {"log": name, "seed": seed, **figures}
                 records = [record]
                 if args.parameter == "min_hit_fraction" and record["odometry_steps"] == 0:
                     # no scan fell below this fraction, so none falls below a smaller one: the same run

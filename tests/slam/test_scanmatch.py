@@ -437,10 +437,102 @@ def test_loop_candidates_respect_gap_and_radius():
     s = posegraph.LOOP_GAP + 10
     x = np.concatenate([np.arange(s // 2) * 1.0, (s // 2 - np.arange(s - s // 2)) * 1.0])
     path = np.stack([x, 0 * x, 0 * x], axis=1)
-    pairs = posegraph.loop_candidates(path)
+    pairs, half_widths = posegraph.loop_candidates(path)
     assert len(pairs) > 0
     assert np.all(pairs[:, 1] - pairs[:, 0] >= posegraph.LOOP_GAP)
     assert np.all(np.abs(x[pairs[:, 0]] - x[pairs[:, 1]]) < posegraph.LOOP_RADIUS)
+    assert np.all(half_widths == 1.5)
+
+
+def arc(steps=60, radius=3.0, turns=2.2):
+    """Poses along an arc of ``turns * pi`` radians (0.3 m steps at the defaults), starting at the origin with heading
+    0, heading along the path."""
+    t = np.linspace(0, turns * np.pi, steps + 1)
+    return np.stack([radius * np.sin(t), radius * (1 - np.cos(t)), posegraph.wrap_angle(t)], axis=1)
+
+
+def test_a_chains_covariance_is_its_graphs_marginal_from_the_older_pose():
+    """``chain_covariances`` (prefix sums) for pairs ``(s, t)`` of a 60-step arc equals the pose graph's Laplace
+    covariance of pose ``t`` in the graph of the sequential edges from ``s`` to ``t`` with pose ``s`` fixed
+    (``marginal_covariances``: a sparse solve, another computation of the same first-order quantity), to rounding;
+    the arc starts at the origin with heading 0, so the chain's frame is the world's. Pairs with ``s > t`` or
+    outside the chain are refused."""
+    path = arc()
+    seq = posegraph.sequential_edges(path)
+    seq = seq._replace(std=seq.std * np.linspace(0.5, 2.0, len(seq.i))[:, None])  # every edge its own noise
+    pairs = np.array([[0, 60], [10, 55], [30, 31], [7, 7]])
+    cov = posegraph.chain_covariances(seq, pairs)
+    for (s, t), c in zip(pairs, cov):
+        if s == t:
+            np.testing.assert_array_equal(c, 0.0)
+            continue
+        sub = posegraph.Edges(seq.i[s:t] - s, seq.j[s:t] - s, seq.z[s:t], seq.std[s:t])
+        np.testing.assert_allclose(c, posegraph.marginal_covariances(path[s:t + 1], sub)[-1], rtol=1e-9, atol=1e-12)
+    for bad in ([[5, 4]], [[0, 61]], [[-1, 3]]):
+        with pytest.raises(BayesmapError):
+            posegraph.chain_covariances(seq, bad)
+
+
+def test_the_first_rounds_loop_candidates_reach_as_far_as_the_chain_may_have_drifted():
+    """A robot drives 20 m out and comes back 5 m to the side of where it went (in the estimate; a long loop's
+    drift): at the standard radius (4 m) there is no candidate; sized by the chain's drift (the default sequential
+    noise over 40-80 steps: meters), the scans of the way back are candidates (each paired with the scan of the way
+    out beside it, at 5 m), within 4 m plus their drift (1.1-2.5 m), each searched over the window of
+    ``LOOP_WINDOWS`` that covers it (1.5 or 3 m), and the search window's volume grows with it. With
+    ``sigmas`` 0 the candidates are the standard ones."""
+    out = np.stack([np.arange(41) * 0.5, np.zeros(41), np.zeros(41)], axis=1)
+    back = np.stack([20.0 - np.arange(1, 41) * 0.5, np.full(40, 5.0), np.full(40, np.pi)], axis=1)
+    path = np.concatenate([out, back])
+    seq = posegraph.sequential_edges(path)
+    assert len(posegraph.loop_candidates(path)[0]) == 0
+    assert len(posegraph.loop_candidates(path, seq, sigmas=0.0)[0]) == 0
+    pairs, half_widths = posegraph.loop_candidates(path, seq)
+    assert len(pairs) >= 6 and np.all(pairs[:, 1] > 40)  # scans of the way back, 5 m beside the way out
+    np.testing.assert_allclose(np.hypot(*(path[pairs[:, 0], :2] - path[pairs[:, 1], :2]).T), 5.0)
+    drift = posegraph.LOOP_WINDOW_SIGMAS * np.sqrt(np.linalg.eigvalsh(
+        posegraph.chain_covariances(seq, pairs)[:, :2, :2])[:, -1])
+    assert np.all(drift > 1.0) and set(half_widths.tolist()) == {1.5, 3.0}  # the longer the loop, the wider
+    assert np.all((half_widths >= drift) | (half_widths == posegraph.LOOP_WINDOWS[-1]))
+    distance = np.hypot(*(path[pairs[:, 0], :2] - path[pairs[:, 1], :2]).T)
+    assert np.all(distance < posegraph.LOOP_RADIUS + np.minimum(drift, posegraph.LOOP_WINDOWS[-1]))
+    volumes = posegraph.window_volumes(posegraph.LOOP_WINDOWS)
+    assert volumes[0] == pytest.approx(31 * 0.1 * 31 * 0.1 * 15 * 0.03)
+    np.testing.assert_allclose(volumes / volumes[0], [1.0, 4.0, (61 * 0.2 / 3.1) ** 2])
+    with pytest.raises(BayesmapError):
+        posegraph.loop_levels(2.0)
+
+
+def test_a_false_edges_evidence_is_uniform_over_its_own_search_window():
+    """``log_evidence`` of a set that leaves a loop edge out falls by the log of that edge's window volume: searched
+    over 6 m instead of 1.5 m, by ``log((12.2 / 3.1)^2)`` (the first lattices' areas; the headings are the same), and
+    a chosen edge's term does not depend on its window."""
+    truth, seq, drifted = drifted_square_loop()
+    loop = posegraph.Edges(np.array([0]), np.array([14]), posegraph.relative(truth[:1], truth[14:15]),
+                           np.array([[0.1, 0.1, 0.04]]))
+    none = np.zeros(0, np.int64)
+    narrow, wide = (posegraph.log_evidence(drifted, seq, loop, none, [w]) for w in (1.5, 6.0))
+    assert narrow == pytest.approx(posegraph.log_evidence(drifted, seq, loop, none), abs=1e-12)
+    assert narrow - wide == pytest.approx(2 * np.log(12.2 / 3.1), abs=1e-9)
+    assert posegraph.log_evidence(drifted, seq, loop, [0], [6.0]) == posegraph.log_evidence(drifted, seq, loop, [0])
+
+
+def test_a_wide_loop_search_finds_a_scan_the_standard_window_cannot_reach():
+    """A scan of the room whose estimate is 2.2 m off (1.2 m in x, 1.8 m in y: outside the standard +-1.5 m square)
+    matched against the local map of the first scans: searched over +-3 m it lands within a cell (5 cm; the room's
+    axis-aligned walls are flat in score over a cell, see the registration test below) and 0.01 rad of its true pose;
+    over +-1.5 m it does not (it can move at most 1.5 m plus the finer levels' 0.116 m along y). The progress
+    reports count every candidate once, in order, across the two windows' searches."""
+    grid, truth, odometry, beams, readings = room_scans(num_poses=30)
+    data = ScanData(beams, readings, readings < 19.9, np.zeros((29, 3)), np.tile(np.eye(3), (29, 1, 1)))
+    path = truth.copy()
+    path[25, :2] += (1.2, 1.8)
+    seen = []
+    poses, quality = posegraph.match_loops(path, data, np.array([[0, 25], [0, 25]]), progress=seen.append,
+                                           half_widths=[3.0, 1.5])
+    assert np.hypot(*(poses[0, :2] - truth[25, :2])) < 0.05 and abs(poses[0, 2] - truth[25, 2]) < 0.01
+    assert quality[0] >= posegraph.LOOP_MIN_HIT_FRACTION  # an accepted loop edge
+    assert np.hypot(*(poses[1, :2] - truth[25, :2])) > 0.15  # 1.8 m less its reach of 1.616 m
+    assert seen == [Progress("loop closure", done, 2, "scan") for done in range(3)]
 
 
 def test_a_second_run_of_the_same_shapes_compiles_nothing(caplog):

@@ -7,7 +7,9 @@ consistent start for the joint chain (graph SLAM: Lu & Milios 1997, "Globally co
   (``t - s >= LOOP_GAP``) is matched (correlative scan matching, :func:`bayesmap.slam.scanmatch.search`, with
   the wide window :data:`LOOP_LEVELS`) against a local map of the scans ``s - LOOP_NEIGHBOURS .. s +
   LOOP_NEIGHBOURS`` at their estimates; if at least :data:`LOOP_MIN_HIT_FRACTION` of its returned beams land on that
-  map, the match gives a loop edge ``s -> t``.
+  map, the match gives a loop edge ``s -> t``. In the first round, before any loop ties the path, the window and the
+  radius grow with the drift the sequential edges allow between ``s`` and ``t`` (:func:`loop_candidates`,
+  :func:`chain_covariances`, :data:`LOOP_WINDOWS`).
 * **Optimization.** The path minimizing ``sum rho(f^2)`` over the components ``f`` of the whitened residuals ``W
   (relative(x_i, x_j) - z_ij)`` of every edge, with the first pose fixed, ``W`` the edge's square-root information
   and ``rho`` the Cauchy loss (a false loop closure costs a bounded amount), by Levenberg-Marquardt on iteratively
@@ -72,6 +74,20 @@ several scans, each of which would give almost the same edge."""
 LOOP_LEVELS = ((0.1, 0.03, 15, 7, 1), (0.03, 0.01, 3, 3, 0), (0.01, 0.0033, 2, 2, 0), (0.003, 0.001, 2, 2, 0))
 """The loop search (as :data:`bayesmap.slam.scanmatch.MATCH_LEVELS`): +-1.5 m and +-0.21 rad (12 degrees)
 around the current estimate, down to 3 mm and 0.06 degrees."""
+
+LOOP_WINDOWS = (1.5, 3.0, 6.0)
+"""Meters: the half widths the first round's loop search can take (:func:`loop_levels`, :func:`loop_candidates`):
+:data:`LOOP_LEVELS`' 1.5 m, or wider where the drift since the older scan may be larger. Doubling steps, so that a
+few compiled searches serve every candidate; the widest bounds the search's time (four times the first level's
+candidates of 3 m, sixteen of 1.5 m)."""
+
+LOOP_WINDOW_SIGMAS = 2.5
+"""How many standard deviations of a candidate's drift (:func:`chain_covariances`, the largest of its position's)
+the first round's search window covers: the smallest of :data:`LOOP_WINDOWS` that is at least this many, else the
+widest. Chosen among 0 (every window 1.5 m), 2.5 and 4 by leave-one-log-out cross-validation of the start path's ATE
+over Intel, ACES and CSAIL, odometry seeds 0-4, every scan and every other scan (``benchmarks/front_end_cv.py
+--parameter loop_window_sigmas``): two of the three folds choose 4, which gives the same path as 2.5 on all 30 runs,
+and the smaller windows cost less search; [validation](../validation/defaults.md#loop_window_sigmas)."""
 
 LOOP_MIN_HIT_FRACTION = 0.6
 """Least fraction of a candidate's returned beams that must land on the local map for a loop edge."""
@@ -214,17 +230,60 @@ def sequential_edges(path) -> Edges:
                  np.tile(np.asarray(SEQUENTIAL_STD), (n, 1)))
 
 
-def loop_candidates(path) -> np.ndarray:
-    """``(P, 2)`` int pairs ``(s, t)``: for every :data:`LOOP_STRIDE`-th scan ``t``, the nearest scan
-    ``s <= t - LOOP_GAP`` within :data:`LOOP_RADIUS` meters of it in ``path`` ``(S, 3)``, if any."""
+def loop_levels(half_width: float) -> tuple:
+    """The loop search's levels (as :data:`LOOP_LEVELS`) for a window of +-``half_width`` meters (one of
+    :data:`LOOP_WINDOWS`): :data:`LOOP_LEVELS` for 1.5 m; wider, a first lattice of 0.2 m steps on the broad field
+    (whose 0.2 m standard deviation spans them) and the same headings, then 0.1 m steps over +-0.2 m, then
+    :data:`LOOP_LEVELS`' finer levels.
+
+    Raises:
+        BayesmapError: if ``half_width`` is not one of :data:`LOOP_WINDOWS`.
+    """
+    if half_width not in LOOP_WINDOWS:
+        raise BayesmapError(f"half_width must be one of LOOP_WINDOWS {LOOP_WINDOWS}, got {half_width!r}")
+    if half_width == LOOP_WINDOWS[0]:
+        return LOOP_LEVELS
+    _, theta, _, theta_steps, field = LOOP_LEVELS[0]
+    return ((0.2, theta, int(round(half_width / 0.2)), theta_steps, field), (0.1, theta, 2, 1, field),
+            *LOOP_LEVELS[1:])
+
+
+def loop_candidates(path, sequential: Edges | None = None,
+                    sigmas: float = LOOP_WINDOW_SIGMAS) -> tuple[np.ndarray, np.ndarray]:
+    """The loop candidates of ``path`` ``(S, 3)`` and the half width of each one's search.
+
+    For every :data:`LOOP_STRIDE`-th scan ``t``, the nearest scan ``s <= t - LOOP_GAP`` in ``path``. Without
+    ``sequential``, it is a candidate within :data:`LOOP_RADIUS` meters, searched over +-1.5 m
+    (:data:`LOOP_LEVELS`). With the graph's ``sequential`` edges (the first round, when nothing but the chain ties
+    ``t`` to ``s``) and ``sigmas > 0``, the window is the smallest of :data:`LOOP_WINDOWS` that covers ``sigmas``
+    standard deviations of ``t``'s position given ``s``'s (its drift: the square root of the largest eigenvalue of the
+    position block of :func:`chain_covariances`; the widest window if none covers it), and ``s`` is a candidate within
+    :data:`LOOP_RADIUS` plus that drift (at most the widest window): a long loop's drift can exceed 1.5 m, where the
+    standard window would miss the place the scan was taken.
+
+    Returns:
+        ``(pairs (P, 2) int64, half_widths (P,) float64)``: the pairs ``(s, t)`` and each one's window (meters).
+
+    Raises:
+        BayesmapError: as :func:`chain_covariances`.
+    """
     xy = np.asarray(path, np.float64)[:, :2]
-    pairs = []
+    pairs, distances = [], []
     for t in range(LOOP_GAP, len(xy), LOOP_STRIDE):
         d = np.hypot(*(xy[: t - LOOP_GAP + 1] - xy[t]).T)
         s = int(np.argmin(d))
-        if d[s] < LOOP_RADIUS:
-            pairs.append((s, t))
-    return np.asarray(pairs, np.int64).reshape(-1, 2)
+        pairs.append((s, t))
+        distances.append(d[s])
+    pairs, distances = np.asarray(pairs, np.int64).reshape(-1, 2), np.asarray(distances)
+    drift = np.zeros(len(pairs))
+    if sequential is not None and sigmas > 0 and len(pairs):
+        cov = chain_covariances(sequential, pairs)
+        drift = sigmas * np.sqrt(np.linalg.eigvalsh(cov[:, :2, :2])[:, -1])
+    windows = np.asarray(LOOP_WINDOWS)
+    fits = windows[None, :] >= drift[:, None]
+    half_widths = np.where(fits.any(axis=1), windows[np.argmax(fits, axis=1)], windows[-1])
+    near = distances < LOOP_RADIUS + np.minimum(drift, windows[-1])
+    return pairs[near], half_widths[near]
 
 
 def local_map_grid() -> Grid:
@@ -235,22 +294,42 @@ def local_map_grid() -> Grid:
 
 
 def match_loops(path, data: ScanData, pairs, progress: ProgressCallback | None = None,
-                stage: str = "loop closure") -> tuple[np.ndarray, np.ndarray]:
+                stage: str = "loop closure", half_widths=None) -> tuple[np.ndarray, np.ndarray]:
     """Match scan ``t`` against the local map around scan ``s`` for each pair of ``pairs`` ``(P, 2)``
-    (:func:`match_to_local_maps` with :data:`LOOP_LEVELS`, from ``t``'s estimate, the local map of the scans
-    ``s - LOOP_NEIGHBOURS .. s + LOOP_NEIGHBOURS``, every :data:`LOCAL_MAP_STEP`-th, centered on ``s``), reporting
-    to ``progress`` per pair as :func:`match_to_local_maps`.
+    (:func:`match_to_local_maps` with :func:`loop_levels` of the pair's entry of ``half_widths`` ``(P,)``, default
+    1.5 m for every pair, from ``t``'s estimate, the local map of the scans ``s - LOOP_NEIGHBOURS .. s +
+    LOOP_NEIGHBOURS``, every :data:`LOCAL_MAP_STEP`-th, centered on ``s``), reporting ``Progress(stage, done, P,
+    "scan")`` before the first match and after each.
 
     Returns:
         ``(poses (P, 3), hit_fraction (P,))``: scan ``t``'s matched world pose and its match quality
         (:func:`bayesmap.slam.scanmatch.hit_fraction`).
+
+    Raises:
+        BayesmapError: as :func:`loop_levels` and :func:`match_to_local_maps`.
     """
     path = np.asarray(path, np.float64)
     pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    half_widths = (np.full(len(pairs), LOOP_WINDOWS[0]) if half_widths is None
+                   else np.asarray(half_widths, np.float64).reshape(-1))
+    if len(half_widths) != len(pairs):
+        raise BayesmapError(f"half_widths {half_widths.shape} must have one entry per pair {pairs.shape}")
     offsets = np.arange(-LOOP_NEIGHBOURS, LOOP_NEIGHBOURS + 1, LOCAL_MAP_STEP)
     neighbours = np.clip(pairs[:, :1] + offsets, 0, len(path) - 1)
-    return match_to_local_maps(path, data, pairs[:, 1], neighbours, path[pairs[:, 1]], path[pairs[:, 0], :2],
-                               progress=progress, stage=stage)
+    poses, quality = np.zeros((len(pairs), 3)), np.zeros(len(pairs))
+    done = 0
+    for width in np.unique(half_widths):  # one compiled search per window
+        rows = np.flatnonzero(half_widths == width)
+
+        def shifted(p, offset=done):  # this window's reports as part of every candidate's count
+            if p.done > 0 or offset == 0:
+                report(progress, stage, offset + p.done, len(pairs), p.unit)
+
+        poses[rows], quality[rows] = match_to_local_maps(
+            path, data, pairs[rows, 1], neighbours[rows], path[pairs[rows, 1]], path[pairs[rows, 0], :2],
+            levels=loop_levels(float(width)), progress=None if progress is None else shifted, stage=stage)
+        done += len(rows)
+    return poses, quality
 
 
 def match_to_local_maps(path, data: ScanData, scans, neighbours, starts, centers=None, levels=LOOP_LEVELS,
@@ -338,17 +417,23 @@ def _search_local_map(fields, logs, center, angles, readings, returned, steps: L
     return best, hit_fraction(fields, grid, best, angles, readings, returned)
 
 
-def loop_edges(path, data: ScanData, progress: ProgressCallback | None = None, stage: str = "loop closure") -> Edges:
-    """The accepted loop edges of ``path`` (:func:`loop_candidates`, :func:`match_loops`, quality at least
-    :data:`LOOP_MIN_HIT_FRACTION`), with :data:`LOOP_STD`; ``progress`` gets ``Progress(stage, done, P, "scan")``
-    per candidate matched (:func:`match_to_local_maps`)."""
-    pairs = loop_candidates(path)
+def loop_edges(path, data: ScanData, progress: ProgressCallback | None = None, stage: str = "loop closure",
+               sequential: Edges | None = None, sigmas: float = LOOP_WINDOW_SIGMAS) -> tuple[Edges, np.ndarray]:
+    """The accepted loop edges of ``path`` (:func:`loop_candidates`, the windows sized by ``sequential`` and
+    ``sigmas`` if ``sequential`` is given; :func:`match_loops`; quality at least :data:`LOOP_MIN_HIT_FRACTION`), with
+    :data:`LOOP_STD`; ``progress`` gets ``Progress(stage, done, P, "scan")`` per candidate matched.
+
+    Returns:
+        ``(edges, half_widths (L,))``: the edges and the half width (meters) each one's search covered.
+    """
+    pairs, half_widths = loop_candidates(path, sequential, sigmas)
     if len(pairs) == 0:
-        return Edges(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
-    poses, quality = match_loops(path, data, pairs, progress, stage)
+        return Edges(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))), np.zeros(0)
+    poses, quality = match_loops(path, data, pairs, progress, stage, half_widths)
     ok = quality >= LOOP_MIN_HIT_FRACTION
     s, t = pairs[ok, 0], pairs[ok, 1]
-    return Edges(s, t, relative(np.asarray(path)[s], poses[ok]), np.tile(np.asarray(LOOP_STD), (int(ok.sum()), 1)))
+    return (Edges(s, t, relative(np.asarray(path)[s], poses[ok]), np.tile(np.asarray(LOOP_STD), (int(ok.sum()), 1))),
+            half_widths[ok])
 
 
 def with_step_covariances(edges: Edges, step_cov) -> Edges:
@@ -475,6 +560,62 @@ def _isotropic(edges: Edges, name: str) -> np.ndarray:
     return std
 
 
+class _Chain:
+    """Prefix sums over the sequential edges (isotropic, :func:`_isotropic`) of the moments that the covariance of a
+    stretch of them needs (:func:`pairwise_consistency`, :func:`chain_covariances`)."""
+
+    def __init__(self, sequential: Edges):
+        self.path = odometry_path(sequential)
+        std = _isotropic(sequential, "sequential")
+        pivots = self.path[1:, :2]  # sequential edge k - 1 ends at pose k
+        theta_var = std[:, 2] ** 2
+        self.sums = tuple(np.concatenate([np.zeros((1,) + v.shape[1:]), np.cumsum(v, axis=0)]) for v in (
+            std[:, 0] ** 2, theta_var, theta_var[:, None] * pivots, theta_var[:, None, None] * pivots[:, :, None]
+            * pivots[:, None, :]))
+
+    def covariance(self, start, stop, anchor) -> np.ndarray:
+        """``(P, 3, 3)``: the noise of the sequential edges between poses ``start`` and ``stop`` ``(P,)`` (either
+        order) carried to ``anchor`` ``(P, 2)`` (the odometry path's frame): ``sum_k xy_var_k I + theta_var_k g_k
+        g_k^T``, ``g_k = (-l_y, l_x, 1)``, ``l`` the lever from edge ``k``'s end pose to ``anchor``."""
+        low, high = np.minimum(start, stop), np.maximum(start, stop)
+        xy_var, weight, first, second = (s[high] - s[low] for s in self.sums)
+        outer = (weight[:, None, None] * anchor[:, :, None] * anchor[:, None, :] - anchor[:, :, None] * first[:, None]
+                 - first[:, :, None] * anchor[:, None] + second)  # sum_k w_k (anchor - p_k)(anchor - p_k)^T
+        turn = np.array([[0.0, -1.0], [1.0, 0.0]])
+        block = np.zeros((len(low), 3, 3))
+        block[:, :2, :2] = turn @ outer @ turn.T
+        block[:, 0, 0] += xy_var
+        block[:, 1, 1] += xy_var
+        block[:, :2, 2] = block[:, 2, :2] = (weight[:, None] * anchor - first) @ turn.T
+        block[:, 2, 2] = weight
+        return block
+
+
+def chain_covariances(sequential: Edges, pairs) -> np.ndarray:
+    """How far pose ``t`` can be from its estimate if pose ``s`` is where the estimate puts it and only the
+    sequential edges between them tie the two: for each pair ``(s, t)`` of ``pairs`` ``(P, 2)``, the covariance of
+    pose ``t`` given pose ``s`` along the chain of ``sequential`` (:func:`sequential_edges`, isotropic), to first
+    order: ``sum_k xy_var_k I + theta_var_k g_k g_k^T`` over the edges between them, ``g_k = (-l_y, l_x, 1)`` and
+    ``l`` the lever from edge ``k``'s end to pose ``t`` (a heading error at ``k`` swings everything after it).
+
+    Returns:
+        ``(P, 3, 3)`` float64 (m^2, m rad, rad^2), in the frame of the chain's path (:func:`odometry_path`, which
+        starts at the origin: the world's turned by the first pose's heading; the position block's eigenvalues are
+        the same in either).
+
+    Raises:
+        BayesmapError: as :func:`pairwise_consistency` for the sequential edges, a pair outside the chain or one
+            with ``s > t``.
+    """
+    chain = _Chain(sequential)
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    if pairs.size and (pairs.min() < 0 or pairs.max() >= len(chain.path)):
+        raise BayesmapError(f"pairs must index the chain's {len(chain.path)} poses, got {pairs.min()}..{pairs.max()}")
+    if np.any(pairs[:, 0] > pairs[:, 1]):
+        raise BayesmapError(f"each pair (s, t) must have s <= t, got {pairs[np.argmax(pairs[:, 0] > pairs[:, 1])]}")
+    return chain.covariance(pairs[:, 0], pairs[:, 1], chain.path[pairs[:, 1], :2])
+
+
 def pairwise_consistency(sequential: Edges, loops: Edges) -> np.ndarray:
     """How far each pair of loop edges is from agreeing, given the odometry between them (Mangelson et al. 2018,
     "Pairwise consistency maximization for robust multi-robot map merging"): for loop edges ``a`` (``i_a -> j_a``)
@@ -500,37 +641,18 @@ def pairwise_consistency(sequential: Edges, loops: Edges) -> np.ndarray:
     Raises:
         BayesmapError: on sequential edges out of order, or an edge whose x and y standard deviations differ.
     """
-    path = odometry_path(sequential)
-    seq_std, loop_std = _isotropic(sequential, "sequential"), _isotropic(loops, "loop")
+    chain = _Chain(sequential)
+    path, loop_std = chain.path, _isotropic(loops, "loop")
     count = len(loops.i)
     if count == 0:
         return np.zeros((0, 0))
 
-    def prefix(values):
-        return np.concatenate([np.zeros((1,) + values.shape[1:]), np.cumsum(values, axis=0)])
-
-    pivots = path[1:, :2]  # sequential edge k - 1 ends at pose k
-    theta_var = seq_std[:, 2] ** 2
-    sums = (prefix(seq_std[:, 0] ** 2), prefix(theta_var), prefix(theta_var[:, None] * pivots),
-            prefix(theta_var[:, None, None] * pivots[:, :, None] * pivots[:, None, :]))
-    turn = np.array([[0.0, -1.0], [1.0, 0.0]])
-
     def stretch(start, stop, frame, end):
         """The covariance at the cycle's ``end`` of the sequential edges between poses ``start`` and ``stop``,
         ``frame`` the transform from the odometry path's frame to the cycle's."""
-        low, high = np.minimum(start, stop), np.maximum(start, stop)
-        xy_var, weight, first, second = (s[high] - s[low] for s in sums)
         anchor = compose_poses(invert_pose(frame), end)[..., :2]  # the cycle's end in the odometry path's frame
-        outer = (weight[:, None, None] * anchor[:, :, None] * anchor[:, None, :] - anchor[:, :, None] * first[:, None]
-                 - first[:, :, None] * anchor[:, None] + second)  # sum_k w_k (anchor - p_k)(anchor - p_k)^T
-        block = np.zeros((len(start), 3, 3))
-        block[:, :2, :2] = turn @ outer @ turn.T
-        block[:, 0, 0] += xy_var
-        block[:, 1, 1] += xy_var
-        block[:, :2, 2] = block[:, 2, :2] = (weight[:, None] * anchor - first) @ turn.T
-        block[:, 2, 2] = weight
         rotation = rotation3(frame[:, 2])
-        return rotation @ block @ np.swapaxes(rotation, -1, -2)
+        return rotation @ chain.covariance(start, stop, anchor) @ np.swapaxes(rotation, -1, -2)
 
     a, b = (k.ravel() for k in np.meshgrid(np.arange(count), np.arange(count), indexing="ij"))
     i, j, z = np.asarray(loops.i), np.asarray(loops.j), np.asarray(loops.z, np.float64)
@@ -574,22 +696,33 @@ def consistent_sets(norms, gate: float = CONSISTENCY_GATE, limit: int = MAX_LOOP
     return sets, len(sets)
 
 
+def window_volumes(half_widths) -> np.ndarray:
+    """``(L,)`` float64: the volume (m^2 rad) of the first lattice of each loop search of ``half_widths`` ``(L,)``
+    (:func:`loop_levels`): where a false match can land.
+
+    Raises:
+        BayesmapError: as :func:`loop_levels`.
+    """
+    return np.array([_window_volume(loop_levels(float(w))) for w in np.asarray(half_widths).reshape(-1)])
+
+
 def _window_volume(levels=LOOP_LEVELS) -> float:
-    """The volume (m^2 rad) of the loop search's first lattice: where a false match can land."""
+    """The volume (m^2 rad) of a loop search's first lattice."""
     xy, theta, xy_steps, theta_steps = levels[0][:4]
     return ((2 * xy_steps + 1) * xy) ** 2 * (2 * theta_steps + 1) * theta
 
 
-def log_evidence(path, sequential: Edges, loops: Edges, chosen) -> float:
+def log_evidence(path, sequential: Edges, loops: Edges, chosen, half_widths=None) -> float:
     """The log-probability of the loop edges' measurements if the edges ``chosen`` are true matches and the others
     false ones, up to a constant shared by every choice: the chosen edges Gaussian about the graph's prediction
-    (their standard deviations), each other edge uniform over the loop search's window (:data:`LOOP_LEVELS`' first
-    lattice: a false match lands anywhere in it), the poses integrated out by the Laplace approximation of the graph
+    (their standard deviations), each other edge uniform over its search's window (the first lattice of
+    :func:`loop_levels` of its entry of ``half_widths`` ``(L,)``, default 1.5 m for every edge: a false match lands
+    anywhere in it, :func:`window_volumes`), the poses integrated out by the Laplace approximation of the graph
     of ``sequential`` and the chosen edges (a flat prior on the poses after the first; Olson & Agarwal 2013 for the
     mixture of a Gaussian and a broad component). The graph's minimum is one Gauss-Newton step from ``path``
     ``(S, 3)``: exact for the graph linearized there.
 
-    ``log p = -chi2_min / 2 - log det H / 2 + sum_{chosen} (-3/2 log 2 pi + log det W) - (L - n) log V`` (``W``
+    ``log p = -chi2_min / 2 - log det H / 2 + sum_{chosen} (-3/2 log 2 pi + log det W) - sum_{others} log V`` (``W``
     an edge's square-root information, ``diag(1 / std)`` by default)
 
     Raises:
@@ -606,31 +739,36 @@ def log_evidence(path, sequential: Edges, loops: Edges, chosen) -> float:
     log_det = float(np.sum(np.log(np.abs(lu.U.diagonal()))))
     log_det_w = np.linalg.slogdet(whitening_matrices(loops_in))[1] if len(chosen) else np.zeros(0)
     normalizers = float(np.sum(-1.5 * np.log(2 * np.pi) + log_det_w))
-    return -0.5 * chi2 - 0.5 * log_det + normalizers - (len(loops.i) - len(chosen)) * np.log(_window_volume())
+    volumes = (np.full(len(loops.i), _window_volume()) if half_widths is None else window_volumes(half_widths))
+    others = np.ones(len(loops.i), bool)
+    others[chosen] = False
+    return -0.5 * chi2 - 0.5 * log_det + normalizers - float(np.sum(np.log(volumes[others])))
 
 
 def loop_hypotheses(path, sequential: Edges, loops: Edges, sets: tuple | None = None,
-                    weighed: int = WEIGHED_LOOP_SETS) -> LoopHypotheses:
+                    weighed: int = WEIGHED_LOOP_SETS, half_widths=None) -> LoopHypotheses:
     """Which loop edges are true: the empty set and the ``weighed`` largest maximal pairwise-consistent sets
     (``sets``, the output of :func:`consistent_sets`; by default of :func:`pairwise_consistency` at the defaults),
-    weighed by :func:`log_evidence` with equal prior odds of a true and a false match, and normalized over them. The
-    sets are weighed at ``path`` ``(S, 3)``, the empty set at the sequential edges' own chain from ``path[0]``
-    (:func:`odometry_path`), where it fits with zero residuals and its Laplace approximation is exact."""
+    weighed by :func:`log_evidence` (the edges' search windows ``half_widths``, as there) with equal prior odds of a
+    true and a false match, and normalized over them. The sets are weighed at ``path`` ``(S, 3)``, the empty set at
+    the sequential edges' own chain from ``path[0]`` (:func:`odometry_path`), where it fits with zero residuals and
+    its Laplace approximation is exact."""
     sets, count = consistent_sets(pairwise_consistency(sequential, loops)) if sets is None else sets
     sets = [np.zeros(0, np.int64), *sets[:weighed]]
     odometry = compose_poses(np.asarray(path, np.float64)[0], odometry_path(sequential))
-    logs = np.array([log_evidence(path if len(c) else odometry, sequential, loops, c) for c in sets])
+    logs = np.array([log_evidence(path if len(c) else odometry, sequential, loops, c, half_widths) for c in sets])
     order = np.argsort(-logs, kind="stable")
     weights = np.exp(logs[order] - logs.max())
     return LoopHypotheses([sets[k] for k in order], weights / weights.sum(), count, loops)
 
 
-def optimize_with_loop_gate(path, sequential: Edges, loops: Edges,
-                            consistency_gate: float = CONSISTENCY_GATE) -> tuple[np.ndarray, Edges, LoopHypotheses]:
+def optimize_with_loop_gate(path, sequential: Edges, loops: Edges, consistency_gate: float = CONSISTENCY_GATE,
+                            half_widths=None) -> tuple[np.ndarray, Edges, LoopHypotheses]:
     """Keep the loop edges of the most probable hypothesis (:func:`loop_hypotheses` of the sets consistent at
-    ``consistency_gate``, weighed at the graph's optimum with the largest of them), optimize the graph of
-    ``sequential`` and those edges from ``path`` ``(S, 3)`` (:func:`optimize_pose_graph`), then drop every kept loop
-    edge whose whitened residual norm exceeds :data:`LOOP_GATE` and optimize again without them.
+    ``consistency_gate``, weighed at the graph's optimum with the largest of them, each edge's search window
+    ``half_widths`` as there), optimize the graph of ``sequential`` and those edges from ``path`` ``(S, 3)``
+    (:func:`optimize_pose_graph`), then drop every kept loop edge whose whitened residual norm exceeds
+    :data:`LOOP_GATE` and optimize again without them.
 
     Returns:
         ``(path (S, 3) float64, the loop edges kept, the hypotheses)``.
@@ -640,7 +778,7 @@ def optimize_with_loop_gate(path, sequential: Edges, loops: Edges,
     sets = consistent_sets(pairwise_consistency(sequential, loops), consistency_gate)
     largest = sets[0][0] if sets[0] else np.zeros(0, np.int64)
     path = optimize_pose_graph(path, concat_edges(sequential, subset(largest)))
-    hypotheses = loop_hypotheses(path, sequential, loops, sets)
+    hypotheses = loop_hypotheses(path, sequential, loops, sets, half_widths=half_widths)
     chosen = hypotheses.sets[0]
     if not np.array_equal(chosen, largest):
         path = optimize_pose_graph(path, concat_edges(sequential, subset(chosen)))
@@ -663,11 +801,16 @@ class LoopClosure(NamedTuple):
 
 
 def close_loops(path, data: ScanData, rounds: int = ROUNDS, progress: ProgressCallback | None = None,
-                consistency_gate: float = CONSISTENCY_GATE) -> LoopClosure:
+                consistency_gate: float = CONSISTENCY_GATE, window_sigmas: float = LOOP_WINDOW_SIGMAS) -> LoopClosure:
     """Alternate loop detection (:func:`loop_edges`) and the choice of loop edges with pose-graph optimization
     (:func:`optimize_with_loop_gate` at ``consistency_gate``) ``rounds`` times from the front end's ``path`` (fewer
     if a round finds no loop edge). ``progress`` gets ``Progress("loop closure r/rounds", done, P, "scan")`` per
     loop candidate matched in round ``r`` (``P`` its candidates; nothing for a round without any).
+
+    The first round sizes each candidate's search window by its drift along the chain, ``window_sigmas`` standard
+    deviations (:func:`loop_candidates`; 0: every window 1.5 m): before any loop is closed, a long loop's end can be
+    meters from where the front end puts it. Later rounds search +-1.5 m around the path the kept loops corrected
+    ([validation](../validation/slam.md#the-loop-searchs-reach)).
 
     Returns:
         A :class:`LoopClosure`: the optimized path, the graph's edges (the sequential edges of the front end's
@@ -679,10 +822,11 @@ def close_loops(path, data: ScanData, rounds: int = ROUNDS, progress: ProgressCa
     kept = Edges(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
     hypotheses = None
     for r in range(rounds):
-        loops = loop_edges(path, data, progress, f"loop closure {r + 1}/{rounds}")
+        loops, half_widths = loop_edges(path, data, progress, f"loop closure {r + 1}/{rounds}",
+                                        sequential if r == 0 else None, window_sigmas)
         if len(loops.i) == 0:
             break
-        path, kept, hypotheses = optimize_with_loop_gate(path, sequential, loops, consistency_gate)
+        path, kept, hypotheses = optimize_with_loop_gate(path, sequential, loops, consistency_gate, half_widths)
     return LoopClosure(path, concat_edges(sequential, kept), hypotheses)
 
 
