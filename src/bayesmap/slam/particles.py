@@ -81,7 +81,7 @@ usual threshold)."""
 
 HYPOTHESIS_WEIGHT = 0.01
 """A distinct final path counts as a hypothesis in :func:`hypotheses` when its particles' weights sum to at least
-this (the 1 % of the issue's summary)."""
+this (the same 1 % as the loop closure's hypotheses in summary.json, ``loop_hypotheses.above_1_percent``)."""
 
 HYPOTHESIS_DISTANCE = 0.5
 """Meters: two particles' paths are the same hypothesis when their final positions lie within this of each other
