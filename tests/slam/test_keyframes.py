@@ -54,11 +54,15 @@ def test_owners_and_step_moves_follow_the_last_keyframe():
     odometry = np.array([[0, 0, 0], [0.2, 0, 0.1], [0.6, 0.1, 0.2], [0.7, 0.2, 0.3], [1.3, 0.2, 0.3]], float)
     keyframes = np.array([0, 2, 4])
     assert owners(5, keyframes).tolist() == [0, 0, 1, 1, 2]
-    inc, cov = step_moves(odometry, keyframes)
+    inc, cov = step_moves(odometry_controls(odometry), keyframes)
     want_inc, want_cov = odometry_controls(odometry[[2, 3]])
     np.testing.assert_allclose(inc[3], np.asarray(want_inc)[0], atol=1e-6)
     np.testing.assert_allclose(cov[3], np.asarray(want_cov)[0], atol=1e-9)
     assert np.all(inc[keyframes] == 0) and np.all(cov[keyframes] == 0)
+
+
+ROOM_MOTION = make_motion_params((0.1, 0.1, 0.1, 0.1), floor_xy=0.03, floor_theta=0.03)
+"""The motion model of :func:`placed_room`: as noisy as :func:`dense_room`'s odometry."""
 
 
 def dense_room(seed=0):
@@ -80,7 +84,7 @@ def test_scans_between_keyframes_land_on_their_true_poses():
     err = relative(truth, poses)
     dist = np.linalg.norm(err[:, :2], axis=1)
     assert dist.max() < 0.04 and dist.mean() < 0.015 and np.abs(err[:, 2]).max() < 0.02
-    step_inc, _ = step_moves(odometry, keyframes)
+    step_inc, _ = step_moves(odometry_controls(odometry, ROOM_MOTION), keyframes)
     own = truth[keyframes][owners(len(truth), keyframes)]
     predicted = np.stack([own[:, 0] + np.cos(own[:, 2]) * step_inc[:, 0] - np.sin(own[:, 2]) * step_inc[:, 1],
                           own[:, 1] + np.sin(own[:, 2]) * step_inc[:, 0] + np.cos(own[:, 2]) * step_inc[:, 1]], 1)
@@ -96,8 +100,8 @@ def test_placed_scans_carry_their_keyframes_uncertainty_along_the_odometry():
     keyframes = np.array([0, 2])
     kf_cov = np.stack([np.diag([1e-4, 2e-4, 1e-5])] * 2)
     samples = np.stack([poses[keyframes], poses[keyframes] + [0.1, -0.2, 0.0]])
-    cov, placed = placed_uncertainty(poses, keyframes, odometry, kf_cov, samples)
-    _, step_cov = step_moves(odometry, keyframes)
+    cov, placed = placed_uncertainty(poses, keyframes, odometry_controls(odometry), kf_cov, samples)
+    _, step_cov = step_moves(odometry_controls(odometry), keyframes)
     assert step_cov[1, 0, 0] > step_cov[1, 1, 1]  # along the robot's x (its direction of travel)
     np.testing.assert_allclose(cov[1, 1, 1] - kf_cov[0, 1, 1], step_cov[1, 0, 0], rtol=1e-6)
     np.testing.assert_allclose(cov[1, 0, 0] - kf_cov[0, 0, 0], step_cov[1, 1, 1], rtol=1e-6, atol=1e-12)
@@ -132,9 +136,8 @@ def placed_room():
     """Every scan of :func:`dense_room` placed on its keyframes' map (every 4th scan, at its true pose)."""
     grid, truth, odometry, beams, readings = dense_room()
     keyframes = np.arange(0, len(truth), 4)
-    motion = make_motion_params((0.1, 0.1, 0.1, 0.1), floor_xy=0.03, floor_theta=0.03)
-    data = ScanData(beams, readings, readings < 20.0, np.zeros((len(truth) - 1, 3)), np.zeros((len(truth) - 1, 3, 3)))
-    return place_scans(truth[keyframes], keyframes, odometry, data, likelihood_power=1.0, motion=motion, batch=8)
+    data = ScanData(beams, readings, readings < 20.0, *odometry_controls(odometry, ROOM_MOTION))
+    return place_scans(truth[keyframes], keyframes, data, likelihood_power=1.0, batch=8)
 
 
 def test_four_devices_place_every_scan_where_one_does(tmp_path):
@@ -151,3 +154,38 @@ def test_four_devices_place_every_scan_where_one_does(tmp_path):
     subprocess.run([sys.executable, "-c", PLACE_ON_DEVICES, str(out), str(root), str(root / "tests")], env=env,
                    check=True, cwd=root, timeout=600)
     np.testing.assert_allclose(np.load(out), placed_room(), atol=1e-5)
+
+
+def test_skipped_scans_take_the_odometry_between_them_composed(small_log):
+    """Every other scan of a log that backs up: the step from scan 0 to scan 2 nets 0.6 m straight ahead, but the
+    motion model's step is the two odometry steps composed (the first 0.05 m backwards: a half turn, a step and a
+    half turn back), whose heading standard deviation is 0.45 rad (the default motion model's 10 % of each half
+    turn), where the net motion taken as one step would claim 0.04 rad. A selection of consecutive scans keeps the
+    per-scan steps, and keyframes of a selection compose its steps (the scans between them twice marginalized: the
+    same step)."""
+    from bayesmap.io.carmen import read_carmen
+    from bayesmap.model.motion import composed_steps
+    from bayesmap.slam.problem import log_slam_problem
+
+    log = read_carmen(small_log)
+    odometry = np.zeros((len(log), 3))
+    odometry[:, 0] = 0.3 * np.arange(len(log))
+    odometry[1::2, 0] -= 0.35  # scan 1 is 0.05 m behind scan 0, facing the same way: backed up
+    log = log.with_poses(odometry)
+    chosen = np.arange(0, len(log), 2)
+    problem = log_slam_problem(log, chosen, resolution=0.2)
+    increments, covs = problem.motion_steps()
+    want_inc, want_cov = composed_steps(odometry, chosen[:-1], chosen[1:], problem.motion)
+    np.testing.assert_allclose(increments, want_inc, atol=1e-9)
+    np.testing.assert_allclose(covs, want_cov, rtol=1e-9)
+    np.testing.assert_allclose(increments[0, :2], [0.6, 0.0], atol=1e-6)
+    assert np.cos(increments[0, 2]) == pytest.approx(1.0)
+    _, one_step = odometry_controls(odometry[chosen])
+    assert np.sqrt(covs[0, 2, 2]) == pytest.approx(problem.motion.a1 * np.pi * np.sqrt(2), rel=0.03)
+    assert np.sqrt(np.asarray(one_step)[0, 2, 2]) < 0.045
+    assert log_slam_problem(log, np.arange(4, 9), resolution=0.2).steps is None
+    sub = keyframe_problem(problem, [0, 2, 5])
+    sub_inc, sub_cov = sub.motion_steps()
+    want_inc, want_cov = composed_steps(odometry, [0, 4], [4, 10], problem.motion)
+    np.testing.assert_allclose(sub_inc, want_inc, atol=1e-9)
+    np.testing.assert_allclose(sub_cov, want_cov, rtol=1e-6)

@@ -184,11 +184,9 @@ def odometry_controls(odometry, params: MotionParams | None = None):
 def composed_steps(odometry, starts, ends, params: MotionParams | None = None):
     """The motion model's step from scan ``starts[i]`` to scan ``ends[i]`` of an odometry path, through the scans
     between: the per-scan steps (:func:`odometry_controls`) composed, and their noise propagated to first order
-    (each step's error, in the frame of the pose it starts from, turned into the frame of ``starts[i]``, the heading
-    error's lever arm on the later steps included: the compounding of uncertain relative poses, Smith, Self &
-    Cheeseman 1990, as a pose graph's odometry edges are summed). This is the odometry's step between two keyframes
-    with the scans between them marginalized (linearized): a keyframe step of 0.5 m made of five steps of a
-    bag-rate log carries their five heading errors, which one step of the same 0.5 m would not.
+    (:func:`compose_steps`). This is the odometry's step between two keyframes with the scans between them
+    marginalized (linearized): a keyframe step of 0.5 m made of five steps of a bag-rate log carries their five
+    heading errors, which one step of the same 0.5 m would not.
 
     Args:
         odometry: ``(S, 3)`` odometry poses (x m, y m, theta rad).
@@ -204,17 +202,40 @@ def composed_steps(odometry, starts, ends, params: MotionParams | None = None):
     Raises:
         BayesmapError: on a bad ``odometry`` (as :func:`odometry_controls`) or indices out of order or range.
     """
-    odometry = np.asarray(odometry, np.float64)
-    increments, covs = odometry_controls(odometry, params)
-    increments, covs = np.asarray(increments, np.float64), np.asarray(covs, np.float64)
+    return compose_steps(*odometry_controls(odometry, params), starts, ends)
+
+
+def compose_steps(increments, covariances, starts, ends):
+    """The steps ``starts[i] .. ends[i] - 1`` of a chain of uncertain relative poses composed into one, and their
+    noise propagated to first order: each step's error, in the frame of the pose it starts from, turned into the
+    frame of pose ``starts[i]``, the heading error's lever arm on the later steps included (the compounding of
+    uncertain relative poses, Smith, Self & Cheeseman 1990, as a pose graph's odometry edges are summed).
+
+    Args:
+        increments: ``(S - 1, 3)`` step ``t`` from pose ``t`` to pose ``t + 1`` (dx m, dy m, dtheta rad) in the frame
+            of pose ``t`` (:func:`odometry_controls`, or steps composed already).
+        covariances: ``(S - 1, 3, 3)`` their error covariances.
+        starts: ``(M,)`` int pose indices, ``0 <= starts <= ends``.
+        ends: ``(M,)`` int pose indices, ``ends < S``.
+
+    Returns:
+        ``(increments (M, 3), covariances (M, 3, 3))`` float64, in the frame of each start pose; zero where
+        ``starts == ends``; step ``t`` itself for ``ends = starts + 1``.
+
+    Raises:
+        BayesmapError: on indices out of order or range.
+    """
+    increments = np.asarray(increments, np.float64).reshape(-1, 3)
+    covariances = np.asarray(covariances, np.float64).reshape(-1, 3, 3)
     starts, ends = np.asarray(starts, np.int64).reshape(-1), np.asarray(ends, np.int64).reshape(-1)
-    if starts.shape != ends.shape or np.any(starts < 0) or np.any(ends < starts) or np.any(ends >= len(odometry)):
-        raise BayesmapError(f"composed steps need 0 <= starts <= ends < {len(odometry)} of equal length")
+    if (starts.shape != ends.shape or np.any(starts < 0) or np.any(ends < starts)
+            or np.any(ends > len(increments))):
+        raise BayesmapError(f"composed steps need 0 <= starts <= ends < {len(increments) + 1} of equal length")
     pose, sigma = np.zeros((len(starts), 3)), np.zeros((len(starts), 3, 3))
     for j in range(int((ends - starts).max(initial=0))):
         live = starts + j < ends
         step = np.minimum(starts + j, max(len(increments) - 1, 0))
-        u, q = increments[step], covs[step]
+        u, q = increments[step], covariances[step]
         c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
         turn = np.zeros((len(starts), 3, 3))
         turn[:, 0, 0], turn[:, 0, 1], turn[:, 1, 0], turn[:, 1, 1], turn[:, 2, 2] = c, -s, s, c, 1.0

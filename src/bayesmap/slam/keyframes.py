@@ -50,7 +50,7 @@ from jax.sharding import Mesh, PartitionSpec
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import scan_endpoints
-from bayesmap.model.motion import MotionParams, compose, composed_steps, motion_logpdf
+from bayesmap.model.motion import compose, compose_steps, motion_logpdf
 from bayesmap.slam.posegraph import relative, rotation3
 from bayesmap.slam.scanmatch import (
     MATCH_LEVELS,
@@ -130,21 +130,16 @@ def select_keyframes(odometry, distance: float = KEYFRAME_DISTANCE, turn: float 
 def keyframe_problem(problem, keyframes):
     """``problem`` (a :class:`bayesmap.slam.problem.SlamProblem`) on the scans ``keyframes`` ``(K,)`` only: its
     odometry, beams, readings, max-range mask, timestamps and true path (where known) taken at those scans, and its
-    motion model's steps from keyframe to keyframe composed from the scans' steps between them
-    (:func:`bayesmap.model.motion.composed_steps`: the intermediate poses marginalized, their odometry noise kept);
-    the rest kept.
-
-    Raises:
-        BayesmapError: if ``problem`` has composed steps already (a keyframe problem of a keyframe problem).
+    motion model's steps from keyframe to keyframe composed from the problem's steps between them
+    (:meth:`~bayesmap.slam.problem.SlamProblem.motion_steps`, :func:`bayesmap.model.motion.compose_steps`: the
+    intermediate poses marginalized, their odometry noise kept); the rest kept.
     """
     k = np.asarray(keyframes, np.int64)
-    if problem.steps is not None:
-        raise BayesmapError("the problem's steps are composed already: select keyframes from the whole log's problem")
 
     def take(a):
         return None if a is None else np.asarray(a)[k]
 
-    steps = composed_steps(problem.odometry, k[:-1], k[1:], problem.motion)
+    steps = compose_steps(*problem.motion_steps(), k[:-1], k[1:])
     return dataclasses.replace(problem, odometry=take(problem.odometry), sensor_angles=take(problem.sensor_angles),
                                readings=take(problem.readings), true_poses=take(problem.true_poses),
                                max_range_mask=take(problem.max_range_mask), timestamps=take(problem.timestamps),
@@ -156,13 +151,15 @@ def owners(num_scans: int, keyframes) -> np.ndarray:
     return np.searchsorted(np.asarray(keyframes), np.arange(num_scans), side="right") - 1
 
 
-def step_moves(odometry, keyframes, motion: MotionParams | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The odometry's motion from each scan's keyframe to the scan (:func:`owners`), the scans' steps between them
-    composed under the motion model ``motion`` (:func:`bayesmap.model.motion.composed_steps`; default its default
-    noise): ``(increments (S, 3), covariances (S, 3, 3))`` float64; zero for the keyframes themselves."""
-    odometry = np.asarray(odometry, np.float64)
-    start = np.asarray(keyframes, np.int64)[owners(len(odometry), keyframes)]
-    return composed_steps(odometry, start, np.arange(len(odometry)), motion)
+def step_moves(steps, keyframes) -> tuple[np.ndarray, np.ndarray]:
+    """The odometry's motion from each scan's keyframe to the scan (:func:`owners`): the motion model's steps
+    ``steps`` (``(increments (S - 1, 3), covariances (S - 1, 3, 3))``, a problem's
+    :meth:`~bayesmap.slam.problem.SlamProblem.motion_steps`) between them composed
+    (:func:`bayesmap.model.motion.compose_steps`): ``(increments (S, 3), covariances (S, 3, 3))`` float64; zero for
+    the keyframes themselves."""
+    num_scans = len(np.asarray(steps[0])) + 1
+    start = np.asarray(keyframes, np.int64)[owners(num_scans, keyframes)]
+    return compose_steps(*steps, start, np.arange(num_scans))
 
 
 def keyframe_fields(grid: Grid, poses, sensor_angles, readings, returned, batch: int = PLACE_BATCH) -> tuple:
@@ -201,19 +198,17 @@ def _place_batch(grid: Grid, devices: tuple):
                              check_rep=False))
 
 
-def place_scans(mean_path, keyframes, odometry, data: ScanData, likelihood_power: float,
-                motion: MotionParams | None = None, min_hit_fraction: float = MIN_HIT_FRACTION,
-                batch: int = PLACE_BATCH) -> np.ndarray:
+def place_scans(mean_path, keyframes, data: ScanData, likelihood_power: float,
+                min_hit_fraction: float = MIN_HIT_FRACTION, batch: int = PLACE_BATCH) -> np.ndarray:
     """Every scan's pose, the keyframes' given: each other scan matched against the keyframes' map (module
     docstring).
 
     Args:
         mean_path: ``(K, 3)`` the keyframes' poses (x m, y m, theta rad).
         keyframes: ``(K,)`` their scan indices (:func:`select_keyframes`).
-        odometry: ``(S, 3)`` every scan's odometry pose.
-        data: every scan's beams (:class:`bayesmap.slam.scanmatch.ScanData`; its odometry fields unused).
+        data: every scan's beams and the motion model's steps from scan to scan
+            (:class:`bayesmap.slam.scanmatch.ScanData`, ``S`` scans).
         likelihood_power: the fields' score is multiplied by it, in (0, 1] (the problem's).
-        motion: the motion model's noise (the problem's; default :class:`bayesmap.model.motion.MotionParams`).
         min_hit_fraction: a match with fewer endpoints on the map keeps the prediction.
         batch: scans matched per compiled call (rounded up to a multiple of the devices).
 
@@ -221,7 +216,7 @@ def place_scans(mean_path, keyframes, odometry, data: ScanData, likelihood_power
         ``(S, 3)`` float64 poses; the keyframes' rows are ``mean_path``.
     """
     mean_path, keyframes = np.asarray(mean_path, np.float64), np.asarray(keyframes, np.int64)
-    num_scans = len(odometry)
+    num_scans = len(data.readings)
     poses = np.zeros((num_scans, 3))
     poses[keyframes] = mean_path
     others = np.setdiff1d(np.arange(num_scans), keyframes)
@@ -231,7 +226,7 @@ def place_scans(mean_path, keyframes, odometry, data: ScanData, likelihood_power
     ends = scan_endpoints(mean_path, angles[keyframes], readings[keyframes], xp=np)[returned[keyframes]]
     grid = Grid.covering(np.vstack([ends, mean_path[:, :2]]), FIELD_RESOLUTION, margin=2.0)
     fields = keyframe_fields(grid, mean_path, angles[keyframes], readings[keyframes], returned[keyframes])
-    increments, covs = step_moves(odometry, keyframes, motion)
+    increments, covs = step_moves((data.increments, data.covs), keyframes)
     start = mean_path[owners(num_scans, keyframes)]
     steps = lattices(PLACE_LEVELS)
     dtype = jnp.result_type(float)
@@ -249,17 +244,16 @@ def place_scans(mean_path, keyframes, odometry, data: ScanData, likelihood_power
     return poses
 
 
-def placed_uncertainty(poses, keyframes, odometry, keyframe_cov, keyframe_samples,
-                       motion: MotionParams | None = None) -> tuple[np.ndarray, np.ndarray]:
+def placed_uncertainty(poses, keyframes, steps, keyframe_cov, keyframe_samples) -> tuple[np.ndarray, np.ndarray]:
     """Every scan's covariance and samples from its keyframe's (module docstring).
 
     Args:
         poses: ``(S, 3)`` every scan's pose (:func:`place_scans`).
         keyframes: ``(K,)`` scan indices of the keyframes.
-        odometry: ``(S, 3)`` odometry poses.
+        steps: ``(increments (S - 1, 3), covariances (S - 1, 3, 3))`` the motion model's steps from scan to scan
+            (the problem's :meth:`~bayesmap.slam.problem.SlamProblem.motion_steps`).
         keyframe_cov: ``(K, 3, 3)`` the keyframes' covariances.
         keyframe_samples: ``(N, K, 3)`` the keyframes' pose samples.
-        motion: the motion model's noise (as :func:`place_scans`).
 
     Returns:
         ``(cov (S, 3, 3), samples (N, S, 3))`` float64: a scan's covariance is its keyframe's plus the motion model's
@@ -268,7 +262,7 @@ def placed_uncertainty(poses, keyframes, odometry, keyframe_cov, keyframe_sample
     """
     poses, keyframe_cov = np.asarray(poses, np.float64), np.asarray(keyframe_cov, np.float64)
     own = owners(len(poses), keyframes)
-    _, step_covs = step_moves(odometry, keyframes, motion)
+    _, step_covs = step_moves(steps, keyframes)
     heading = poses[np.asarray(keyframes)][own, 2]
     rot = rotation3(heading)
     cov = keyframe_cov[own] + rot @ step_covs @ np.swapaxes(rot, 1, 2)
