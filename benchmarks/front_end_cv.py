@@ -26,7 +26,9 @@ a14f5a3 and removed: docs/slam.md, "Every other scan, and a robust motion term".
 
 For each log and odometry seed (``seeded_logs.seeded_log``), each kept-scan set of ``--scans`` (``all``, or
 ``heldout``: every 10th scan dropped, as the held-out map scores do, which is where the front end lost CSAIL's
-track; ``every2``: every other scan, steps of about twice the logs' median 0.7-1 m) and each value of ``--values``,
+track; ``every2``: every other scan, steps of about twice the logs' median 0.7-1 m, each step the odometry's two
+composed, as ``slam --scans ::2`` takes them; ``every2-log``: the same scans as a log that holds only them, recorded
+at half the rate, each step one step of the odometry's net motion) and each value of ``--values``,
 the script runs the start as ``run_log_slam`` does (the front end, then
 :func:`bayesmap.slam.posegraph.close_loops`) with the other settings at their defaults, and records the ATE of the
 path after loop closure (meters, after the best rigid 2-D alignment; within 0.003 m of the whole chain's ATE on the
@@ -68,6 +70,7 @@ from slam_error_sources import count_slips  # noqa: E402
 
 from bayesmap.evaluation.heldout import heldout_split  # noqa: E402
 from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E402
+from bayesmap.runs.inputs import select_scans  # noqa: E402
 from bayesmap.slam import pipeline, posegraph, scanmatch  # noqa: E402
 from bayesmap.slam.problem import SLAM_LIKELIHOOD_POWER, log_slam_problem  # noqa: E402
 
@@ -77,9 +80,11 @@ DEFAULTS = {"power": SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HI
 """The settings this script can vary, and the value each takes while the other is varied (the defaults of
 :func:`bayesmap.slam.pipeline.front_end`)."""
 
-SCAN_SETS = ("all", "heldout", "every2")
+SCAN_SETS = ("all", "heldout", "every2", "every2-log")
 """``all``: every scan of the log; ``heldout``: the scans the held-out map scores keep (every 10th dropped);
-``every2``: every other scan."""
+``every2``: every other scan (the odometry through the scans skipped composed into each step,
+:func:`bayesmap.slam.problem.log_slam_problem`); ``every2-log``: every other scan as a log of those scans alone (no
+odometry between them)."""
 
 
 FRONT_ENDS: dict = {}
@@ -92,9 +97,13 @@ def start_path(log, truth, scans: str, parameter: str, value: float, name: tuple
     ``parameter`` at ``value``. The power is passed as the problem's likelihood power, which only the front end
     reads here. ``name`` (the log's name and seed) keys the front end kept for the loop closure's settings."""
     began = time.perf_counter()
-    kept = {"all": None, "heldout": heldout_split(len(log), 10)[0], "every2": np.arange(0, len(log), 2)}[scans]
+    every2 = np.arange(0, len(log), 2)
+    kept = {"all": None, "heldout": heldout_split(len(log), 10)[0], "every2": every2, "every2-log": every2}[scans]
     setting = {**DEFAULTS, parameter: value}
-    problem = log_slam_problem(log, kept, likelihood_power=setting["power"])
+    if scans == "every2-log":
+        problem = log_slam_problem(select_scans(log, every2), likelihood_power=setting["power"])
+    else:
+        problem = log_slam_problem(log, kept, likelihood_power=setting["power"])
     data = pipeline.scan_data(problem)
     key = (name, scans, *(setting[k] for k in ("power", "min_hit_fraction", "window", "particles")))
     if not name or key not in FRONT_ENDS:  # the loop closure's settings share one front end
