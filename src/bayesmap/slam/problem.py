@@ -114,9 +114,9 @@ class SlamProblem:
             path (:func:`log_likelihood_power` of its :func:`endpoints_per_cell`), which :func:`log_slam_problem`
             sets.
         steps: ``(increments (S - 1, 3), covariances (S - 1, 3, 3))`` the motion model's steps between consecutive
-            scans where they are not one odometry step each (keyframes: the steps of the scans between composed,
-            :func:`bayesmap.model.motion.composed_steps`), or None: :func:`bayesmap.model.motion.odometry_controls`
-            of ``odometry`` (:meth:`motion_steps`).
+            scans where they are not one odometry step each (keyframes, or a selection of a log's scans that skips
+            some: the steps of the scans between composed, :func:`bayesmap.model.motion.composed_steps`), or None:
+            :func:`bayesmap.model.motion.odometry_controls` of ``odometry`` (:meth:`motion_steps`).
     """
 
     params: ModelParams
@@ -289,7 +289,7 @@ def log_slam_problem(log, scans=None, resolution: float = RESOLUTION, prior_wall
     step of the odometry's net motion. A log holds the odometry of every scan; taken as one step, two steps that
     back up and turn back look like a plain step forward, and the motion model would claim a heading standard
     deviation of 0.05 rad where the simulated odometry of ACES erred by 0.4 rad
-    ([validation](../validation/slam.md#every-other-scan)).
+    ([validation](../validation/slam.md#the-odometry-through-the-scans-left-out)).
 
     Args:
         log: a :class:`bayesmap.io.carmen.CarmenLog`; its poses are the odometry.
