@@ -20,6 +20,9 @@ motion model's log-density. Two of its settings are chosen here:
   window +-1.5 m). The loop closure's settings reuse one front end per (log, seed, scans).
 * ``particles``: how many hypotheses the front end keeps (:data:`bayesmap.slam.pipeline.FRONT_END_PARTICLES`;
   :mod:`bayesmap.slam.particles`).
+* ``first_heading_step`` and ``second_heading_steps``: the heading lattice of the front end's search
+  (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`): the first level's step (radians, its +-0.8 rad kept) and the
+  second level's half width in its steps of 0.007 rad.
 
 (A third, the weight of a uniform outlier component in a max-mixture with the motion model, was chosen here at commit
 a14f5a3 and removed: docs/slam.md, "Every other scan, and a robust motion term".)
@@ -48,7 +51,8 @@ Each run is appended to ``--records FILE`` (JSON lines) as soon as it is done, a
 repeated, so the grid can be split between processes and resumed.
 
 Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F
-           [--parameter power|min_hit_fraction|window|consistency_gate|particles|loop_window_sigmas]
+           [--parameter power|min_hit_fraction|window|consistency_gate|particles|loop_window_sigmas|
+                        first_heading_step|second_heading_steps]
            [--values 1,0.3,0.1,0.03] [--seeds 0-2] [--logs intel,aces,csail] [--scans all,heldout]
 """
 
@@ -76,7 +80,8 @@ from bayesmap.slam.problem import SLAM_LIKELIHOOD_POWER, log_slam_problem  # noq
 
 DEFAULTS = {"power": SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HIT_FRACTION,
             "window": scanmatch.LOCAL_MAP_DISTANCE, "consistency_gate": posegraph.CONSISTENCY_GATE,
-            "particles": pipeline.FRONT_END_PARTICLES, "loop_window_sigmas": posegraph.LOOP_WINDOW_SIGMAS}
+            "particles": pipeline.FRONT_END_PARTICLES, "loop_window_sigmas": posegraph.LOOP_WINDOW_SIGMAS,
+            "first_heading_step": scanmatch.MATCH_LEVELS[0][1], "second_heading_steps": scanmatch.MATCH_LEVELS[1][3]}
 """The settings this script can vary, and the value each takes while the other is varied (the defaults of
 :func:`bayesmap.slam.pipeline.front_end`)."""
 
@@ -105,11 +110,13 @@ def start_path(log, truth, scans: str, parameter: str, value: float, name: tuple
     else:
         problem = log_slam_problem(log, kept, likelihood_power=setting["power"])
     data = pipeline.scan_data(problem)
-    key = (name, scans, *(setting[k] for k in ("power", "min_hit_fraction", "window", "particles")))
+    key = (name, scans, *(setting[k] for k in ("power", "min_hit_fraction", "window", "particles",
+                                               "first_heading_step", "second_heading_steps")))
     if not name or key not in FRONT_ENDS:  # the loop closure's settings share one front end
         FRONT_ENDS.clear()
         FRONT_ENDS[key] = pipeline.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"],
-                                             window=setting["window"], particles=int(setting["particles"]))
+                                             window=setting["window"], particles=int(setting["particles"]),
+                                             levels=search_levels(setting))
     matched = FRONT_ENDS[key]
     front = matched.path
     closed, edges, _ = posegraph.close_loops(front, data, consistency_gate=setting["consistency_gate"],
@@ -121,6 +128,16 @@ def start_path(log, truth, scans: str, parameter: str, value: float, name: tuple
             "odometry_steps": odometry_steps(front, np.asarray(data.increments)),
             "loop_edges": int(len(edges.i) - (len(front) - 1)), "hypotheses": matched.hypotheses,
             "seconds": time.perf_counter() - began}
+
+
+def search_levels(setting: dict) -> tuple:
+    """The front end's search (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`) with the first level's heading step
+    ``first_heading_step`` (radians; its half width kept at +-0.8 rad) and the second level's heading half width
+    ``second_heading_steps`` (in its own steps of 0.007 rad)."""
+    (xy, theta, w_xy, w_theta, f), (xy2, theta2, w_xy2, _, f2), *rest = scanmatch.MATCH_LEVELS
+    step = float(setting["first_heading_step"])
+    first = (xy, step, w_xy, int(round(theta * w_theta / step)), f)
+    return (first, (xy2, theta2, w_xy2, int(setting["second_heading_steps"]), f2), *rest)
 
 
 def odometry_steps(path, increments, tolerance: float = 1e-4) -> int:

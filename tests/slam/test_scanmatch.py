@@ -16,6 +16,7 @@ from bayesmap.progress import Progress
 from bayesmap.slam import posegraph
 from bayesmap.slam.scanmatch import (
     LOCAL_MAP_DISTANCE,
+    MATCH_LEVELS,
     MIN_HIT_FRACTION,
     ScanData,
     correlative_path,
@@ -178,8 +179,9 @@ def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch)
     assert np.array_equal(first, [1.0, 2.0, 0.3]) and data == "scans"
     assert resolution == pipeline.FRONT_END_RESOLUTION
     assert options == {"likelihood_power": 0.25, "min_hit_fraction": MIN_HIT_FRACTION, "window": LOCAL_MAP_DISTANCE,
-                       "progress": None}
-    assert chosen == {"likelihood_power": 0.25, "min_hit_fraction": 0.3, "window": 20.0, "progress": None}
+                       "progress": None, "levels": MATCH_LEVELS}
+    assert chosen == {"likelihood_power": 0.25, "min_hit_fraction": 0.3, "window": 20.0, "progress": None,
+                      "levels": MATCH_LEVELS}
 
 
 def test_a_scan_that_misses_its_local_map_takes_the_odometrys_step():

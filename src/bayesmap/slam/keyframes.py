@@ -79,7 +79,7 @@ KEYFRAME_TURN = 0.3
 PLACE_LEVELS = ((0.05, 0.03, 2, 4, 1), *MATCH_LEVELS[1:])
 """The search that places a scan between keyframes: a coarse level on the broad field, +-0.1 m and +-0.12 rad around
 the prediction in steps of 0.05 m and 0.03 rad, then the front end's fine levels (:data:`bayesmap.slam.scanmatch.
-MATCH_LEVELS` without its first: +-0.09 m and +-0.02 rad more, down to 3 mm and 0.05 degrees). The odometry's error
+MATCH_LEVELS` without its first: +-0.09 m and +-0.042 rad more, down to 3 mm and 0.05 degrees). The odometry's error
 over the at most :data:`KEYFRAME_DISTANCE` meters from a keyframe is centimeters; the front end's first level, +-0.4
 m and +-0.8 rad, is for the front end's steps between keyframes, and would cost 15 times the candidates."""
 

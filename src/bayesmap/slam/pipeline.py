@@ -85,6 +85,7 @@ from bayesmap.slam.posegraph import (
 from bayesmap.slam.poses import random_walk_pose_mh, slam_data
 from bayesmap.slam.scanmatch import (
     LOCAL_MAP_DISTANCE,
+    MATCH_LEVELS,
     MIN_HIT_FRACTION,
     MatchedPath,
     ScanData,
@@ -169,7 +170,7 @@ def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MAR
 
 def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTION,
               window: float = LOCAL_MAP_DISTANCE, particles: int = FRONT_END_PARTICLES, seed: int = 0,
-              progress: ProgressCallback | None = None) -> MatchedPath:
+              progress: ProgressCallback | None = None, levels=MATCH_LEVELS) -> MatchedPath:
     """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad) and its steps' posterior covariances
     (:class:`bayesmap.slam.scanmatch.MatchedPath`): correlative scan matching from the first
     odometry pose on fields of :data:`FRONT_END_RESOLUTION` meters that follow the robot
@@ -182,14 +183,15 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
     the last ``window`` meters of travel (:data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`). With ``particles``
     above 1, that many hypotheses (:func:`bayesmap.slam.particles.particle_path`, random seed ``seed``), the
     heaviest particle's path returned and the distinct heavy paths counted (:data:`FRONT_END_PARTICLES`).
-    ``progress`` gets ``Progress("front end", done, S - 1, "scan")`` as the scans are matched.
+    ``levels`` is the coarse-to-fine search (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`). ``progress`` gets
+    ``Progress("front end", done, S - 1, "scan")`` as the scans are matched.
 
     Raises:
         BayesmapError: as :func:`bayesmap.slam.scanmatch.correlative_path` and
             :func:`bayesmap.slam.particles.particle_path`."""
     odometry = np.asarray(problem.odometry, np.float64)
     options = dict(likelihood_power=problem.likelihood_power, min_hit_fraction=min_hit_fraction, window=window,
-                   progress=progress)
+                   progress=progress, levels=levels)
     if isinstance(particles, (int, np.integer)) and not isinstance(particles, bool) and particles == 1:
         return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, **options)
     return particle_path(odometry[0], data, FRONT_END_RESOLUTION, particles, seed=seed, **options).matched

@@ -79,14 +79,16 @@ coincidences, which put fewer of its endpoints on the map than a true match does
 cross-validation of the start path's ATE among 0, 0.2 and 0.35 over Intel, ACES and CSAIL
 (``benchmarks/front_end_cv.py``; [validation](../validation/defaults.md#min_hit_fraction))."""
 
-MATCH_LEVELS = ((0.1, 0.04, 4, 20, 1), (0.03, 0.007, 3, 3, 0), (0.01, 0.0025, 2, 2, 0), (0.003, 0.0008, 2, 2, 0))
+MATCH_LEVELS = ((0.1, 0.04, 4, 20, 1), (0.03, 0.007, 3, 6, 0), (0.01, 0.0025, 2, 2, 0), (0.003, 0.0008, 2, 2, 0))
 """The coarse-to-fine search: per level the lattice step in x and y (meters) and in theta (radians), the half widths
 ``w_xy`` and ``w_theta`` (``(2 w_xy + 1)^2 (2 w_theta + 1)`` candidates) and the field it scores against (index into
-:data:`FIELDS`): the first level covers +-0.4 m and +-0.8 rad (46 degrees) around the odometry's prediction, the last
-resolves 3 mm and 0.05 degrees. The heading window is 3.5 standard deviations of the odometry's heading error on a
-step that backs up (a turn of about pi under *Probabilistic Robotics* Table 5.5's decomposition); the motion model's
-log-density is part of every candidate's score, so the wide window costs only time
-([validation](../validation/defaults.md#match_levels))."""
+:data:`FIELDS`): the first level covers +-0.4 m and +-0.8 rad (46 degrees) around the odometry's prediction, the
+second +-0.09 m and +-0.042 rad around the first's best, a whole heading step of the first level either side (so a
+first level that picks the heading next to the right one is corrected), the last resolves 3 mm and 0.05 degrees.
+The first level's heading window is 3.5 standard deviations of the odometry's heading error on a step that backs up
+(a turn of about pi under *Probabilistic Robotics* Table 5.5's decomposition); the motion model's log-density is part
+of every candidate's score, so the wide window costs only time. The second level's heading reach was chosen by
+leave-one-log-out cross-validation ([validation](../validation/defaults.md#match_levels))."""
 
 
 LOCAL_MAP_DISTANCE = 10.0
