@@ -467,8 +467,10 @@ def run_keyframe_slam(problem, keyframes, progress: ProgressCallback | None = No
     start = time.perf_counter()
     others = problem.num_scans - len(keyframes)
     report(progress, "place scans", 0, others, "scan")
-    poses = place_scans(result.mean_path, keyframes, scan_data(problem), problem.likelihood_power)
-    cov, samples = placed_uncertainty(poses, keyframes, problem.motion_steps(), result.pose_cov, result.pose_samples)
+    data = scan_data(problem)  # every scan's beams and motion steps (the problem's, once)
+    poses = place_scans(result.mean_path, keyframes, data, problem.likelihood_power)
+    cov, samples = placed_uncertainty(poses, keyframes, (data.increments, data.covs), result.pose_cov,
+                                      result.pose_samples)
     report(progress, "place scans", others, others, "scan")
     graph_cov = None if result.graph_cov is None else result.graph_cov[owners(problem.num_scans, keyframes)]
     return result._replace(mean_path=poses, pose_cov=cov, pose_samples=samples, graph_cov=graph_cov,
