@@ -17,7 +17,11 @@ motion model's log-density. Two of its settings are chosen here:
   count as consistent (:data:`bayesmap.slam.posegraph.CONSISTENCY_GATE`).
 * ``loop_window_sigmas``: the loop closure's too, how many standard deviations of a candidate's drift along the
   chain the first round's search window covers (:data:`bayesmap.slam.posegraph.LOOP_WINDOW_SIGMAS`; 0: every
-  window +-1.5 m). The loop closure's settings reuse one front end per (log, seed, scans).
+  window +-1.5 m).
+* ``step_covariances``: the loop closure's too, 1 to weigh each sequential edge by the front end's step posterior
+  (``close_loops(step_cov=...)``, what ``run_log_slam`` does), 0 for every step at
+  :data:`bayesmap.slam.posegraph.SEQUENTIAL_STD`. The loop closure's settings reuse one front end per (log, seed,
+  scans).
 * ``particles``: how many hypotheses the front end keeps (:data:`bayesmap.slam.pipeline.FRONT_END_PARTICLES`;
   :mod:`bayesmap.slam.particles`).
 * ``first_heading_step`` and ``second_heading_steps``: the heading lattice of the front end's search
@@ -51,7 +55,7 @@ Each run is appended to ``--records FILE`` (JSON lines) as soon as it is done, a
 repeated, so the grid can be split between processes and resumed.
 
 Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F
-           [--parameter power|min_hit_fraction|window|consistency_gate|particles|loop_window_sigmas|
+           [--parameter power|min_hit_fraction|window|consistency_gate|particles|loop_window_sigmas|step_covariances|
                         first_heading_step|second_heading_steps]
            [--values 1,0.3,0.1,0.03] [--seeds 0-2] [--logs intel,aces,csail] [--scans all,heldout]
 """
@@ -81,7 +85,8 @@ from bayesmap.slam.problem import SLAM_LIKELIHOOD_POWER, log_slam_problem  # noq
 DEFAULTS = {"power": SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HIT_FRACTION,
             "window": scanmatch.LOCAL_MAP_DISTANCE, "consistency_gate": posegraph.CONSISTENCY_GATE,
             "particles": pipeline.FRONT_END_PARTICLES, "loop_window_sigmas": posegraph.LOOP_WINDOW_SIGMAS,
-            "first_heading_step": scanmatch.MATCH_LEVELS[0][1], "second_heading_steps": scanmatch.MATCH_LEVELS[1][3]}
+            "first_heading_step": scanmatch.MATCH_LEVELS[0][1], "second_heading_steps": scanmatch.MATCH_LEVELS[1][3],
+            "step_covariances": 1}
 """The settings this script can vary, and the value each takes while the other is varied (the defaults of
 :func:`bayesmap.slam.pipeline.front_end`)."""
 
@@ -120,7 +125,8 @@ def start_path(log, truth, scans: str, parameter: str, value: float, name: tuple
     matched = FRONT_ENDS[key]
     front = matched.path
     closed, edges, _ = posegraph.close_loops(front, data, consistency_gate=setting["consistency_gate"],
-                                             window_sigmas=setting["loop_window_sigmas"])
+                                             window_sigmas=setting["loop_window_sigmas"],
+                                             step_cov=matched.step_cov if setting["step_covariances"] else None)
     truth = truth if kept is None else truth[kept]
     return {"parameter": parameter, "value": value, "scans": scans,
             "front_end_ate_m": absolute_trajectory_error(front, truth)["rmse_m"],

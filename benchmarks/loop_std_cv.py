@@ -32,13 +32,14 @@ def ates(name: str, seed: int, factors: list[float]) -> list[float]:
     log, truth = seeded_log(name, seed)
     problem = log_slam_problem(log)
     data = scan_data(problem)
-    start = front_end(problem, data).path
+    matched = front_end(problem, data)
+    start = matched.path
     out = []
     saved = posegraph.LOOP_STD
     try:
         for f in factors:
             posegraph.LOOP_STD = tuple(f * v for v in BASE)  # read by loop_edges at call time
-            path, _, _ = posegraph.close_loops(start, data)
+            path, _, _ = posegraph.close_loops(start, data, step_cov=matched.step_cov)
             out.append(absolute_trajectory_error(path, truth)["rmse_m"])
     finally:
         posegraph.LOOP_STD = saved

@@ -39,7 +39,7 @@ def run(log_path: Path, truth_path: Path | None, scans: str, particles: int) -> 
         began = time.perf_counter()
         matched = pipeline.front_end(problem, data, particles=particles)
         seconds.append(time.perf_counter() - began)
-    closed = posegraph.close_loops(matched.path, data).path
+    closed = posegraph.close_loops(matched.path, data, step_cov=matched.step_cov).path
     record = {"log": log_path.name, "scans": scans, "num_scans": int(len(matched.path)), "particles": particles,
               "front_end_s_first": seconds[0], "front_end_s": seconds[1], "hypotheses": matched.hypotheses,
               "device": str(jax.devices()[0])}

@@ -56,8 +56,9 @@ def error_sources(log, truth, slip: float, reading_scale: float = 1.0) -> dict:
     problem = log_slam_problem(log)
     scans = pipeline.scan_data(problem)
     scans = scans._replace(readings=np.asarray(scans.readings) * reading_scale)
-    front = pipeline.front_end(problem, scans).path
-    closed, edges, _ = posegraph.close_loops(front, scans)
+    matched = pipeline.front_end(problem, scans)
+    front = matched.path
+    closed, edges, _ = posegraph.close_loops(front, scans, step_cov=matched.step_cov)
     loop = np.arange(len(edges.i)) >= len(front) - 1  # close_loops puts the sequential edges first
     sequential = edges.take(~loop)
     loops = edges.take(loop)

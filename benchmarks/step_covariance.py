@@ -4,11 +4,11 @@ calibration (minutes per run, where ``pose_cov_cv.py`` runs the whole chain).
 For each log, odometry seed (``seeded_logs.seeded_log``) and scan set (``all``, or ``every2``: every other scan),
 the script runs bayesmap's start as :func:`bayesmap.slam.pipeline.run_log_slam` does (the front end, which returns
 each step's posterior covariance, :func:`bayesmap.slam.scanmatch.step_posterior`; then
-:func:`bayesmap.slam.posegraph.close_loops`), and prints the start path's ATE, the 95 % coverage of the pose graph's
-Laplace covariance with those step covariances (:func:`bayesmap.slam.posegraph.with_step_covariances`, what stage 5
-reports less the chain's millimetre spread) at the start path against the truth, the same for the graph at its
-fixed edge deviations times 0.36 (the retired ``GRAPH_COV_SCALE``, a factor fitted on truth), the steps' median and
-90th-percentile position standard deviation (m) and the front end's seconds.
+:func:`bayesmap.slam.posegraph.close_loops` with them), and prints the start path's ATE, the 95 % coverage of the
+pose graph's Laplace covariance with those step covariances (what stage 5 reports less the chain's millimetre
+spread) at the start path against the truth, the same for the graph's loop edges and every step at its fixed
+deviations (:data:`bayesmap.slam.posegraph.SEQUENTIAL_STD`) times 0.36 (the retired ``GRAPH_COV_SCALE``, a factor
+fitted on truth), the steps' median and 90th-percentile position standard deviation (m) and the front end's seconds.
 
 Usage: PYTHONPATH=src python benchmarks/step_covariance.py [--logs aces] [--seeds 0] [--scans all,every2]
 """
@@ -45,9 +45,10 @@ def run(name: str, seed: int, scans: str) -> str:
     began = time.perf_counter()
     front = pipeline.front_end(problem, data)
     seconds = time.perf_counter() - began
-    path, edges, _ = posegraph.close_loops(front.path, data)
-    cov = posegraph.marginal_covariances(path, posegraph.with_step_covariances(edges, front.step_cov))
-    scaled = RETIRED_SCALE**2 * posegraph.marginal_covariances(path, edges)
+    path, edges, _ = posegraph.close_loops(front.path, data, step_cov=front.step_cov)
+    cov = posegraph.marginal_covariances(path, edges)
+    fixed = posegraph.concat_edges(posegraph.sequential_edges(front.path), edges.take(slice(len(path) - 1, None)))
+    scaled = RETIRED_SCALE**2 * posegraph.marginal_covariances(path, fixed)
     sd = np.sqrt(front.step_cov[:, [0, 1], [0, 1]])
     return (f"| {name} | {seed} | {scans} | {absolute_trajectory_error(path, truth)['rmse_m']:.3f} | "
             f"{ellipse_coverage(path, cov, truth):.3f} | {ellipse_coverage(path, scaled, truth):.3f} | "

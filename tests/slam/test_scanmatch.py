@@ -322,6 +322,23 @@ def test_pose_graph_closes_a_loop():
     assert np.hypot(*(open_path - truth)[:, :2].T).max() > 0.5
 
 
+def test_a_loop_bends_the_path_at_the_step_the_front_end_could_not_pin_down():
+    """The drifted square loop and one exact loop edge, the sequential edges at ``SEQUENTIAL_STD`` except the step
+    that holds the 0.15 rad heading error, whose covariance (as the front end's step posterior gives one for a match
+    it could not pin down) has a 0.1 rad heading deviation: the optimized path puts the error on that step and is
+    within 2 cm of the truth everywhere (1.4 cm: the other steps' share of the loop's residual). With every step at
+    ``SEQUENTIAL_STD`` the same loop spreads the error over all the steps, 0.17 m off at the worst pose."""
+    truth, seq, drifted = drifted_square_loop()
+    cov = np.tile(np.diag(np.square(posegraph.SEQUENTIAL_STD)), (len(seq.i), 1, 1))
+    cov[3, 2, 2] = 0.1**2
+    loop = posegraph.Edges(np.array([0]), np.array([15]), posegraph.relative(truth[:1], truth[15:]),
+                           np.array([[0.01, 0.01, 0.005]]))
+    steps = posegraph.optimize_pose_graph(drifted, posegraph.concat_edges(posegraph.with_covariances(seq, cov), loop))
+    fixed = posegraph.optimize_pose_graph(drifted, posegraph.concat_edges(seq, loop))
+    assert np.hypot(*(steps - truth)[:, :2].T).max() < 0.02
+    assert np.hypot(*(fixed - truth)[:, :2].T).max() > 0.15
+
+
 def test_the_loop_gate_drops_a_false_loop_match():
     """The square loop with the drifted sequential edges, three correct loop edges and one false one (a match a
     meter off, as a corridor matched along its axis): the gate finds it (its residual is tens of sigma, the true
@@ -357,16 +374,31 @@ def test_the_gate_keeps_the_hypothesis_without_the_false_loop_match():
     assert hypotheses.weights.sum() == pytest.approx(1.0)
 
 
-def test_the_cycle_norm_is_the_cycles_monte_carlo_covariance():
+def correlated_covariances(count: int, seed: int = 0) -> np.ndarray:
+    """``(count, 3, 3)`` covariances of relative poses with unequal x and y and correlated components (a step's
+    posterior along a corridor: long along it, its heading tied to the sideways position), 1-12 cm and 0.005-0.05
+    rad."""
+    rng = np.random.default_rng(seed)
+    factor = rng.normal(size=(count, 3, 3)) * np.array([0.06, 0.03, 0.02])[:, None]
+    return factor @ np.swapaxes(factor, 1, 2) + np.diag([1e-4, 1e-4, 2.5e-5])
+
+
+@pytest.mark.parametrize("kind", ["independent", "correlated"])
+def test_the_cycle_norm_is_the_cycles_monte_carlo_covariance(kind):
     """``pairwise_consistency``'s first-order covariance of a cycle's error against the covariance of 4,000 cycles
     with every edge drawn with its noise (a 60-step arc of 0.3 m steps, three loop edges from its end back to its
-    start): a loop edge moved 5 cm sideways gives each cycle an error ``e``, and its squared norm under the two
-    covariances agrees within 10 % (the sample covariance of 4,000 draws is within about 5 % at two standard errors;
-    the rest is the first-order approximation's, at these noise levels under 2 %)."""
+    start; the sequential edges' noise independent per component, or a full covariance per edge, as the front end's
+    step posteriors give them): a loop edge moved 5 cm sideways gives each cycle an error ``e``, and its squared norm
+    under the two covariances agrees within 10 % (the sample covariance of 4,000 draws is within about 5 % at two
+    standard errors; the rest is the first-order approximation's, at these noise levels under 2 %)."""
     rng = np.random.default_rng(0)
     t = np.linspace(0, 2.2 * np.pi, 61)
     path = np.stack([3 * np.cos(t), 3 * np.sin(t), posegraph.wrap_angle(t + np.pi / 2)], axis=1)
     seq = posegraph.sequential_edges(path)
+    factors = np.broadcast_to(np.diag(posegraph.SEQUENTIAL_STD), (len(seq.i), 3, 3))
+    if kind == "correlated":
+        cov = correlated_covariances(len(seq.i)) / 4  # 0.5-6 cm: within the first order's reach
+        seq, factors = posegraph.with_covariances(seq, cov), np.linalg.cholesky(cov)
     pairs = np.array([[2, 57], [5, 60], [1, 55]])
     loops = posegraph.Edges(pairs[:, 0], pairs[:, 1], posegraph.relative(path[pairs[:, 0]], path[pairs[:, 1]]),
                             np.tile(posegraph.LOOP_STD, (3, 1)))
@@ -385,7 +417,7 @@ def test_the_cycle_norm_is_the_cycles_monte_carlo_covariance():
     moved[0] = compose_poses(moved[0], np.array([0.0, 0.05, 0.0]))
     norms = posegraph.pairwise_consistency(seq, loops._replace(z=moved))
     for a, b in [(0, 1), (0, 2)]:
-        draws = cycle(seq.z + rng.standard_normal((4000, *seq.z.shape)) * seq.std,
+        draws = cycle(seq.z + np.einsum("eij,nej->nei", factors, rng.standard_normal((4000, *seq.z.shape))),
                       loops.z + rng.standard_normal((4000, *loops.z.shape)) * loops.std, a, b)
         e = cycle(seq.z, moved, a, b)
         assert np.abs(e[:2]).max() > 0.04  # the cycle is open by the move
@@ -453,22 +485,27 @@ def arc(steps=60, radius=3.0, turns=2.2):
     return np.stack([radius * np.sin(t), radius * (1 - np.cos(t)), posegraph.wrap_angle(t)], axis=1)
 
 
-def test_a_chains_covariance_is_its_graphs_marginal_from_the_older_pose():
+@pytest.mark.parametrize("kind", ["independent", "correlated"])
+def test_a_chains_covariance_is_its_graphs_marginal_from_the_older_pose(kind):
     """``chain_covariances`` (prefix sums) for pairs ``(s, t)`` of a 60-step arc equals the pose graph's Laplace
     covariance of pose ``t`` in the graph of the sequential edges from ``s`` to ``t`` with pose ``s`` fixed
     (``marginal_covariances``: a sparse solve, another computation of the same first-order quantity), to rounding;
-    the arc starts at the origin with heading 0, so the chain's frame is the world's. Pairs with ``s > t`` or
-    outside the chain are refused."""
+    the arc starts at the origin with heading 0, so the chain's frame is the world's. The edges' noise is
+    independent per component, or a full covariance per edge (the front end's step posteriors,
+    ``with_step_covariances``), which the chain turns into its own frame by the heading before each edge. Pairs
+    with ``s > t`` or outside the chain are refused."""
     path = arc()
     seq = posegraph.sequential_edges(path)
     seq = seq._replace(std=seq.std * np.linspace(0.5, 2.0, len(seq.i))[:, None])  # every edge its own noise
+    if kind == "correlated":
+        seq = posegraph.with_covariances(seq, correlated_covariances(len(seq.i)))
     pairs = np.array([[0, 60], [10, 55], [30, 31], [7, 7]])
     cov = posegraph.chain_covariances(seq, pairs)
     for (s, t), c in zip(pairs, cov):
         if s == t:
             np.testing.assert_array_equal(c, 0.0)
             continue
-        sub = posegraph.Edges(seq.i[s:t] - s, seq.j[s:t] - s, seq.z[s:t], seq.std[s:t])
+        sub = seq.take(slice(s, t))._replace(i=seq.i[s:t] - s, j=seq.j[s:t] - s)
         np.testing.assert_allclose(c, posegraph.marginal_covariances(path[s:t + 1], sub)[-1], rtol=1e-9, atol=1e-12)
     for bad in ([[5, 4]], [[0, 61]], [[-1, 3]]):
         with pytest.raises(BayesmapError):

@@ -6,7 +6,8 @@ mapping at known poses). :func:`run_log_slam` finds a start, then runs a blocked
 
 1. **Front end**: sequential correlative scan matching (:func:`bayesmap.slam.scanmatch.correlative_path`), the
    scans' field scores at the problem's likelihood power against the motion model (:func:`front_end`).
-2. **Back end**: loop closure and pose-graph optimization (:func:`bayesmap.slam.posegraph.close_loops`).
+2. **Back end**: loop closure and pose-graph optimization (:func:`bayesmap.slam.posegraph.close_loops`), each
+   sequential edge weighted by the posterior covariance of the front end's step.
    Stages 1 and 2 only choose where the chain starts; they do not enter its target.
 3. **The grid**: fitted to the beam endpoints at that path, plus :data:`MAP_MARGIN` meters.
 4. **The joint chain**, :data:`ROUNDS` rounds of two blocks (Gibbs over blocks; docs/slam.md):
@@ -80,7 +81,6 @@ from bayesmap.slam.posegraph import (
     marginal_covariances,
     optimize_pose_graph,
     sample_deviations,
-    with_step_covariances,
 )
 from bayesmap.slam.poses import random_walk_pose_mh, slam_data
 from bayesmap.slam.scanmatch import (
@@ -425,12 +425,11 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     start = time.perf_counter()
     scans = scan_data(problem)
     front = front_end(problem, scans, particles=particles, seed=seed, progress=progress)
-    path, edges, hypotheses = close_loops(front.path, scans, progress=progress)
+    path, edges, hypotheses = close_loops(front.path, scans, progress=progress, step_cov=front.step_cov)
     grid = fitted_grid(scans, path, problem.params.grid.resolution)
     walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, grid), path, seed,
                                                    (rounds, burn_in, map_sweeps, pose_sweeps), progress, tile_pairs)
-    mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, with_step_covariances(edges, front.step_cov),
-                                                      hypotheses)
+    mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, hypotheses)
     chain_posterior = probs.astype(np.float64).mean(axis=0)
     posterior, final_power, final_noise = chain_posterior, None, None
     if final:

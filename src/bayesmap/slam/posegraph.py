@@ -100,7 +100,9 @@ LOCAL_MAP_RESOLUTION = 0.05
 """Cell size of the local maps, meters."""
 
 SEQUENTIAL_STD = (0.03, 0.03, 0.01)
-"""Standard deviations of a sequential edge (x m, y m, theta rad): the front end's error per scan."""
+"""Standard deviations of a sequential edge (x m, y m, theta rad) where the front end's step posteriors are not
+given (:func:`sequential_edges`; :func:`close_loops` without ``step_cov``): a typical error of the front end per
+scan."""
 
 LOOP_STD = (0.1, 0.1, 0.04)
 """Standard deviations of a loop edge (x m, y m, theta rad): twice (0.05 m, 0.05 m, 0.02 rad), chosen among 1, 2 and 4
@@ -561,43 +563,61 @@ def _isotropic(edges: Edges, name: str) -> np.ndarray:
     return std
 
 
+def edge_covariances(edges: Edges) -> np.ndarray:
+    """``(E, 3, 3)`` float64: each edge's covariance in the frame of its first pose (m^2, m rad, rad^2):
+    ``diag(std^2)``, or ``(W^T W)^-1`` for an edge with a square-root information ``W``."""
+    if edges.whitening is None:
+        std = np.asarray(edges.std, np.float64)
+        return std[:, :, None] ** 2 * np.eye(3) if std.size else np.zeros((0, 3, 3))
+    whitening = whitening_matrices(edges)
+    return np.linalg.inv(np.swapaxes(whitening, 1, 2) @ whitening)
+
+
+def _lever_matrix(point) -> np.ndarray:
+    """``(..., 3, 3)``: ``[[0, 0, -y], [0, 0, x], [0, 0, 0]]`` for ``point`` ``(..., 2)``: a heading change
+    ``dtheta`` at the origin moves ``point`` by ``(-y, x) dtheta``."""
+    out = np.zeros(np.shape(point)[:-1] + (3, 3))
+    out[..., 0, 2], out[..., 1, 2] = -point[..., 1], point[..., 0]
+    return out
+
+
 class _Chain:
-    """Prefix sums over the sequential edges (isotropic, :func:`_isotropic`) of the moments that the covariance of a
-    stretch of them needs (:func:`pairwise_consistency`, :func:`chain_covariances`)."""
+    """Prefix sums over the sequential edges of the moments that the covariance of a stretch of them needs
+    (:func:`pairwise_consistency`, :func:`chain_covariances`). Edge ``k`` (pose ``k - 1`` to ``k``) has covariance
+    ``C_k`` in the chain's frame (its own turned by pose ``k - 1``'s heading) and turns what follows about pose
+    ``k``'s position ``p_k``, so at an anchor ``a`` it adds ``G C_k G^T`` with ``G = M(a) - N(p_k)``, ``M(a) = I +
+    lever(a)`` and ``N(p) = lever(p)`` (:func:`_lever_matrix`): the sums of ``C_k``, ``C_k N_k^T`` and ``N_k C_k
+    N_k^T`` give any stretch."""
 
     def __init__(self, sequential: Edges):
         self.path = odometry_path(sequential)
-        std = _isotropic(sequential, "sequential")
-        pivots = self.path[1:, :2]  # sequential edge k - 1 ends at pose k
-        theta_var = std[:, 2] ** 2
-        self.sums = tuple(np.concatenate([np.zeros((1,) + v.shape[1:]), np.cumsum(v, axis=0)]) for v in (
-            std[:, 0] ** 2, theta_var, theta_var[:, None] * pivots, theta_var[:, None, None] * pivots[:, :, None]
-            * pivots[:, None, :]))
+        rotation = rotation3(self.path[:-1, 2])
+        cov = rotation @ edge_covariances(sequential) @ np.swapaxes(rotation, 1, 2)
+        lever = _lever_matrix(self.path[1:, :2])  # sequential edge k - 1 ends at pose k
+        cross = cov @ np.swapaxes(lever, 1, 2)
+        self.sums = tuple(np.concatenate([np.zeros((1, 3, 3)), np.cumsum(v, axis=0)])
+                          for v in (cov, cross, lever @ cross))
 
     def covariance(self, start, stop, anchor) -> np.ndarray:
         """``(P, 3, 3)``: the noise of the sequential edges between poses ``start`` and ``stop`` ``(P,)`` (either
-        order) carried to ``anchor`` ``(P, 2)`` (the odometry path's frame): ``sum_k xy_var_k I + theta_var_k g_k
-        g_k^T``, ``g_k = (-l_y, l_x, 1)``, ``l`` the lever from edge ``k``'s end pose to ``anchor``."""
+        order) carried to ``anchor`` ``(P, 2)`` (the odometry path's frame): ``sum_k G_k C_k G_k^T``, ``G_k`` the
+        rigid turn about edge ``k``'s end pose seen at ``anchor``."""
         low, high = np.minimum(start, stop), np.maximum(start, stop)
-        xy_var, weight, first, second = (s[high] - s[low] for s in self.sums)
-        outer = (weight[:, None, None] * anchor[:, :, None] * anchor[:, None, :] - anchor[:, :, None] * first[:, None]
-                 - first[:, :, None] * anchor[:, None] + second)  # sum_k w_k (anchor - p_k)(anchor - p_k)^T
-        turn = np.array([[0.0, -1.0], [1.0, 0.0]])
-        block = np.zeros((len(low), 3, 3))
-        block[:, :2, :2] = turn @ outer @ turn.T
-        block[:, 0, 0] += xy_var
-        block[:, 1, 1] += xy_var
-        block[:, :2, 2] = block[:, 2, :2] = (weight[:, None] * anchor - first) @ turn.T
-        block[:, 2, 2] = weight
-        return block
+        cov, cross, second = (s[high] - s[low] for s in self.sums)
+        move = np.eye(3) + _lever_matrix(np.asarray(anchor, np.float64))
+        first = move @ cross
+        return move @ cov @ np.swapaxes(move, 1, 2) - first - np.swapaxes(first, 1, 2) + second
 
 
 def chain_covariances(sequential: Edges, pairs) -> np.ndarray:
     """How far pose ``t`` can be from its estimate if pose ``s`` is where the estimate puts it and only the
     sequential edges between them tie the two: for each pair ``(s, t)`` of ``pairs`` ``(P, 2)``, the covariance of
-    pose ``t`` given pose ``s`` along the chain of ``sequential`` (:func:`sequential_edges`, isotropic), to first
-    order: ``sum_k xy_var_k I + theta_var_k g_k g_k^T`` over the edges between them, ``g_k = (-l_y, l_x, 1)`` and
-    ``l`` the lever from edge ``k``'s end to pose ``t`` (a heading error at ``k`` swings everything after it).
+    pose ``t`` given pose ``s`` along the chain of ``sequential`` (:func:`sequential_edges`, independent components
+    or full covariances, :func:`with_step_covariances`), to first order: ``sum_k G_k C_k G_k^T`` over the edges
+    between them, ``C_k`` edge ``k``'s covariance turned into the chain's frame and ``G_k = [[1, 0, -l_y], [0, 1,
+    l_x], [0, 0, 1]]``, ``l`` the lever from edge ``k``'s end to pose ``t`` (a heading error at ``k`` swings
+    everything after it; for independent components with equal x and y deviations, ``xy_var_k I + theta_var_k g_k
+    g_k^T``, ``g_k = (-l_y, l_x, 1)``).
 
     Returns:
         ``(P, 3, 3)`` float64 (m^2, m rad, rad^2), in the frame of the chain's path (:func:`odometry_path`, which
@@ -605,8 +625,7 @@ def chain_covariances(sequential: Edges, pairs) -> np.ndarray:
         the same in either).
 
     Raises:
-        BayesmapError: as :func:`pairwise_consistency` for the sequential edges, a pair outside the chain or one
-            with ``s > t``.
+        BayesmapError: on sequential edges out of order, a pair outside the chain or one with ``s > t``.
     """
     chain = _Chain(sequential)
     pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
@@ -627,20 +646,24 @@ def pairwise_consistency(sequential: Edges, loops: Edges) -> np.ndarray:
 
     A noise ``(dx, dy, dtheta)`` on an edge moves the part of the cycle beyond the edge by ``(dx, dy)`` turned into
     the cycle's frame and turns it by ``dtheta`` about the edge's pose ``j``, whichever way the cycle runs through
-    the edge, so each edge adds ``sigma_xy^2 I + sigma_theta^2 g g^T`` (equal x and y deviations) with ``g = (-l_y,
-    l_x, 1)``, ``l`` the lever from that pose to the cycle's end; the sums over a stretch of sequential edges are
-    differences of prefix sums (docs/slam.md). Checked against the covariance of Monte Carlo cycles (tests).
+    the edge, so each edge adds ``G C G^T``, ``C`` its covariance in the cycle's frame and ``G = [[1, 0, -l_y], [0,
+    1, l_x], [0, 0, 1]]``, ``l`` the lever from that pose to the cycle's end (for a loop edge, whose x and y
+    deviations are equal, ``sigma_xy^2 I + sigma_theta^2 g g^T``, ``g = (-l_y, l_x, 1)``); the sums over a stretch
+    of sequential edges are differences of prefix sums (:func:`chain_covariances`, docs/slam.md). Checked against
+    the covariance of Monte Carlo cycles (tests).
 
     Args:
-        sequential: the sequential edges ``0 -> 1, 1 -> 2, ...`` (:func:`sequential_edges`), whose chain
-            (:func:`odometry_path`) is the odometry between the loop edges' ends.
+        sequential: the sequential edges ``0 -> 1, 1 -> 2, ...`` (:func:`sequential_edges`, possibly with full
+            covariances, :func:`with_step_covariances`), whose chain (:func:`odometry_path`) is the odometry between
+            the loop edges' ends.
         loops: ``L`` loop edges of the same graph.
 
     Returns:
         ``(L, L)`` float64 squared Mahalanobis norms, zero on the diagonal.
 
     Raises:
-        BayesmapError: on sequential edges out of order, or an edge whose x and y standard deviations differ.
+        BayesmapError: on sequential edges out of order, or a loop edge whose x and y standard deviations differ
+            or that has a full covariance.
     """
     chain = _Chain(sequential)
     path, loop_std = chain.path, _isotropic(loops, "loop")
@@ -798,7 +821,8 @@ class LoopClosure(NamedTuple):
 
 
 def close_loops(path, data: ScanData, rounds: int = ROUNDS, progress: ProgressCallback | None = None,
-                consistency_gate: float = CONSISTENCY_GATE, window_sigmas: float = LOOP_WINDOW_SIGMAS) -> LoopClosure:
+                consistency_gate: float = CONSISTENCY_GATE, window_sigmas: float = LOOP_WINDOW_SIGMAS,
+                step_cov=None) -> LoopClosure:
     """Alternate loop detection (:func:`loop_edges`) and the choice of loop edges with pose-graph optimization
     (:func:`optimize_with_loop_gate` at ``consistency_gate``) ``rounds`` times from the front end's ``path`` (fewer
     if a round finds no loop edge). ``progress`` gets ``Progress("loop closure r/rounds", done, P, "scan")`` per
@@ -809,13 +833,22 @@ def close_loops(path, data: ScanData, rounds: int = ROUNDS, progress: ProgressCa
     meters from where the front end puts it. Later rounds search +-1.5 m around the path the kept loops corrected
     ([validation](../validation/slam.md#the-loop-searchs-reach)).
 
+    ``step_cov`` ``(S - 1, 3, 3)`` (or None): the sequential edges' covariances, each in the frame of the pose
+    before it (the front end's step posteriors, :attr:`bayesmap.slam.scanmatch.MatchedPath.step_cov`): the windows,
+    the consistency test, the hypotheses' weights and the optimization all read them, so a step the front end could
+    not pin down (a corridor, a match that was not trusted) is where a loop bends the path. None: every step at
+    :data:`SEQUENTIAL_STD` ([validation](../validation/slam.md#the-steps-uncertainty-in-the-loop-closure)).
+
     Returns:
         A :class:`LoopClosure`: the optimized path, the graph's edges (the sequential edges of the front end's
-        ``path``, :func:`sequential_edges`, followed by the loop edges kept in the last round) and the last round's
-        hypotheses.
+        ``path``, :func:`sequential_edges`, with ``step_cov`` if given, followed by the loop edges kept in the last
+        round) and the last round's hypotheses.
+
+    Raises:
+        BayesmapError: as :func:`with_step_covariances` for a bad ``step_cov``.
     """
     path = np.asarray(path, np.float64)
-    sequential = sequential_edges(path)
+    sequential = sequential_edges(path) if step_cov is None else with_step_covariances(sequential_edges(path), step_cov)
     kept = Edges(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
     hypotheses = None
     for r in range(rounds):
