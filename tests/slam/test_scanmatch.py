@@ -492,7 +492,7 @@ def test_a_chains_covariance_is_its_graphs_marginal_from_the_older_pose(kind):
     (``marginal_covariances``: a sparse solve, another computation of the same first-order quantity), to rounding;
     the arc starts at the origin with heading 0, so the chain's frame is the world's. The edges' noise is
     independent per component, or a full covariance per edge (the front end's step posteriors,
-    ``with_step_covariances``), which the chain turns into its own frame by the heading before each edge. Pairs
+    ``with_covariances``), which the chain turns into its own frame by the heading before each edge. Pairs
     with ``s > t`` or outside the chain are refused."""
     path = arc()
     seq = posegraph.sequential_edges(path)

@@ -264,7 +264,7 @@ def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None):
         seed: seed of the graph's draws (``numpy.random.default_rng``; hypothesis ``h`` uses ``seed + h``).
         chain_samples: ``(N, S, 3)`` pose samples of the joint chain (x m, y m, theta rad), ``N >= 1``.
         edges: the pose graph (:func:`bayesmap.slam.posegraph.close_loops`: the ``S - 1`` sequential edges first,
-            here with the front end's step covariances, :func:`bayesmap.slam.posegraph.with_step_covariances`),
+            here with the front end's step covariances, ``close_loops(step_cov=...)``),
             every pose after the first on an edge.
         hypotheses: None, or the loop closure's :class:`bayesmap.slam.posegraph.LoopHypotheses`, the first the
             one ``edges`` holds. Hypothesis ``h`` gets :func:`hypothesis_counts` of the ``N`` samples (the chain's

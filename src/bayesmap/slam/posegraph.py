@@ -613,7 +613,7 @@ def chain_covariances(sequential: Edges, pairs) -> np.ndarray:
     """How far pose ``t`` can be from its estimate if pose ``s`` is where the estimate puts it and only the
     sequential edges between them tie the two: for each pair ``(s, t)`` of ``pairs`` ``(P, 2)``, the covariance of
     pose ``t`` given pose ``s`` along the chain of ``sequential`` (:func:`sequential_edges`, independent components
-    or full covariances, :func:`with_step_covariances`), to first order: ``sum_k G_k C_k G_k^T`` over the edges
+    or full covariances, :func:`with_covariances`), to first order: ``sum_k G_k C_k G_k^T`` over the edges
     between them, ``C_k`` edge ``k``'s covariance turned into the chain's frame and ``G_k = [[1, 0, -l_y], [0, 1,
     l_x], [0, 0, 1]]``, ``l`` the lever from edge ``k``'s end to pose ``t`` (a heading error at ``k`` swings
     everything after it; for independent components with equal x and y deviations, ``xy_var_k I + theta_var_k g_k
@@ -654,7 +654,7 @@ def pairwise_consistency(sequential: Edges, loops: Edges) -> np.ndarray:
 
     Args:
         sequential: the sequential edges ``0 -> 1, 1 -> 2, ...`` (:func:`sequential_edges`, possibly with full
-            covariances, :func:`with_step_covariances`), whose chain (:func:`odometry_path`) is the odometry between
+            covariances, :func:`with_covariances`), whose chain (:func:`odometry_path`) is the odometry between
             the loop edges' ends.
         loops: ``L`` loop edges of the same graph.
 
@@ -845,10 +845,10 @@ def close_loops(path, data: ScanData, rounds: int = ROUNDS, progress: ProgressCa
         round) and the last round's hypotheses.
 
     Raises:
-        BayesmapError: as :func:`with_step_covariances` for a bad ``step_cov``.
+        BayesmapError: as :func:`with_covariances` for a bad ``step_cov``.
     """
     path = np.asarray(path, np.float64)
-    sequential = sequential_edges(path) if step_cov is None else with_step_covariances(sequential_edges(path), step_cov)
+    sequential = sequential_edges(path) if step_cov is None else with_covariances(sequential_edges(path), step_cov)
     kept = Edges(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
     hypotheses = None
     for r in range(rounds):
