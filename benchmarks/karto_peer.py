@@ -16,7 +16,12 @@ Karto's result varies several-fold with the odometry seed, so one seed says litt
 
 Usage: PYTHONPATH=src python benchmarks/karto_peer.py [--seeds 0-4] [--logs intel,aces,csail]
                                                     [--methods karto,bayesmap] [--beam-spacing bayesmap]
-                                                    [--json FILE] [--cache DIR]
+                                                    [--every 1] [--json FILE] [--cache DIR]
+
+``--every N`` gives both methods every Nth scan of the log only (scans 0, N, 2N, ...): Karto those scans' ranges and
+odometry poses, bayesmap the same scans as ``bayesmap slam --scans ::N`` takes them (each step the odometry's steps
+through the scans left out, composed); the truth is scored at those scans. ``fr079`` is Freiburg 079 (4,791 scans),
+never part of the default ``--logs``.
 
 ``--cache DIR`` keeps every (log, seed)'s record as ``DIR/LOG-sSEED.json`` the moment it is done, and a later call
 with the same folder loads it instead of running the methods again (delete a file to rerun it): a long grid can be
@@ -44,7 +49,15 @@ from pathlib import Path
 from typing import Callable, NamedTuple
 
 import numpy as np
-from seeded_logs import ALL_LOGS, CORRECTED_LOGS, NOISY_ODOMETRY, run_file, slam_run_arrays, write_seeded_log
+from seeded_logs import (
+    ALL_LOGS,
+    NOISY_ODOMETRY,
+    SIMULATED_LOGS,
+    corrected_log,
+    run_file,
+    slam_run_arrays,
+    write_seeded_log,
+)
 
 from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage
@@ -75,6 +88,7 @@ class Problem(NamedTuple):
         odometry: ``(S, 3)`` float64 odometry poses (x m, y m, theta rad), the first one the first true pose.
         truth: ``(S, 3)`` float64 true (corrected) poses, same units.
         log_path: the noisy-odometry CARMEN log (what a method reads).
+        scans: ``(S,)`` int64, the log's scans the problem keeps (``ranges``, ``odometry`` and ``truth`` are theirs).
     """
 
     name: str
@@ -85,6 +99,7 @@ class Problem(NamedTuple):
     odometry: np.ndarray
     truth: np.ndarray
     log_path: Path
+    scans: np.ndarray
 
 
 class MethodUnavailable(Exception):
@@ -109,8 +124,9 @@ def scan_beam_angles(beams: int, spacing: str) -> np.ndarray:
     return np.linspace(-math.pi / 2, math.pi / 2, beams)
 
 
-def make_problem(name: str, seed: int, folder: Path, spacing: str = "bayesmap") -> Problem:
-    """Write ``name``'s noisy-odometry log for ``seed`` into ``folder`` and read it back as a :class:`Problem`.
+def make_problem(name: str, seed: int, folder: Path, spacing: str = "bayesmap", every: int = 1) -> Problem:
+    """Write ``name``'s noisy-odometry log for ``seed`` into ``folder`` and read it back as a :class:`Problem` of its
+    scans ``0, every, 2 every, ...``.
 
     ``spacing`` chooses the beam angles (:func:`scan_beam_angles`).
 
@@ -119,8 +135,15 @@ def make_problem(name: str, seed: int, folder: Path, spacing: str = "bayesmap") 
     """
     prefix = folder / f"{name}-s{seed}"
     log, truth = write_seeded_log(name, seed, prefix)
-    return Problem(name, seed, np.asarray(log.ranges), scan_beam_angles(log.ranges.shape[1], spacing), log.max_range,
-                   np.asarray(log.poses), truth, Path(f"{prefix}.log.gz"))
+    kept = np.arange(0, len(log), every)
+    return Problem(problem_label(name, every), seed, np.asarray(log.ranges)[kept],
+                   scan_beam_angles(log.ranges.shape[1], spacing), log.max_range, np.asarray(log.poses)[kept],
+                   truth[kept], Path(f"{prefix}.log.gz"), kept)
+
+
+def problem_label(name: str, every: int) -> str:
+    """A problem's name in records, cache files and tables: the log's name, ``-everyN`` added where ``every > 1``."""
+    return name if every == 1 else f"{name}-every{every}"
 
 
 def fill_dropped_scans(poses: np.ndarray, kept: np.ndarray, odometry: np.ndarray) -> np.ndarray:
@@ -209,7 +232,8 @@ def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
     defaults, in this process, the same code as ``bayesmap slam --log``). ``extra`` gets the 95 % ellipse coverage
     of the truth and the posterior's median position standard deviation. Runtime: the whole run, compilation
     included."""
-    slam_problem = log_slam_problem(read_carmen(problem.log_path))
+    log = read_carmen(problem.log_path)
+    slam_problem = log_slam_problem(log, scans=None if len(problem.scans) == len(log) else problem.scans)
     result = run_log_slam(slam_problem, seed=problem.seed, final_map_sweeps=0)  # the path is scored, not the map
     extra["coverage"] = ellipse_coverage(result.mean_path, result.pose_cov, problem.truth)
     extra["position_sd_median_m"] = float(np.median(np.sqrt(result.pose_cov[:, 0, 0] + result.pose_cov[:, 1, 1])))
@@ -304,6 +328,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--methods", default="karto", help="comma-separated subset of karto,bayesmap")
     parser.add_argument("--beam-spacing", choices=BEAM_SPACINGS, default="bayesmap",
                         help="beam angles given to every method: bayesmap's rule (default) or pi/(n-1) for all n")
+    parser.add_argument("--every", type=int, default=1, help="give the methods every Nth scan only (default 1)")
     parser.add_argument("--json", type=Path, default=None, help="write every run's figures and the summary here")
     parser.add_argument("--cache", type=Path, default=None,
                         help="keep each run's record (and bayesmap's arrays) here; reuse the records found")
@@ -312,6 +337,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         args.seeds = parse_seeds(args.seeds)
     except ValueError as exc:
         parser.error(str(exc))
+    if args.every < 1:
+        parser.error(f"--every must be at least 1, got {args.every}")
     args.logs = [v.strip() for v in args.logs.split(",") if v.strip()]
     args.methods = [v.strip() for v in args.methods.split(",") if v.strip()]
     for value, known, option in ((args.logs, ALL_LOGS, "--logs"), (args.methods, METHODS, "--methods")):
@@ -323,8 +350,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    missing = [str(p) for p in (NOISY_ODOMETRY, *(CORRECTED_LOGS[n] for n in args.logs if n in CORRECTED_LOGS))
-               if not p.exists()]
+    shared = [corrected_log(n, ROOT) for n in args.logs if n not in SIMULATED_LOGS]  # willow's is made, not read
+    missing = [str(p) for p in (NOISY_ODOMETRY, *shared) if not p.exists()]
     if missing:
         print(f"shared data not found: {', '.join(missing)}", file=sys.stderr)
         return 2
@@ -335,11 +362,13 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="karto-peer-") as tmp:
         for log in args.logs:
             for seed in args.seeds:
-                saved = None if args.cache is None else run_file(args.cache, log, seed, "json")
+                label = problem_label(log, args.every)
+                saved = None if args.cache is None else run_file(args.cache, label, seed, "json")
                 if saved is not None and saved.exists():
                     record = json.loads(saved.read_text())
                 else:
-                    record = run_one(make_problem(log, seed, Path(tmp), args.beam_spacing), args.methods, args.cache)
+                    problem = make_problem(log, seed, Path(tmp), args.beam_spacing, args.every)
+                    record = run_one(problem, args.methods, args.cache)
                     if saved is not None:  # whole or not at all: a stopped run leaves no partial record
                         partial = saved.with_suffix(".json.part")
                         partial.write_text(json.dumps(record, indent=1) + "\n")
@@ -347,7 +376,7 @@ def main(argv: list[str] | None = None) -> int:
                 records.append(record)
                 figures = ", ".join(f"{k} {v['ate_m']:.2f} m" for k, v in record.items()
                                     if isinstance(v, dict) and "ate_m" in v)
-                print(f"{log} seed {seed}: ATE {figures}", file=sys.stderr, flush=True)
+                print(f"{label} seed {seed}: ATE {figures}", file=sys.stderr, flush=True)
     summary = summarize(records)
     print(markdown_table(summary))
     notes = sorted({r[m]["unavailable"] for r in records for m in args.methods if "unavailable" in r[m]})

@@ -20,20 +20,21 @@ from bayesmap.io.tum import read_tum
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"  # the project's data lives at ../shared/data (shared/data/README.md)
 CORRECTED_LOGS = {name: SHARED / "data" / "carmen" / f"{name}-corrected.log.gz" for name in ("intel", "aces", "csail")}
+LARGE_LOGS = {"fr079": SHARED / "data" / "carmen" / "freiburg-079-corrected.log.gz"}  # 4,791 scans; never a default
 NOISY_ODOMETRY = SHARED / "tools" / "noisy_odometry.py"
 SIMULATED_LOGS = ("willow",)  # made by benchmarks/willow_log.py from the floor plan; never in a default --logs
-ALL_LOGS = (*CORRECTED_LOGS, *SIMULATED_LOGS)
+ALL_LOGS = (*CORRECTED_LOGS, *SIMULATED_LOGS, *LARGE_LOGS)
 
 
 def corrected_log(name: str, folder: Path) -> Path:
-    """The corrected log of ``name`` (a key of :data:`CORRECTED_LOGS`, or ``"willow"``, which is simulated into
-    ``folder/willow-corrected.log.gz`` by ``willow_log.write_willow_log`` unless it is there already).
+    """The corrected log of ``name`` (a key of :data:`CORRECTED_LOGS` or :data:`LARGE_LOGS`, or ``"willow"``, which is
+    simulated into ``folder/willow-corrected.log.gz`` by ``willow_log.write_willow_log`` unless it is there already).
 
     Raises:
         BayesmapError: ``name`` is neither.
     """
-    if name in CORRECTED_LOGS:
-        return CORRECTED_LOGS[name]
+    if name in CORRECTED_LOGS or name in LARGE_LOGS:
+        return {**CORRECTED_LOGS, **LARGE_LOGS}[name]
     if name not in SIMULATED_LOGS:
         raise BayesmapError(f"unknown log {name!r}; choose from {', '.join(ALL_LOGS)}")
     from willow_log import write_willow_log
