@@ -210,11 +210,33 @@ def by_gid(ax, gid):
     return found[0]
 
 
-def exact_slam_marginals(params, inc, cov, candidates, angles, y):
-    """Exact marginals of a tiny SLAM problem whose poses 1 and 2 take 3 candidate values each (``candidates``
-    ``(3, 3, 3)``, pose 0 fixed at ``candidates[0, 0]``) and whose grid has 6 cells: ``P(pose_1 = c)`` (3,),
-    ``P(pose_2 = c)`` (3,) and ``P(wall)`` (grid shape), from all 3 * 3 * 64 = 576 joint states, each scored by the
-    model's assess."""
+TINY_SLAM_GRID = Grid((2, 3))  # 6 unit cells: 64 maps
+TINY_SLAM_ODOMETRY = np.array([[0.0, 0.0, 0.0], [0.2, 1.0, 1.2], [0.0, 2.0, 2.0]])
+TINY_SLAM_OFFSETS = np.array([[0.0, 0.0, 0.0], [-0.12, 0.1, -0.1], [0.1, 0.12, 0.15]])  # 3 candidates per pose
+
+
+def tiny_slam_problem():
+    """Three scans of 4 beams on a 2 x 3 grid, poses 1 and 2 restricted to 3 candidates each; readings simulated
+    at candidates (1, 2) with one wall: ``(params, increments, covs, candidates (3, 3, 3), angles (3, 4), readings
+    (3, 4))``."""
+    params = make_params(0.35, 0.5, 1, TINY_SLAM_GRID, 1.6)
+    inc, cov = motion.odometry_controls(TINY_SLAM_ODOMETRY,
+                                        motion.make_motion_params((0.2, 0.1, 0.2, 0.1), 0.2, 0.2))
+    candidates = TINY_SLAM_ODOMETRY[:, None, :] + TINY_SLAM_OFFSETS[None]
+    candidates[0] = TINY_SLAM_ODOMETRY[0]
+    angles = np.tile(np.array([-2.8, -1.0, 0.3, 1.7]), (3, 1))
+    truth_path = np.stack([candidates[0, 0], candidates[1, 1], candidates[2, 2]])
+    truth = np.array([[0, 0, 0], [0, 1, 0]], np.float32)
+    y = np.abs(np.asarray(simulate_scan_readings(jax.random.key(3), truth, truth_path[:, :2], params,
+                                                 truth_path[:, 2:3] + angles), np.float64))
+    return params, inc, cov, candidates, angles, y
+
+
+def exact_slam_log_joint(params, inc, cov, candidates, angles, y):
+    """Every joint state of a tiny SLAM problem whose poses 1 and 2 take 3 candidate values each (``candidates``
+    ``(3, 3, 3)``, pose 0 fixed at ``candidates[0, 0]``) and whose grid has 6 cells, scored by the model's assess:
+    ``(log p(poses, walls, readings) (3, 3, 64), the 64 maps (64, nx, ny))``, axis 0 pose 1's candidate, axis 1
+    pose 2's."""
     import itertools
 
     from bayesmap.model.slam import slam_args, slam_choices, slam_model
@@ -226,6 +248,13 @@ def exact_slam_marginals(params, inc, cov, candidates, angles, y):
     for i, j in itertools.product(range(3), range(3)):
         path = jnp.asarray(np.stack([candidates[0, 0], candidates[1, i], candidates[2, j]]))
         logp[i, j] = np.asarray(assess(path, jnp.asarray(maps)))
+    return logp, maps
+
+
+def exact_slam_marginals(params, inc, cov, candidates, angles, y):
+    """Exact marginals of the tiny SLAM problem of :func:`exact_slam_log_joint`: ``P(pose_1 = c)`` (3,),
+    ``P(pose_2 = c)`` (3,) and ``P(wall)`` (grid shape), from all 3 * 3 * 64 = 576 joint states."""
+    logp, maps = exact_slam_log_joint(params, inc, cov, candidates, angles, y)
     prob = np.exp(logp - logp.max())
     prob /= prob.sum()
     return prob.sum(axis=(1, 2)), prob.sum(axis=(0, 2)), np.tensordot(prob.sum(axis=(0, 1)), maps, axes=1)

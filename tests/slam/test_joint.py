@@ -8,43 +8,20 @@ import pytest
 
 from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.trajectory import absolute_trajectory_error
-from bayesmap.geometry.grid import Grid
 from bayesmap.inference.chains import compiled_chain_count
-from bayesmap.model import motion
-from bayesmap.model.generative import make_params, simulate_scan_readings
 from bayesmap.slam.joint import pose_summary, run_slam, slam_kernel
 from bayesmap.slam.poses import discrete_pose_gibbs, slam_data
 from bayesmap.slam.problem import simulate_odometry, slam_tutorial_problem
-from helpers import exact_slam_marginals
+from helpers import exact_slam_marginals, tiny_slam_problem
 
 pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
-
-GRID = Grid((2, 3))  # 6 unit cells: 64 maps
-ODOMETRY = np.array([[0.0, 0.0, 0.0], [0.2, 1.0, 1.2], [0.0, 2.0, 2.0]])
-OFFSETS = np.array([[0.0, 0.0, 0.0], [-0.12, 0.1, -0.1], [0.1, 0.12, 0.15]])  # 3 candidates per pose
-
-
-def tiny_problem():
-    """Three scans of 4 beams on a 2 x 3 grid, poses 1 and 2 restricted to 3 candidates each; readings simulated
-    at candidates (1, 2) with one wall."""
-    params = make_params(0.35, 0.5, 1, GRID, 1.6)
-    inc, cov = motion.odometry_controls(ODOMETRY, motion.make_motion_params((0.2, 0.1, 0.2, 0.1), 0.2, 0.2))
-    candidates = ODOMETRY[:, None, :] + OFFSETS[None]
-    candidates[0] = ODOMETRY[0]
-    angles = np.tile(np.array([-2.8, -1.0, 0.3, 1.7]), (3, 1))
-    truth_path = np.stack([candidates[0, 0], candidates[1, 1], candidates[2, 2]])
-    truth = np.array([[0, 0, 0], [0, 1, 0]], np.float32)
-    y = np.abs(np.asarray(simulate_scan_readings(jax.random.key(3), truth, truth_path[:, :2], params,
-                                                 truth_path[:, 2:3] + angles), np.float64))
-    return params, inc, cov, candidates, angles, y
-
 
 def test_joint_kernel_matches_enumeration():
     """slam_kernel with discrete_pose_gibbs and the dense map sweep against the exact joint marginals of poses and
     walls. 2,000 independent chains of 50 sweeps from random starts (15 burn-in); each chain's average over its kept
     sweeps is one estimate, so the standard error is their standard deviation / sqrt(2000) (autocorrelation
     included). Tolerance: 5 standard errors plus 2e-3 for the burn-in's remaining (geometrically decaying) bias."""
-    params, inc, cov, candidates, angles, y = tiny_problem()
+    params, inc, cov, candidates, angles, y = tiny_slam_problem()
     p1, p2, pw = exact_slam_marginals(params, inc, cov, candidates, angles, y)
     assert 0.05 < p1.min() and 0.05 < p2.min()  # every candidate has mass: the test is sharp
     assert np.sum((pw > 0.1) & (pw < 0.9)) >= 2
@@ -56,7 +33,7 @@ def test_joint_kernel_matches_enumeration():
     def chain(key):
         k_init, k_walls, k_run = jax.random.split(key, 3)
         idx = jax.random.randint(k_init, (3,), 0, 3)
-        walls = jax.random.bernoulli(k_walls, 0.5, GRID.shape)
+        walls = jax.random.bernoulli(k_walls, 0.5, params.grid.shape)
         state = kernel.init(cands[jnp.arange(3), idx], walls)
 
         def body(state, k):

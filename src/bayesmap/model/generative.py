@@ -164,6 +164,34 @@ def check_likelihood_power(value) -> float:
     return eta
 
 
+def check_scan_powers(value, num_scans: int):
+    """Validate the likelihood power of a SLAM kernel: one ``eta`` for every scan (returned as a float, as
+    :func:`check_likelihood_power`), or one power per scan, ``(num_scans,)`` in ``[0, 1]`` (returned as a JAX
+    array), the target then ``p(poses) p(walls) prod_s p(readings_s | walls, pose_s) ** eta_s``. A power of 0 leaves a
+    scan out of the target: the data-tempered targets of sequential Monte Carlo that add a log's scans one at a time
+    (Chopin 2002; :mod:`bayesmap.slam.smc`). Traced arrays (inside ``jit``) are passed through unchecked.
+
+    Raises:
+        BayesmapError: on a scalar outside (0, 1], or an array that is not ``(num_scans,)``, not finite or outside
+            [0, 1] (the message names it).
+    """
+    if isinstance(value, jax.core.Tracer):
+        return value
+    if np.ndim(value) == 0:
+        return check_likelihood_power(value)
+    powers = np.asarray(value, dtype=np.float64)
+    if powers.shape != (num_scans,) or not np.all(np.isfinite(powers)) or powers.min() < 0 or powers.max() > 1:
+        raise BayesmapError(f"per-scan likelihood powers must be ({num_scans},) values in [0, 1], got "
+                            f"shape {powers.shape} and values {np.array2string(powers, precision=3, threshold=8)}")
+    return jnp.asarray(powers, dtype=jnp.result_type(float))
+
+
+def scan_power(eta, t):
+    """The power of scan ``t`` (a possibly traced index) under ``eta``, a float or ``(S,)`` per-scan powers
+    (:func:`check_scan_powers`)."""
+    return eta if jnp.ndim(eta) == 0 else eta[t]
+
+
 def make_params(
     prior_wall_prob: float = 0.5,
     sensor_noise: float = 0.2,

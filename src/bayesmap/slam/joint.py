@@ -36,7 +36,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.inference.base import SamplingAlgorithm
 from bayesmap.inference.chains import run_recorded_chains
 from bayesmap.inference.dense import dense_readings, dense_state, dense_sweep
-from bayesmap.model.generative import check_likelihood_power, make_params, prior_log_odds
+from bayesmap.model.generative import check_likelihood_power, check_scan_powers, make_params, prior_log_odds
 from bayesmap.model.motion import compose, motion_logpdf, wrap_angle
 from bayesmap.progress import ProgressCallback
 from bayesmap.slam.poses import (
@@ -92,7 +92,9 @@ def slam_kernel(data: SlamData, pose_kernel: SamplingAlgorithm, likelihood_power
         pose_kernel: a pose kernel over :class:`~bayesmap.slam.poses.PoseState` built on the same ``data``
             and likelihood power (:func:`~bayesmap.slam.poses.lattice_pose_mh` or
             :func:`~bayesmap.slam.poses.discrete_pose_gibbs`).
-        likelihood_power: ``eta`` in (0, 1] of the map sweep (use the pose kernel's).
+        likelihood_power: ``eta`` in (0, 1] of the map sweep (use the pose kernel's), or one power per scan
+            ``(S,)`` in [0, 1] (:func:`bayesmap.model.generative.check_scan_powers`; each of the scan's beams counts
+            at its scan's power).
 
     Returns:
         A :class:`~bayesmap.inference.base.SamplingAlgorithm`: ``init(poses (S, 3), walls (nx, ny)) -> SlamState``,
@@ -102,10 +104,13 @@ def slam_kernel(data: SlamData, pose_kernel: SamplingAlgorithm, likelihood_power
         BayesmapError: on a bad likelihood power, readings that are negative or not finite, or a dense table too
             large (:func:`bayesmap.inference.dense.dense_readings`).
     """
-    eta = check_likelihood_power(likelihood_power)
+    num_scans, beams = data.sensor_angles.shape
+    eta = check_scan_powers(likelihood_power, num_scans)
     params = data.params
     prior_lo = prior_log_odds(params.prior_wall_prob)
     angles, y = dense_readings(data.sensor_angles, data.readings, params)
+    if jnp.ndim(eta):  # the dense table's rays are the scans' beams in order
+        eta = jnp.repeat(eta, beams)
 
     # pytrees of module functions and arrays (not closures): a compiled chain takes the arrays as arguments, so runs
     # of the same shapes share it (run_slam_chains)

@@ -35,7 +35,13 @@ from jax.tree_util import Partial
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.raycast import march_first_chord, march_first_hit, march_ray_chords
 from bayesmap.inference.base import SamplingAlgorithm
-from bayesmap.model.generative import ModelParams, check_likelihood_power, reading_log_likelihood
+from bayesmap.model.generative import (
+    ModelParams,
+    check_likelihood_power,
+    check_scan_powers,
+    reading_log_likelihood,
+    scan_power,
+)
 from bayesmap.model.motion import motion_logpdf
 
 
@@ -160,9 +166,10 @@ def _motion_terms(t, candidates, poses, data: SlamData):
 
 
 def _log_conditional(t, candidates, poses, walls, data: SlamData, eta):
-    """:func:`pose_log_conditional` for a (possibly traced) ``t`` in ``1..S-1``, without checks."""
+    """:func:`pose_log_conditional` for a (possibly traced) ``t`` in ``1..S-1``, without checks; ``eta`` a float or
+    per-scan powers (:func:`bayesmap.model.generative.check_scan_powers`)."""
     like = scan_log_likelihood(walls, candidates, data.sensor_angles[t], data.readings[t], data.params)
-    return _motion_terms(t, candidates, poses, data) + eta * like
+    return _motion_terms(t, candidates, poses, data) + scan_power(eta, t) * like
 
 
 def pose_log_conditional(t: int, candidates, poses, walls, data: SlamData, likelihood_power: float = 1.0):
@@ -257,7 +264,8 @@ def discrete_pose_gibbs(data: SlamData, candidates, likelihood_power: float = 1.
     Args:
         data: :func:`slam_data`.
         candidates: ``(S, C, 3)`` candidate poses per scan (row 0 unused: pose 0 is fixed).
-        likelihood_power: ``eta`` in (0, 1].
+        likelihood_power: ``eta`` in (0, 1], or one power per scan ``(S,)`` in [0, 1]
+            (:func:`bayesmap.model.generative.check_scan_powers`).
 
     Returns:
         A :class:`bayesmap.inference.base.SamplingAlgorithm`: ``init(poses (S, 3), walls (nx, ny)) -> PoseState``,
@@ -266,9 +274,9 @@ def discrete_pose_gibbs(data: SlamData, candidates, likelihood_power: float = 1.
     Raises:
         BayesmapError: if ``candidates`` is not ``(S, C, 3)`` with ``C >= 1``, or ``likelihood_power`` is bad.
     """
-    eta = check_likelihood_power(likelihood_power)
-    cands = jnp.asarray(candidates, dtype=data.increments.dtype)
     s = data.sensor_angles.shape[0]
+    eta = check_scan_powers(likelihood_power, s)
+    cands = jnp.asarray(candidates, dtype=data.increments.dtype)
     if cands.ndim != 3 or cands.shape[0] != s or cands.shape[1] < 1 or cands.shape[2] != 3:
         raise BayesmapError(f"candidates must have shape (S, C, 3) = ({s}, C, 3), got {tuple(cands.shape)}")
 
@@ -329,7 +337,8 @@ def lattice_pose_mh(data: SlamData, h_xy: float, h_theta: float, half_width: int
         h_theta: lattice step in theta, radians, > 0.
         half_width: ``w``, the window has ``(2 w + 1)^3`` candidates.
         jitter: in ``[0, 1)``; the steps' relative spread (0: a fixed lattice).
-        likelihood_power: ``eta`` in (0, 1].
+        likelihood_power: ``eta`` in (0, 1], or one power per scan ``(S,)`` in [0, 1]
+            (:func:`bayesmap.model.generative.check_scan_powers`).
 
     Returns:
         A :class:`bayesmap.inference.base.SamplingAlgorithm`: ``init(poses (S, 3), walls (nx, ny)) -> PoseState``,
@@ -338,7 +347,7 @@ def lattice_pose_mh(data: SlamData, h_xy: float, h_theta: float, half_width: int
     Raises:
         BayesmapError: on a bad step, half width, jitter or likelihood power (the message names it).
     """
-    eta = check_likelihood_power(likelihood_power)
+    eta = check_scan_powers(likelihood_power, data.sensor_angles.shape[0])
     unit = lattice_offsets(1.0, 1.0, half_width)
     try:
         jitter_value = float(jitter)
