@@ -7,7 +7,7 @@ For each log (intel, aces, csail) and each odometry noise seed, the script
      (see ``METHODS``): ``karto`` runs the ``yag-slam`` package (OpenKarto's scan matcher, loop closure and sparse
      pose adjustment, all at their defaults) in a virtual environment of its own, ``benchmarks/.venv-karto``, made
      on first use with ``python3.11 -m venv`` and pip; ``bayesmap`` runs bayesmap's real-log SLAM
-     (``run_log_slam``, what ``bayesmap slam --log`` runs) in this process,
+     (``bayesmap.runs.slam.log_slam``, what ``bayesmap slam --log`` runs, keyframes included) in this process,
   3. scores each trajectory against the truth with ``bayesmap.evaluation.trajectory.absolute_trajectory_error``
      (absolute trajectory error: RMSE of the positions after the best rigid 2-D alignment, no scale), and raw
      odometry the same way.
@@ -63,8 +63,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage
 from bayesmap.io.carmen import beam_offsets, read_carmen
 from bayesmap.io.rosbag import compose_poses, invert_pose
-from bayesmap.slam.pipeline import run_log_slam
-from bayesmap.slam.problem import log_slam_problem
+from bayesmap.runs.slam import log_slam
 
 ROOT = Path(__file__).resolve().parents[1]
 KARTO_VENV = ROOT / "benchmarks" / ".venv-karto"
@@ -228,15 +227,20 @@ def run_karto(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
 
 
 def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
-    """bayesmap's SLAM: the posterior mean pose of every scan (``bayesmap.slam.pipeline.run_log_slam`` at its
-    defaults, in this process, the same code as ``bayesmap slam --log``). ``extra`` gets the 95 % ellipse coverage
-    of the truth and the posterior's median position standard deviation. Runtime: the whole run, compilation
-    included."""
+    """bayesmap's SLAM: the posterior mean pose of every scan, by what ``bayesmap slam --log`` runs
+    (``bayesmap.runs.slam.log_slam`` at its defaults, keyframes included, in this process; ``--scans ::N`` for a
+    problem of every Nth scan), without the final map (the path is scored). ``extra`` gets the 95 % ellipse coverage
+    of the truth, the posterior's median position standard deviation and the number of keyframes. Runtime: the whole
+    run, compilation included."""
     log = read_carmen(problem.log_path)
-    slam_problem = log_slam_problem(log, scans=None if len(problem.scans) == len(log) else problem.scans)
-    result = run_log_slam(slam_problem, seed=problem.seed, final_map_sweeps=0)  # the path is scored, not the map
+    stride = 1 if len(problem.scans) < 2 else int(problem.scans[1] - problem.scans[0])
+    _, result, chosen, settings = log_slam(log, problem.log_path, scans=None if stride == 1 else f"::{stride}",
+                                           seed=problem.seed, final_map=False)
+    if not np.array_equal(chosen, problem.scans):
+        raise BayesmapError(f"bayesmap took scans {chosen[:3]}... where the problem has {problem.scans[:3]}...")
     extra["coverage"] = ellipse_coverage(result.mean_path, result.pose_cov, problem.truth)
     extra["position_sd_median_m"] = float(np.median(np.sqrt(result.pose_cov[:, 0, 0] + result.pose_cov[:, 1, 1])))
+    extra["keyframes"] = settings["keyframes"]
     extra[ARRAYS] = slam_run_arrays(result, problem.truth)
     return result.mean_path, result.runtime_s
 
