@@ -253,8 +253,9 @@ def _adaptive_powers(final, target_ess, state: SmcState, like, iterations: int =
         return jnp.where(ok, mid, lo), jnp.where(ok, hi, mid)
 
     lo, _ = jax.lax.fori_loop(0, iterations, bisect, (jnp.zeros_like(room), room))
-    step = jnp.where(ess_fraction(room) >= target_ess, room, jnp.maximum(lo, room * 2.0**-iterations))
-    return state.powers.at[t].add(jnp.where(room > 0, step, 0.0))
+    whole = ess_fraction(room) >= target_ess
+    raised = jnp.where(whole, final[t], state.powers[t] + jnp.maximum(lo, room * 2.0**-iterations))  # final exactly
+    return state.powers.at[t].set(jnp.where(room > 0, raised, state.powers[t]))
 
 
 def _step(data, move, advance, final, num_moves, resample_ess, key, state: SmcState) -> tuple[SmcState, SmcInfo]:
