@@ -47,6 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bayesmap.errors import BayesmapError
+from bayesmap.inference.importance import effective_sample_size
 from bayesmap.model.motion import compose, motion_logpdf
 from bayesmap.progress import ProgressCallback
 from bayesmap.slam.scanmatch import (
@@ -238,8 +239,8 @@ def step(key, state: ParticleState, context: ParticleContext) -> tuple[ParticleS
     step_cov = state.step_cov.at[:, t].set(covs)
     log_weights = state.log_weights + evidence
     gained = jax.nn.logsumexp(log_weights)
+    ess = effective_sample_size(log_weights)
     log_weights = log_weights - gained
-    ess = 1.0 / jnp.sum(jnp.exp(2 * log_weights))
     resampled = ess < RESAMPLE_ESS * num
 
     def resample(carried):  # copies every particle's local map: only when resampling

@@ -51,6 +51,7 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.base import SamplingAlgorithm
+from bayesmap.inference.importance import effective_sample_size
 from bayesmap.model.generative import check_likelihood_power
 from bayesmap.model.motion import sample_path
 from bayesmap.slam.particles import systematic_resample
@@ -242,9 +243,7 @@ def _adaptive_powers(final, target_ess, state: SmcState, like, iterations: int =
     scan_like = like[:, t]
 
     def ess_fraction(step):
-        lw = state.log_weights + jnp.where(step > 0, step * scan_like, 0.0)
-        lw = lw - jax.nn.logsumexp(lw)
-        return 1.0 / jnp.sum(jnp.exp(2.0 * lw)) / num
+        return effective_sample_size(state.log_weights + jnp.where(step > 0, step * scan_like, 0.0)) / num
 
     def bisect(_, bounds):
         lo, hi = bounds
@@ -270,8 +269,8 @@ def _step(data, move, advance, final, num_moves, resample_ess, key, state: SmcSt
     increment = jnp.sum(jnp.where(delta > 0, delta * like, 0.0), axis=1)
     log_weights = state.log_weights + increment
     gained = jax.nn.logsumexp(log_weights)  # log sum_i W_i exp(increment_i): the stage's mean incremental weight
+    ess = effective_sample_size(log_weights)
     log_weights = log_weights - gained
-    ess = 1.0 / jnp.sum(jnp.exp(2.0 * log_weights))
     k_resample, k_move = jax.random.split(key)
     resampled = ess < resample_ess * num
 
