@@ -13,8 +13,10 @@ $(STAMP): pyproject.toml requirements.lock
 	@# Debian's chromium for the browser tests (Playwright drives it; never `playwright install`)
 	command -v chromium >/dev/null || (apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium)
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.lock
-	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
+	@# --no-compile: no bytecode for the whole lock at install time (Python writes it for the modules it imports, when
+	@# it imports them): the install took 72 s instead of 116 s on the 2-core machine
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-compile -r requirements.lock
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-compile --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -157,3 +157,35 @@ def test_composed_steps_covariance_is_that_of_the_composed_noisy_steps():
     np.testing.assert_allclose(err.mean(axis=0), 0, atol=0.01)
     np.testing.assert_allclose(np.diag(np.cov(err.T)), np.diag(want_cov[0]), rtol=0.06)
     assert want_cov[0, 0, 0] + want_cov[0, 1, 1] > 2 * (cov[:, 0, 0] + cov[:, 1, 1]).sum()
+
+
+def test_a_step_shorter_than_the_floor_radius_has_no_direction():
+    """A step of 2 cm (below UNDIRECTED_RADIUS floors: 3.03 cm at the default 1 cm floor) gets, on its heading, the
+    variance of PR's two rotation noises for a direction uniform on the circle, 2 a1^2 pi^2 / 3, on top of PR's own
+    covariance; a 4 cm step and a standing robot (no translation: PR's rot1 = 0) keep PR's. Forward or backward,
+    the same 2 cm step gets the same addition. That addition is the variance PR's sampling model (Table 5.6, as
+    tools/noisy_odometry.py applies it to the true motion) gives a jitter step of uniform direction: its heading
+    error n1 + n2, n_i ~ N(0, a1 |rot_i|), rot1 ~ U(-pi, pi), rot2 = -rot1, over 200,000 draws, within 5 standard
+    errors of the sample variance."""
+    p = motion.MotionParams()
+    assert motion.UNDIRECTED_RADIUS * p.floor_xy == pytest.approx(0.0303, abs=1e-4)
+    extra = 2.0 * (p.a1 * np.pi) ** 2 / 3.0
+    with enable_x64():
+        for heading in (0.0, np.pi):  # forward and backward
+            for dist, added in ((0.02, extra), (0.04, 0.0), (0.0, 0.0)):
+                end = [1.0 + dist * np.cos(0.3 + heading), 2.0 + dist * np.sin(0.3 + heading), 0.5]
+                odo = np.array([[1.0, 2.0, 0.3], end])
+                _, cov = motion.odometry_controls(odo, p)
+                rot1, trans, rot2 = np.asarray(motion.odometry_decomposition(jnp.asarray(odo)))[0]
+                std = np.array([p.a1 * abs(rot1) + p.a2 * trans, p.a3 * trans + p.a4 * (abs(rot1) + abs(rot2)),
+                                p.a1 * abs(rot2) + p.a2 * trans])
+                v = np.array([[-trans * np.sin(rot1), np.cos(rot1), 0], [trans * np.cos(rot1), np.sin(rot1), 0],
+                              [1, 0, 1]])
+                pr = v @ np.diag(std ** 2) @ v.T + np.diag([p.floor_xy ** 2, p.floor_xy ** 2, p.floor_theta ** 2])
+                np.testing.assert_allclose(np.asarray(cov[0]), pr + np.diag([0.0, 0.0, added]), rtol=1e-12,
+                                           atol=1e-15)
+    rng = np.random.default_rng(0)
+    rot1 = rng.uniform(-np.pi, np.pi, 200_000)
+    error = rng.normal(0.0, p.a1 * np.abs(rot1)) + rng.normal(0.0, p.a1 * np.abs(rot1))
+    sample = np.mean(error ** 2)
+    assert abs(sample - extra) < 5 * np.std(error ** 2) / np.sqrt(error.size)

@@ -12,8 +12,10 @@ Gaussian linearization PR uses for EKF localization (Table 7.2, ``R = V M V^T``)
   std(rot2)^2)`` and ``V = d(dx, dy, dtheta) / d(rot1, trans, rot2)`` at the odometry's values. The standard
   deviations are PR Table 5.6's with the noise given as standard deviations (as ``tools/noisy_odometry.py``):
   ``std(rot1) = a1 |rot1| + a2 trans``, ``std(trans) = a3 trans + a4 (|rot1| + |rot2|)``,
-  ``std(rot2) = a1 |rot2| + a2 trans``. ``Sigma_t`` depends only on the odometry: :func:`odometry_controls`
-  precomputes it per step.
+  ``std(rot2) = a1 |rot2| + a2 trans``. A step shorter than :data:`UNDIRECTED_RADIUS` floors measures no
+  direction, so ``rot1`` and ``rot2`` are unknown there: its heading gets the variance of the two rotations' noise
+  for a direction uniform on the circle, ``2 a1^2 pi^2 / 3``, as well. ``Sigma_t`` depends only on the odometry:
+  :func:`odometry_controls` precomputes it per step.
 * ``pose_t = pose_{t-1} (+) (increment_t + e_t)``, where :func:`compose` rotates ``(dx, dy)`` by ``theta_{t-1}``
   and adds ``dtheta`` to ``theta``. The heading is *not* wrapped in the state (it is a real number,
   ``theta_t = theta_{t-1} + dtheta + e_theta``), so the density of ``pose_t`` given ``pose_{t-1}`` is exactly the
@@ -45,6 +47,15 @@ from bayesmap.errors import BayesmapError
 
 MIN_TRANSLATION = 1.0e-6
 """Below this translation (meters) the first rotation of PR Table 5.5 is 0 (the heading of a standing robot)."""
+
+UNDIRECTED_RADIUS = math.sqrt(-2.0 * math.log(0.01))
+"""A step is *undirected* when its translation is at least :data:`MIN_TRANSLATION` but below this many
+``floor_xy``: the radius inside which the floor noise alone puts a standing robot's odometry with 99 % probability
+(a 2-D Normal's, ``sqrt(-2 ln 0.01)`` = 3.03; 3 cm at the default floor). The odometry then measures no direction of
+motion, so PR's ``rot1`` and ``rot2``, on which its rotation noise scales, are unknown: the heading's variance gets
+the variance of PR's rotation noise for a direction uniform on the circle, ``a1^2 pi^2 / 3`` for each of the two
+rotations, on top of the step's own (:func:`odometry_controls`). Derived from the floor, not fitted; the
+[validation](../validation/slam.md#steps-with-no-direction) has what it changed."""
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
@@ -151,7 +162,9 @@ def _step_covariance(control, params: MotionParams):
                      jnp.stack([trans * jnp.cos(rot1), jnp.sin(rot1), zero]),
                      jnp.stack([one, zero, one])])
     floors = jnp.stack([params.floor_xy, params.floor_xy, params.floor_theta]) ** 2
-    return (jac * std ** 2) @ jac.T + jnp.diag(floors)
+    undirected = (trans >= MIN_TRANSLATION) & (trans < UNDIRECTED_RADIUS * params.floor_xy)
+    unknown_direction = jnp.where(undirected, 2.0 * (params.a1 * math.pi) ** 2 / 3.0, 0.0)
+    return (jac * std ** 2) @ jac.T + jnp.diag(floors + jnp.stack([zero, zero, unknown_direction]))
 
 
 def odometry_controls(odometry, params: MotionParams | None = None):
