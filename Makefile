@@ -25,9 +25,10 @@ demo: $(STAMP)
 # the docs build (strict: any warning fails it) and the lint check first, then the suite in two passes: the modules
 # marked compute_bound (pyproject.toml) compiled at XLA's default optimization, the others with XLA's CPU backend at
 # optimization level 0, which compiles about 40% faster and runs compiled loops up to 10x slower (most tests spend
-# three quarters of their time compiling; docs/validation/speed.md, "The test suite's compilation")
+# three quarters of their time compiling; docs/validation/speed.md, "The test suite's compilation"). The first
+# pass hands out whole modules (--dist loadfile), so a module's tests share the programs they compile on one worker.
 test: $(STAMP) docs lint
-	XLA_FLAGS="--xla_backend_optimization_level=0 $$XLA_FLAGS" $(BIN)/python -m pytest -q -n 2 --dist loadgroup -m "not compute_bound"
+	XLA_FLAGS="--xla_backend_optimization_level=0 $$XLA_FLAGS" $(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not compute_bound"
 	$(BIN)/python -m pytest -q -n 2 --dist loadgroup -m compute_bound
 
 # API documentation from the docstrings (mkdocs.yml), offline, into site/

@@ -8,7 +8,12 @@ each step's posterior covariance, :func:`bayesmap.slam.scanmatch.step_posterior`
 pose graph's Laplace covariance with those step covariances (what stage 5 reports less the chain's millimetre
 spread) at the start path against the truth, the same for the graph's loop edges and every step at its fixed
 deviations (:data:`bayesmap.slam.posegraph.SEQUENTIAL_STD`) times 0.36 (the retired ``GRAPH_COV_SCALE``, a factor
-fitted on truth), the steps' median and 90th-percentile position standard deviation (m) and the front end's seconds.
+fitted on truth), the graph's variance of unit weight ``s0^2`` (the sum of its squared whitened residuals at the
+closed path over its redundancy, three per loop edge: Förstner & Wrobel 2016, *Photogrammetric Computer Vision*,
+sec. 4.2.3; a scale estimated from the graph's own consistency, not from truth) and the coverage with the covariance
+times it, the front end's steps against the true steps (the root mean square of each component's error over that of
+its posterior standard deviation: 1 for calibrated step posteriors), the steps' median and 90th-percentile
+position standard deviation (m) and the front end's seconds.
 
 Usage: PYTHONPATH=src python benchmarks/step_covariance.py [--logs aces] [--seeds 0] [--scans all,every2]
 """
@@ -28,6 +33,7 @@ from karto_peer import parse_seeds  # noqa: E402
 from seeded_logs import chosen_logs, seeded_log  # noqa: E402
 
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage  # noqa: E402
+from bayesmap.model.motion import wrap_angle  # noqa: E402
 from bayesmap.slam import pipeline, posegraph  # noqa: E402
 from bayesmap.slam.problem import log_slam_problem  # noqa: E402
 
@@ -49,9 +55,16 @@ def run(name: str, seed: int, scans: str) -> str:
     cov = posegraph.marginal_covariances(path, edges)
     fixed = posegraph.concat_edges(posegraph.sequential_edges(front.path), edges.take(slice(len(path) - 1, None)))
     scaled = RETIRED_SCALE**2 * posegraph.marginal_covariances(path, fixed)
+    loops = len(edges.i) - (len(path) - 1)
+    unit_weight = float(np.sum(posegraph.edge_residuals(path, edges) ** 2)) / (3 * loops) if loops else float("nan")
     sd = np.sqrt(front.step_cov[:, [0, 1], [0, 1]])
+    error = posegraph.relative(front.path[:-1], front.path[1:]) - posegraph.relative(truth[:-1], truth[1:])
+    error[:, 2] = np.asarray(wrap_angle(error[:, 2]))
+    ratio = np.sqrt(np.mean(error**2, axis=0) / np.mean(front.step_cov[:, [0, 1, 2], [0, 1, 2]], axis=0))
+    weighted = ellipse_coverage(path, unit_weight * cov, truth) if loops else float("nan")
     return (f"| {name} | {seed} | {scans} | {absolute_trajectory_error(path, truth)['rmse_m']:.3f} | "
             f"{ellipse_coverage(path, cov, truth):.3f} | {ellipse_coverage(path, scaled, truth):.3f} | "
+            f"{unit_weight:.3f} | {weighted:.3f} | {ratio[0]:.2f}, {ratio[1]:.2f}, {ratio[2]:.2f} | "
             f"{np.median(sd):.4f} | {np.percentile(sd, 90):.4f} | {seconds:.1f} |")
 
 
@@ -65,8 +78,9 @@ def main(argv: list[str] | None = None) -> int:
     if not sets or set(sets) - {"all", "every2"}:
         parser.error(f"--scans must be a subset of all,every2, got {args.scans!r}")
     print("| log | seed | scans | start ATE m | coverage, step posteriors | coverage, retired scale 0.36 | "
-          "step sd median m | p90 m | front end s |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "s0^2 | coverage, times s0^2 | "
+          "step error / sd (x, y, theta) | step sd median m | p90 m | front end s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in chosen_logs(parser, args.logs):
         for seed in parse_seeds(args.seeds):
             for scans in sets:

@@ -37,9 +37,8 @@ def _model(grid, num_rays, rng, **model):
 
 @pytest.mark.parametrize("model", [
     {},
-    {"wall_pass_prob": 0.2},
     {"cut_past_reading": 0.5, "coupling": 0.5},
-    {"wall_pass_prob": 0.2, "coupling": 0.4, "cut_past_reading": 0.6},
+    {"wall_pass_prob": 0.2, "coupling": 0.4, "cut_past_reading": 0.6},  # every option, passable walls among them
 ])
 def test_a_tiles_conditionals_are_the_whole_tables(model):
     """For random maps of two densities, every cell of every tile gets from its tile's table (the rest frozen)
