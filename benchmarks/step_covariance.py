@@ -12,10 +12,17 @@ fitted on truth), the graph's variance of unit weight ``s0^2`` (the sum of its s
 closed path over its redundancy, three per loop edge: Förstner & Wrobel 2016, *Photogrammetric Computer Vision*,
 sec. 4.2.3; a scale estimated from the graph's own consistency, not from truth) and the coverage with the covariance
 times it, the front end's steps against the true steps (the root mean square of each component's error over that of
-its posterior standard deviation: 1 for calibrated step posteriors), the steps' median and 90th-percentile
+its posterior standard deviation: 1 for calibrated step posteriors; then the steps whose heading error exceeds
+:data:`FAR` standard deviations, and the same ratios without them), the steps' median and 90th-percentile
 position standard deviation (m) and the front end's seconds.
 
+With ``--step-power W``, one more column: the coverage with every step's covariance times ``P / W``, ``P`` the front
+end's likelihood power (the problem's, :data:`bayesmap.slam.problem.SLAM_LIKELIHOOD_POWER`): the steps' posteriors
+at power ``W`` where the scan, not the motion model, sets them (a quick look at another power, such as one from
+``beam_correlation.py``; the path and the loop edges stay those of power ``P``).
+
 Usage: PYTHONPATH=src python benchmarks/step_covariance.py [--logs aces] [--seeds 0] [--scans all,every2]
+    [--step-power W]
 """
 
 from __future__ import annotations
@@ -40,8 +47,17 @@ from bayesmap.slam.problem import log_slam_problem  # noqa: E402
 RETIRED_SCALE = 0.36
 """The factor on the graph's fixed edge deviations that bayesmap reported before the step posteriors."""
 
+FAR = 10.0
+"""Standard deviations: a step whose heading error exceeds this many is listed on its own."""
 
-def run(name: str, seed: int, scans: str) -> str:
+
+def _ratio(error, cov) -> str:
+    """Each component's root mean square error over its root mean square posterior standard deviation."""
+    ratio = np.sqrt(np.mean(error**2, axis=0) / np.mean(cov[:, [0, 1, 2], [0, 1, 2]], axis=0))
+    return ", ".join(f"{r:.2f}" for r in ratio)
+
+
+def run(name: str, seed: int, scans: str, step_power: float | None = None) -> str:
     """One row of the table (module docstring)."""
     log, truth = seeded_log(name, seed)
     kept = None if scans == "all" else np.arange(0, len(log), 2)
@@ -60,12 +76,19 @@ def run(name: str, seed: int, scans: str) -> str:
     sd = np.sqrt(front.step_cov[:, [0, 1], [0, 1]])
     error = posegraph.relative(front.path[:-1], front.path[1:]) - posegraph.relative(truth[:-1], truth[1:])
     error[:, 2] = np.asarray(wrap_angle(error[:, 2]))
-    ratio = np.sqrt(np.mean(error**2, axis=0) / np.mean(front.step_cov[:, [0, 1, 2], [0, 1, 2]], axis=0))
+    far = np.abs(error[:, 2]) > FAR * np.sqrt(front.step_cov[:, 2, 2])
     weighted = ellipse_coverage(path, unit_weight * cov, truth) if loops else float("nan")
+    other = ""
+    if step_power is not None:
+        sequential = posegraph.with_step_covariances(edges.take(slice(0, len(path) - 1)),
+                                                     front.step_cov * problem.likelihood_power / step_power)
+        graph = posegraph.concat_edges(sequential, edges.take(slice(len(path) - 1, None)))
+        other = f" {ellipse_coverage(path, posegraph.marginal_covariances(path, graph), truth):.3f} |"
     return (f"| {name} | {seed} | {scans} | {absolute_trajectory_error(path, truth)['rmse_m']:.3f} | "
             f"{ellipse_coverage(path, cov, truth):.3f} | {ellipse_coverage(path, scaled, truth):.3f} | "
-            f"{unit_weight:.3f} | {weighted:.3f} | {ratio[0]:.2f}, {ratio[1]:.2f}, {ratio[2]:.2f} | "
-            f"{np.median(sd):.4f} | {np.percentile(sd, 90):.4f} | {seconds:.1f} |")
+            f"{unit_weight:.3f} | {weighted:.3f} | {_ratio(error, front.step_cov)} | "
+            f"{', '.join(map(str, np.flatnonzero(far))) or 'none'} | {_ratio(error[~far], front.step_cov[~far])} | "
+            f"{np.median(sd):.4f} | {np.percentile(sd, 90):.4f} | {seconds:.1f} |" + other)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -73,18 +96,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--logs", default="aces")
     parser.add_argument("--seeds", default="0")
     parser.add_argument("--scans", default="all", help="comma-separated subset of all,every2")
+    parser.add_argument("--step-power", type=float, default=None,
+                        help="also the coverage with the steps' covariances at this likelihood power")
     args = parser.parse_args(argv)
+    if args.step_power is not None and not args.step_power > 0:
+        parser.error(f"--step-power must be positive, got {args.step_power}")
     sets = [s for s in args.scans.split(",") if s]
     if not sets or set(sets) - {"all", "every2"}:
         parser.error(f"--scans must be a subset of all,every2, got {args.scans!r}")
     print("| log | seed | scans | start ATE m | coverage, step posteriors | coverage, retired scale 0.36 | "
           "s0^2 | coverage, times s0^2 | "
-          "step error / sd (x, y, theta) | step sd median m | p90 m | front end s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "step error / sd (x, y, theta) | steps beyond 10 sd in heading | error / sd without them | "
+          "step sd median m | p90 m | front end s |"
+          + ("" if args.step_power is None else f" coverage, steps at power {args.step_power:g} |"))
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("" if args.step_power is None else "---|"))
     for name in chosen_logs(parser, args.logs):
         for seed in parse_seeds(args.seeds):
             for scans in sets:
-                print(run(name, seed, scans), flush=True)
+                print(run(name, seed, scans, args.step_power), flush=True)
     return 0
 
 
