@@ -50,12 +50,13 @@ def magnitude_adjustments(gradients: np.ndarray) -> list[float]:
     the returned beams' scores in beam order."""
     h = gradients.T @ gradients
     h_inv = np.linalg.inv(h)
+    lagged = {}  # each lag's autocovariance, both directions, computed once for every bandwidth
+    for lag in range(1, max(BANDWIDTHS) + 1):
+        c = gradients[lag:].T @ gradients[:-lag]
+        lagged[lag] = c + c.T
     out = []
     for b in BANDWIDTHS:
-        j = h.copy()
-        for lag in range(1, b + 1):
-            c = gradients[lag:].T @ gradients[:-lag]
-            j += (1 - lag / (b + 1)) * (c + c.T)
+        j = h + sum((1 - lag / (b + 1)) * lagged[lag] for lag in range(1, b + 1))
         out.append(3.0 / float(np.trace(h_inv @ j)))
     return out
 

@@ -69,9 +69,10 @@ def run(name: str, seed: int, scans: str, step_power: float | None = None) -> st
     seconds = time.perf_counter() - began
     path, edges, _ = posegraph.close_loops(front.path, data, step_cov=front.step_cov)
     cov = posegraph.marginal_covariances(path, edges)
-    fixed = posegraph.concat_edges(posegraph.sequential_edges(front.path), edges.take(slice(len(path) - 1, None)))
+    loop_edges = edges.take(slice(len(path) - 1, None))  # close_loops puts the S - 1 sequential edges first
+    fixed = posegraph.concat_edges(posegraph.sequential_edges(front.path), loop_edges)
     scaled = RETIRED_SCALE**2 * posegraph.marginal_covariances(path, fixed)
-    loops = len(edges.i) - (len(path) - 1)
+    loops = len(loop_edges.i)
     unit_weight = float(np.sum(posegraph.edge_residuals(path, edges) ** 2)) / (3 * loops) if loops else float("nan")
     sd = np.sqrt(front.step_cov[:, [0, 1], [0, 1]])
     error = posegraph.relative(front.path[:-1], front.path[1:]) - posegraph.relative(truth[:-1], truth[1:])
@@ -82,7 +83,7 @@ def run(name: str, seed: int, scans: str, step_power: float | None = None) -> st
     if step_power is not None:
         sequential = posegraph.with_step_covariances(edges.take(slice(0, len(path) - 1)),
                                                      front.step_cov * problem.likelihood_power / step_power)
-        graph = posegraph.concat_edges(sequential, edges.take(slice(len(path) - 1, None)))
+        graph = posegraph.concat_edges(sequential, loop_edges)
         other = f" {ellipse_coverage(path, posegraph.marginal_covariances(path, graph), truth):.3f} |"
     return (f"| {name} | {seed} | {scans} | {absolute_trajectory_error(path, truth)['rmse_m']:.3f} | "
             f"{ellipse_coverage(path, cov, truth):.3f} | {ellipse_coverage(path, scaled, truth):.3f} | "
