@@ -82,9 +82,8 @@ def thinned(angles, readings, returned, cell: float) -> np.ndarray:
     return keep
 
 
-def scan_alone(data, truth, s: int, travelled, unknown: float = 0.0, cell: float = 0.0) -> np.ndarray:
-    """The offset ``(3,)`` (m, m, rad, in the true pose's frame) of scan ``s``'s match with the scan alone, against
-    the local map of the scans before it at their true poses (module docstring), from the odometry's prediction."""
+def local_map(data, truth, s: int, travelled) -> tuple:
+    """The local map of scan ``s`` at the true poses (module docstring): ``(grid, fields, local scan indices)``."""
     local = [u for u in range(s) if travelled[u] >= travelled[s] - scanmatch.LOCAL_MAP_DISTANCE]
     near = truth[[*local, s], :2]
     lo, hi = near.min(axis=0) - MAP_MARGIN, near.max(axis=0) + MAP_MARGIN
@@ -94,6 +93,13 @@ def scan_alone(data, truth, s: int, travelled, unknown: float = 0.0, cell: float
     for u in local:
         fields = scanmatch.add_to_fields(fields, grid, jnp.asarray(truth[u]), data.sensor_angles[u],
                                          data.readings[u], data.returned[u])
+    return grid, fields, local
+
+
+def scan_alone(data, truth, s: int, local_map_, unknown: float = 0.0, cell: float = 0.0) -> np.ndarray:
+    """The offset ``(3,)`` (m, m, rad, in the true pose's frame) of scan ``s``'s match with the scan alone, against
+    its :func:`local_map` ``local_map_``, from the odometry's prediction (module docstring)."""
+    grid, fields, local = local_map_
     if unknown > 0:
         never = ~free_space(grid, truth[local], np.asarray(data.sensor_angles)[local], np.asarray(data.readings)[local])
         fields = tuple(jnp.maximum(f, jnp.where(jnp.asarray(never), unknown, 0.0)) for f in fields)
@@ -127,9 +133,9 @@ def run(name: str, seed: int, scans: str, position: float, heading: float, unkno
     rows = []
     for t in np.flatnonzero((np.hypot(error[:, 0], error[:, 1]) > position) | (np.abs(error[:, 2]) > heading)):
         s = int(t) + 1
-        alone = [scan_alone(data, truth, s, travelled),
-                 scan_alone(data, truth, s, travelled, unknown=unknown),
-                 scan_alone(data, truth, s, travelled, cell=cell)]
+        near = local_map(data, truth, s, travelled)
+        alone = [scan_alone(data, truth, s, near), scan_alone(data, truth, s, near, unknown=unknown),
+                 scan_alone(data, truth, s, near, cell=cell)]
         rows.append(f"| {name} | {seed} | {scans} | {t} | {_fmt(error[t])} | {_fmt(odometry[t])} | "
                     + " | ".join(_fmt(a) for a in alone) + " |")
     return rows
