@@ -16,6 +16,7 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.io.carmen import CarmenLog, read_carmen
 from bayesmap.io.tum import read_tum
+from bayesmap.slam.problem import log_slam_problem
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"  # the project's data lives at ../shared/data (shared/data/README.md)
@@ -74,6 +75,15 @@ def seeded_log(name: str, seed: int) -> tuple[CarmenLog, np.ndarray]:
     """
     with tempfile.TemporaryDirectory() as tmp:
         return write_seeded_log(name, seed, Path(tmp) / f"{name}-odom")
+
+
+def scan_set_problem(name: str, seed: int, scans: str):
+    """The SLAM problem of log ``name``'s odometry ``seed`` (:func:`seeded_log`) on the scan set ``scans``: ``"all"``,
+    or ``"every2"``, scans 0, 2, 4, ... as ``slam --scans ::2`` takes them; returns ``(problem, truth (S, 3))``, the
+    truth at those scans."""
+    log, truth = seeded_log(name, seed)
+    kept = None if scans == "all" else np.arange(0, len(log), 2)
+    return log_slam_problem(log, kept), truth if kept is None else truth[kept]
 
 
 def add_log_seed_options(parser: argparse.ArgumentParser, json_option: bool = True) -> None:

@@ -36,13 +36,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from karto_peer import parse_seeds  # noqa: E402
-from seeded_logs import chosen_logs, seeded_log  # noqa: E402
+from seeded_logs import chosen_logs, scan_set_problem  # noqa: E402
+from step_covariance import step_errors  # noqa: E402
 
 from bayesmap.geometry.grid import Grid  # noqa: E402
 from bayesmap.geometry.raycast import scan_endpoints  # noqa: E402
 from bayesmap.model.motion import compose, wrap_angle  # noqa: E402
 from bayesmap.slam import pipeline, posegraph, scanmatch  # noqa: E402
-from bayesmap.slam.problem import log_slam_problem  # noqa: E402
 
 FREE_MARGIN = 0.15
 """Meters short of a beam's reading that still count as observed free space (``unknown``)."""
@@ -118,17 +118,11 @@ def _fmt(v) -> str:
 
 def run(name: str, seed: int, scans: str, position: float, heading: float, unknown: float, cell: float) -> list[str]:
     """The table's rows for one (log, seed, scan set)."""
-    log, truth = seeded_log(name, seed)
-    kept = None if scans == "all" else np.arange(0, len(log), 2)
-    problem = log_slam_problem(log, kept)
-    truth = truth if kept is None else truth[kept]
+    problem, truth = scan_set_problem(name, seed, scans)
     data = pipeline.scan_data(problem)
     front = pipeline.front_end(problem, data)
-    true_steps = posegraph.relative(truth[:-1], truth[1:])
-    error = posegraph.relative(front.path[:-1], front.path[1:]) - true_steps
-    odometry = np.asarray(data.increments, np.float64) - true_steps
-    for e in (error, odometry):
-        e[:, 2] = np.asarray(wrap_angle(e[:, 2]))
+    error = step_errors(posegraph.relative(front.path[:-1], front.path[1:]), truth)
+    odometry = step_errors(data.increments, truth)
     travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.asarray(data.increments, np.float64)[:, :2].T))])
     rows = []
     for t in np.flatnonzero((np.hypot(error[:, 0], error[:, 1]) > position) | (np.abs(error[:, 2]) > heading)):

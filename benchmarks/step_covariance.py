@@ -37,12 +37,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from karto_peer import parse_seeds  # noqa: E402
-from seeded_logs import chosen_logs, seeded_log  # noqa: E402
+from seeded_logs import chosen_logs, scan_set_problem  # noqa: E402
 
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage  # noqa: E402
 from bayesmap.model.motion import wrap_angle  # noqa: E402
 from bayesmap.slam import pipeline, posegraph  # noqa: E402
-from bayesmap.slam.problem import log_slam_problem  # noqa: E402
 
 RETIRED_SCALE = 0.36
 """The factor on the graph's fixed edge deviations that bayesmap reported before the step posteriors."""
@@ -57,12 +56,17 @@ def _ratio(error, cov) -> str:
     return ", ".join(f"{r:.2f}" for r in ratio)
 
 
+def step_errors(steps, truth) -> np.ndarray:
+    """``(S - 1, 3)`` float64: ``steps`` ``(S - 1, 3)`` (each in its previous pose's frame) less the true steps of
+    ``truth`` ``(S, 3)``, the headings wrapped to [-pi, pi)."""
+    error = np.asarray(steps, np.float64) - posegraph.relative(truth[:-1], truth[1:])
+    error[:, 2] = np.asarray(wrap_angle(error[:, 2]))
+    return error
+
+
 def run(name: str, seed: int, scans: str, step_power: float | None = None) -> str:
     """One row of the table (module docstring)."""
-    log, truth = seeded_log(name, seed)
-    kept = None if scans == "all" else np.arange(0, len(log), 2)
-    problem = log_slam_problem(log, kept)
-    truth = truth if kept is None else truth[kept]
+    problem, truth = scan_set_problem(name, seed, scans)
     data = pipeline.scan_data(problem)
     began = time.perf_counter()
     front = pipeline.front_end(problem, data)
@@ -75,8 +79,7 @@ def run(name: str, seed: int, scans: str, step_power: float | None = None) -> st
     loops = len(loop_edges.i)
     unit_weight = float(np.sum(posegraph.edge_residuals(path, edges) ** 2)) / (3 * loops) if loops else float("nan")
     sd = np.sqrt(front.step_cov[:, [0, 1], [0, 1]])
-    error = posegraph.relative(front.path[:-1], front.path[1:]) - posegraph.relative(truth[:-1], truth[1:])
-    error[:, 2] = np.asarray(wrap_angle(error[:, 2]))
+    error = step_errors(posegraph.relative(front.path[:-1], front.path[1:]), truth)
     far = np.abs(error[:, 2]) > FAR * np.sqrt(front.step_cov[:, 2, 2])
     weighted = ellipse_coverage(path, unit_weight * cov, truth) if loops else float("nan")
     other = ""
