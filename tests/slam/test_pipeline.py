@@ -84,3 +84,9 @@ def test_progress_reports_every_stage_and_leaves_the_result_alone(slam_problem, 
 def test_bad_final_map_sweeps_refused_by_name(slam_problem, bad):
     with pytest.raises(BayesmapError, match="final_map_sweeps"):
         run_log_slam(slam_problem, final_map_sweeps=bad, **RUN)
+
+
+@pytest.mark.parametrize("bad", [-1, 2.5, True, "10"])
+def test_bad_segment_length_refused_by_name(slam_problem, bad):
+    with pytest.raises(BayesmapError, match="segment_length"):
+        run_log_slam(slam_problem, segment_length=bad, **RUN)

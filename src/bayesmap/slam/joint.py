@@ -192,7 +192,8 @@ class SlamResult(NamedTuple):
             conditional wall probabilities.
         acceptance_rate: the fraction of accepted pose moves over kept sweeps (1.0 for Gibbs draws); a
             multiple-try move that picks the current pose counts as accepted, so this overstates how often a pose
-            moves.
+            moves; where a sweep is two kernels' (:func:`bayesmap.slam.poses.composed_pose_kernels`), a pose counts
+            as moved when either moved it.
         runtime_s: wall-clock seconds of the run, compilation included.
         last_walls: ``(nx, ny)`` float32, the last chain's last map sample.
         grid: the grid of ``posterior`` (a real log's is fitted to the inferred path), or None: the problem's.

@@ -17,8 +17,9 @@ mapping at known poses). :func:`run_log_slam` finds a start, then runs a blocked
      sampler run on it (:mod:`bayesmap.inference.cellwise`), continuing from the current walls; a log whose table
      would hold more than :data:`bayesmap.inference.tiled.TILE_PAIRS` pairs is swept a tile of the grid at a time,
      each tile with its own table (:func:`bayesmap.inference.tiled.tiled_map_chain`);
-   * the poses given the walls: :data:`POSE_SWEEPS` sweeps of random-walk Metropolis over each pose
-     (:func:`bayesmap.slam.poses.random_walk_pose_mh`, exact ray casts by grid traversal).
+   * the poses given the walls: :data:`POSE_SWEEPS` sweeps, each of random-walk Metropolis over each pose
+     (:func:`bayesmap.slam.poses.random_walk_pose_mh`, exact ray casts by grid traversal) and then of rigid moves of
+     stretches of :data:`bayesmap.slam.poses.SEGMENT_LENGTH` poses (:func:`bayesmap.slam.poses.segment_pose_mh`).
 
    Each block's kernel leaves the joint posterior invariant, so the chain does. The first :data:`BURN_IN_ROUNDS`
    rounds are dropped; the pose samples of the others give the mean path and the covariances, and the map sweeps'
@@ -82,7 +83,7 @@ from bayesmap.slam.posegraph import (
     optimize_pose_graph,
     sample_deviations,
 )
-from bayesmap.slam.poses import random_walk_pose_mh, slam_data
+from bayesmap.slam.poses import SEGMENT_LENGTH, composed_pose_kernels, random_walk_pose_mh, segment_pose_mh, slam_data
 from bayesmap.slam.scanmatch import (
     LOCAL_MAP_DISTANCE,
     MATCH_LEVELS,
@@ -316,10 +317,12 @@ def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None):
 
 @on_sweep_devices()  # the sweeps on the CPU, also where JAX's default device is a GPU (bayesmap.devices)
 def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tuple[int, int, int, int],
-                 progress: ProgressCallback | None, tile_pairs: int = TILE_PAIRS) -> tuple:
+                 progress: ProgressCallback | None, tile_pairs: int = TILE_PAIRS,
+                 segment_length: int = SEGMENT_LENGTH) -> tuple:
     """Stage 4 of the module docstring: the joint chain from ``path`` ``(S, 3)`` and an empty map on ``params``'s
     grid, ``counts`` = ``(rounds, burn_in, map_sweeps, pose_sweeps)``, reporting each round's map and pose sweeps
-    (stages ``"round r/R: map"`` and ``"round r/R: poses"``), the map blocks in tiles of at most ``tile_pairs``.
+    (stages ``"round r/R: map"`` and ``"round r/R: poses"``), the map blocks in tiles of at most ``tile_pairs``, each
+    pose sweep a random-walk sweep then, with ``segment_length`` > 0, a sweep of segment moves of that many poses.
 
     Returns:
         ``(last walls (nx, ny) float32, pose samples (N, S, 3) float64, wall probabilities (M, nx, ny),
@@ -332,6 +335,9 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
     drop_compiled_programs()
     data = slam_data(scans.increments, scans.covs, problem.sensor_angles, problem.readings, params)
     pose_kernel = random_walk_pose_mh(data, likelihood_power=problem.likelihood_power)
+    if segment_length:
+        pose_kernel = composed_pose_kernels(pose_kernel, segment_pose_mh(data, segment_length,
+                                                                          likelihood_power=problem.likelihood_power))
     walls = jnp.zeros(params.grid.shape, jnp.float32)
     poses = jnp.asarray(path, data.increments.dtype)
     keys = jax.random.split(jax.random.key(seed), 2 * rounds)
@@ -381,7 +387,8 @@ def _check_final_map_sweeps(final_map_sweeps) -> None:
 def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, seed: int = 0,
                  progress: ProgressCallback | None = None, map_sweeps: int = MAP_SWEEPS, pose_sweeps: int = POSE_SWEEPS,
                  final_map_sweeps: int = FINAL_MAP_SWEEPS,
-                 tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES) -> SlamResult:
+                 tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES,
+                 segment_length: int = SEGMENT_LENGTH) -> SlamResult:
     """Infer the path and the map of a real log (:func:`bayesmap.slam.problem.log_slam_problem`) with the pipeline
     of the module docstring.
 
@@ -406,6 +413,9 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
             swept a tile of the grid at a time (:data:`bayesmap.inference.tiled.TILE_PAIRS`), >= 1. Bounds the map
             blocks' memory; any value samples the same posterior.
         particles: hypotheses the front end keeps (:func:`front_end`, :data:`FRONT_END_PARTICLES`), >= 1.
+        segment_length: poses moved together by the chain's segment moves
+            (:func:`bayesmap.slam.poses.segment_pose_mh`, :data:`bayesmap.slam.poses.SEGMENT_LENGTH`), an integer
+            >= 1, or 0: single-pose moves only. Any value samples the same posterior.
 
     Returns:
         A :class:`bayesmap.slam.joint.SlamResult`: ``pose_samples`` ``(N, S, 3)`` with ``N = (rounds - burn_in)
@@ -414,7 +424,8 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         ``chain_posterior``), ``graph_cov`` the graph's covariance.
 
     Raises:
-        BayesmapError: on bad counts, a bad ``final_map_sweeps`` or ``tile_pairs`` (the message names the value).
+        BayesmapError: on bad counts, a bad ``final_map_sweeps``, ``tile_pairs`` or ``segment_length`` (the message
+            names the value).
     """
     _check_final_map_sweeps(final_map_sweeps)
     check_tile_pairs(tile_pairs)
@@ -422,13 +433,16 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     rounds, burn_in, _ = check_counts(rounds, burn_in, 1)
     map_sweeps, _, _ = check_counts(map_sweeps, 0, 1)
     pose_sweeps, _, _ = check_counts(pose_sweeps, 0, 1)
+    if isinstance(segment_length, bool) or not isinstance(segment_length, (int, np.integer)) or segment_length < 0:
+        raise BayesmapError(f"segment_length must be an integer >= 0, got {segment_length!r}")
     start = time.perf_counter()
     scans = scan_data(problem)
     front = front_end(problem, scans, particles=particles, seed=seed, progress=progress)
     path, edges, hypotheses = close_loops(front.path, scans, progress=progress, step_cov=front.step_cov)
     grid = fitted_grid(scans, path, problem.params.grid.resolution)
     walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, grid), path, seed,
-                                                   (rounds, burn_in, map_sweeps, pose_sweeps), progress, tile_pairs)
+                                                   (rounds, burn_in, map_sweeps, pose_sweeps), progress, tile_pairs,
+                                                   int(segment_length))
     mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, hypotheses)
     chain_posterior = probs.astype(np.float64).mean(axis=0)
     posterior, final_power, final_noise = chain_posterior, None, None

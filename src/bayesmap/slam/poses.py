@@ -1,4 +1,4 @@
-"""Exact pose conditionals given the map, and two MCMC kernels over the robot's poses (the SLAM model's path).
+"""Exact pose conditionals given the map, and MCMC kernels over the robot's poses (the SLAM model's path).
 
 The target is :data:`bayesmap.model.slam.slam_model`'s posterior over the poses given the walls: for a pose
 ``t >= 1`` (pose 0 is fixed), everything in the model's ``assess`` score that depends on ``pose_t`` is
@@ -15,9 +15,14 @@ once (vmapped exact ray casts), and the kernels draw from it:
   "The multiple-try method and local optimization in Metropolis sampling", JASA 95): the candidates are the current
   pose plus a symmetric lattice of offsets (correlative scan matching's window, Olson 2009, "Real-time correlative
   scan matching", ICRA), one is picked with probability proportional to its conditional and accepted with
-  ``min(1, Z(x) / Z(x'))``; see docs/slam.md for the derivation.
+  ``min(1, Z(x) / Z(x'))``; see docs/slam.md for the derivation;
+* :func:`random_walk_pose_mh`: random-walk Metropolis per pose, the odd poses at once and then the even ones (the
+  kernel for real logs);
+* :func:`segment_pose_mh`: Metropolis-Hastings moves of whole stretches of the path, each moved rigidly in the frame
+  of its first pose (the two end steps and the stretch's scans decide), so that a stretch the scans leave free to
+  slide moves as a whole; :func:`composed_pose_kernels` runs it after another kernel.
 
-Both are BlackJAX-style: pure ``init(poses, walls) -> PoseState`` and ``step(key, state) -> (PoseState,
+All are BlackJAX-style: pure ``init(poses, walls) -> PoseState`` and ``step(key, state) -> (PoseState,
 PoseInfo)``, jittable, keys passed explicitly; they leave the walls unchanged, so they compose with the map kernels
 of :mod:`bayesmap.inference` (Gibbs over the walls given the poses) into a chain on the joint posterior.
 """
@@ -42,7 +47,7 @@ from bayesmap.model.generative import (
     reading_log_likelihood,
     scan_power,
 )
-from bayesmap.model.motion import motion_logpdf
+from bayesmap.model.motion import compose, motion_error, motion_logpdf
 
 
 class SlamData(NamedTuple):
@@ -471,3 +476,188 @@ def _random_walk_sweep(scale, data, eta, key, state: PoseState):
     poses, cache, accepted, log_conditional = jax.lax.fori_loop(0, 2, block, init)
     return (PoseState(poses=poses, walls=state.walls, scan_log_lik=cache),
             PoseInfo(accepted=accepted, log_conditional=log_conditional))
+
+
+SEGMENT_LENGTH = 10
+"""Default poses per segment of :func:`segment_pose_mh`: ten consecutive scans moved together. A sampler setting, not
+a model one: it changes how fast the chain mixes, not the posterior it targets. Chosen with
+:data:`SEGMENT_STEP_STD` on one run (Intel, odometry seed 0, every other scan: 10 and 30 poses tried) and checked on
+fourteen others ([validation](../validation/slam.md#segment-moves-in-the-chain))."""
+
+SEGMENT_STEP_STD = (0.03, 0.03, 0.005)
+"""Default proposal standard deviations of :func:`segment_pose_mh`'s rigid move (x m, y m, theta rad), in the frame
+of the segment's first pose: three times the single-pose random walk's (:data:`RANDOM_WALK_STD`), since a segment's
+scans together leave it free only where all of them do (along a corridor). A sampler setting, chosen with
+:data:`SEGMENT_LENGTH` (0.01, 0.03 and 0.05 m tried; [validation](../validation/slam.md#segment-moves-in-the-chain))."""
+
+
+def moved_segment(poses, a, b, delta):
+    """``poses`` ``(S, 3)`` with rows ``a..b`` (``1 <= a <= b <= S - 1``, possibly traced) moved rigidly by
+    ``delta`` ``(3,)`` (dx m, dy m, dtheta rad) given in the frame of pose ``a``: ``x_t' = x_a (+) delta (+) (x_a^-1
+    (+) x_t)``, so every step inside the segment is kept and pose ``a`` goes to ``x_a (+) delta``. The inverse move is
+    ``delta^-1`` from the moved pose ``a``. Jittable."""
+    poses = jnp.asarray(poses)
+    idx = jnp.arange(poses.shape[0])
+    inside = (idx >= a) & (idx <= b)
+    anchor = poses[a]
+    within = motion_error(anchor, poses, jnp.zeros(3, poses.dtype))  # each pose in the frame of pose a
+    moved = compose(compose(anchor, jnp.asarray(delta, poses.dtype)), within)
+    return jnp.where(inside[:, None], moved, poses)
+
+
+def segment_log_ratio(a: int, b: int, delta, poses, walls, data: SlamData, likelihood_power: float = 1.0):
+    """``log pi(x') - log pi(x)`` of the path posterior given the walls (the model's log joint at fixed walls and
+    readings) for the segment move ``x' =`` :func:`moved_segment` ``(x, a, b, delta)``: the motion terms at the
+    segment's two ends (the steps inside it are unchanged) and the segment's scans' log-likelihoods at power
+    ``likelihood_power`` (a float, or one power per scan).
+
+    Args:
+        a: the segment's first pose, ``1 <= a`` (pose 0 is fixed).
+        b: its last pose, ``a <= b <= S - 1``.
+        delta: ``(3,)`` the move (dx m, dy m, dtheta rad) in the frame of pose ``a``.
+        poses: ``(S, 3)`` the current path.
+        walls: ``(nx, ny)`` the map.
+        data: :func:`slam_data`.
+        likelihood_power: ``eta`` in (0, 1], or one power per scan ``(S,)`` in [0, 1].
+
+    Returns:
+        The log ratio, a float scalar.
+
+    Raises:
+        BayesmapError: if ``a``, ``b`` are not integers with ``1 <= a <= b <= S - 1``, or the power is bad.
+    """
+    poses = jnp.asarray(poses)
+    s = poses.shape[0]
+    if int(a) != a or int(b) != b or not 1 <= int(a) <= int(b) <= s - 1:
+        raise BayesmapError(f"the segment must have integers 1 <= a <= b <= {s - 1} (pose 0 is fixed), got a={a!r}, "
+                            f"b={b!r}")
+    eta = check_scan_powers(likelihood_power, s)
+    like = _scan_log_likelihoods(data, poses, jnp.asarray(walls, jnp.float32))
+    return _segment_log_ratio_jit(int(a), int(b), jnp.asarray(delta, poses.dtype), poses, jnp.asarray(walls),
+                                  data, eta, like)[0]
+
+
+def _segment_log_ratio(a, b, delta, poses, walls, data: SlamData, eta, like, length: int | None = None):
+    """``(log ratio, moved poses (S, 3), their scans' log-likelihoods (S,))`` of the segment move ``a..b`` by
+    ``delta``, casting only the segment's scans: ``length`` of them from ``a`` (at least ``b - a + 1``; None: every
+    scan), ``like`` ``(S,)`` the current scans' untempered log-likelihoods."""
+    s = poses.shape[0]
+    moved = moved_segment(poses, a, b, delta)
+    n = s if length is None else length
+    idx = jnp.minimum(a + jnp.arange(n), s - 1)
+    inside = (a + jnp.arange(n)) <= b
+    cast = scans_log_likelihood(walls, moved[idx], data.sensor_angles[idx], data.readings[idx],
+                                data.params).astype(poses.dtype)
+    new_like = like.at[jnp.where(inside, idx, s)].set(cast, mode="drop")
+    power = eta if jnp.ndim(eta) == 0 else eta[idx]
+    scans = jnp.sum(jnp.where(inside, power * (cast - like[idx]), 0.0))
+    before = (motion_logpdf(poses[a - 1], moved[a], data.increments[a - 1], data.covs[a - 1])
+              - motion_logpdf(poses[a - 1], poses[a], data.increments[a - 1], data.covs[a - 1]))
+    nxt = jnp.minimum(b + 1, s - 1)
+    step = jnp.minimum(b, s - 2)
+    after = (motion_logpdf(moved[b], poses[nxt], data.increments[step], data.covs[step])
+             - motion_logpdf(poses[b], poses[nxt], data.increments[step], data.covs[step]))
+    return before + jnp.where(b < s - 1, after, 0.0) + scans, moved, new_like
+
+
+_segment_log_ratio_jit = jax.jit(_segment_log_ratio, static_argnames=("length",))
+
+
+def segment_pose_mh(data: SlamData, length: int = SEGMENT_LENGTH, step_std=SEGMENT_STEP_STD,
+                    likelihood_power: float = 1.0) -> SamplingAlgorithm:
+    """Metropolis-Hastings moves of whole stretches of the path, each moved rigidly (exact for the path posterior
+    given the walls).
+
+    A single-pose kernel moves a pose against both of its neighbours' motion terms, so a stretch of path that the
+    scans leave free to slide as a whole (along a corridor, where every scan fits the side walls equally well) moves
+    by the odometry's few centimeters at a time. This kernel moves ``length`` consecutive poses together. A sweep
+    draws an offset ``o`` uniformly in ``0..length - 1`` (independently of the state) and cuts poses ``1..S-1`` into
+    the segments ``1..o``, ``o+1..o+length``, ...; for each segment ``a..b`` in order it proposes ``delta ~ N(0,
+    diag(step_std)^2)`` in the frame of pose ``a`` and the path :func:`moved_segment` ``(x, a, b, delta)``, and
+    accepts with probability ``min(1, pi(x') / pi(x))`` (:func:`segment_log_ratio`: only the two end steps and the
+    segment's scans change).
+
+    Why the ratio has no proposal term: the move ``(x, delta) -> (x', delta^-1)`` is an involution (from ``x'`` the
+    move ``delta^-1`` in the frame of the moved pose ``a`` returns ``x``), it moves each pose of the segment by a rigid
+    motion (unit Jacobian), and ``delta^-1 = (-R(-dtheta) (dx, dy), -dtheta)`` has the same density as ``delta``
+    under ``N(0, diag(s_xy, s_xy, s_theta)^2)`` with equal x and y deviations (a rotation of an isotropic Gaussian;
+    unit Jacobian). So the Metropolis-Hastings ratio (Green 1995's form for deterministic involutions; Tierney 1998)
+    is ``pi(x') / pi(x)``. Each offset gives a kernel that leaves the posterior invariant, so their mixture does. With
+    ``length = 1`` it is a random-walk Metropolis move per pose, in the pose's own frame.
+
+    Args:
+        data: :func:`slam_data`.
+        length: poses per segment, an integer >= 1.
+        step_std: ``(2,)`` or ``(3,)`` proposal standard deviations ``(xy m, theta rad)`` or ``(x m, y m, theta
+            rad)`` with equal x and y (the symmetry above needs an isotropic position step), each finite and > 0.
+        likelihood_power: ``eta`` in (0, 1], or one power per scan ``(S,)`` in [0, 1]
+            (:func:`bayesmap.model.generative.check_scan_powers`).
+
+    Returns:
+        A :class:`bayesmap.inference.base.SamplingAlgorithm` over :class:`PoseState` (``init`` casts every scan
+        once; ``accepted`` ``(S - 1,)``: whether each pose's segment move was accepted).
+
+    Raises:
+        BayesmapError: on a bad length, step or likelihood power (the message names it).
+    """
+    eta = check_scan_powers(likelihood_power, data.sensor_angles.shape[0])
+    if isinstance(length, bool) or not isinstance(length, (int, np.integer)) or length < 1:
+        raise BayesmapError(f"length must be an integer >= 1, got {length!r}")
+    values = np.asarray(step_std, dtype=object).reshape(-1)
+    if len(values) == 2:
+        values = values[[0, 0, 1]]
+    if len(values) != 3:
+        raise BayesmapError(f"step_std must be (xy m, theta rad) or (x m, y m, theta rad), got {step_std!r}")
+    scale = [_positive("step_std", v) for v in values]
+    if scale[0] != scale[1]:
+        raise BayesmapError(f"step_std must have equal x and y deviations (an isotropic step), got {step_std!r}")
+    scale = jnp.asarray(scale, dtype=data.increments.dtype)
+    return SamplingAlgorithm(init=Partial(_cached_init, data),
+                             step=Partial(_segment_sweep, int(length), scale, data, eta))
+
+
+def _segment_sweep(length, scale, data, eta, key, state: PoseState):
+    """:func:`segment_pose_mh`'s sweep (the state's cached scan log-likelihoods used and kept where it has them)."""
+    s = state.poses.shape[0]
+    k_offset, k_moves = jax.random.split(key)
+    offset = jax.random.randint(k_offset, (), 0, length)
+    count = (s - 2) // length + 2  # segments enough for any offset (the extra ones empty)
+    keys = jax.random.split(k_moves, count)
+    cached = state.scan_log_lik is not None
+    like = state.scan_log_lik if cached else _scan_log_likelihoods(data, state.poses, state.walls)
+
+    def body(k, carry):
+        poses, like, accepted = carry
+        start = 1 + offset + (k - 1) * length
+        a, b = jnp.maximum(start, 1), jnp.minimum(start + length - 1, s - 1)
+        k_delta, k_acc = jax.random.split(keys[k])
+        delta = scale * jax.random.normal(k_delta, (3,), scale.dtype)
+        a_safe = jnp.minimum(a, s - 1)
+        log_ratio, moved, new_like = _segment_log_ratio(a_safe, jnp.maximum(b, a_safe), delta, poses, state.walls,
+                                                        data, eta, like, length)
+        accept = (a <= b) & (jnp.log(jax.random.uniform(k_acc, (), scale.dtype)) < log_ratio)
+        idx = jnp.arange(1, s)
+        accepted = jnp.where((idx >= a) & (idx <= b), accept, accepted)
+        return jnp.where(accept, moved, poses), jnp.where(accept, new_like, like), accepted
+
+    poses, like, accepted = jax.lax.fori_loop(0, count, body, (state.poses, like, jnp.zeros(s - 1, bool)))
+    t = jnp.arange(1, s)
+    motion = jax.vmap(lambda tt: _motion_terms(tt, poses[tt][None], poses, data)[0])(t)
+    power = eta if jnp.ndim(eta) == 0 else eta[t]
+    return (PoseState(poses=poses, walls=state.walls, scan_log_lik=like if cached else None),
+            PoseInfo(accepted=accepted, log_conditional=motion + power * like[t]))
+
+
+def composed_pose_kernels(first: SamplingAlgorithm, second: SamplingAlgorithm) -> SamplingAlgorithm:
+    """One sweep of ``first`` then one of ``second``, two pose kernels over :class:`PoseState` on the same data (a
+    cycle of kernels, each leaving the path posterior invariant, leaves it invariant: Tierney 1994). ``init`` is
+    ``first``'s; ``accepted`` reports, per pose, whether either sweep moved it, and ``log_conditional`` is
+    ``second``'s."""
+    return SamplingAlgorithm(init=first.init, step=Partial(_composed_sweep, first.step, second.step))
+
+
+def _composed_sweep(first, second, key, state: PoseState):
+    k_first, k_second = jax.random.split(key)
+    state, a = first(k_first, state)
+    state, b = second(k_second, state)
+    return state, PoseInfo(accepted=a.accepted | b.accepted, log_conditional=b.log_conditional)
