@@ -16,13 +16,19 @@ its posterior standard deviation: 1 for calibrated step posteriors; then the ste
 :data:`FAR` standard deviations, and the same ratios without them), the steps' median and 90th-percentile
 position standard deviation (m) and the front end's seconds.
 
+With ``--aligned``, one more column: the coverage of the same graph's covariance with the rigid motion of the whole
+path aligned out (:func:`aligned_covariances`: the covariance in the gauge of the ATE's alignment, which the coverage
+applies to the truth, instead of relative to the fixed first pose).
+
 With ``--step-power W``, one more column: the coverage with every step's covariance times ``P / W``, ``P`` the front
 end's likelihood power (the problem's, :data:`bayesmap.slam.problem.SLAM_LIKELIHOOD_POWER`): the steps' posteriors
 at power ``W`` where the scan, not the motion model, sets them (a quick look at another power, such as one from
-``beam_correlation.py``; the path and the loop edges stay those of power ``P``).
+``beam_correlation.py``; the path and the loop edges stay those of power ``P``). ``--step-power beams``: each step's
+covariance times ``P / w_t``, ``w_t`` its scan's own magnitude adjustment at the beams' automatic bandwidth
+(``beam_correlation.py``'s ``scan_adjustments``, at most 1; ``P`` where the beams' gradients are degenerate).
 
 Usage: PYTHONPATH=src python benchmarks/step_covariance.py [--logs aces] [--seeds 0] [--scans all,every2]
-    [--step-power W]
+    [--step-power W|beams] [--aligned]
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from beam_correlation import BANDWIDTHS, scan_adjustments  # noqa: E402
 from karto_peer import parse_seeds  # noqa: E402
 from seeded_logs import chosen_logs, scan_set_problem  # noqa: E402
 
@@ -64,7 +71,23 @@ def step_errors(steps, truth) -> np.ndarray:
     return error
 
 
-def run(name: str, seed: int, scans: str, step_power: float | None = None) -> str:
+def aligned_covariances(path, edges, draws: int = 4000, seed: int = 0) -> np.ndarray:
+    """``(S, 3, 3)``: the covariance of the graph's deviations ``d ~ N(0, H^-1)`` at ``path`` after the best rigid
+    alignment of the whole path, to first order (translation the mean position deviation, rotation ``sum_i r_i x d_i /
+    sum_i |r_i|^2`` about the positions' centroid, ``r_i`` the positions less it), estimated from ``draws``
+    perturb-and-solve draws (:func:`bayesmap.slam.posegraph.sample_deviations`)."""
+    d = posegraph.sample_deviations(seed, path, edges, draws)
+    r = path[:, :2] - path[:, :2].mean(axis=0)
+    lever = np.stack([-r[:, 1], r[:, 0]], axis=-1)  # d(position) / d(rotation) about the centroid
+    shift = d[:, :, :2].mean(axis=1)
+    turn = np.einsum("si,nsi->n", lever, d[:, :, :2]) / np.sum(r**2)
+    d = d.copy()
+    d[:, :, :2] -= shift[:, None, :] + turn[:, None, None] * lever[None]
+    d[:, :, 2] -= turn[:, None]
+    return np.einsum("nsi,nsj->sij", d, d) / draws
+
+
+def run(name: str, seed: int, scans: str, step_power: float | str | None = None, aligned: bool = False) -> str:
     """One row of the table (module docstring)."""
     problem, truth = scan_set_problem(name, seed, scans)
     data = pipeline.scan_data(problem)
@@ -84,10 +107,17 @@ def run(name: str, seed: int, scans: str, step_power: float | None = None) -> st
     weighted = ellipse_coverage(path, unit_weight * cov, truth) if loops else float("nan")
     other = ""
     if step_power is not None:
+        if step_power == "beams":  # each step's own power, at the beams' automatic bandwidth (beam_correlation.py)
+            found = scan_adjustments(data, front.path, range(1, len(path)))
+            power = np.array([problem.likelihood_power if w is None else min(1.0, w[len(BANDWIDTHS)]) for w in found])
+        else:
+            power = np.full(len(path) - 1, float(step_power))
         sequential = posegraph.with_step_covariances(edges.take(slice(0, len(path) - 1)),
-                                                     front.step_cov * problem.likelihood_power / step_power)
+                                                     front.step_cov * (problem.likelihood_power / power)[:, None, None])
         graph = posegraph.concat_edges(sequential, loop_edges)
         other = f" {ellipse_coverage(path, posegraph.marginal_covariances(path, graph), truth):.3f} |"
+    if aligned:
+        other += f" {ellipse_coverage(path, aligned_covariances(path, edges), truth):.3f} |"
     return (f"| {name} | {seed} | {scans} | {absolute_trajectory_error(path, truth)['rmse_m']:.3f} | "
             f"{ellipse_coverage(path, cov, truth):.3f} | {ellipse_coverage(path, scaled, truth):.3f} | "
             f"{unit_weight:.3f} | {weighted:.3f} | {_ratio(error, front.step_cov)} | "
@@ -100,11 +130,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--logs", default="aces")
     parser.add_argument("--seeds", default="0")
     parser.add_argument("--scans", default="all", help="comma-separated subset of all,every2")
-    parser.add_argument("--step-power", type=float, default=None,
-                        help="also the coverage with the steps' covariances at this likelihood power")
+    parser.add_argument("--step-power", default=None,
+                        help="also the coverage with the steps' covariances at this likelihood power, or 'beams': "
+                             "each step's at its scan's own (beam_correlation.py's automatic bandwidth)")
+    parser.add_argument("--aligned", action="store_true",
+                        help="also the coverage of the covariance with the path's rigid motion aligned out")
     args = parser.parse_args(argv)
-    if args.step_power is not None and not args.step_power > 0:
-        parser.error(f"--step-power must be positive, got {args.step_power}")
+    if args.step_power is not None and args.step_power != "beams":
+        try:
+            args.step_power = float(args.step_power)
+        except ValueError:
+            args.step_power = -1.0
+        if not 0 < args.step_power <= 1:
+            parser.error(f"--step-power must be a number in (0, 1] or 'beams', got {args.step_power}")
     sets = [s for s in args.scans.split(",") if s]
     if not sets or set(sets) - {"all", "every2"}:
         parser.error(f"--scans must be a subset of all,every2, got {args.scans!r}")
@@ -112,12 +150,14 @@ def main(argv: list[str] | None = None) -> int:
           "s0^2 | coverage, times s0^2 | "
           "step error / sd (x, y, theta) | steps beyond 10 sd in heading | error / sd without them | "
           "step sd median m | p90 m | front end s |"
-          + ("" if args.step_power is None else f" coverage, steps at power {args.step_power:g} |"))
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("" if args.step_power is None else "---|"))
+          + ("" if args.step_power is None else f" coverage, steps at power {args.step_power} |")
+          + (" coverage, rigid motion aligned out |" if args.aligned else ""))
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("" if args.step_power is None else "---|")
+          + ("---|" if args.aligned else ""))
     for name in chosen_logs(parser, args.logs):
         for seed in parse_seeds(args.seeds):
             for scans in sets:
-                print(run(name, seed, scans, args.step_power), flush=True)
+                print(run(name, seed, scans, args.step_power, args.aligned), flush=True)
     return 0
 
 
