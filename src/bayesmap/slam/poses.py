@@ -482,13 +482,14 @@ SEGMENT_LENGTH = 10
 """Default poses per segment of :func:`segment_pose_mh`: ten consecutive scans moved together. A sampler setting, not
 a model one: it changes how fast the chain mixes, not the posterior it targets. Chosen with
 :data:`SEGMENT_STEP_STD` on one run (Intel, odometry seed 0, every other scan: 10 and 30 poses tried) and checked on
-fourteen others ([validation](../validation/slam.md#segment-moves-in-the-chain))."""
+fifteen others ([validation](../validation/slam.md#segment-moves-in-the-chain))."""
 
 SEGMENT_STEP_STD = (0.03, 0.03, 0.005)
 """Default proposal standard deviations of :func:`segment_pose_mh`'s rigid move (x m, y m, theta rad), in the frame
-of the segment's first pose: three times the single-pose random walk's (:data:`RANDOM_WALK_STD`), since a segment's
-scans together leave it free only where all of them do (along a corridor). A sampler setting, chosen with
-:data:`SEGMENT_LENGTH` (0.01, 0.03 and 0.05 m tried; [validation](../validation/slam.md#segment-moves-in-the-chain))."""
+of the segment's first pose: three times the single-pose random walk's position step (:data:`RANDOM_WALK_STD`), for
+the directions in which all of a segment's scans leave it free to slide (along a corridor). A sampler setting,
+chosen with :data:`SEGMENT_LENGTH` (0.01, 0.03 and 0.05 m tried;
+[validation](../validation/slam.md#segment-moves-in-the-chain))."""
 
 
 def moved_segment(poses, a, b, delta):
