@@ -20,8 +20,15 @@ space):
 * ``thin C``: one returned endpoint per square cell of ``C`` meters (the first in beam order), so that a near object
   hit by many beams does not outweigh the far walls.
 
+With ``--odometry-at T1,T2;T3,...``, instead: for each group of steps, the start path (the front end, then
+:func:`bayesmap.slam.posegraph.close_loops`) with those steps' second scans left unmatched (their beams marked as not
+returned, so the front end takes the odometry's prediction there and leaves them out of its local map), beside the
+unchanged start: the front end's and the closed path's ATE, the closed graph's loop edges and its robust cost
+(:func:`bayesmap.slam.posegraph.robust_cost`). It asks whether the other branch of an aliased step is the right one,
+and whether the loop closure can tell.
+
 Usage: PYTHONPATH=src python benchmarks/step_alias.py [--logs csail] [--seeds 0] [--scans every2]
-    [--position 0.15] [--heading 0.05] [--unknown 0.3] [--thin 0.25]
+    [--position 0.15] [--heading 0.05] [--unknown 0.3] [--thin 0.25] [--odometry-at "104;104,107"]
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ from karto_peer import parse_seeds  # noqa: E402
 from seeded_logs import chosen_logs, scan_set_problem  # noqa: E402
 from step_covariance import step_errors  # noqa: E402
 
+from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E402
 from bayesmap.geometry.grid import Grid  # noqa: E402
 from bayesmap.geometry.raycast import scan_endpoints  # noqa: E402
 from bayesmap.model.motion import compose, wrap_angle  # noqa: E402
@@ -135,6 +143,23 @@ def run(name: str, seed: int, scans: str, position: float, heading: float, unkno
     return rows
 
 
+def branches(name: str, seed: int, scans: str, groups: list[list[int]]) -> list[str]:
+    """The ``--odometry-at`` rows for one (log, seed, scan set) (module docstring)."""
+    problem, truth = scan_set_problem(name, seed, scans)
+    data = pipeline.scan_data(problem)
+    rows = []
+    for steps in [[], *groups]:
+        returned = np.asarray(data.returned).copy()
+        returned[[t + 1 for t in steps]] = False
+        front = pipeline.front_end(problem, data._replace(returned=returned))
+        path, edges, _ = posegraph.close_loops(front.path, data, step_cov=front.step_cov)
+        rows.append(f"| {name} | {seed} | {scans} | {', '.join(map(str, steps)) or 'none'} | "
+                    f"{absolute_trajectory_error(front.path, truth)['rmse_m']:.3f} | "
+                    f"{absolute_trajectory_error(path, truth)['rmse_m']:.3f} | {len(edges.i) - (len(path) - 1)} | "
+                    f"{posegraph.robust_cost(path, edges):.1f} |")
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--logs", default="csail")
@@ -144,6 +169,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--heading", type=float, default=0.05, help="radians: a step error to look at")
     parser.add_argument("--unknown", type=float, default=0.3, help="the field in never-observed space (variant)")
     parser.add_argument("--thin", type=float, default=0.25, help="meters: one endpoint per cell (variant)")
+    parser.add_argument("--odometry-at", default=None,
+                        help="groups of steps (';' between groups, ',' within) whose scans the front end leaves out")
     args = parser.parse_args(argv)
     sets = [s for s in args.scans.split(",") if s]
     if not sets or set(sets) - {"all", "every2"}:
@@ -151,6 +178,22 @@ def main(argv: list[str] | None = None) -> int:
     for flag in ("position", "heading", "unknown", "thin"):
         if not getattr(args, flag) >= 0:
             parser.error(f"--{flag} must be a number >= 0, got {getattr(args, flag)}")
+    if args.odometry_at is not None:
+        try:
+            groups = [[int(t) for t in g.split(",") if t.strip()] for g in args.odometry_at.split(";") if g.strip()]
+        except ValueError:
+            parser.error(f"--odometry-at must be steps like '104;104,107', got {args.odometry_at!r}")
+        if not groups or any(t < 0 for g in groups for t in g):
+            parser.error(f"--odometry-at must name steps >= 0, got {args.odometry_at!r}")
+        print("| log | seed | scans | steps left to the odometry | front end ATE m | closed ATE m | loop edges | "
+              "robust cost |")
+        print("|---|---|---|---|---|---|---|---|")
+        for name in chosen_logs(parser, args.logs):
+            for seed in parse_seeds(args.seeds):
+                for scans in sets:
+                    for row in branches(name, seed, scans, groups):
+                        print(row, flush=True)
+        return 0
     print("| log | seed | scans | step | front end's error (along m, across m, heading rad) | odometry's error | "
           f"scan alone, truth's map: offset from the truth | with unknown space at {args.unknown:g} | "
           f"with one endpoint per {args.thin:g} m |")
