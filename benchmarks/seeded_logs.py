@@ -120,6 +120,21 @@ def chosen_logs(parser: argparse.ArgumentParser, text: str) -> list[str]:
     return logs
 
 
+SCAN_SETS = ("all", "every2")
+"""The scan sets of :func:`scan_set_problem`: every scan, every other scan."""
+
+
+def scan_set_runs(parser: argparse.ArgumentParser, logs: str, seeds: list[int],
+                  scans: str) -> list[tuple[str, int, str]]:
+    """``(log, seed, scan set)`` for every log of a ``--logs`` value (:func:`chosen_logs`), seed of ``seeds`` and scan
+    set of a comma-separated ``--scans`` value (a subset of :data:`SCAN_SETS`), in that nesting order; a bad value is a
+    usage error of ``parser`` (exit code 2)."""
+    sets = [s for s in scans.split(",") if s]
+    if not sets or set(sets) - set(SCAN_SETS):
+        parser.error(f"--scans must be a subset of {','.join(SCAN_SETS)}, got {scans!r}")
+    return [(name, seed, s) for name in chosen_logs(parser, logs) for seed in seeds for s in sets]
+
+
 def run_table(logs: list[str], seeds: list[int], score: Callable[[CarmenLog, np.ndarray], dict],
               row: Callable[[str, int, dict], str], json_path: Path | None = None) -> list[dict]:
     """For every log of ``logs`` and seed of ``seeds``: the problem (:func:`seeded_log`), ``score(log, truth)`` (a

@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from karto_peer import parse_seeds  # noqa: E402
-from seeded_logs import chosen_logs, scan_set_problem  # noqa: E402
+from seeded_logs import scan_set_problem, scan_set_runs  # noqa: E402
 
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage  # noqa: E402
 from bayesmap.slam import pipeline, posegraph  # noqa: E402
@@ -57,23 +57,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scans", default="every2", help="comma-separated subset of all,every2")
     parser.add_argument("--segment-length", type=int, default=SEGMENT_LENGTH)
     args = parser.parse_args(argv)
-    sets = [s for s in args.scans.split(",") if s]
-    if not sets or set(sets) - {"all", "every2"}:
-        parser.error(f"--scans must be a subset of all,every2, got {args.scans!r}")
+    runs = scan_set_runs(parser, args.logs, parse_seeds(args.seeds), args.scans)
     if args.segment_length < 1:
         parser.error(f"--segment-length must be at least 1, got {args.segment_length}")
     print("| log | seed | scans | start ATE m | segments | chain mean ATE m | moved from start m | acceptance | "
           "coverage 95 % | s |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for name in chosen_logs(parser, args.logs):
-        for seed in parse_seeds(args.seeds):
-            for scans in sets:
-                problem, truth = scan_set_problem(name, seed, scans)
-                start = start_path(problem)
-                ate = absolute_trajectory_error(start, truth)["rmse_m"]
-                for length in (0, args.segment_length):
-                    print(f"| {name} | {seed} | {scans} | {ate:.4f} | {length or 'none'} | "
-                          f"{run(problem, truth, start, length)} |", flush=True)
+    for name, seed, scans in runs:
+        problem, truth = scan_set_problem(name, seed, scans)
+        start = start_path(problem)
+        ate = absolute_trajectory_error(start, truth)["rmse_m"]
+        for length in (0, args.segment_length):
+            row = run(problem, truth, start, length)
+            print(f"| {name} | {seed} | {scans} | {ate:.4f} | {length or 'none'} | {row} |", flush=True)
     return 0
 
 

@@ -43,7 +43,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from karto_peer import parse_seeds  # noqa: E402
-from seeded_logs import chosen_logs, scan_set_problem  # noqa: E402
+from seeded_logs import scan_set_problem, scan_set_runs  # noqa: E402
 from step_covariance import step_errors  # noqa: E402
 
 from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E402
@@ -172,9 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--odometry-at", default=None,
                         help="groups of steps (';' between groups, ',' within) whose scans the front end leaves out")
     args = parser.parse_args(argv)
-    sets = [s for s in args.scans.split(",") if s]
-    if not sets or set(sets) - {"all", "every2"}:
-        parser.error(f"--scans must be a subset of all,every2, got {args.scans!r}")
+    runs = scan_set_runs(parser, args.logs, parse_seeds(args.seeds), args.scans)
     for flag in ("position", "heading", "unknown", "thin"):
         if not getattr(args, flag) >= 0:
             parser.error(f"--{flag} must be a number >= 0, got {getattr(args, flag)}")
@@ -188,21 +186,17 @@ def main(argv: list[str] | None = None) -> int:
         print("| log | seed | scans | steps left to the odometry | front end ATE m | closed ATE m | loop edges | "
               "robust cost |")
         print("|---|---|---|---|---|---|---|---|")
-        for name in chosen_logs(parser, args.logs):
-            for seed in parse_seeds(args.seeds):
-                for scans in sets:
-                    for row in branches(name, seed, scans, groups):
-                        print(row, flush=True)
+        for name, seed, scans in runs:
+            for row in branches(name, seed, scans, groups):
+                print(row, flush=True)
         return 0
     print("| log | seed | scans | step | front end's error (along m, across m, heading rad) | odometry's error | "
           f"scan alone, truth's map: offset from the truth | with unknown space at {args.unknown:g} | "
           f"with one endpoint per {args.thin:g} m |")
     print("|---|---|---|---|---|---|---|---|---|")
-    for name in chosen_logs(parser, args.logs):
-        for seed in parse_seeds(args.seeds):
-            for scans in sets:
-                for row in run(name, seed, scans, args.position, args.heading, args.unknown, args.thin):
-                    print(row, flush=True)
+    for name, seed, scans in runs:
+        for row in run(name, seed, scans, args.position, args.heading, args.unknown, args.thin):
+            print(row, flush=True)
     return 0
 
 

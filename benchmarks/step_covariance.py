@@ -44,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from beam_correlation import BANDWIDTHS, scan_adjustments  # noqa: E402
 from karto_peer import parse_seeds  # noqa: E402
-from seeded_logs import chosen_logs, scan_set_problem  # noqa: E402
+from seeded_logs import scan_set_problem, scan_set_runs  # noqa: E402
 
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage  # noqa: E402
 from bayesmap.model.motion import wrap_angle  # noqa: E402
@@ -143,9 +143,7 @@ def main(argv: list[str] | None = None) -> int:
             args.step_power = -1.0
         if not 0 < args.step_power <= 1:
             parser.error(f"--step-power must be a number in (0, 1] or 'beams', got {args.step_power}")
-    sets = [s for s in args.scans.split(",") if s]
-    if not sets or set(sets) - {"all", "every2"}:
-        parser.error(f"--scans must be a subset of all,every2, got {args.scans!r}")
+    runs = scan_set_runs(parser, args.logs, parse_seeds(args.seeds), args.scans)
     print("| log | seed | scans | start ATE m | coverage, step posteriors | coverage, retired scale 0.36 | "
           "s0^2 | coverage, times s0^2 | "
           "step error / sd (x, y, theta) | steps beyond 10 sd in heading | error / sd without them | "
@@ -154,10 +152,8 @@ def main(argv: list[str] | None = None) -> int:
           + (" coverage, rigid motion aligned out |" if args.aligned else ""))
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("" if args.step_power is None else "---|")
           + ("---|" if args.aligned else ""))
-    for name in chosen_logs(parser, args.logs):
-        for seed in parse_seeds(args.seeds):
-            for scans in sets:
-                print(run(name, seed, scans, args.step_power, args.aligned), flush=True)
+    for name, seed, scans in runs:
+        print(run(name, seed, scans, args.step_power, args.aligned), flush=True)
     return 0
 
 
