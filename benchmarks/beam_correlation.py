@@ -51,20 +51,17 @@ def magnitude_adjustments(gradients: np.ndarray) -> list[float]:
     the returned beams' scores in beam order; then ``w`` at :func:`automatic_bandwidth` and that bandwidth."""
     h = gradients.T @ gradients
     h_inv = np.linalg.inv(h)
-    lagged = {}  # each lag's autocovariance, both directions, computed once for every bandwidth
-    for lag in range(1, max(BANDWIDTHS) + 1):
+    automatic = automatic_bandwidth(gradients)
+    lagged = {}  # each lag's autocovariance, both directions, computed once for every bandwidth (0 past the beams)
+    for lag in range(1, max(*BANDWIDTHS, int(automatic)) + 1):
         c = gradients[lag:].T @ gradients[:-lag]
         lagged[lag] = c + c.T
-    out = []
-    for b in BANDWIDTHS:
-        j = h + sum((1 - lag / (b + 1)) * lagged[lag] for lag in range(1, b + 1))
-        out.append(3.0 / float(np.trace(h_inv @ j)))
-    b = automatic_bandwidth(gradients)
-    j = h.copy()
-    for lag in range(1, min(int(b), len(gradients) - 1) + 1):
-        c = gradients[lag:].T @ gradients[:-lag]
-        j += (1 - lag / (b + 1)) * (c + c.T)
-    return out + [3.0 / float(np.trace(h_inv @ j)), b]
+
+    def adjustment(b: float) -> float:  # Bartlett weights 1 - lag / (b + 1) on the lags up to b
+        j = h + sum((1 - lag / (b + 1)) * lagged[lag] for lag in range(1, int(b) + 1))
+        return 3.0 / float(np.trace(h_inv @ j))
+
+    return [adjustment(b) for b in BANDWIDTHS] + [adjustment(automatic), automatic]
 
 
 def automatic_bandwidth(gradients: np.ndarray) -> float:
