@@ -27,6 +27,11 @@ motion model's log-density. Two of its settings are chosen here:
 * ``first_heading_step`` and ``second_heading_steps``: the heading lattice of the front end's search
   (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`): the first level's step (radians, its +-0.8 rad kept) and the
   second level's half width in its steps of 0.007 rad.
+* ``motion_tail``: the weight of the broad component of the front end's motion density
+  (:data:`bayesmap.slam.scanmatch.MOTION_TAIL_WEIGHT`; 0: the motion model's Normal alone).
+
+``--noise 1,2`` runs each (log, seed) also with odometry noise twice ``noisy_odometry.py``'s default alphas (1: the
+shared logs' noise; ``seeded_logs.seeded_log``); the leave-one-log-out means pool a log's runs over the noise levels.
 
 (A third, the weight of a uniform outlier component in a max-mixture with the motion model, was chosen here at commit
 a14f5a3 and removed: docs/slam.md, "Every other scan, and a robust motion term".)
@@ -57,7 +62,7 @@ repeated, so the grid can be split between processes and resumed.
 Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F
            [--parameter power|min_hit_fraction|window|consistency_gate|particles|loop_window_sigmas|step_covariances|
                         first_heading_step|second_heading_steps]
-           [--values 1,0.3,0.1,0.03] [--seeds 0-2] [--logs intel,aces,csail] [--scans all,heldout]
+           [--values 1,0.3,0.1,0.03] [--seeds 0-2] [--logs intel,aces,csail] [--scans all,heldout] [--noise 1]
 """
 
 from __future__ import annotations
@@ -86,7 +91,7 @@ DEFAULTS = {"power": SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HI
             "window": scanmatch.LOCAL_MAP_DISTANCE, "consistency_gate": posegraph.CONSISTENCY_GATE,
             "particles": pipeline.FRONT_END_PARTICLES, "loop_window_sigmas": posegraph.LOOP_WINDOW_SIGMAS,
             "first_heading_step": scanmatch.MATCH_LEVELS[0][1], "second_heading_steps": scanmatch.MATCH_LEVELS[1][3],
-            "step_covariances": 1}
+            "step_covariances": 1, "motion_tail": scanmatch.MOTION_TAIL_WEIGHT}
 """The settings this script can vary, and the value each takes while the other is varied (the defaults of
 :func:`bayesmap.slam.pipeline.front_end`)."""
 
@@ -116,12 +121,12 @@ def start_path(log, truth, scans: str, parameter: str, value: float, name: tuple
         problem = log_slam_problem(log, kept, likelihood_power=setting["power"])
     data = pipeline.scan_data(problem)
     key = (name, scans, *(setting[k] for k in ("power", "min_hit_fraction", "window", "particles",
-                                               "first_heading_step", "second_heading_steps")))
+                                               "first_heading_step", "second_heading_steps", "motion_tail")))
     if not name or key not in FRONT_ENDS:  # the loop closure's settings share one front end
         FRONT_ENDS.clear()
         FRONT_ENDS[key] = pipeline.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"],
                                              window=setting["window"], particles=int(setting["particles"]),
-                                             levels=search_levels(setting))
+                                             levels=search_levels(setting), motion_tail=setting["motion_tail"])
     matched = FRONT_ENDS[key]
     front = matched.path
     closed, edges, _ = posegraph.close_loops(front, data, consistency_gate=setting["consistency_gate"],
@@ -184,44 +189,51 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--values", default="1,0.3,0.1,0.03", help="comma-separated values of the setting")
     parser.add_argument("--scans", default="all", help=f"comma-separated subset of {','.join(SCAN_SETS)}")
     parser.add_argument("--records", type=Path, required=True, help="JSON lines file of the runs (appended to)")
+    parser.add_argument("--noise", default="1", help="odometry noise levels, multiples of noisy_odometry.py's alphas")
     args = parser.parse_args(argv)
     logs, seeds = chosen_logs(parser, args.logs), parse_seeds(args.seeds)
     try:
         values = [float(v) for v in args.values.split(",")]
     except ValueError:
         parser.error(f"--values must be numbers, got {args.values!r}")
+    try:
+        noises = [float(v) for v in args.noise.split(",")]
+    except ValueError:
+        parser.error(f"--noise must be numbers, got {args.noise!r}")
+    if not noises or not all(v > 0 for v in noises):
+        parser.error(f"--noise must be numbers > 0, got {args.noise!r}")
     scan_sets = [s.strip() for s in args.scans.split(",") if s.strip()]
     if not scan_sets or set(scan_sets) - set(SCAN_SETS):
         parser.error(f"--scans must be a subset of {','.join(SCAN_SETS)}, got {args.scans!r}")
     done = ([json.loads(line) for line in args.records.read_text().splitlines() if line.strip()]
             if args.records.exists() else [])
-    have = {(r["log"], r["seed"], r["scans"], r["parameter"], r["value"]) for r in done}
-    for name in logs:
-        for seed in seeds:
-            todo = [(s, v) for s in scan_sets for v in values if (name, seed, s, args.parameter, v) not in have]
-            if not todo:
+    have = {(r["log"], r["seed"], r.get("noise", 1.0), r["scans"], r["parameter"], r["value"]) for r in done}
+    for name, seed, noise in ((n, s, v) for n in logs for s in seeds for v in noises):
+        todo = [(s, v) for s in scan_sets for v in values
+                if (name, seed, noise, s, args.parameter, v) not in have]
+        if not todo:
+            continue
+        log, truth = seeded_log(name, seed, noise)
+        if args.parameter == "min_hit_fraction":  # largest first, so that a run can stand for the smaller ones
+            todo.sort(key=lambda item: (item[0], -item[1]))
+        for scans, value in todo:
+            if (name, seed, noise, scans, args.parameter, value) in have:
                 continue
-            log, truth = seeded_log(name, seed)
-            if args.parameter == "min_hit_fraction":  # largest first, so that a run can stand for the smaller ones
-                todo.sort(key=lambda item: (item[0], -item[1]))
-            for scans, value in todo:
-                if (name, seed, scans, args.parameter, value) in have:
-                    continue
-                figures = start_path(log, truth, scans, args.parameter, value, (name, seed))
-                record = {"log": name, "seed": seed, **figures}
-                records = [record]
-                if args.parameter == "min_hit_fraction" and record["odometry_steps"] == 0:
-                    # no scan fell below this fraction, so none falls below a smaller one: the same run
-                    records += [{**record, "value": v, "same_run_as": value}
-                                for s, v in todo if s == scans and v < value]
-                for record in records:
-                    print(json.dumps(record), flush=True)
-                    with args.records.open("a") as out:
-                        out.write(json.dumps(record) + "\n")
-                    done.append(record)
-                    have.add((name, seed, scans, args.parameter, record["value"]))
+            figures = start_path(log, truth, scans, args.parameter, value, (name, seed, noise))
+            record = {"log": name, "seed": seed, "noise": noise, **figures}
+            records = [record]
+            if args.parameter == "min_hit_fraction" and record["odometry_steps"] == 0:
+                # no scan fell below this fraction, so none falls below a smaller one: the same run
+                records += [{**record, "value": v, "same_run_as": value}
+                            for s, v in todo if s == scans and v < value]
+            for record in records:
+                print(json.dumps(record), flush=True)
+                with args.records.open("a") as out:
+                    out.write(json.dumps(record) + "\n")
+                done.append(record)
+                have.add((name, seed, noise, scans, args.parameter, record["value"]))
     chosen = [r for r in done if r["log"] in logs and r["seed"] in seeds and r["scans"] in scan_sets
-              and r["parameter"] == args.parameter and r["value"] in values]
+              and r.get("noise", 1.0) in noises and r["parameter"] == args.parameter and r["value"] in values]
     print("\n".join(leave_one_log_out(chosen, args.parameter, values)))
     return 0
 

@@ -16,12 +16,13 @@ Karto's result varies several-fold with the odometry seed, so one seed says litt
 
 Usage: PYTHONPATH=src python benchmarks/karto_peer.py [--seeds 0-4] [--logs intel,aces,csail]
                                                     [--methods karto,bayesmap] [--beam-spacing bayesmap]
-                                                    [--every 1] [--json FILE] [--cache DIR]
+                                                    [--every 1] [--noise 1] [--json FILE] [--cache DIR]
 
 ``--every N`` gives both methods every Nth scan of the log only (scans 0, N, 2N, ...): Karto those scans' ranges and
 odometry poses, bayesmap the same scans as ``bayesmap slam --scans ::N`` takes them (each step the odometry's steps
 through the scans left out, composed); the truth is scored at those scans. ``fr079`` is Freiburg 079 (4,791 scans),
-never part of the default ``--logs``.
+never part of the default ``--logs``. ``--noise X`` makes the odometry with ``X`` times ``noisy_odometry.py``'s default
+alphas (``--alphas``; the problems named ``LOG-noiseX``): a robot with worse wheels than the shared logs'.
 
 ``--cache DIR`` keeps every (log, seed)'s record as ``DIR/LOG-sSEED.json`` the moment it is done, and a later call
 with the same folder loads it instead of running the methods again (delete a file to rerun it): a long grid can be
@@ -123,9 +124,11 @@ def scan_beam_angles(beams: int, spacing: str) -> np.ndarray:
     return np.linspace(-math.pi / 2, math.pi / 2, beams)
 
 
-def make_problem(name: str, seed: int, folder: Path, spacing: str = "bayesmap", every: int = 1) -> Problem:
-    """Write ``name``'s noisy-odometry log for ``seed`` into ``folder`` and read it back as a :class:`Problem` of its
-    scans ``0, every, 2 every, ...``.
+def make_problem(name: str, seed: int, folder: Path, spacing: str = "bayesmap", every: int = 1,
+                 noise: float = 1.0) -> Problem:
+    """Write ``name``'s noisy-odometry log for ``seed`` (its noise ``noise`` times ``noisy_odometry.py``'s default
+    alphas, ``seeded_logs.write_seeded_log``) into ``folder`` and read it back as a :class:`Problem` of its scans
+    ``0, every, 2 every, ...``.
 
     ``spacing`` chooses the beam angles (:func:`scan_beam_angles`).
 
@@ -133,16 +136,17 @@ def make_problem(name: str, seed: int, folder: Path, spacing: str = "bayesmap", 
         BayesmapError: noisy_odometry.py failed, or its outputs do not agree on the number of scans.
     """
     prefix = folder / f"{name}-s{seed}"
-    log, truth = write_seeded_log(name, seed, prefix)
+    log, truth = write_seeded_log(name, seed, prefix, noise)
     kept = np.arange(0, len(log), every)
-    return Problem(problem_label(name, every), seed, np.asarray(log.ranges)[kept],
+    return Problem(problem_label(name, every, noise), seed, np.asarray(log.ranges)[kept],
                    scan_beam_angles(log.ranges.shape[1], spacing), log.max_range, np.asarray(log.poses)[kept],
                    truth[kept], Path(f"{prefix}.log.gz"), kept)
 
 
-def problem_label(name: str, every: int) -> str:
-    """A problem's name in records, cache files and tables: the log's name, ``-everyN`` added where ``every > 1``."""
-    return name if every == 1 else f"{name}-every{every}"
+def problem_label(name: str, every: int, noise: float = 1.0) -> str:
+    """A problem's name in records, cache files and tables: the log's name, ``-everyN`` added where ``every > 1``
+    and ``-noiseX`` where the odometry's noise is ``X`` times the default (``noise != 1``)."""
+    return name + ("" if every == 1 else f"-every{every}") + ("" if noise == 1 else f"-noise{noise:g}")
 
 
 def fill_dropped_scans(poses: np.ndarray, kept: np.ndarray, odometry: np.ndarray) -> np.ndarray:
@@ -333,6 +337,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--beam-spacing", choices=BEAM_SPACINGS, default="bayesmap",
                         help="beam angles given to every method: bayesmap's rule (default) or pi/(n-1) for all n")
     parser.add_argument("--every", type=int, default=1, help="give the methods every Nth scan only (default 1)")
+    parser.add_argument("--noise", type=float, default=1.0,
+                        help="odometry noise, a multiple of noisy_odometry.py's default alphas (default 1)")
     parser.add_argument("--json", type=Path, default=None, help="write every run's figures and the summary here")
     parser.add_argument("--cache", type=Path, default=None,
                         help="keep each run's record (and bayesmap's arrays) here; reuse the records found")
@@ -343,6 +349,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(str(exc))
     if args.every < 1:
         parser.error(f"--every must be at least 1, got {args.every}")
+    if not args.noise > 0:
+        parser.error(f"--noise must be a number > 0, got {args.noise}")
     args.logs = [v.strip() for v in args.logs.split(",") if v.strip()]
     args.methods = [v.strip() for v in args.methods.split(",") if v.strip()]
     for value, known, option in ((args.logs, ALL_LOGS, "--logs"), (args.methods, METHODS, "--methods")):
@@ -366,12 +374,12 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="karto-peer-") as tmp:
         for log in args.logs:
             for seed in args.seeds:
-                label = problem_label(log, args.every)
+                label = problem_label(log, args.every, args.noise)
                 saved = None if args.cache is None else run_file(args.cache, label, seed, "json")
                 if saved is not None and saved.exists():
                     record = json.loads(saved.read_text())
                 else:
-                    problem = make_problem(log, seed, Path(tmp), args.beam_spacing, args.every)
+                    problem = make_problem(log, seed, Path(tmp), args.beam_spacing, args.every, args.noise)
                     record = run_one(problem, args.methods, args.cache)
                     if saved is not None:  # whole or not at all: a stopped run leaves no partial record
                         partial = saved.with_suffix(".json.part")

@@ -16,7 +16,7 @@ import numpy as np
 from bayesmap.errors import BayesmapError
 from bayesmap.io.carmen import CarmenLog, read_carmen
 from bayesmap.io.tum import read_tum
-from bayesmap.slam.problem import log_slam_problem
+from bayesmap.slam.problem import SLAM_ODOMETRY_ALPHAS, log_slam_problem
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"  # the project's data lives at ../shared/data (shared/data/README.md)
@@ -46,10 +46,11 @@ def corrected_log(name: str, folder: Path) -> Path:
     return path
 
 
-def write_seeded_log(name: str, seed: int, prefix: Path) -> tuple[CarmenLog, np.ndarray]:
+def write_seeded_log(name: str, seed: int, prefix: Path, noise: float = 1.0) -> tuple[CarmenLog, np.ndarray]:
     """Write log ``name``'s (one of :data:`ALL_LOGS`, :func:`corrected_log`) noisy-odometry problem for ``seed`` as
     ``PREFIX.log.gz`` and ``PREFIX.truth.tum`` and read it back: ``(the log, whose FLASER poses are the noisy odometry;
-    its true poses (S, 3), x y m, theta rad)``.
+    its true poses (S, 3), x y m, theta rad)``. ``noise`` multiplies ``noisy_odometry.py``'s default alphas
+    (:data:`bayesmap.slam.problem.SLAM_ODOMETRY_ALPHAS`; 1: its defaults, the shared logs' noise).
 
     Raises:
         BayesmapError: noisy_odometry.py failed (its stderr's end in the message), or its outputs do not agree on the
@@ -57,6 +58,8 @@ def write_seeded_log(name: str, seed: int, prefix: Path) -> tuple[CarmenLog, np.
     """
     corrected = corrected_log(name, Path(prefix).parent)
     cmd = [sys.executable, str(NOISY_ODOMETRY), str(corrected), str(prefix), "--seed", str(seed)]
+    if noise != 1.0:
+        cmd += ["--alphas", ",".join(f"{noise * a:g}" for a in SLAM_ODOMETRY_ALPHAS)]
     done = subprocess.run(cmd, capture_output=True, text=True)
     if done.returncode != 0:
         raise BayesmapError(f"noisy_odometry.py failed for log {name!r} seed {seed}: {done.stderr.strip()[-500:]}")
@@ -67,14 +70,14 @@ def write_seeded_log(name: str, seed: int, prefix: Path) -> tuple[CarmenLog, np.
     return log, truth
 
 
-def seeded_log(name: str, seed: int) -> tuple[CarmenLog, np.ndarray]:
+def seeded_log(name: str, seed: int, noise: float = 1.0) -> tuple[CarmenLog, np.ndarray]:
     """:func:`write_seeded_log` in a temporary folder (removed before returning).
 
     Raises:
         BayesmapError: as :func:`write_seeded_log`.
     """
     with tempfile.TemporaryDirectory() as tmp:
-        return write_seeded_log(name, seed, Path(tmp) / f"{name}-odom")
+        return write_seeded_log(name, seed, Path(tmp) / f"{name}-odom", noise)
 
 
 def scan_set_problem(name: str, seed: int, scans: str):

@@ -189,3 +189,55 @@ def test_a_step_shorter_than_the_floor_radius_has_no_direction():
     error = rng.normal(0.0, p.a1 * np.abs(rot1)) + rng.normal(0.0, p.a1 * np.abs(rot1))
     sample = np.mean(error ** 2)
     assert abs(sample - extra) < 5 * np.std(error ** 2) / np.sqrt(error.size)
+
+
+def test_the_tailed_motion_density_is_the_two_normals_mixture():
+    """``tailed_motion_logpdf`` is ``log((1 - w) N(e; Sigma) + w N(e; Sigma + T))`` of the motion error, as scipy's
+    Normals give it (1e-10); at ``w = 0``, and on a deterministic (zero-covariance) step, it is ``motion_logpdf``
+    bit for bit; far from the odometry's step the tail, not the Normal, sets it."""
+    tail = motion.backward_step_covariance()
+    with enable_x64():
+        rng = np.random.default_rng(1)
+        odo = np.cumsum(rng.normal(0, 0.5, (4, 3)), axis=0)
+        inc, cov = motion.odometry_controls(odo, motion.MotionParams())
+        for t in range(3):
+            prev = rng.normal(0, 2, 3)
+            cands = np.asarray(motion.compose(jnp.asarray(prev), jnp.asarray(inc[t]))) + rng.normal(0, 0.3, (30, 3))
+            err = np.asarray(motion.motion_error(prev, cands, inc[t]))
+            for w in (0.01, 0.3):
+                got = np.asarray(motion.tailed_motion_logpdf(prev, cands, inc[t], cov[t], w, tail))
+                narrow = stats.multivariate_normal(np.zeros(3), np.asarray(cov[t])).pdf(err)
+                wide = stats.multivariate_normal(np.zeros(3), np.asarray(cov[t]) + tail).pdf(err)
+                np.testing.assert_allclose(got, np.log((1 - w) * narrow + w * wide), rtol=1e-10, atol=1e-10)
+            plain = motion.motion_logpdf(prev, cands, inc[t], cov[t])
+            assert np.array_equal(motion.tailed_motion_logpdf(prev, cands, inc[t], cov[t], 0.0, tail), plain)
+        far = np.asarray(motion.compose(jnp.asarray(prev), jnp.asarray(inc[2]))) + np.array([0.0, 0.0, 1.0])
+        assert (motion.tailed_motion_logpdf(prev, far, inc[2], cov[2], 0.01, tail)
+                > motion.motion_logpdf(prev, far, inc[2], cov[2]) + 20)
+        zero = jnp.zeros((3, 3))
+        on = motion.compose(jnp.asarray(prev), jnp.asarray(inc[0]))
+        for pose in (on, on + 0.1):
+            assert (motion.tailed_motion_logpdf(prev, pose, inc[0], zero, 0.01, tail)
+                    == motion.motion_logpdf(prev, pose, inc[0], zero))
+
+
+def test_the_backward_steps_covariance_is_what_pr_gives_a_step_back():
+    """A robot that backs up 1 cm, as ``simulate_odometry`` (PR Table 5.6, as tools/noisy_odometry.py) reports it
+    under the default alphas: two half turns, so the heading errs with variance 2 (a1 pi)^2 and the translation along
+    the step with (2 pi a4)^2, the diagonal of ``backward_step_covariance``. The heading's noise (0.31 rad on the
+    first turn) turns part of the translation's error across the step, so the position error's total variance is
+    the translation's and neither axis exceeds the claimed (isotropic) one. 40,000 draws: a variance's standard
+    error is sqrt(2 / 40000) = 0.7 %; the terms the covariance leaves out (a2 and a3 times 1 cm) add 0.3-0.6 %: 4 %."""
+    p = motion.MotionParams()
+    alphas = (p.a1, p.a2, p.a3, p.a4)
+    want = motion.backward_step_covariance(p)
+    np.testing.assert_allclose(np.diag(want), [(2 * np.pi * p.a4) ** 2] * 2 + [2 * (np.pi * p.a1) ** 2])
+    truth = np.array([[0.0, 0.0, 0.0], [-0.01, 0.0, 0.0]])
+    from bayesmap.slam.problem import simulate_odometry
+
+    ends = np.array([simulate_odometry(truth, alphas, seed)[1] for seed in range(40_000)])
+    error = np.stack([ends[:, 0] + 0.01, ends[:, 1], motion.wrap_angle(ends[:, 2])], axis=1)
+    var = error.var(axis=0)
+    np.testing.assert_allclose(var[2], want[2, 2], rtol=0.04)
+    np.testing.assert_allclose(var[0] + var[1], want[0, 0], rtol=0.04)
+    assert np.all(var[:2] < 1.04 * np.diag(want)[:2])

@@ -8,11 +8,19 @@ import pytest
 from tests.slam.test_scanmatch import room_scans
 
 from bayesmap.errors import BayesmapError
-from bayesmap.model.motion import compose, make_motion_params, motion_error, motion_logpdf, odometry_controls
+from bayesmap.model.motion import (
+    backward_step_covariance,
+    compose,
+    make_motion_params,
+    motion_error,
+    odometry_controls,
+    tailed_motion_logpdf,
+)
 from bayesmap.progress import Progress
 from bayesmap.slam.particles import hypotheses, particle_path, systematic_resample
 from bayesmap.slam.scanmatch import (
     FIELD_FLOOR,
+    MOTION_TAIL_WEIGHT,
     ScanData,
     correlative_path,
     lattice_poses,
@@ -88,10 +96,11 @@ def test_without_a_map_the_particles_are_the_motion_models_draws(trusted_without
     errors). The weights stay equal, so nothing is resampled. The weight update is exact here: every endpoint
     scores ``log FIELD_FLOOR``, so an untrusted step's (the bootstrap filter's ``p S`` at the draw) is ``p K
     log(FIELD_FLOOR)``, and a trusted step's, the log of the step density's integral on the lattice, is that plus
-    the log of the motion model's density summed over the lattice's nodes with their cells' volumes (computed here
-    on its own). That quadrature of a density that integrates to 1 is itself within 0.2 of 0 (0.18 at these standard
-    deviations: the cells' midpoint rule on sinh-spaced nodes overweights the center by 5-7 % a dimension); the
-    error is common to particles whose steps are as wide, and a weight is only compared with others'."""
+    the log of the front end's motion density (the motion model with its tail, MOTION_TAIL_WEIGHT) summed over the
+    lattice's nodes with their cells' volumes (computed here on its own). That quadrature of a density that
+    integrates to 1 is itself within 0.2 of 0 (0.18 at these standard deviations: the cells' midpoint rule on
+    sinh-spaced nodes overweights the center by 5-7 % a dimension); the error is common to particles whose steps are
+    as wide, and a weight is only compared with others'."""
     num = 2000
     result, first, increment, cov = one_step_without_a_map(num, trusted_without_hits)
     errors = motion_errors(result.paths[:, 1], first, increment)
@@ -103,8 +112,9 @@ def test_without_a_map_the_particles_are_the_motion_models_draws(trusted_without
     assert result.resamples == 0
     xy, theta, log_volume, _ = step_lattice()
     cands = lattice_poses(compose(jnp.asarray(first), jnp.asarray(increment)), xy, theta)
-    quadrature = float(jax.nn.logsumexp(motion_logpdf(jnp.asarray(first), cands, jnp.asarray(increment),
-                                                      jnp.asarray(cov)) + log_volume))
+    density = tailed_motion_logpdf(jnp.asarray(first), cands, jnp.asarray(increment), jnp.asarray(cov),
+                                   MOTION_TAIL_WEIGHT, backward_step_covariance())
+    quadrature = float(jax.nn.logsumexp(density + log_volume))
     assert abs(quadrature) < 0.2
     want = 0.1 * 8 * np.log(FIELD_FLOOR) + (quadrature if trusted_without_hits else 0.0)
     assert result.log_evidence == pytest.approx(want, abs=1e-4)

@@ -323,6 +323,38 @@ def motion_logpdf(prev, pose, increment, cov):
     return jnp.where(deterministic, jnp.where(on_path, 0.0, -jnp.inf), gauss)
 
 
+def backward_step_covariance(params: MotionParams | None = None) -> np.ndarray:
+    """The error covariance ``(3, 3)`` float64 (m^2, rad^2) that PR Table 5.6 gives a short step whose true motion
+    backed up, beyond what the odometry it reports shows: the simulator (and PR's model) decomposes a step back as
+    two half turns, ``rot1`` near ``pi`` and ``rot2`` near ``-pi``, so its heading carries the noise of both,
+    variance ``2 (a1 pi)^2``, and its translation ``a4 (|rot1| + |rot2|)``, a standard deviation of ``2 pi a4``
+    meters, while the reported step can look like a plain forward one to which :func:`odometry_controls` gives a few
+    hundredths of a radian. The translation's direction is then unknown, so it is isotropic in x and y:
+    ``diag((2 pi a4)^2, (2 pi a4)^2, 2 (a1 pi)^2)``; 0.31 m and 0.44 rad at :class:`MotionParams`' defaults. Derived
+    from ``params`` (default :class:`MotionParams`), not fitted; the front end's search adds it as a tail
+    (:func:`tailed_motion_logpdf`)."""
+    params = MotionParams() if params is None else params
+    xy = (2.0 * math.pi * float(params.a4)) ** 2
+    return np.diag([xy, xy, 2.0 * (math.pi * float(params.a1)) ** 2])
+
+
+def tailed_motion_logpdf(prev, pose, increment, cov, tail_weight, tail_cov):
+    """``log((1 - w) N(e; 0, Sigma) + w N(e; 0, Sigma + T))``: :func:`motion_logpdf` with a broad component of weight
+    ``w`` = ``tail_weight`` whose covariance adds ``T`` = ``tail_cov`` ``(3, 3)`` (e.g.
+    :func:`backward_step_covariance`) to the step's ``Sigma`` = ``cov``; ``e`` the motion error
+    (:func:`motion_error`). A heavy-tailed motion density for a search that must not refuse a pose far from an
+    outlying odometry step (a max-mixture's role, Olson & Agarwal 2013, with a Gaussian broad component instead of
+    a uniform one). ``w = 0``, or a step whose ``Sigma`` is exactly zero (deterministic), is :func:`motion_logpdf`
+    exactly. Not the SLAM model's motion density, which stays
+    :func:`motion_logpdf`. Shapes as :func:`motion_logpdf`; ``w`` in ``[0, 1)``. Never raises."""
+    cov = jnp.asarray(cov)
+    tail_weight = jnp.asarray(tail_weight, cov.dtype)
+    narrow = motion_logpdf(prev, pose, increment, cov) + jnp.log1p(-tail_weight)
+    wide = motion_logpdf(prev, pose, increment, cov + jnp.asarray(tail_cov, cov.dtype)) + jnp.log(tail_weight)
+    deterministic = jnp.all(cov == 0)  # a step the motion model fixes keeps no tail
+    return jnp.where(deterministic, motion_logpdf(prev, pose, increment, cov), jnp.logaddexp(narrow, wide))
+
+
 def _step_sample(key, prev, increment, cov):
     """One draw of ``pose_t`` ``(3,)`` given ``prev`` ``(3,)`` (a zero ``cov``: the composed pose)."""
     deterministic = jnp.all(cov == 0)

@@ -48,13 +48,14 @@ import numpy as np
 
 from bayesmap.errors import BayesmapError
 from bayesmap.inference.importance import effective_sample_size
-from bayesmap.model.motion import compose, motion_logpdf
+from bayesmap.model.motion import MotionParams, compose, tailed_motion_logpdf
 from bayesmap.progress import ProgressCallback
 from bayesmap.slam.scanmatch import (
     LOCAL_MAP_DISTANCE,
     MATCH_GRID_HALF_WIDTH,
     MATCH_LEVELS,
     MIN_HIT_FRACTION,
+    MOTION_TAIL_WEIGHT,
     FrontEndSetup,
     Lattices,
     MatchedPath,
@@ -182,11 +183,12 @@ def _move(context: ParticleContext, key, k, t, prev, fields, stamps, shift):
     scan = (d.sensor_angles[t], d.readings[t], d.returned[t])
 
     def log_prior(cands):
-        return setup.prior_weight * motion_logpdf(prev, cands, u, cov)
+        return setup.prior_weight * tailed_motion_logpdf(prev, cands, u, cov, setup.tail_weight, setup.tail_cov)
 
     best, _ = search(seen, grid, start, *scan, context.levels, log_prior, shift=shift)
     trusted = hit_fraction(seen, grid, best, *scan, shift=shift) >= setup.min_hit
-    cands, logits = step_logits(seen, grid, best, prev, u, cov, *scan, setup.power, context.lattice, shift=shift)
+    cands, logits = step_logits(seen, grid, best, prev, u, cov, *scan, setup.power, context.lattice, shift=shift,
+                                tail=(setup.tail_weight, setup.tail_cov))
     if context.draw:
         node = jax.random.categorical(node_key, logits)
         jitter = jax.random.uniform(cell_key, (3,), cands.dtype, -0.5, 0.5)
@@ -292,7 +294,8 @@ def particle_path(first_pose, data: ScanData, resolution: float, particles: int,
                   draw: bool = False, levels=MATCH_LEVELS, window: float | None = LOCAL_MAP_DISTANCE,
                   half_width: float = MATCH_GRID_HALF_WIDTH, likelihood_power: float = 1.0,
                   min_hit_fraction: float = MIN_HIT_FRACTION,
-                  progress: ProgressCallback | None = None) -> ParticlePath:
+                  progress: ProgressCallback | None = None, motion_tail: float = MOTION_TAIL_WEIGHT,
+                  motion: MotionParams | None = None) -> ParticlePath:
     """Sequential Monte Carlo over the front end's path (the module docstring) with ``particles`` particles.
 
     Args:
@@ -315,6 +318,8 @@ def particle_path(first_pose, data: ScanData, resolution: float, particles: int,
             trusted (:data:`bayesmap.slam.scanmatch.MIN_HIT_FRACTION`).
         progress: called with ``Progress("front end", done, S - 1, "scan")`` as blocks of scans are matched (the
             same result); None: one call.
+        motion_tail, motion: the motion density's broad component, as
+            :func:`bayesmap.slam.scanmatch.correlative_path` (:data:`bayesmap.slam.scanmatch.MOTION_TAIL_WEIGHT`).
 
     Returns:
         A :class:`ParticlePath`.
@@ -325,7 +330,8 @@ def particle_path(first_pose, data: ScanData, resolution: float, particles: int,
     """
     if isinstance(particles, bool) or not isinstance(particles, (int, np.integer)) or particles < 1:
         raise BayesmapError(f"particles must be an integer >= 1, got {particles!r}")
-    setup = front_end_setup(first_pose, data, resolution, window, half_width, likelihood_power, min_hit_fraction)
+    setup = front_end_setup(first_pose, data, resolution, window, half_width, likelihood_power, min_hit_fraction,
+                            motion_tail, motion)
     context = ParticleContext(setup, lattices(levels), step_lattice(), step_cell_widths(), float(half_width),
                               bool(draw))
     count = data.readings.shape[0]

@@ -88,6 +88,7 @@ from bayesmap.slam.scanmatch import (
     LOCAL_MAP_DISTANCE,
     MATCH_LEVELS,
     MIN_HIT_FRACTION,
+    MOTION_TAIL_WEIGHT,
     MatchedPath,
     ScanData,
     correlative_path,
@@ -171,7 +172,8 @@ def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MAR
 
 def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTION,
               window: float = LOCAL_MAP_DISTANCE, particles: int = FRONT_END_PARTICLES, seed: int = 0,
-              progress: ProgressCallback | None = None, levels=MATCH_LEVELS) -> MatchedPath:
+              progress: ProgressCallback | None = None, levels=MATCH_LEVELS,
+              motion_tail: float = MOTION_TAIL_WEIGHT) -> MatchedPath:
     """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad) and its steps' posterior covariances
     (:class:`bayesmap.slam.scanmatch.MatchedPath`): correlative scan matching from the first
     odometry pose on fields of :data:`FRONT_END_RESOLUTION` meters that follow the robot
@@ -184,7 +186,10 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
     the last ``window`` meters of travel (:data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`). With ``particles``
     above 1, that many hypotheses (:func:`bayesmap.slam.particles.particle_path`, random seed ``seed``), the
     heaviest particle's path returned and the distinct heavy paths counted (:data:`FRONT_END_PARTICLES`).
-    ``levels`` is the coarse-to-fine search (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`). ``progress`` gets
+    ``levels`` is the coarse-to-fine search (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`). The search and the
+    steps' posteriors score the motion model with a broad component of weight ``motion_tail``, the covariance of a
+    step that backed up under the problem's motion noise (:data:`bayesmap.slam.scanmatch.MOTION_TAIL_WEIGHT`;
+    0: the motion model alone); the target's motion density is the model's. ``progress`` gets
     ``Progress("front end", done, S - 1, "scan")`` as the scans are matched.
 
     Raises:
@@ -192,7 +197,7 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
             :func:`bayesmap.slam.particles.particle_path`."""
     odometry = np.asarray(problem.odometry, np.float64)
     options = dict(likelihood_power=problem.likelihood_power, min_hit_fraction=min_hit_fraction, window=window,
-                   progress=progress, levels=levels)
+                   progress=progress, levels=levels, motion_tail=motion_tail, motion=problem.motion)
     if isinstance(particles, (int, np.integer)) and not isinstance(particles, bool) and particles == 1:
         return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, **options)
     return particle_path(odometry[0], data, FRONT_END_RESOLUTION, particles, seed=seed, **options).matched

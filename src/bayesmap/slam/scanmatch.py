@@ -58,7 +58,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.model.generative import check_likelihood_power
-from bayesmap.model.motion import compose, motion_logpdf
+from bayesmap.model.motion import MotionParams, backward_step_covariance, compose, motion_logpdf, tailed_motion_logpdf
 from bayesmap.progress import ProgressCallback, report
 
 FIELDS = ((0.05, 0.15), (0.2, 0.5))
@@ -89,6 +89,18 @@ The first level's heading window is 3.5 standard deviations of the odometry's he
 (a turn of about pi under *Probabilistic Robotics* Table 5.5's decomposition); the motion model's log-density is part
 of every candidate's score, so the wide window costs only time. The second level's heading reach was chosen by
 leave-one-log-out cross-validation ([validation](../validation/defaults.md#match_levels))."""
+
+MOTION_TAIL_WEIGHT = 0.01
+"""The weight of the broad component of the front end's motion density (:func:`bayesmap.model.motion.
+tailed_motion_logpdf`, its covariance :func:`bayesmap.model.motion.backward_step_covariance` of the problem's motion
+noise): the search and each step's posterior score a candidate by ``log((1 - w) N(Sigma) + w N(Sigma + T))``
+instead of the motion model's Normal alone. An odometry step that backed up can err by tenths of a radian where the
+motion model claims hundredths; with the Normal alone a scan that fits there costs the search tens of nats, its
+match falls short and the scan takes the wrong prediction (Intel with odometry noise twice the shared logs': the
+track lost, 3.7-4.0 m). The target's motion density is not changed: the front end only finds the chain's start.
+Chosen by leave-one-log-out cross-validation of the start path's ATE among 0 (off) and 0.01 with the broad component
+over x, y and heading or over the heading alone, on Intel, ACES and CSAIL at the shared logs' odometry noise and
+twice it ([validation](../validation/defaults.md#motion_tail_weight))."""
 
 
 LOCAL_MAP_DISTANCE = 10.0
@@ -402,19 +414,22 @@ def step_cell_widths(nodes=STEP_POSTERIOR_NODES) -> jax.Array:
 
 
 def step_logits(fields: tuple, grid: Grid, center, prev, increment, cov, sensor_angles, readings, returned, power,
-                lattice, window=None, shift=None):
+                lattice, window=None, shift=None, tail=None):
     """The candidates ``(A B, 3)`` of the step ``lattice`` (:func:`step_lattice`) around ``center`` and their log
     densities ``(A B,)``: ``power S(x) + log p(x | prev, increment, cov) + log_volume``, ``S`` the scan's field score
     against the local map (:func:`lattice_scores`, fine field, interpolated) and ``p`` the motion model
     (:func:`bayesmap.model.motion.motion_logpdf`), each candidate's cell volume the quadrature weight: a softmax gives
     the step's posterior on the lattice, a logsumexp the log of its integral (the evidence of the step: the weight
     update of Grisetti et al. 2007's improved proposal). ``prev``, ``center`` ``(3,)`` in the frame of ``shift``
-    (:func:`search`). Jittable."""
+    (:func:`search`); ``tail``: None, or ``(weight, covariance (3, 3))``, the motion model with a broad component
+    (:func:`bayesmap.model.motion.tailed_motion_logpdf`, as the front end searches). Jittable."""
     xy, theta, log_volume, _ = lattice
     scores = lattice_scores(fields[0], grid, center, xy, theta, sensor_angles, readings, returned, interpolate=True,
                             window=window, shift=shift)
     cands = lattice_poses(center, xy, theta)
-    return cands, power * scores + motion_logpdf(prev, cands, increment, cov) + log_volume
+    motion = (motion_logpdf(prev, cands, increment, cov) if tail is None
+              else tailed_motion_logpdf(prev, cands, increment, cov, *tail))
+    return cands, power * scores + motion + log_volume
 
 
 def step_covariance(cands, logits, prev, cov, floor):
@@ -431,16 +446,16 @@ def step_covariance(cands, logits, prev, cov, floor):
 
 
 def step_posterior(fields: tuple, grid: Grid, center, prev, increment, cov, sensor_angles, readings, returned,
-                   power, lattice, window=None, shift=None):
+                   power, lattice, window=None, shift=None, tail=None):
     """The covariance ``(3, 3)`` of one step's posterior in the frame of the previous pose (the sequential edge's
     frame; m^2, m rad, rad^2): the density ``exp(power S(x) + log p(x | prev, increment, cov))`` of
     :func:`step_logits` integrated on the non-uniform ``lattice`` (:func:`step_lattice`, its ``floor`` added) around
     ``center``, the match (:func:`step_covariance`). The covariance of a correlative match's response (Olson 2009,
     sec. IV-B) with the likelihood tempered as the front end's score is. A step whose motion covariance is exactly
-    zero gets ``floor``. Jittable.
+    zero gets ``floor``. ``tail`` as :func:`step_logits`. Jittable.
     """
     cands, logits = step_logits(fields, grid, center, prev, increment, cov, sensor_angles, readings, returned, power,
-                                lattice, window, shift)
+                                lattice, window, shift, tail)
     return step_covariance(cands, logits, prev, cov, lattice[-1])
 
 
@@ -481,7 +496,8 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
                      window: float | None = LOCAL_MAP_DISTANCE,
                      half_width: float = MATCH_GRID_HALF_WIDTH,
                      likelihood_power: float = 1.0, min_hit_fraction: float = MIN_HIT_FRACTION,
-                     progress: ProgressCallback | None = None) -> MatchedPath:
+                     progress: ProgressCallback | None = None, motion_tail: float = MOTION_TAIL_WEIGHT,
+                     motion: MotionParams | None = None) -> MatchedPath:
     """Sequential correlative scan matching of every scan against the field of the scans before it, with each step's
     posterior covariance (:func:`step_posterior`).
 
@@ -502,6 +518,11 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
         progress: called with ``Progress("front end", done, S - 1, "scan")`` before the first match and after each
             block of about ``S / 100`` scans (the loop then runs a block per compiled call: the same path); None:
             one call, no reports.
+        motion_tail: the weight in [0, 1) of the motion density's broad component in the search and the steps'
+            posteriors (:data:`MOTION_TAIL_WEIGHT`; 0: the motion model's Normal alone).
+        motion: the motion noise whose :func:`bayesmap.model.motion.backward_step_covariance` is the broad
+            component's extra covariance (default :class:`bayesmap.model.motion.MotionParams`' defaults); the steps'
+            own covariances are ``data``'s.
 
     Returns:
         A :class:`MatchedPath`: the path, row 0 ``first_pose``, and the steps' covariances.
@@ -509,13 +530,14 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     Raises:
         BayesmapError: if the shapes disagree, ``resolution`` or ``half_width`` is not a finite number > 0 or the
             grid would have fewer than 8 cells a side, ``likelihood_power`` is not in (0, 1], or
-            ``min_hit_fraction`` is not in [0, 1).
+            ``min_hit_fraction`` or ``motion_tail`` is not in [0, 1).
     """
-    setup = front_end_setup(first_pose, data, resolution, window, half_width, likelihood_power, min_hit_fraction)
+    setup = front_end_setup(first_pose, data, resolution, window, half_width, likelihood_power, min_hit_fraction,
+                            motion_tail, motion)
     run = functools.partial(_correlative_steps, d=setup.scans, frame=setup.frame, span=setup.span,
                             prior_weight=setup.prior_weight, min_hit=setup.min_hit, steps=lattices(levels),
                             grid=setup.grid, half_width=float(half_width), power=setup.power,
-                            posterior=step_lattice())
+                            posterior=step_lattice(), tail=(setup.tail_weight, setup.tail_cov))
     start = functools.partial(start_window, setup.first_pose, setup.scans, setup.frame, setup.grid)
     carry = run_in_blocks(run, start, data.readings.shape[0], progress)
     return MatchedPath(np.asarray(carry[0], np.float64), np.asarray(carry[-1], np.float64)[1:])
@@ -535,6 +557,8 @@ class FrontEndSetup(NamedTuple):
         prior_weight: ``1 / p``, the motion term's weight in the search's score (scaling it instead of the field
             score leaves the argmax the same).
         min_hit: the least hit fraction of a trusted match.
+        tail_weight: the weight of the motion density's broad component (:data:`MOTION_TAIL_WEIGHT`).
+        tail_cov: ``(3, 3)`` its extra covariance (:func:`bayesmap.model.motion.backward_step_covariance`).
     """
 
     scans: "FrontEndScans"
@@ -545,17 +569,20 @@ class FrontEndSetup(NamedTuple):
     power: jax.Array
     prior_weight: jax.Array
     min_hit: jax.Array
+    tail_weight: jax.Array
+    tail_cov: jax.Array
 
 
 def front_end_setup(first_pose, data: ScanData, resolution: float, window: float | None = LOCAL_MAP_DISTANCE,
                     half_width: float = MATCH_GRID_HALF_WIDTH, likelihood_power: float = 1.0,
-                    min_hit_fraction: float = MIN_HIT_FRACTION) -> FrontEndSetup:
+                    min_hit_fraction: float = MIN_HIT_FRACTION, motion_tail: float = MOTION_TAIL_WEIGHT,
+                    motion: MotionParams | None = None) -> FrontEndSetup:
     """Check the front end's arguments (:func:`correlative_path`'s) and build what its loops take.
 
     Raises:
         BayesmapError: if the shapes disagree, ``resolution`` or ``half_width`` is not a finite number > 0 or the
             grid would have fewer than 8 cells a side, ``likelihood_power`` is not in (0, 1], or
-            ``min_hit_fraction`` is not in [0, 1).
+            ``min_hit_fraction`` or ``motion_tail`` is not in [0, 1).
     """
     s, k = data.readings.shape
     if data.sensor_angles.shape != (s, k) or data.returned.shape != (s, k) or data.increments.shape != (s - 1, 3):
@@ -569,6 +596,8 @@ def front_end_setup(first_pose, data: ScanData, resolution: float, window: float
     if (isinstance(min_hit_fraction, bool) or not isinstance(min_hit_fraction, (int, float))
             or not 0 <= min_hit_fraction < 1):
         raise BayesmapError(f"min_hit_fraction must be a number in [0, 1), got {min_hit_fraction!r}")
+    if isinstance(motion_tail, bool) or not isinstance(motion_tail, (int, float)) or not 0 <= motion_tail < 1:
+        raise BayesmapError(f"motion_tail must be a number in [0, 1), got {motion_tail!r}")
     n = int(math.ceil(2 * half_width / resolution))
     if n < 8:
         raise BayesmapError(f"half_width {half_width!r} m is under 4 cells of {resolution!r} m")
@@ -582,7 +611,9 @@ def front_end_setup(first_pose, data: ScanData, resolution: float, window: float
                          grid=Grid(shape=(n, n), resolution=resolution, origin=(0.0, 0.0)),
                          span=jnp.asarray(np.inf if window is None else float(window), dtype),
                          power=jnp.asarray(power, dtype),
-                         prior_weight=jnp.asarray(1.0 / power, dtype), min_hit=jnp.asarray(min_hit_fraction, dtype))
+                         prior_weight=jnp.asarray(1.0 / power, dtype), min_hit=jnp.asarray(min_hit_fraction, dtype),
+                         tail_weight=jnp.asarray(motion_tail, dtype),
+                         tail_cov=jnp.asarray(backward_step_covariance(motion), dtype))
 
 
 def recentred(predicted, offset, grid: Grid, half_width: float):
@@ -689,7 +720,7 @@ def start_window(first, d, frame, grid: Grid):
 
 @functools.partial(jax.jit, static_argnames=("grid", "half_width"), donate_argnames=("carry",))
 def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, steps: Lattices, grid: Grid,
-                       half_width: float, power, posterior):
+                       half_width: float, power, posterior, tail):
     """The jitted loop of :func:`correlative_path` over the scans ``lo <= t < hi`` from ``carry`` (module level, so
     that another run with the same shapes and settings reuses the compiled code; the bounds are arguments, so runs in
     pieces share it): the carry ``(path (S, 3)`` in world coordinates, fields, stamps, window offset) after scan
@@ -699,7 +730,7 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
     ``prior_weight`` the inverse of the likelihood power (scaling the motion term instead of the field score leaves
     the argmax the same); ``min_hit`` the least hit fraction of a trusted match; ``power`` the likelihood power and
     ``posterior`` the lattice (:func:`step_lattice`) of each step's covariance (:func:`step_posterior`), the last
-    entry of the carry."""
+    entry of the carry; ``tail`` ``(weight, covariance)`` the motion density's broad component in both."""
     def body(t, carry):
         path, fields, stamps, offset, step_cov = carry
         prev = path[t - 1] - frame
@@ -709,7 +740,7 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
                                       lambda: (fields, stamps))
 
         def log_prior(cands):
-            return prior_weight * motion_logpdf(prev, cands, d.increments[t - 1], d.covs[t - 1])
+            return prior_weight * tailed_motion_logpdf(prev, cands, d.increments[t - 1], d.covs[t - 1], *tail)
 
         seen = local_map(fields, stamps, d.travelled[t] - span)  # the cells reached within the window
         scan = (d.sensor_angles[t], d.readings[t], d.returned[t])
@@ -717,7 +748,7 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
         hits = hit_fraction(seen, grid, best, *scan, shift=moved)
         world = jnp.where(hits < min_hit, predicted, best) + frame
         cov = step_posterior(seen, grid, best, prev, d.increments[t - 1], d.covs[t - 1], *scan, power, posterior,
-                             shift=moved)
+                             shift=moved, tail=tail)
         cov = jnp.where(hits < min_hit, d.covs[t - 1] + posterior[-1], cov)
         fields, stamps = add_matched(d, grid, frame, world, t, moved, (fields, stamps))
         return path.at[t].set(world), fields, stamps, moved, step_cov.at[t].set(cov)
