@@ -318,8 +318,9 @@ def particle_path(first_pose, data: ScanData, resolution: float, particles: int,
             trusted (:data:`bayesmap.slam.scanmatch.MIN_HIT_FRACTION`).
         progress: called with ``Progress("front end", done, S - 1, "scan")`` as blocks of scans are matched (the
             same result); None: one call.
-        motion_tail, motion: the motion density's broad component, as
+        motion_tail: the weight of the motion density's broad component, as
             :func:`bayesmap.slam.scanmatch.correlative_path` (:data:`bayesmap.slam.scanmatch.MOTION_TAIL_WEIGHT`).
+        motion: the motion noise that sets that component's covariance, as there.
 
     Returns:
         A :class:`ParticlePath`.
