@@ -34,6 +34,7 @@ Usage: PYTHONPATH=src python benchmarks/step_covariance.py [--logs aces] [--seed
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -138,11 +139,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.step_power is not None and args.step_power != "beams":
         try:
-            args.step_power = float(args.step_power)
+            power = float(args.step_power)
         except ValueError:
-            args.step_power = -1.0
-        if not 0 < args.step_power <= 1:
-            parser.error(f"--step-power must be a number in (0, 1] or 'beams', got {args.step_power}")
+            power = math.nan
+        if not 0 < power <= 1:
+            parser.error(f"--step-power must be a number in (0, 1] or 'beams', got {args.step_power!r}")
+        args.step_power = power
     runs = scan_set_runs(parser, args.logs, parse_seeds(args.seeds), args.scans)
     print("| log | seed | scans | start ATE m | coverage, step posteriors | coverage, retired scale 0.36 | "
           "s0^2 | coverage, times s0^2 | "

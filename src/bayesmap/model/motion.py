@@ -349,10 +349,10 @@ def tailed_motion_logpdf(prev, pose, increment, cov, tail_weight, tail_cov):
     :func:`motion_logpdf`. Shapes as :func:`motion_logpdf`; ``w`` in ``[0, 1)``. Never raises."""
     cov = jnp.asarray(cov)
     tail_weight = jnp.asarray(tail_weight, cov.dtype)
-    narrow = motion_logpdf(prev, pose, increment, cov) + jnp.log1p(-tail_weight)
+    normal = motion_logpdf(prev, pose, increment, cov)
     wide = motion_logpdf(prev, pose, increment, cov + jnp.asarray(tail_cov, cov.dtype)) + jnp.log(tail_weight)
     deterministic = jnp.all(cov == 0)  # a step the motion model fixes keeps no tail
-    return jnp.where(deterministic, motion_logpdf(prev, pose, increment, cov), jnp.logaddexp(narrow, wide))
+    return jnp.where(deterministic, normal, jnp.logaddexp(normal + jnp.log1p(-tail_weight), wide))
 
 
 def _step_sample(key, prev, increment, cov):

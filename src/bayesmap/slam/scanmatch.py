@@ -593,11 +593,9 @@ def front_end_setup(first_pose, data: ScanData, resolution: float, window: float
         if not (math.isfinite(float(value)) and value > 0):
             raise BayesmapError(f"{name} must be a finite number of meters > 0, got {value!r}")
     power = check_likelihood_power(likelihood_power)
-    if (isinstance(min_hit_fraction, bool) or not isinstance(min_hit_fraction, (int, float))
-            or not 0 <= min_hit_fraction < 1):
-        raise BayesmapError(f"min_hit_fraction must be a number in [0, 1), got {min_hit_fraction!r}")
-    if isinstance(motion_tail, bool) or not isinstance(motion_tail, (int, float)) or not 0 <= motion_tail < 1:
-        raise BayesmapError(f"motion_tail must be a number in [0, 1), got {motion_tail!r}")
+    for name, value in (("min_hit_fraction", min_hit_fraction), ("motion_tail", motion_tail)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1:
+            raise BayesmapError(f"{name} must be a number in [0, 1), got {value!r}")
     n = int(math.ceil(2 * half_width / resolution))
     if n < 8:
         raise BayesmapError(f"half_width {half_width!r} m is under 4 cells of {resolution!r} m")
