@@ -24,9 +24,13 @@ motion model's log-density. Two of its settings are chosen here:
   scans).
 * ``particles``: how many hypotheses the front end keeps (:data:`bayesmap.slam.pipeline.FRONT_END_PARTICLES`;
   :mod:`bayesmap.slam.particles`).
-* ``first_heading_step`` and ``second_heading_steps``: the heading lattice of the front end's search
-  (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`): the first level's step (radians, its +-0.8 rad kept) and the
-  second level's half width in its steps of 0.007 rad.
+* ``first_heading_step``, ``first_heading_reach`` and ``second_heading_steps``: the heading lattice of the front
+  end's search (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`): the first level's step (radians, its reach kept), its
+  reach (radians either side, its step of 0.04 rad kept) and the second level's half width in its steps of 0.007
+  rad.
+* ``keyframe_heading_sd``: the composed heading standard deviation (radians) past which a scan between keyframes
+  becomes one (:data:`bayesmap.slam.keyframes.KEYFRAME_HEADING_SD`; ``inf``: distance and turn alone), for the
+  ``keyframes`` scan set.
 * ``motion_tail``: the weight of the broad component of the front end's motion density
   (:data:`bayesmap.slam.scanmatch.MOTION_TAIL_WEIGHT`; 0: the motion model's Normal alone).
 
@@ -40,7 +44,8 @@ For each log and odometry seed (``seeded_logs.seeded_log``), each kept-scan set 
 ``heldout``: every 10th scan dropped, as the held-out map scores do, which is where the front end lost CSAIL's
 track; ``every2``: every other scan, steps of about twice the logs' median 0.7-1 m, each step the odometry's two
 composed, as ``slam --scans ::2`` takes them; ``every2-log``: the same scans as a log that holds only them, recorded
-at half the rate, each step one step of the odometry's net motion) and each value of ``--values``,
+at half the rate, each step one step of the odometry's net motion; ``keyframes``: every scan's keyframes, as ``slam
+--log`` runs them, :func:`bayesmap.slam.keyframes.select_keyframes` at its defaults) and each value of ``--values``,
 the script runs the start as ``run_log_slam`` does (the front end, then
 :func:`bayesmap.slam.posegraph.close_loops`) with the other settings at their defaults, and records the ATE of the
 path after loop closure (meters, after the best rigid 2-D alignment; within 0.003 m of the whole chain's ATE on the
@@ -61,7 +66,7 @@ repeated, so the grid can be split between processes and resumed.
 
 Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F
            [--parameter power|min_hit_fraction|window|consistency_gate|particles|loop_window_sigmas|step_covariances|
-                        first_heading_step|second_heading_steps]
+                        first_heading_step|first_heading_reach|second_heading_steps|keyframe_heading_sd]
            [--values 1,0.3,0.1,0.03] [--seeds 0-2] [--logs intel,aces,csail] [--scans all,heldout] [--noise 1]
 """
 
@@ -85,21 +90,26 @@ from bayesmap.evaluation.heldout import heldout_split  # noqa: E402
 from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E402
 from bayesmap.runs.inputs import select_scans  # noqa: E402
 from bayesmap.slam import pipeline, posegraph, scanmatch  # noqa: E402
+from bayesmap.slam.keyframes import KEYFRAME_HEADING_SD, keyframe_problem, select_keyframes  # noqa: E402
 from bayesmap.slam.problem import SLAM_LIKELIHOOD_POWER, log_slam_problem  # noqa: E402
 
 DEFAULTS = {"power": SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HIT_FRACTION,
             "window": scanmatch.LOCAL_MAP_DISTANCE, "consistency_gate": posegraph.CONSISTENCY_GATE,
             "particles": pipeline.FRONT_END_PARTICLES, "loop_window_sigmas": posegraph.LOOP_WINDOW_SIGMAS,
-            "first_heading_step": scanmatch.MATCH_LEVELS[0][1], "second_heading_steps": scanmatch.MATCH_LEVELS[1][3],
-            "step_covariances": 1, "motion_tail": scanmatch.MOTION_TAIL_WEIGHT}
+            "first_heading_step": scanmatch.MATCH_LEVELS[0][1],
+            "first_heading_reach": scanmatch.MATCH_LEVELS[0][1] * scanmatch.MATCH_LEVELS[0][3],
+            "second_heading_steps": scanmatch.MATCH_LEVELS[1][3],
+            "step_covariances": 1, "motion_tail": scanmatch.MOTION_TAIL_WEIGHT,
+            "keyframe_heading_sd": KEYFRAME_HEADING_SD}
 """The settings this script can vary, and the value each takes while the other is varied (the defaults of
 :func:`bayesmap.slam.pipeline.front_end`)."""
 
-SCAN_SETS = ("all", "heldout", "every2", "every2-log")
+SCAN_SETS = ("all", "heldout", "every2", "every2-log", "keyframes")
 """``all``: every scan of the log; ``heldout``: the scans the held-out map scores keep (every 10th dropped);
 ``every2``: every other scan (the odometry through the scans skipped composed into each step,
 :func:`bayesmap.slam.problem.log_slam_problem`); ``every2-log``: every other scan as a log of those scans alone (no
-odometry between them)."""
+odometry between them); ``keyframes``: the keyframes of every scan at the default thresholds (the problem
+``slam --log`` runs its front end on, :func:`bayesmap.slam.keyframes.keyframe_problem`)."""
 
 
 FRONT_ENDS: dict = {}
@@ -113,15 +123,21 @@ def start_path(log, truth, scans: str, parameter: str, value: float, name: tuple
     reads here. ``name`` (the log's name and seed) keys the front end kept for the loop closure's settings."""
     began = time.perf_counter()
     every2 = np.arange(0, len(log), 2)
-    kept = {"all": None, "heldout": heldout_split(len(log), 10)[0], "every2": every2, "every2-log": every2}[scans]
+    kept = {"all": None, "keyframes": None, "heldout": heldout_split(len(log), 10)[0], "every2": every2,
+            "every2-log": every2}[scans]
     setting = {**DEFAULTS, parameter: value}
     if scans == "every2-log":
         problem = log_slam_problem(select_scans(log, every2), likelihood_power=setting["power"])
     else:
         problem = log_slam_problem(log, kept, likelihood_power=setting["power"])
+    if scans == "keyframes":
+        kept = select_keyframes(problem.odometry, step_covs=problem.motion_steps()[1],
+                                heading_sd=float(setting["keyframe_heading_sd"]))
+        problem = keyframe_problem(problem, kept)
     data = pipeline.scan_data(problem)
     key = (name, scans, *(setting[k] for k in ("power", "min_hit_fraction", "window", "particles",
-                                               "first_heading_step", "second_heading_steps", "motion_tail")))
+                                               "first_heading_step", "first_heading_reach", "second_heading_steps",
+                                               "motion_tail", "keyframe_heading_sd")))
     if not name or key not in FRONT_ENDS:  # the loop closure's settings share one front end
         FRONT_ENDS.clear()
         FRONT_ENDS[key] = pipeline.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"],
@@ -143,11 +159,11 @@ def start_path(log, truth, scans: str, parameter: str, value: float, name: tuple
 
 def search_levels(setting: dict) -> tuple:
     """The front end's search (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`) with the first level's heading step
-    ``first_heading_step`` (radians; its half width kept at +-0.8 rad) and the second level's heading half width
-    ``second_heading_steps`` (in its own steps of 0.007 rad)."""
-    (xy, theta, w_xy, w_theta, f), (xy2, theta2, w_xy2, _, f2), *rest = scanmatch.MATCH_LEVELS
+    ``first_heading_step`` and reach ``first_heading_reach`` (radians; the half width the nearest whole number of
+    steps) and the second level's heading half width ``second_heading_steps`` (in its own steps of 0.007 rad)."""
+    (xy, _, w_xy, _, f), (xy2, theta2, w_xy2, _, f2), *rest = scanmatch.MATCH_LEVELS
     step = float(setting["first_heading_step"])
-    first = (xy, step, w_xy, int(round(theta * w_theta / step)), f)
+    first = (xy, step, w_xy, int(round(float(setting["first_heading_reach"]) / step)), f)
     return (first, (xy2, theta2, w_xy2, int(setting["second_heading_steps"]), f2), *rest)
 
 

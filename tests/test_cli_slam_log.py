@@ -76,7 +76,9 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     # graph's deviations in antithetic pairs; a scan between keyframes is its keyframe's sample composed with its
     # offset, whose mean turns the offset by E[R(delta)] instead of R(0), off by at most |offset| E[delta^2] / 2
     # (delta the keyframe's heading deviation; |exp(i d) - 1 - i d| <= d^2 / 2, E[delta] = 0)
-    own = select_keyframes(log.poses[:25])[owners(25, select_keyframes(log.poses[:25]))]
+    slam_problem = log_slam_problem(read_carmen(aces_odom), np.arange(25), resolution=0.2)
+    keyframes = select_keyframes(slam_problem.odometry, step_covs=slam_problem.motion_steps()[1])
+    own = keyframes[owners(25, keyframes)]
     delta = samples[:, own, 2] - poses[own, 2]
     delta = (delta + np.pi) % (2 * np.pi) - np.pi
     reach = np.linalg.norm(poses[:, :2] - poses[own, :2], axis=1)
@@ -93,14 +95,16 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert final["sweeps"] == FINAL_MAP_SWEEPS and final["geometry"] == "chord"
     for name in ("coupling", "wall_pass_prob"):
         assert final[name] == pytest.approx(float(getattr(known.params, name))) and final[name] > 0, name
-    # its noise is the model's widened for the path's error (FINAL_MAP_NOISE); 23 of the 25 scans are keyframes
-    keyframes = select_keyframes(log.poses[:25])
-    assert settings["keyframes"] == len(keyframes) == 23
+    # its noise is the model's widened for the path's error (FINAL_MAP_NOISE); 24 of the 25 scans are keyframes: by
+    # distance and turn 23, and scan 17 because the steps from 16 to 18 compose to a heading standard deviation
+    # over KEYFRAME_HEADING_SD (the step to 17 alone: 0.269 rad)
+    assert settings["keyframes"] == len(keyframes) == 24 and 17 in keyframes
+    assert settings["keyframe_heading_sd_rad"] == pytest.approx(0.8 / 3.5)
+    assert len(select_keyframes(slam_problem.odometry)) == 23 and 17 not in select_keyframes(slam_problem.odometry)
     assert final["sensor_noise"] == FINAL_MAP_NOISE
     assert final["sensor_noise"] > float(known.params.sensor_noise)
     # its power follows the readings' density at the mean path (trajectory.tum, rounded to 1e-6: a few endpoints
     # may change cells, hence rel 1e-2), not at the odometry, whose endpoints smear over twice the cells here
-    slam_problem = log_slam_problem(read_carmen(aces_odom), np.arange(25), resolution=0.2)
     wide = Grid((2000, 2000), resolution=0.2, origin=(-200.0, -200.0))
     data = scan_data(slam_problem)
     chain = keyframe_problem(slam_problem, keyframes)  # the final map is drawn from the keyframes' scans
@@ -118,6 +122,8 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert "graph_cov_scale" not in settings and summary["loop_edges"] == 0
     assert summary["loop_hypotheses"] is None  # no loop edge, nothing to weigh
     assert settings["front_end_particles"] == 1 and summary["front_end_hypotheses"] == 1  # the single track
+    assert settings["motion"] == pytest.approx({"a1": 0.1, "a2": 0.05, "a3": 0.1, "a4": 0.05, "floor_xy": 0.01,
+                                                "floor_theta": 0.005})
     steps = front_end(chain, scan_data(chain)).step_cov
     given_heading = steps[:, :2, :2] - np.einsum("si,sj->sij", steps[:, :2, 2], steps[:, :2, 2]) / steps[:, 2:, 2:]
     accumulated = np.concatenate([[0.0], np.cumsum(np.trace(given_heading, axis1=1, axis2=2))])
@@ -302,6 +308,12 @@ def test_evaluate_pairs_a_longer_truth_by_timestamp(tmp_path, monkeypatch, capsy
     (lambda t: ["slam", "--log", t / "square.log", "--tile-pairs", "0"], "--tile-pairs must be an integer >= 1, got 0"),
     (lambda t: ["slam", "--particles", "8"], "--particles"),
     (lambda t: ["slam", "--log", t / "square.log", "--particles", "0"], "--particles must be at least 1, got 0"),
+    (lambda t: ["slam", "--motion-alphas", "0.1,0.05,0.1,0.05"], "--motion-alphas"),
+    (lambda t: ["slam", "--log", t / "square.log", "--motion-alphas", "0.1,0.05"],
+     "--motion-alphas must be four numbers A1,A2,A3,A4, got 2 in '0.1,0.05'"),
+    (lambda t: ["slam", "--log", t / "square.log", "--motion-alphas", "0.1,x,0.1,0.05"], "got '0.1,x,0.1,0.05'"),
+    (lambda t: ["slam", "--log", t / "square.log", "--motion-alphas", "0.1,-1,0.1,0.05"],
+     "a2 must be a finite number >= 0, got -1.0"),
     (lambda t: ["slam", "--log", t / "square.log", "--sweeps", "4", "--burn-in", "4"], "--burn-in"),
     (lambda t: ["evaluate", "--truth-trajectory", t / "truth.tum"], "needs --log"),
     (lambda t: ["evaluate", "--log", t / "square.log", "--truth-trajectory", t / "missing.tum"], "missing.tum"),
@@ -323,6 +335,27 @@ def test_slam_and_evaluate_errors_are_one_line_exit_2(tmp_path, monkeypatch, cap
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and lines[0].startswith("error: ") and match in lines[0], err
     assert not (tmp_path / "o").exists()
+
+
+def test_slam_motion_alphas_set_the_motion_model(tmp_path, monkeypatch):
+    """``slam --log --motion-alphas A1,A2,A3,A4`` builds the problem with that motion noise, the floors at their
+    defaults (without the option: MotionParams' defaults)."""
+    from bayesmap.runs import slam as slam_run
+
+    _square_case(tmp_path)
+    seen = []
+
+    def stop(problem, keyframes, **kwargs):
+        seen.append(problem.motion)
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(slam_run, "run_keyframe_slam", stop)
+    for alphas, expected in ((None, (0.1, 0.05, 0.1, 0.05)), ("0.05,0.02,0.2,0.01", (0.05, 0.02, 0.2, 0.01))):
+        with pytest.raises(RuntimeError, match="stop"):
+            slam_run.slam(slam_run.SlamRequest(log=tmp_path / "square.log", motion_alphas=alphas, out=tmp_path / "o"))
+        motion = seen[-1]
+        assert (motion.a1, motion.a2, motion.a3, motion.a4) == pytest.approx(expected)
+        assert (motion.floor_xy, motion.floor_theta) == (0.01, 0.005)
 
 
 def test_summary_json_counts_the_loop_hypotheses_over_one_percent():

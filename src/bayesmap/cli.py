@@ -130,6 +130,10 @@ ParticlesOpt = _opt(Optional[int], "--particles", help="--log / --bag: hypothese
                     "filter over the path, each particle with its own local map); on a CPU its time grows about "
                     "linearly with them and its memory by about 30 MB a particle, on a GPU little; default "
                     f"{FRONT_END_PARTICLES}, the single-track front end")
+MotionAlphasOpt = _opt(Optional[str], "--motion-alphas", help="--log / --bag: the odometry's noise A1,A2,A3,A4, "
+                       "Probabilistic Robotics Table 5.6's alphas as standard deviations (rotation per rotation, rad "
+                       "per m, translation per translation, m per rad; not AMCL's odom_alpha, which are variances); "
+                       "set them for your robot's wheels; default 0.1,0.05,0.1,0.05")
 PowerOpt = _opt(Optional[float], "--likelihood-power", help="--log: power eta in (0, 1] of the likelihood, sampling "
                 "p(walls) p(readings | walls)^eta (a power posterior for beams that are not independent evidence; 1 "
                 f"is the plain posterior; default for logs: {scenes.LOG_READINGS_PER_CELL:g} over the mean number "
@@ -470,6 +474,7 @@ def slam(
     keyframe_turn: KeyframeTurnOpt = None,
     tile_pairs: TilePairsOpt = None,
     particles: ParticlesOpt = None,
+    motion_alphas: MotionAlphasOpt = None,
     rosmap: RosmapOpt = False,
     maps: MapsOpt = False,
     report: SlamReportOpt = False,

@@ -7,6 +7,7 @@ from tests.slam.test_scanmatch import noisy_odometry, room_scans
 from bayesmap.errors import BayesmapError
 from bayesmap.model.motion import make_motion_params, odometry_controls
 from bayesmap.slam.keyframes import (
+    KEYFRAME_HEADING_SD,
     keyframe_problem,
     owners,
     place_scans,
@@ -38,6 +39,30 @@ def test_a_turn_across_pi_counts_as_the_short_way_round():
     """Headings 3.1 and -3.1 rad are 0.08 rad apart: no keyframe at a 0.5 rad turn."""
     odometry = np.array([[0.0, 0.0, 3.1], [0.0, 0.0, -3.1]])
     assert select_keyframes(odometry, 0.5, 0.5).tolist() == [0]
+
+
+def test_a_keyframe_step_keeps_its_heading_within_the_front_ends_search():
+    """With the motion model's steps, a scan also becomes a keyframe where the steps composed since the last keyframe
+    would pass KEYFRAME_HEADING_SD (0.8 / 3.5 rad) of heading standard deviation (the heading variances add): a robot
+    jittering on the spot (0.01 m steps, never 0.5 m or 0.5 rad from the start) with steps of heading sd 0.1 rad
+    keeps every 5th scan (five steps compose to 0.224 rad, six to 0.245; a straight run of 0.1 m steps too, where
+    0.7 m alone keeps every 7th), with sd 0.3 rad (one step alone past it) every scan that has a step after it;
+    without the steps, or at heading_sd inf, none but the first. A bad heading_sd or shape is refused by name."""
+    jitter = np.stack([0.01 * (np.arange(21) % 2), np.zeros(21), np.zeros(21)], axis=1)
+    assert 5 * 0.1**2 <= KEYFRAME_HEADING_SD**2 < 6 * 0.1**2
+    covs = np.tile(np.diag([1e-4, 1e-4, 0.1**2]), (20, 1, 1))
+    assert select_keyframes(jitter, 0.5, 0.5, covs).tolist() == [0, 5, 10, 15]  # 15 -> 20: five steps, inside
+    assert select_keyframes(jitter, 0.5, 0.5, covs * 9).tolist() == list(range(20))  # the last: no step after it
+    assert select_keyframes(jitter, 0.5, 0.5).tolist() == [0]
+    assert select_keyframes(jitter, 0.5, 0.5, covs, float("inf")).tolist() == [0]
+    line = np.stack([np.arange(21) * 0.1, np.zeros(21), np.zeros(21)], axis=1)
+    assert select_keyframes(line, 0.7, 0.5).tolist() == [0, 7, 14]
+    assert select_keyframes(line, 0.7, 0.5, covs).tolist() == [0, 5, 10, 15]
+    for bad in (0.0, -1.0, float("nan"), "1", True):
+        with pytest.raises(BayesmapError, match="heading_sd"):
+            select_keyframes(jitter, 0.5, 0.5, covs, bad)
+    with pytest.raises(BayesmapError, match="step_covs"):
+        select_keyframes(jitter, 0.5, 0.5, covs[:3])
 
 
 @pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf"), "1", True])

@@ -67,9 +67,9 @@ class MotionParams(Pytree):
     The defaults are an *assumption about the robot's wheels*, not a fit to any data file: 10 % of each turn and
     0.05 rad of heading per meter travelled, 10 % of each distance and 0.05 m per radian turned, plus floors of
     1 cm and 0.005 rad (about 0.3 degrees) so that a standing robot keeps a positive definite covariance. Set them
-    for your robot. Checked by leave-one-log-out cross-validation over Intel, ACES and CSAIL
-    (``benchmarks/motion_cv.py``): alphas fitted to the three logs' odometry did not make SLAM better, so these stay
-    ([validation](../validation/defaults.md#motionparams)).
+    for your robot (``bayesmap slam --motion-alphas``). Checked by leave-one-log-out cross-validation over Intel,
+    ACES and CSAIL (``benchmarks/motion_cv.py``): alphas fitted to the three logs' odometry did not make SLAM
+    better, so these stay ([validation](../validation/defaults.md#motionparams)).
 
     Attributes:
         a1: rotation noise per radian of rotation (dimensionless; PR's alpha_1).

@@ -23,6 +23,7 @@ from bayesmap.io.rosbag import read_bag
 from bayesmap.io.rosmap import read_rosmap
 from bayesmap.io.tum import read_tum
 from bayesmap.model.generative import beam_lengths
+from bayesmap.model.motion import make_motion_params
 from bayesmap.model.prior import check_coupling, coupling_for_run_length
 
 MAX_GRID_CELLS = 50_000_000
@@ -137,6 +138,30 @@ def sensor_params(beam_weights: Optional[str], lambda_short: Optional[float]) ->
     if lambda_short is not None:
         params["lambda_short"] = lambda_short
     return params
+
+
+def motion_option(motion_alphas: Optional[str]):
+    """The odometry motion model's noise from ``--motion-alphas A1,A2,A3,A4`` (*Probabilistic Robotics* Table 5.6's
+    alphas as standard deviations, :class:`bayesmap.model.motion.MotionParams`; the floors kept at their defaults);
+    None for the defaults.
+
+    Raises:
+        BayesmapError: if ``motion_alphas`` is not four comma-separated finite numbers >= 0 (named).
+    """
+    if motion_alphas is None:
+        return None
+    parts = [p.strip() for p in motion_alphas.split(",")]
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise BayesmapError(f"--motion-alphas must be four numbers A1,A2,A3,A4, got {motion_alphas!r}") from None
+    if len(values) != 4:
+        raise BayesmapError(f"--motion-alphas must be four numbers A1,A2,A3,A4, got {len(values)} in "
+                            f"{motion_alphas!r}")
+    try:
+        return make_motion_params(values)
+    except BayesmapError as err:
+        raise BayesmapError(f"--motion-alphas: {err} (in {motion_alphas!r})") from None
 
 
 def coupling_option(coupling: Optional[float], run_length: Optional[float], resolution: float) -> Optional[float]:

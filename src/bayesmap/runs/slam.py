@@ -25,7 +25,7 @@ from bayesmap.io.maps_out import seen_cells_along
 from bayesmap.io.rosmap import encode_rosmap
 from bayesmap.io.tum import encode_tum, tum_stamps
 from bayesmap.progress import ProgressCallback, StageRecorder, stage_summary, start_stage
-from bayesmap.runs.inputs import check_slam_size, check_tile_pairs_option, parse_scans, read_source
+from bayesmap.runs.inputs import check_slam_size, check_tile_pairs_option, motion_option, parse_scans, read_source
 from bayesmap.runs.outputs import (
     OCCUPANCY_FILE,
     REPORT_FILE,
@@ -38,7 +38,13 @@ from bayesmap.runs.outputs import (
     write_outputs,
 )
 from bayesmap.slam.joint import SlamResult, run_slam
-from bayesmap.slam.keyframes import KEYFRAME_DISTANCE, KEYFRAME_TURN, keyframe_problem, select_keyframes
+from bayesmap.slam.keyframes import (
+    KEYFRAME_DISTANCE,
+    KEYFRAME_HEADING_SD,
+    KEYFRAME_TURN,
+    keyframe_problem,
+    select_keyframes,
+)
 from bayesmap.slam.pipeline import (
     BURN_IN_ROUNDS,
     FINAL_MAP_SWEEPS,
@@ -82,6 +88,7 @@ class SlamRequest:
     keyframe_turn: Optional[float] = None
     tile_pairs: Optional[int] = None
     particles: Optional[int] = None
+    motion_alphas: Optional[str] = None
     rosmap: bool = False
     maps: bool = False
     report: bool = False
@@ -176,12 +183,13 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
              sweeps: Optional[int] = None, burn_in: Optional[int] = None, seed: int = 0, final_map: bool = True,
              progress: Optional[ProgressCallback] = None, notify: Optional[Callable[[str], None]] = None,
              keyframe_distance: float = KEYFRAME_DISTANCE, keyframe_turn: float = KEYFRAME_TURN,
-             tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES):
+             tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES, motion=None):
     """Run :func:`bayesmap.slam.pipeline.run_keyframe_slam` on the ``scans`` (a :func:`parse_scans` spec) of a log
-    read from ``path``, its keyframes chosen by ``keyframe_distance`` meters and ``keyframe_turn`` radians
-    (:func:`bayesmap.slam.keyframes.select_keyframes`; 0: every scan), its map blocks in tiles of at most
-    ``tile_pairs`` pairs (:data:`bayesmap.inference.tiled.TILE_PAIRS`), its front end keeping ``particles``
-    hypotheses (:data:`bayesmap.slam.pipeline.FRONT_END_PARTICLES`); without ``final_map``, no final map (for
+    read from ``path``, its keyframes chosen by ``keyframe_distance`` meters and ``keyframe_turn`` radians and the
+    motion model's steps (:func:`bayesmap.slam.keyframes.select_keyframes`; 0: every scan), its map blocks in tiles
+    of at most ``tile_pairs`` pairs (:data:`bayesmap.inference.tiled.TILE_PAIRS`), its front end keeping ``particles``
+    hypotheses (:data:`bayesmap.slam.pipeline.FRONT_END_PARTICLES`), its motion noise ``motion``
+    (:class:`bayesmap.model.motion.MotionParams`; None: the defaults); without ``final_map``, no final map (for
     scoring the path alone).
 
     Args:
@@ -200,8 +208,8 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
     resolution = scenes.RESOLUTION if resolution is None else resolution
     sweeps, burn_in = slam_counts(sweeps, burn_in, LOG_SLAM_DEFAULTS)
     start_stage(progress, "build problem")
-    problem = log_slam_problem(carmen, chosen, resolution=resolution)
-    keyframes = select_keyframes(problem.odometry, keyframe_distance, keyframe_turn)
+    problem = log_slam_problem(carmen, chosen, resolution=resolution, motion=motion)
+    keyframes = select_keyframes(problem.odometry, keyframe_distance, keyframe_turn, problem.motion_steps()[1])
     check_slam_size(keyframe_problem(problem, keyframes), tile_pairs)
     if notify is not None:
         notify(f"bayesmap slam: {path.name}, {len(chosen)} scans ({len(keyframes)} keyframes), {sweeps} sweeps ...")
@@ -211,6 +219,7 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
     p = problem.params
     settings = {"scans": scans if scans is not None else "all", "resolution": resolution,
                 "keyframe_distance_m": float(keyframe_distance), "keyframe_turn_rad": float(keyframe_turn),
+                "keyframe_heading_sd_rad": KEYFRAME_HEADING_SD,
                 "keyframes": int(len(keyframes)), "tile_pairs": int(tile_pairs),
                 "front_end_particles": int(particles), "sweeps": sweeps,
                 "burn_in": burn_in, "seed": seed, "prior_wall_prob": float(p.prior_wall_prob),
@@ -262,9 +271,10 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
                      progress: Optional[ProgressCallback] = None,
                      notify: Optional[Callable[[str], None]] = None,
                      keyframes: tuple[float, float] = (KEYFRAME_DISTANCE, KEYFRAME_TURN),
-                     tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES) -> SlamRun:
+                     tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES, motion=None) -> SlamRun:
     """SLAM on a real log or bag (:func:`log_slam`, its keyframes at ``keyframes`` = (meters, radians), its map
-    blocks in tiles of at most ``tile_pairs`` pairs, its front end keeping ``particles`` hypotheses), with its
+    blocks in tiles of at most ``tile_pairs`` pairs, its front end keeping ``particles`` hypotheses, its motion noise
+    ``motion``), with its
     summary; trajectory.tum's stamps are the scans' timestamps where they increase strictly, else their indices
     (:func:`bayesmap.io.tum.tum_stamps`).
 
@@ -274,7 +284,7 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
     problem, result, chosen, settings = log_slam(carmen, path, scans, resolution, sweeps, burn_in, seed,
                                                  progress=progress, notify=notify, keyframe_distance=keyframes[0],
                                                  keyframe_turn=keyframes[1], tile_pairs=tile_pairs,
-                                                 particles=particles)
+                                                 particles=particles, motion=motion)
     all_stamps = tum_stamps(carmen.timestamps)
     grid = result.grid if result.grid is not None else problem.params.grid
     summary = {
@@ -294,7 +304,7 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
     }
     title = f"bayesmap slam: {path.name}, {problem.num_scans} scans, {settings['sweeps']} sweeps"
     return SlamRun(problem, result, summary, all_stamps[chosen], title,
-                   select_keyframes(problem.odometry, *keyframes))
+                   select_keyframes(problem.odometry, *keyframes, problem.motion_steps()[1]))
 
 
 def slam_files(run: SlamRun, report: bool = False, rosmap: bool = False, maps: bool = False,
@@ -358,14 +368,16 @@ def check_slam_request(req: SlamRequest) -> None:
         raise BayesmapError("give either --log or --bag, not both")
     if req.log is None and req.bag is None:
         if (req.scans is not None or req.resolution is not None or req.keyframe_distance is not None
-                or req.keyframe_turn is not None or req.tile_pairs is not None or req.particles is not None):
-            raise BayesmapError("--scans, --resolution, --tile-pairs, --particles and the keyframe options need --log "
-                                "FILE (or --bag PATH)")
+                or req.keyframe_turn is not None or req.tile_pairs is not None or req.particles is not None
+                or req.motion_alphas is not None):
+            raise BayesmapError("--scans, --resolution, --tile-pairs, --particles, --motion-alphas and the keyframe "
+                                "options need --log FILE (or --bag PATH)")
     elif req.num_poses is not None:
         raise BayesmapError("--num-poses applies to the tutorial scene, not to --log / --bag")
     check_tile_pairs_option(req.tile_pairs)
     if req.particles is not None and req.particles < 1:
         raise BayesmapError(f"--particles must be at least 1, got {req.particles}")
+    motion_option(req.motion_alphas)
     check_output_dir(req.out, req.force, owned=SLAM_OWNED_FILES)
 
 
@@ -392,7 +404,8 @@ def slam(req: SlamRequest, progress: Optional[ProgressCallback] = None,
                      KEYFRAME_TURN if req.keyframe_turn is None else req.keyframe_turn)
         run = run_log_slam_job(carmen, path, req.scans, req.resolution, req.sweeps, req.burn_in, req.seed,
                                stages, notify, keyframes, TILE_PAIRS if req.tile_pairs is None else req.tile_pairs,
-                               FRONT_END_PARTICLES if req.particles is None else req.particles)
+                               FRONT_END_PARTICLES if req.particles is None else req.particles,
+                               motion_option(req.motion_alphas))
     files = slam_files(run, report=req.report, rosmap=req.rosmap, maps=req.maps, stages=stages)
     return run, write_outputs(req.out, files, owned=SLAM_OWNED_FILES)
 

@@ -3,7 +3,8 @@
 A log recorded the way bags are (a scan every few centimeters, Freiburg 079: 4,791 scans over 434 m) holds many
 nearly identical scans. As Karto and slam_toolbox do (``MinimumTravelDistance``, ``minimum_travel_heading``),
 bayesmap's SLAM keeps a scan as a keyframe when the odometry has moved :data:`KEYFRAME_DISTANCE` meters or turned
-:data:`KEYFRAME_TURN` radians since the last keyframe (:func:`select_keyframes`); the SLAM model is the same model on
+:data:`KEYFRAME_TURN` radians since the last keyframe, or where the steps since would compose to a heading the front
+end's search cannot cover (:data:`KEYFRAME_HEADING_SD`; :func:`select_keyframes`); the SLAM model is the same model on
 the keyframes' scans (:func:`keyframe_problem`), its step from one keyframe to the next the odometry's steps of the
 scans between composed, their noise propagated to first order (:func:`bayesmap.model.motion.composed_steps`: the
 intermediate poses marginalized). Taken as one step of the motion model instead, a 0.5 m step of Freiburg 079 would
@@ -68,13 +69,24 @@ KEYFRAME_DISTANCE = 0.3
 :data:`KEYFRAME_TURN`). Chosen among 0.2, 0.3 and 0.5 m (Karto's ``MinimumTravelDistance`` default, between, and
 slam_toolbox's ``minimum_travel_distance``) by leave-one-log-out cross-validation of the path's ATE over Intel, ACES
 and CSAIL: the largest (cheapest) value whose ATE on each other log is at most 0.03 m (about the chain's own spread)
-above its ATE with every scan a keyframe; it
-keeps 883 of Intel's 910 scans, 433 of ACES' 440, all of CSAIL's 406 and 1,373 of Freiburg 079's 4,791
-([validation](../validation/defaults.md#keyframe_distance-and-keyframe_turn))."""
+above its ATE with every scan a keyframe; by distance and turn alone it keeps 883 of Intel's 910 scans, 433 of
+ACES' 440, all of CSAIL's 406 and 1,373 of Freiburg 079's 4,791 (with :data:`KEYFRAME_HEADING_SD` too: 906, 438,
+406 and 2,323) ([validation](../validation/defaults.md#keyframe_distance-and-keyframe_turn))."""
 
 KEYFRAME_TURN = 0.3
 """Radians of odometry turn since the last keyframe that make a scan a keyframe (about 17 degrees; with
 :data:`KEYFRAME_DISTANCE`, chosen with it)."""
+
+KEYFRAME_HEADING_SD = MATCH_LEVELS[0][1] * MATCH_LEVELS[0][3] / 3.5
+"""Radians: the standard deviation of heading, under the motion model, of the odometry composed since the last
+keyframe past which the scan before becomes a keyframe too (:func:`select_keyframes`; 0.229 rad). The front end's
+first search level reaches +-0.8 rad around each step's prediction (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`),
+3.5 of these: a keyframe's step composed of steps that jittered or backed up, each with an undirected heading
+(:data:`bayesmap.model.motion.UNDIRECTED_RADIUS`), can carry a heading error beyond the search. On ACES with
+odometry twice as noisy as the shared logs' (seed 1) such a step of three scans, its odometry heading 1.01 rad off
+(its standard deviation 0.44 rad), lost the whole run (20.7 m; 0.12 m with it cut). Derived from the search, not
+fitted; checked by leave-one-log-out cross-validation against the distance and turn alone
+([validation](../validation/defaults.md#keyframe_heading_sd))."""
 
 PLACE_LEVELS = ((0.05, 0.03, 2, 4, 1), *MATCH_LEVELS[1:])
 """The search that places a scan between keyframes: a coarse level on the broad field, +-0.1 m and +-0.12 rad around
@@ -97,33 +109,57 @@ def _check_threshold(name: str, value) -> float:
     return float(value)
 
 
-def select_keyframes(odometry, distance: float = KEYFRAME_DISTANCE, turn: float = KEYFRAME_TURN) -> np.ndarray:
+def select_keyframes(odometry, distance: float = KEYFRAME_DISTANCE, turn: float = KEYFRAME_TURN, step_covs=None,
+                     heading_sd: float = KEYFRAME_HEADING_SD) -> np.ndarray:
     """The keyframes of a path: the first scan, then every scan whose odometry pose lies ``distance`` meters or more
-    from the last keyframe's or has turned ``turn`` radians or more from it (Karto's and slam_toolbox's rule).
+    from the last keyframe's or has turned ``turn`` radians or more from it (Karto's and slam_toolbox's rule). With
+    the motion model's steps ``step_covs``, also every scan past which the heading's standard deviation of the
+    steps composed since the last keyframe (the square root of the sum of their heading variances: the heading of
+    composed steps is their sum) would exceed ``heading_sd``, so that no keyframe's step leaves the front end's
+    search (:data:`KEYFRAME_HEADING_SD`); a single step that exceeds it alone stays one step.
 
     Args:
         odometry: ``(S, 3)`` odometry poses (x m, y m, theta rad), ``S >= 1``.
         distance: meters, >= 0 (:data:`KEYFRAME_DISTANCE`); 0 (or ``turn`` 0) keeps every scan.
         turn: radians, >= 0 (:data:`KEYFRAME_TURN`).
+        step_covs: None (distance and turn alone), or ``(S - 1, 3, 3)`` the motion model's covariance of each step
+            (m^2, m rad, rad^2; :meth:`bayesmap.slam.problem.SlamProblem.motion_steps`).
+        heading_sd: radians, > 0 (``inf``: distance and turn alone).
 
     Returns:
         ``(K,)`` int64 ascending scan indices, ``K >= 1``, starting with 0.
 
     Raises:
-        BayesmapError: on a bad ``odometry`` shape or a negative or non-finite threshold (named).
+        BayesmapError: on a bad ``odometry`` or ``step_covs`` shape, a negative or non-finite threshold, or a
+            ``heading_sd`` that is not a number > 0 (named).
     """
     distance, turn = _check_threshold("keyframe distance", distance), _check_threshold("keyframe turn", turn)
     odometry = np.asarray(odometry, np.float64)
     if odometry.ndim != 2 or odometry.shape[1] != 3 or len(odometry) == 0:
         raise BayesmapError(f"odometry must have shape (S, 3) with S >= 1, got {odometry.shape}")
+    if isinstance(heading_sd, bool) or not isinstance(heading_sd, (int, float)) or not heading_sd > 0:
+        raise BayesmapError(f"keyframe heading_sd must be a number of radians > 0, got {heading_sd!r}")
     if distance == 0 or turn == 0:
         return np.arange(len(odometry), dtype=np.int64)
-    keep, last = [0], odometry[0].tolist()
+    variances = np.zeros(len(odometry) - 1)
+    if step_covs is not None:
+        step_covs = np.asarray(step_covs, np.float64)
+        if step_covs.shape != (len(odometry) - 1, 3, 3):
+            raise BayesmapError(f"step_covs must have shape {(len(odometry) - 1, 3, 3)}, got {step_covs.shape}")
+        variances = np.clip(step_covs[:, 2, 2], 0.0, None)
+    limit = float(heading_sd) ** 2
+    keep, last, composed = [0], odometry[0].tolist(), 0.0
     for s, (x, y, theta) in enumerate(odometry.tolist()):
+        if s == 0:
+            continue
+        if composed + variances[s - 1] > limit and keep[-1] < s - 1:  # the step to s would leave the search
+            keep.append(s - 1)
+            last, composed = odometry[s - 1].tolist(), 0.0
+        composed += variances[s - 1]
         turned = abs((theta - last[2] + math.pi) % (2 * math.pi) - math.pi)  # wrapped to [-pi, pi)
-        if s > 0 and (math.hypot(x - last[0], y - last[1]) >= distance or turned >= turn):
+        if math.hypot(x - last[0], y - last[1]) >= distance or turned >= turn:
             keep.append(s)
-            last = (x, y, theta)
+            last, composed = (x, y, theta), 0.0
     return np.asarray(keep, np.int64)
 
 
