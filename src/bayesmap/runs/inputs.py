@@ -116,6 +116,18 @@ def select_scans(log: CarmenLog, chosen) -> CarmenLog:
                      timestamps=log.timestamps[chosen], max_range=log.max_range, is_max_range=log.is_max_range[chosen])
 
 
+def _four_numbers(text: str, option: str, names: str) -> list[float]:
+    """The four comma-separated numbers of an option's value ``text`` (``option`` and its ``names`` for the
+    message); raises BayesmapError naming the value when there are not four numbers."""
+    try:
+        values = [float(p.strip()) for p in text.split(",")]
+    except ValueError:
+        raise BayesmapError(f"{option} must be four numbers {names}, got {text!r}") from None
+    if len(values) != 4:
+        raise BayesmapError(f"{option} must be four numbers {names}, got {len(values)} in {text!r}")
+    return values
+
+
 def sensor_params(beam_weights: Optional[str], lambda_short: Optional[float]) -> dict:
     """The beam mixture's parameters from ``--beam-weights HIT,SHORT,MAX,RAND`` and ``--lambda-short`` (keywords of
     ``make_params``, which checks them); empty for the defaults.
@@ -125,15 +137,7 @@ def sensor_params(beam_weights: Optional[str], lambda_short: Optional[float]) ->
     """
     params = {}
     if beam_weights is not None:
-        parts = [p.strip() for p in beam_weights.split(",")]
-        try:
-            values = [float(p) for p in parts]
-        except ValueError:
-            raise BayesmapError(f"--beam-weights must be four numbers HIT,SHORT,MAX,RAND, "
-                                f"got {beam_weights!r}") from None
-        if len(values) != 4:
-            raise BayesmapError(f"--beam-weights must be four numbers HIT,SHORT,MAX,RAND, "
-                                f"got {len(values)} in {beam_weights!r}")
+        values = _four_numbers(beam_weights, "--beam-weights", "HIT,SHORT,MAX,RAND")
         params.update(zip(("z_hit", "z_short", "z_max", "z_rand"), values))
     if lambda_short is not None:
         params["lambda_short"] = lambda_short
@@ -150,14 +154,7 @@ def motion_option(motion_alphas: Optional[str]):
     """
     if motion_alphas is None:
         return None
-    parts = [p.strip() for p in motion_alphas.split(",")]
-    try:
-        values = [float(p) for p in parts]
-    except ValueError:
-        raise BayesmapError(f"--motion-alphas must be four numbers A1,A2,A3,A4, got {motion_alphas!r}") from None
-    if len(values) != 4:
-        raise BayesmapError(f"--motion-alphas must be four numbers A1,A2,A3,A4, got {len(values)} in "
-                            f"{motion_alphas!r}")
+    values = _four_numbers(motion_alphas, "--motion-alphas", "A1,A2,A3,A4")
     try:
         return make_motion_params(values)
     except BayesmapError as err:
