@@ -29,8 +29,11 @@ motion model's log-density. Two of its settings are chosen here:
   reach (radians either side, its step of 0.04 rad kept) and the second level's half width in its steps of 0.007
   rad.
 * ``keyframe_heading_sd``: the composed heading standard deviation (radians) past which a scan between keyframes
-  becomes one (:data:`bayesmap.slam.keyframes.KEYFRAME_HEADING_SD`; ``inf``: distance and turn alone), for the
+  becomes one (:data:`bayesmap.slam.keyframes.KEYFRAME_HEADING_SD`, 0.229; ``inf``, the default here as in
+  ``slam --log``: distance and turn alone), for the
   ``keyframes`` scan set.
+* ``field_seed``: 1 for the front end's search to descend also from its first level's best fit of the scan alone
+  (:data:`bayesmap.slam.scanmatch.FIELD_SEED`), 0 for the best with the motion term alone.
 * ``motion_tail``: the weight of the broad component of the front end's motion density
   (:data:`bayesmap.slam.scanmatch.MOTION_TAIL_WEIGHT`; 0: the motion model's Normal alone).
 
@@ -66,7 +69,8 @@ repeated, so the grid can be split between processes and resumed.
 
 Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F
            [--parameter power|min_hit_fraction|window|consistency_gate|particles|loop_window_sigmas|step_covariances|
-                        first_heading_step|first_heading_reach|second_heading_steps|keyframe_heading_sd]
+                        first_heading_step|first_heading_reach|second_heading_steps|keyframe_heading_sd|
+                        field_seed]
            [--values 1,0.3,0.1,0.03] [--seeds 0-2] [--logs intel,aces,csail] [--scans all,heldout] [--noise 1]
 """
 
@@ -74,6 +78,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -90,7 +95,7 @@ from bayesmap.evaluation.heldout import heldout_split  # noqa: E402
 from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E402
 from bayesmap.runs.inputs import select_scans  # noqa: E402
 from bayesmap.slam import pipeline, posegraph, scanmatch  # noqa: E402
-from bayesmap.slam.keyframes import KEYFRAME_HEADING_SD, keyframe_problem, select_keyframes  # noqa: E402
+from bayesmap.slam.keyframes import keyframe_problem, select_keyframes  # noqa: E402
 from bayesmap.slam.problem import SLAM_LIKELIHOOD_POWER, log_slam_problem  # noqa: E402
 
 DEFAULTS = {"power": SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HIT_FRACTION,
@@ -100,7 +105,7 @@ DEFAULTS = {"power": SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HI
             "first_heading_reach": scanmatch.MATCH_LEVELS[0][1] * scanmatch.MATCH_LEVELS[0][3],
             "second_heading_steps": scanmatch.MATCH_LEVELS[1][3],
             "step_covariances": 1, "motion_tail": scanmatch.MOTION_TAIL_WEIGHT,
-            "keyframe_heading_sd": KEYFRAME_HEADING_SD}
+            "keyframe_heading_sd": math.inf, "field_seed": int(scanmatch.FIELD_SEED)}
 """The settings this script can vary, and the value each takes while the other is varied (the defaults of
 :func:`bayesmap.slam.pipeline.front_end`)."""
 
@@ -137,12 +142,13 @@ def start_path(log, truth, scans: str, parameter: str, value: float, name: tuple
     data = pipeline.scan_data(problem)
     key = (name, scans, *(setting[k] for k in ("power", "min_hit_fraction", "window", "particles",
                                                "first_heading_step", "first_heading_reach", "second_heading_steps",
-                                               "motion_tail", "keyframe_heading_sd")))
+                                               "motion_tail", "keyframe_heading_sd", "field_seed")))
     if not name or key not in FRONT_ENDS:  # the loop closure's settings share one front end
         FRONT_ENDS.clear()
         FRONT_ENDS[key] = pipeline.front_end(problem, data, min_hit_fraction=setting["min_hit_fraction"],
                                              window=setting["window"], particles=int(setting["particles"]),
-                                             levels=search_levels(setting), motion_tail=setting["motion_tail"])
+                                             levels=search_levels(setting), motion_tail=setting["motion_tail"],
+                                             field_seed=bool(setting["field_seed"]))
     matched = FRONT_ENDS[key]
     front = matched.path
     closed, edges, _ = posegraph.close_loops(front, data, consistency_gate=setting["consistency_gate"],

@@ -77,7 +77,7 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     # offset, whose mean turns the offset by E[R(delta)] instead of R(0), off by at most |offset| E[delta^2] / 2
     # (delta the keyframe's heading deviation; |exp(i d) - 1 - i d| <= d^2 / 2, E[delta] = 0)
     slam_problem = log_slam_problem(read_carmen(aces_odom), np.arange(25), resolution=0.2)
-    keyframes = select_keyframes(slam_problem.odometry, step_covs=slam_problem.motion_steps()[1])
+    keyframes = select_keyframes(slam_problem.odometry)
     own = keyframes[owners(25, keyframes)]
     delta = samples[:, own, 2] - poses[own, 2]
     delta = (delta + np.pi) % (2 * np.pi) - np.pi
@@ -95,12 +95,12 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert final["sweeps"] == FINAL_MAP_SWEEPS and final["geometry"] == "chord"
     for name in ("coupling", "wall_pass_prob"):
         assert final[name] == pytest.approx(float(getattr(known.params, name))) and final[name] > 0, name
-    # its noise is the model's widened for the path's error (FINAL_MAP_NOISE); 24 of the 25 scans are keyframes: by
-    # distance and turn 23, and scan 17 because the steps from 16 to 18 compose to a heading standard deviation
-    # over KEYFRAME_HEADING_SD (the step to 17 alone: 0.269 rad)
-    assert settings["keyframes"] == len(keyframes) == 24 and 17 in keyframes
-    assert settings["keyframe_heading_sd_rad"] == pytest.approx(0.8 / 3.5)
-    assert len(select_keyframes(slam_problem.odometry)) == 23 and 17 not in select_keyframes(slam_problem.odometry)
+    # its noise is the model's widened for the path's error (FINAL_MAP_NOISE); 23 of the 25 scans are keyframes, by
+    # distance and turn alone (with the motion model's steps, KEYFRAME_HEADING_SD, scan 17 would be one too: the
+    # steps from 16 to 18 compose to a heading standard deviation over it; slam --log does not pass them)
+    assert settings["keyframes"] == len(keyframes) == 23 and 17 not in keyframes
+    assert "keyframe_heading_sd_rad" not in settings
+    assert 17 in select_keyframes(slam_problem.odometry, step_covs=slam_problem.motion_steps()[1])
     assert final["sensor_noise"] == FINAL_MAP_NOISE
     assert final["sensor_noise"] > float(known.params.sensor_noise)
     # its power follows the readings' density at the mean path (trajectory.tum, rounded to 1e-6: a few endpoints

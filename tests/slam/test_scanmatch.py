@@ -15,6 +15,7 @@ from bayesmap.model.motion import compose, make_motion_params, odometry_controls
 from bayesmap.progress import Progress
 from bayesmap.slam import posegraph
 from bayesmap.slam.scanmatch import (
+    FIELD_SEED,
     LOCAL_MAP_DISTANCE,
     MATCH_LEVELS,
     MIN_HIT_FRACTION,
@@ -182,9 +183,11 @@ def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch)
     assert np.array_equal(first, [1.0, 2.0, 0.3]) and data == "scans"
     assert resolution == pipeline.FRONT_END_RESOLUTION
     assert options == {"likelihood_power": 0.25, "min_hit_fraction": MIN_HIT_FRACTION, "window": LOCAL_MAP_DISTANCE,
-                       "progress": None, "levels": MATCH_LEVELS, "motion_tail": MOTION_TAIL_WEIGHT, "motion": motion}
+                       "progress": None, "levels": MATCH_LEVELS, "motion_tail": MOTION_TAIL_WEIGHT, "motion": motion,
+                       "field_seed": FIELD_SEED}
     assert chosen == {"likelihood_power": 0.25, "min_hit_fraction": 0.3, "window": 20.0, "progress": None,
-                      "levels": MATCH_LEVELS, "motion_tail": MOTION_TAIL_WEIGHT, "motion": motion}
+                      "levels": MATCH_LEVELS, "motion_tail": MOTION_TAIL_WEIGHT, "motion": motion,
+                      "field_seed": FIELD_SEED}
 
 
 @pytest.mark.parametrize("heading_error", [0.3, 0.5])
@@ -708,6 +711,37 @@ def test_search_scores_every_lattice_candidate_as_field_scores_does(masked):
                                                       returned[2], f == 0, window, log_field))
             np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-3)
             assert np.argmax(got) == np.argmax(want)
+
+
+@pytest.mark.parametrize("weight", [4.0, 8.0, 16.0])
+def test_the_field_seed_descends_from_the_scans_own_best_fit_too(weight):
+    """The search's first level scores the broad field; here it is the room's broad field times 0.02, so that its
+    score tells the true pose from one 0.6 rad off by at most about a hundred nats, where the fine field tells them
+    apart by hundreds (683 measured), as a broad field of clutter compresses a scan's fit. The prediction is 0.6 rad
+    off and a Normal prior around it (0.05 m, 0.1 rad, times ``weight``: 72-288 nats at the truth) outweighs the
+    first level's difference but not the fine one's. Without the field seed the search descends from the prior's
+    side and ends more than 0.3 rad off; with it, it also descends from the scan's own best fit, ends within 0.03 m
+    (the field's half cell, 0.025 m, plus the last search step) and 0.01 rad of the truth, and its score is the
+    higher one (the fine field and the prior judge both descents)."""
+    from bayesmap.slam import scanmatch
+
+    grid, truth, _, beams, readings = room_scans(num_poses=3)
+    returned = readings < 30.0
+    fine, broad = scanmatch.add_to_fields(scanmatch.empty_fields(grid), grid, jnp.asarray(truth[:2]), beams[:2],
+                                          readings[:2], returned[:2])
+    fields = (fine, 0.02 * broad)
+    predicted = jnp.asarray(truth[2] + [0.0, 0.0, 0.6], jnp.float32)
+
+    def log_prior(cands):
+        return -0.5 * weight * jnp.sum(((cands - predicted) / jnp.asarray([0.05, 0.05, 0.1])) ** 2, axis=-1)
+
+    found = {seed: scanmatch.search(fields, grid, predicted, beams[2], readings[2], returned[2],
+                                    scanmatch.lattices(scanmatch.MATCH_LEVELS), log_prior, field_seed=seed)
+             for seed in (False, True)}
+    assert abs(float(found[False][0][2]) - truth[2, 2]) > 0.3
+    assert np.abs(np.asarray(found[True][0][:2]) - truth[2, :2]).max() < 0.03
+    assert abs(float(found[True][0][2]) - truth[2, 2]) < 0.01
+    assert float(found[True][1]) > float(found[False][1]) + 100
 
 
 def test_fields_and_searches_of_two_shifted_windows_agree_to_the_bit():

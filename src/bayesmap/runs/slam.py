@@ -38,13 +38,7 @@ from bayesmap.runs.outputs import (
     write_outputs,
 )
 from bayesmap.slam.joint import SlamResult, run_slam
-from bayesmap.slam.keyframes import (
-    KEYFRAME_DISTANCE,
-    KEYFRAME_HEADING_SD,
-    KEYFRAME_TURN,
-    keyframe_problem,
-    select_keyframes,
-)
+from bayesmap.slam.keyframes import KEYFRAME_DISTANCE, KEYFRAME_TURN, keyframe_problem, select_keyframes
 from bayesmap.slam.pipeline import (
     BURN_IN_ROUNDS,
     FINAL_MAP_SWEEPS,
@@ -185,8 +179,8 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
              keyframe_distance: float = KEYFRAME_DISTANCE, keyframe_turn: float = KEYFRAME_TURN,
              tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES, motion=None):
     """Run :func:`bayesmap.slam.pipeline.run_keyframe_slam` on the ``scans`` (a :func:`parse_scans` spec) of a log
-    read from ``path``, its keyframes chosen by ``keyframe_distance`` meters and ``keyframe_turn`` radians and the
-    motion model's steps (:func:`bayesmap.slam.keyframes.select_keyframes`; 0: every scan), its map blocks in tiles
+    read from ``path``, its keyframes chosen by ``keyframe_distance`` meters and ``keyframe_turn`` radians
+    (:func:`bayesmap.slam.keyframes.select_keyframes`; 0: every scan), its map blocks in tiles
     of at most ``tile_pairs`` pairs (:data:`bayesmap.inference.tiled.TILE_PAIRS`), its front end keeping ``particles``
     hypotheses (:data:`bayesmap.slam.pipeline.FRONT_END_PARTICLES`), its motion noise ``motion``
     (:class:`bayesmap.model.motion.MotionParams`; None: the defaults); without ``final_map``, no final map (for
@@ -209,7 +203,7 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
     sweeps, burn_in = slam_counts(sweeps, burn_in, LOG_SLAM_DEFAULTS)
     start_stage(progress, "build problem")
     problem = log_slam_problem(carmen, chosen, resolution=resolution, motion=motion)
-    keyframes = select_keyframes(problem.odometry, keyframe_distance, keyframe_turn, problem.motion_steps()[1])
+    keyframes = select_keyframes(problem.odometry, keyframe_distance, keyframe_turn)
     check_slam_size(keyframe_problem(problem, keyframes), tile_pairs)
     if notify is not None:
         notify(f"bayesmap slam: {path.name}, {len(chosen)} scans ({len(keyframes)} keyframes), {sweeps} sweeps ...")
@@ -219,7 +213,6 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
     p = problem.params
     settings = {"scans": scans if scans is not None else "all", "resolution": resolution,
                 "keyframe_distance_m": float(keyframe_distance), "keyframe_turn_rad": float(keyframe_turn),
-                "keyframe_heading_sd_rad": KEYFRAME_HEADING_SD,
                 "keyframes": int(len(keyframes)), "tile_pairs": int(tile_pairs),
                 "front_end_particles": int(particles), "sweeps": sweeps,
                 "burn_in": burn_in, "seed": seed, "prior_wall_prob": float(p.prior_wall_prob),
@@ -304,7 +297,7 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
     }
     title = f"bayesmap slam: {path.name}, {problem.num_scans} scans, {settings['sweeps']} sweeps"
     return SlamRun(problem, result, summary, all_stamps[chosen], title,
-                   select_keyframes(problem.odometry, *keyframes, problem.motion_steps()[1]))
+                   select_keyframes(problem.odometry, *keyframes))
 
 
 def slam_files(run: SlamRun, report: bool = False, rosmap: bool = False, maps: bool = False,

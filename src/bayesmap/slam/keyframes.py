@@ -3,8 +3,9 @@
 A log recorded the way bags are (a scan every few centimeters, Freiburg 079: 4,791 scans over 434 m) holds many
 nearly identical scans. As Karto and slam_toolbox do (``MinimumTravelDistance``, ``minimum_travel_heading``),
 bayesmap's SLAM keeps a scan as a keyframe when the odometry has moved :data:`KEYFRAME_DISTANCE` meters or turned
-:data:`KEYFRAME_TURN` radians since the last keyframe, or where the steps since would compose to a heading the front
-end's search cannot cover (:data:`KEYFRAME_HEADING_SD`; :func:`select_keyframes`); the SLAM model is the same model on
+:data:`KEYFRAME_TURN` radians since the last keyframe (:func:`select_keyframes`; given the motion model's steps, it
+also cuts where the steps since would compose to a heading the front end's search may not cover,
+:data:`KEYFRAME_HEADING_SD`, which ``slam --log`` does not use); the SLAM model is the same model on
 the keyframes' scans (:func:`keyframe_problem`), its step from one keyframe to the next the odometry's steps of the
 scans between composed, their noise propagated to first order (:func:`bayesmap.model.motion.composed_steps`: the
 intermediate poses marginalized). Taken as one step of the motion model instead, a 0.5 m step of Freiburg 079 would
@@ -69,23 +70,22 @@ KEYFRAME_DISTANCE = 0.3
 :data:`KEYFRAME_TURN`). Chosen among 0.2, 0.3 and 0.5 m (Karto's ``MinimumTravelDistance`` default, between, and
 slam_toolbox's ``minimum_travel_distance``) by leave-one-log-out cross-validation of the path's ATE over Intel, ACES
 and CSAIL: the largest (cheapest) value whose ATE on each other log is at most 0.03 m (about the chain's own spread)
-above its ATE with every scan a keyframe; by distance and turn alone it keeps 883 of Intel's 910 scans, 433 of
-ACES' 440, all of CSAIL's 406 and 1,373 of Freiburg 079's 4,791 (with :data:`KEYFRAME_HEADING_SD` too: 906, 438,
-406 and 2,323) ([validation](../validation/defaults.md#keyframe_distance-and-keyframe_turn))."""
+above its ATE with every scan a keyframe; it keeps 883 of Intel's 910 scans, 433 of ACES' 440, all of CSAIL's 406
+and 1,373 of Freiburg 079's 4,791 ([validation](../validation/defaults.md#keyframe_distance-and-keyframe_turn))."""
 
 KEYFRAME_TURN = 0.3
 """Radians of odometry turn since the last keyframe that make a scan a keyframe (about 17 degrees; with
 :data:`KEYFRAME_DISTANCE`, chosen with it)."""
 
 KEYFRAME_HEADING_SD = MATCH_LEVELS[0][1] * MATCH_LEVELS[0][3] / 3.5
-"""Radians: the standard deviation of heading, under the motion model, of the odometry composed since the last
-keyframe past which the scan before becomes a keyframe too (:func:`select_keyframes`; 0.229 rad). The front end's
-first search level reaches +-0.8 rad around each step's prediction (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`),
-3.5 of these: a keyframe's step composed of steps that jittered or backed up, each with an undirected heading
-(:data:`bayesmap.model.motion.UNDIRECTED_RADIUS`), can carry a heading error beyond the search. On ACES with
-odometry twice as noisy as the shared logs' (seed 1) such a step of three scans, its odometry heading 1.01 rad off
-(its standard deviation 0.44 rad), lost the whole run (20.7 m; 0.12 m with it cut). Derived from the search, not
-fitted; checked by leave-one-log-out cross-validation against the distance and turn alone
+"""Radians: with the motion model's steps, :func:`select_keyframes` also makes the scan before a step a keyframe where
+the heading standard deviation of the odometry composed since the last keyframe would pass this (0.229 rad: the front
+end's first search level reaches +-0.8 rad around each step's prediction, :data:`bayesmap.slam.scanmatch.
+MATCH_LEVELS`, 3.5 of these). A keyframe's step composed of steps that jittered or backed up, each with an undirected
+heading (:data:`bayesmap.model.motion.UNDIRECTED_RADIUS`), can carry a heading error beyond the search. Derived from
+the search, not fitted. ``slam --log`` does not pass the steps, so it keyframes by distance and turn alone: the rule
+kept ACES with odometry twice as noisy as the shared logs' (seed 1: 20.7 -> 0.12 m) but lost Freiburg 079's odometry
+seed 2 at the shared noise (0.073 -> 3.618 m), by changing which local map one outlying step met
 ([validation](../validation/defaults.md#keyframe_heading_sd))."""
 
 PLACE_LEVELS = ((0.05, 0.03, 2, 4, 1), *MATCH_LEVELS[1:])

@@ -51,6 +51,7 @@ from bayesmap.inference.importance import effective_sample_size
 from bayesmap.model.motion import MotionParams, compose, tailed_motion_logpdf
 from bayesmap.progress import ProgressCallback
 from bayesmap.slam.scanmatch import (
+    FIELD_SEED,
     LOCAL_MAP_DISTANCE,
     MATCH_GRID_HALF_WIDTH,
     MATCH_LEVELS,
@@ -91,8 +92,8 @@ HYPOTHESIS_DISTANCE = 0.5
 
 
 class ParticleContext(NamedTuple):
-    """The scans and settings :func:`step` reads (a pytree; ``grid``, ``half_width`` and ``draw`` are static in
-    :func:`particle_path`'s jitted loop).
+    """The scans and settings :func:`step` reads (a pytree; ``grid``, ``half_width``, ``draw`` and ``field_seed`` are
+    static in :func:`particle_path`'s jitted loop).
 
     Attributes:
         setup: :class:`bayesmap.slam.scanmatch.FrontEndSetup` (the scans, the frame, the grid, the local map's span,
@@ -102,6 +103,7 @@ class ParticleContext(NamedTuple):
         widths: ``(A B, 3)`` its cells' widths (:func:`bayesmap.slam.scanmatch.step_cell_widths`).
         half_width: meters, the fields' half width.
         draw: True: draw each pose from the step's lattice density; False: take the match.
+        field_seed: the search's (:func:`bayesmap.slam.scanmatch.search`, :data:`bayesmap.slam.scanmatch.FIELD_SEED`).
     """
 
     setup: FrontEndSetup
@@ -110,6 +112,7 @@ class ParticleContext(NamedTuple):
     widths: jax.Array
     half_width: float
     draw: bool
+    field_seed: bool = FIELD_SEED
 
 
 class ParticleState(NamedTuple):
@@ -185,7 +188,7 @@ def _move(context: ParticleContext, key, k, t, prev, fields, stamps, shift):
     def log_prior(cands):
         return setup.prior_weight * tailed_motion_logpdf(prev, cands, u, cov, setup.tail_weight, setup.tail_cov)
 
-    best, _ = search(seen, grid, start, *scan, context.levels, log_prior, shift=shift)
+    best, _ = search(seen, grid, start, *scan, context.levels, log_prior, shift=shift, field_seed=context.field_seed)
     trusted = hit_fraction(seen, grid, best, *scan, shift=shift) >= setup.min_hit
     cands, logits = step_logits(seen, grid, best, prev, u, cov, *scan, setup.power, context.lattice, shift=shift,
                                 tail=(setup.tail_weight, setup.tail_cov))
@@ -257,12 +260,12 @@ def step(key, state: ParticleState, context: ParticleContext) -> tuple[ParticleS
     return state, ParticleInfo(ess=ess, resampled=resampled, evidence=evidence, trusted=trusted)
 
 
-@functools.partial(jax.jit, donate_argnames=("state",), static_argnames=("grid", "half_width", "draw"))
-def _steps(state, lo, hi, key, setup_arrays, grid, levels, lattice, widths, half_width, draw):
+@functools.partial(jax.jit, donate_argnames=("state",), static_argnames=("grid", "half_width", "draw", "field_seed"))
+def _steps(state, lo, hi, key, setup_arrays, grid, levels, lattice, widths, half_width, draw, field_seed):
     """:func:`step` over the scans ``lo <= t < hi`` from ``state`` (whose ``t`` is ``lo``), the key of scan ``t``
     ``fold_in(key, t)``."""
     setup = FrontEndSetup(*setup_arrays[:3], grid, *setup_arrays[3:])
-    context = ParticleContext(setup, levels, lattice, widths, half_width, draw)
+    context = ParticleContext(setup, levels, lattice, widths, half_width, draw, field_seed)
 
     def body(t, state):
         return step(jax.random.fold_in(key, t), state, context)[0]
@@ -295,7 +298,7 @@ def particle_path(first_pose, data: ScanData, resolution: float, particles: int,
                   half_width: float = MATCH_GRID_HALF_WIDTH, likelihood_power: float = 1.0,
                   min_hit_fraction: float = MIN_HIT_FRACTION,
                   progress: ProgressCallback | None = None, motion_tail: float = MOTION_TAIL_WEIGHT,
-                  motion: MotionParams | None = None) -> ParticlePath:
+                  motion: MotionParams | None = None, field_seed: bool = FIELD_SEED) -> ParticlePath:
     """Sequential Monte Carlo over the front end's path (the module docstring) with ``particles`` particles.
 
     Args:
@@ -321,6 +324,7 @@ def particle_path(first_pose, data: ScanData, resolution: float, particles: int,
         motion_tail: the weight of the motion density's broad component, as
             :func:`bayesmap.slam.scanmatch.correlative_path` (:data:`bayesmap.slam.scanmatch.MOTION_TAIL_WEIGHT`).
         motion: the motion noise that sets that component's covariance, as there.
+        field_seed: the search's, as there (:data:`bayesmap.slam.scanmatch.FIELD_SEED`).
 
     Returns:
         A :class:`ParticlePath`.
@@ -334,13 +338,13 @@ def particle_path(first_pose, data: ScanData, resolution: float, particles: int,
     setup = front_end_setup(first_pose, data, resolution, window, half_width, likelihood_power, min_hit_fraction,
                             motion_tail, motion)
     context = ParticleContext(setup, lattices(levels), step_lattice(), step_cell_widths(), float(half_width),
-                              bool(draw))
+                              bool(draw), bool(field_seed))
     count = data.readings.shape[0]
     key = jax.random.key(seed)
     arrays = (*setup[:3], *setup[4:])
     run = functools.partial(_steps, key=key, setup_arrays=arrays, grid=setup.grid, levels=context.levels,
                             lattice=context.lattice, widths=context.widths, half_width=context.half_width,
-                            draw=context.draw)
+                            draw=context.draw, field_seed=context.field_seed)
 
     def start():
         return jax.tree_util.tree_map(jnp.array, init(context, int(particles)))  # its own buffers: the loop donates

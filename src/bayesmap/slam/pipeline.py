@@ -85,6 +85,7 @@ from bayesmap.slam.posegraph import (
 )
 from bayesmap.slam.poses import SEGMENT_LENGTH, composed_pose_kernels, random_walk_pose_mh, segment_pose_mh, slam_data
 from bayesmap.slam.scanmatch import (
+    FIELD_SEED,
     LOCAL_MAP_DISTANCE,
     MATCH_LEVELS,
     MIN_HIT_FRACTION,
@@ -173,7 +174,7 @@ def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MAR
 def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTION,
               window: float = LOCAL_MAP_DISTANCE, particles: int = FRONT_END_PARTICLES, seed: int = 0,
               progress: ProgressCallback | None = None, levels=MATCH_LEVELS,
-              motion_tail: float = MOTION_TAIL_WEIGHT) -> MatchedPath:
+              motion_tail: float = MOTION_TAIL_WEIGHT, field_seed: bool = FIELD_SEED) -> MatchedPath:
     """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad) and its steps' posterior covariances
     (:class:`bayesmap.slam.scanmatch.MatchedPath`): correlative scan matching from the first
     odometry pose on fields of :data:`FRONT_END_RESOLUTION` meters that follow the robot
@@ -189,7 +190,9 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
     ``levels`` is the coarse-to-fine search (:data:`bayesmap.slam.scanmatch.MATCH_LEVELS`). The search and the
     steps' posteriors score the motion model with a broad component of weight ``motion_tail``, the covariance of a
     step that backed up under the problem's motion noise (:data:`bayesmap.slam.scanmatch.MOTION_TAIL_WEIGHT`;
-    0: the motion model alone); the target's motion density is the model's. ``progress`` gets
+    0: the motion model alone); the target's motion density is the model's. ``field_seed``: the search also
+    descends from the scan's best fit alone at its first level (:data:`bayesmap.slam.scanmatch.FIELD_SEED`).
+    ``progress`` gets
     ``Progress("front end", done, S - 1, "scan")`` as the scans are matched.
 
     Raises:
@@ -197,7 +200,8 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
             :func:`bayesmap.slam.particles.particle_path`."""
     odometry = np.asarray(problem.odometry, np.float64)
     options = dict(likelihood_power=problem.likelihood_power, min_hit_fraction=min_hit_fraction, window=window,
-                   progress=progress, levels=levels, motion_tail=motion_tail, motion=problem.motion)
+                   progress=progress, levels=levels, motion_tail=motion_tail, motion=problem.motion,
+                   field_seed=field_seed)
     if isinstance(particles, (int, np.integer)) and not isinstance(particles, bool) and particles == 1:
         return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, **options)
     return particle_path(odometry[0], data, FRONT_END_RESOLUTION, particles, seed=seed, **options).matched

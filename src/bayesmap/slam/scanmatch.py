@@ -103,6 +103,20 @@ over x, y and heading or over the heading alone, on Intel, ACES and CSAIL at the
 twice it ([validation](../validation/defaults.md#motion_tail_weight))."""
 
 
+FIELD_SEED = False
+"""Whether the front end's search (:func:`search`'s ``field_seed``) also descends from the first level's best
+candidate by the scan's broad-field score alone, besides the best by that score plus the motion term, taking that
+descent where it scores higher at the last level and ends in another basin (beyond the second level's reach). The
+broad field (0.2 m) compresses a scan's fit where the fine one tells poses apart by far more, while the motion term
+weighs the same at every level, so at the first level a step whose odometry erred by more than the motion model
+allows can lose to the odometry's prediction by the motion term alone, and the fine levels, +-0.09 m and +-0.042 rad
+around it, cannot come back. On, it matched such a step of Freiburg 079 right, but on every other scan of CSAIL, whose
+steps see too little of their local map for the score to tell basins apart, the other basin was the wrong one and
+`slam --log` lost the track on 4 of 5 odometry seeds; so it is off (leave-one-log-out cross-validation of the start
+path's ATE over Intel, ACES and CSAIL chose it on two of three folds;
+[validation](../validation/defaults.md#field_seed))."""
+
+
 LOCAL_MAP_DISTANCE = 10.0
 """Meters of path length: :func:`correlative_path` matches each scan against the scans taken within this distance
 travelled before it (slam_toolbox's, i.e. Karto's, default running buffer, ``scan_buffer_maximum_scan_distance``),
@@ -335,7 +349,7 @@ def lattices(levels) -> Lattices:
 
 
 def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned, levels: Lattices,
-           log_prior=None, window=None, log_fields=None, shift=None):
+           log_prior=None, window=None, log_fields=None, shift=None, field_seed: bool = False):
     """The coarse-to-fine search: at each level score ``center + offsets`` (:func:`field_scores` plus
     ``log_prior(candidates)`` if given) and recenter on the best (the first of equal scores, in the order of the
     offsets ``(x, y, heading)``, heading fastest); the fine field (index 0) is interpolated, the broad one looked up at
@@ -352,20 +366,47 @@ def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned,
             this one (cell ``c`` there is cell ``c - shift`` here): every cell coordinate is computed in that frame
             and the cells shifted in integers, so that nothing depends on ``shift`` to the bit (the front end's
             fields, which follow the robot).
+        field_seed: with ``log_prior`` and more than one level, also descend the later levels from the first
+            level's best candidate by the field score alone, and return that descent where it scores higher at the
+            last level and ends beyond the second level's reach (in x or y, or in heading) from the other descent's
+            end: two ends within it are one basin, where a lattice step's difference would only perturb the path
+            (:data:`FIELD_SEED`). The result never scores lower than without it. The cost: the later levels twice.
 
     Returns:
         ``(best (3,), score)``: the best pose and its score at the last level.
     """
-    best, score = center, jnp.asarray(0.0)
-    for (xy, theta), f in levels:
+    levels = list(levels)
+
+    def level_scores(best, level):
+        (xy, theta), f = level
         scores = lattice_scores(fields[f], grid, best, xy, theta, sensor_angles, readings, returned,
-                                 interpolate=f == 0, window=window,
-                                 log_field=None if log_fields is None else log_fields[f], shift=shift)
-        cands = lattice_poses(best, xy, theta)
-        if log_prior is not None:
-            scores = scores + log_prior(cands)
-        j = jnp.argmax(scores)
-        best, score = cands[j], scores[j]
+                                interpolate=f == 0, window=window,
+                                log_field=None if log_fields is None else log_fields[f], shift=shift)
+        return lattice_poses(best, xy, theta), scores
+
+    def descend(best, score, rest):
+        for level in rest:
+            cands, scores = level_scores(best, level)
+            if log_prior is not None:
+                scores = scores + log_prior(cands)
+            j = jnp.argmax(scores)
+            best, score = cands[j], scores[j]
+        return best, score
+
+    if not levels:
+        return center, jnp.asarray(0.0)
+    cands, field = level_scores(center, levels[0])
+    scores = field if log_prior is None else field + log_prior(cands)
+    j = jnp.argmax(scores)
+    best, score = descend(cands[j], scores[j], levels[1:])
+    if field_seed and log_prior is not None and len(levels) > 1:
+        k = jnp.argmax(field)
+        other, other_score = descend(cands[k], scores[k], levels[1:])
+        (xy, theta), _ = levels[1]  # the second level's reach: two ends within it are one basin
+        gap = jnp.abs(other - best)
+        apart = (jnp.max(gap[:2]) > jnp.max(jnp.abs(xy))) | (gap[2] > jnp.max(jnp.abs(theta)))
+        better = apart & (other_score > score)
+        best, score = jnp.where(better, other, best), jnp.where(better, other_score, score)
     return best, score
 
 
@@ -497,7 +538,7 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
                      half_width: float = MATCH_GRID_HALF_WIDTH,
                      likelihood_power: float = 1.0, min_hit_fraction: float = MIN_HIT_FRACTION,
                      progress: ProgressCallback | None = None, motion_tail: float = MOTION_TAIL_WEIGHT,
-                     motion: MotionParams | None = None) -> MatchedPath:
+                     motion: MotionParams | None = None, field_seed: bool = FIELD_SEED) -> MatchedPath:
     """Sequential correlative scan matching of every scan against the field of the scans before it, with each step's
     posterior covariance (:func:`step_posterior`).
 
@@ -523,6 +564,7 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
         motion: the motion noise whose :func:`bayesmap.model.motion.backward_step_covariance` is the broad
             component's extra covariance (default :class:`bayesmap.model.motion.MotionParams`' defaults); the steps'
             own covariances are ``data``'s.
+        field_seed: also descend from the first level's best by the field alone (:data:`FIELD_SEED`).
 
     Returns:
         A :class:`MatchedPath`: the path, row 0 ``first_pose``, and the steps' covariances.
@@ -537,7 +579,8 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     run = functools.partial(_correlative_steps, d=setup.scans, frame=setup.frame, span=setup.span,
                             prior_weight=setup.prior_weight, min_hit=setup.min_hit, steps=lattices(levels),
                             grid=setup.grid, half_width=float(half_width), power=setup.power,
-                            posterior=step_lattice(), tail=(setup.tail_weight, setup.tail_cov))
+                            posterior=step_lattice(), tail=(setup.tail_weight, setup.tail_cov),
+                            field_seed=bool(field_seed))
     start = functools.partial(start_window, setup.first_pose, setup.scans, setup.frame, setup.grid)
     carry = run_in_blocks(run, start, data.readings.shape[0], progress)
     return MatchedPath(np.asarray(carry[0], np.float64), np.asarray(carry[-1], np.float64)[1:])
@@ -716,9 +759,9 @@ def start_window(first, d, frame, grid: Grid):
     return path, fields, stamps, offset, jnp.zeros((d.readings.shape[0], 3, 3), first.dtype)
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "half_width"), donate_argnames=("carry",))
+@functools.partial(jax.jit, static_argnames=("grid", "half_width", "field_seed"), donate_argnames=("carry",))
 def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, steps: Lattices, grid: Grid,
-                       half_width: float, power, posterior, tail):
+                       half_width: float, power, posterior, tail, field_seed: bool = FIELD_SEED):
     """The jitted loop of :func:`correlative_path` over the scans ``lo <= t < hi`` from ``carry`` (module level, so
     that another run with the same shapes and settings reuses the compiled code; the bounds are arguments, so runs in
     pieces share it): the carry ``(path (S, 3)`` in world coordinates, fields, stamps, window offset) after scan
@@ -728,7 +771,8 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
     ``prior_weight`` the inverse of the likelihood power (scaling the motion term instead of the field score leaves
     the argmax the same); ``min_hit`` the least hit fraction of a trusted match; ``power`` the likelihood power and
     ``posterior`` the lattice (:func:`step_lattice`) of each step's covariance (:func:`step_posterior`), the last
-    entry of the carry; ``tail`` ``(weight, covariance)`` the motion density's broad component in both."""
+    entry of the carry; ``tail`` ``(weight, covariance)`` the motion density's broad component in both;
+    ``field_seed`` :func:`search`'s."""
     def body(t, carry):
         path, fields, stamps, offset, step_cov = carry
         prev = path[t - 1] - frame
@@ -742,7 +786,7 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
 
         seen = local_map(fields, stamps, d.travelled[t] - span)  # the cells reached within the window
         scan = (d.sensor_angles[t], d.readings[t], d.returned[t])
-        best, _ = search(seen, grid, predicted, *scan, steps, log_prior, shift=moved)
+        best, _ = search(seen, grid, predicted, *scan, steps, log_prior, shift=moved, field_seed=field_seed)
         hits = hit_fraction(seen, grid, best, *scan, shift=moved)
         world = jnp.where(hits < min_hit, predicted, best) + frame
         cov = step_posterior(seen, grid, best, prev, d.increments[t - 1], d.covs[t - 1], *scan, power, posterior,
