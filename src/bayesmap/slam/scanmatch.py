@@ -384,11 +384,13 @@ def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned,
                                 log_field=None if log_fields is None else log_fields[f], shift=shift)
         return lattice_poses(best, xy, theta), scores
 
+    def with_prior(cands, scores):
+        return scores if log_prior is None else scores + log_prior(cands)
+
     def descend(best, score, rest):
         for level in rest:
             cands, scores = level_scores(best, level)
-            if log_prior is not None:
-                scores = scores + log_prior(cands)
+            scores = with_prior(cands, scores)
             j = jnp.argmax(scores)
             best, score = cands[j], scores[j]
         return best, score
@@ -396,7 +398,7 @@ def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned,
     if not levels:
         return center, jnp.asarray(0.0)
     cands, field = level_scores(center, levels[0])
-    scores = field if log_prior is None else field + log_prior(cands)
+    scores = with_prior(cands, field)
     j = jnp.argmax(scores)
     best, score = descend(cands[j], scores[j], levels[1:])
     if field_seed and log_prior is not None and len(levels) > 1:
