@@ -238,8 +238,9 @@ def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
     run, compilation included."""
     log = read_carmen(problem.log_path)
     stride = 1 if len(problem.scans) < 2 else int(problem.scans[1] - problem.scans[0])
-    _, result, chosen, settings = log_slam(log, problem.log_path, scans=None if stride == 1 else f"::{stride}",
-                                           seed=problem.seed, final_map=False)
+    run = log_slam(log, problem.log_path, scans=None if stride == 1 else f"::{stride}", seed=problem.seed,
+                   final_map=False)
+    result, chosen, settings = run.result, run.chosen, run.settings
     if not np.array_equal(chosen, problem.scans):
         raise BayesmapError(f"bayesmap took scans {chosen[:3]}... where the problem has {problem.scans[:3]}...")
     extra["coverage"] = ellipse_coverage(result.mean_path, result.pose_cov, problem.truth)

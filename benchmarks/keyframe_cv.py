@@ -51,8 +51,8 @@ def run_one(name: str, seed: int, threshold: float, cut: float) -> dict:
     log, truth = log_and_truth(name, seed)
     slam_problem.LOG_CUT_PAST_READING = cut  # slam_map_settings reads it at each call
     start = time.perf_counter()
-    _, result, _, settings = log_slam(log, Path(f"{name}.log"), final_map=False, keyframe_distance=threshold,
-                                      keyframe_turn=threshold)
+    run = log_slam(log, Path(f"{name}.log"), final_map=False, keyframe_distance=threshold, keyframe_turn=threshold)
+    result, settings = run.result, run.settings
     scores = score_trajectory(result.mean_path, truth, result.pose_cov)
     return {"log": name, "seed": seed, "keyframe": threshold, "cut": cut, "ate_m": scores["ate_rmse_m"],
             "coverage": scores["coverage"], "keyframes": settings["keyframes"],

@@ -212,8 +212,9 @@ def evaluate_trajectory(req: EvaluateRequest, progress: Optional[ProgressCallbac
                                    name=str(req.truth_trajectory),
                                    stamped=np.array_equal(log_stamps, carmen.timestamps))
     if req.run is None:
-        _, result, chosen, settings = log_slam(carmen, path, req.scans, req.resolution, req.sweeps, None, req.seed,
-                                               final_map=False, progress=progress, notify=notify)
+        run = log_slam(carmen, path, req.scans, req.resolution, req.sweeps, None, req.seed, final_map=False,
+                       progress=progress, notify=notify)
+        result, chosen, settings = run.result, run.chosen, run.settings
         mean, cov = result.mean_path, result.pose_cov
         setup.update(settings=settings, runtime_s=result.runtime_s, acceptance_rate=result.acceptance_rate)
     setup.update(scans=len(chosen), paired_by=paired)

@@ -104,6 +104,18 @@ class SlamRun(NamedTuple):
     keyframes: Optional[np.ndarray] = None
 
 
+class LogSlam(NamedTuple):
+    """What :func:`log_slam` returns: the ``problem`` of the chosen scans, the ``result``
+    (:class:`~bayesmap.slam.joint.SlamResult`), ``chosen`` ``(S,)`` int64 the log's scan indices, ``settings``
+    (summary.json's) and ``keyframes`` ``(K,)`` int64, the problem's scans the chain and the map ran on."""
+
+    problem: SlamProblem
+    result: SlamResult
+    chosen: np.ndarray
+    settings: dict
+    keyframes: np.ndarray
+
+
 def slam_counts(sweeps: Optional[int], burn_in: Optional[int], default: dict) -> tuple[int, int]:
     """``(sweeps, burn_in)`` of a SLAM run: the given ones, ``default`` (``{"sweeps", "burn_in"}``) where neither
     is given, a third of the sweeps for a missing burn-in.
@@ -177,7 +189,7 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
              sweeps: Optional[int] = None, burn_in: Optional[int] = None, seed: int = 0, final_map: bool = True,
              progress: Optional[ProgressCallback] = None, notify: Optional[Callable[[str], None]] = None,
              keyframe_distance: float = KEYFRAME_DISTANCE, keyframe_turn: float = KEYFRAME_TURN,
-             tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES, motion=None):
+             tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES, motion=None) -> LogSlam:
     """Run :func:`bayesmap.slam.pipeline.run_keyframe_slam` on the ``scans`` (a :func:`parse_scans` spec) of a log
     read from ``path``, its keyframes chosen by ``keyframe_distance`` meters and ``keyframe_turn`` radians
     (:func:`bayesmap.slam.keyframes.select_keyframes`; 0: every scan), its map blocks in tiles
@@ -193,7 +205,7 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
         notify: called with one line (the log, its scans and sweeps) before the long work starts.
 
     Returns:
-        ``(problem, result, chosen scan indices (S,), settings dict)``.
+        A :class:`LogSlam`.
 
     Raises:
         BayesmapError: on a bad scan selection or counts, or a problem too large to fit (named).
@@ -227,7 +239,7 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
                                  "sensor_noise": float(result.final_map_noise), "geometry": final.geometry,
                                  "coupling": float(final.coupling), "wall_pass_prob": float(final.wall_pass_prob),
                                  "likelihood_power": float(result.final_map_power)}
-    return problem, result, chosen, settings
+    return LogSlam(problem, result, chosen, settings, np.asarray(keyframes, np.int64))
 
 
 def slam_endpoints(problem: SlamProblem, path) -> np.ndarray:
@@ -274,10 +286,10 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
     Raises:
         BayesmapError: as :func:`log_slam`.
     """
-    problem, result, chosen, settings = log_slam(carmen, path, scans, resolution, sweeps, burn_in, seed,
-                                                 progress=progress, notify=notify, keyframe_distance=keyframes[0],
-                                                 keyframe_turn=keyframes[1], tile_pairs=tile_pairs,
-                                                 particles=particles, motion=motion)
+    problem, result, chosen, settings, kept = log_slam(carmen, path, scans, resolution, sweeps, burn_in, seed,
+                                                       progress=progress, notify=notify,
+                                                       keyframe_distance=keyframes[0], keyframe_turn=keyframes[1],
+                                                       tile_pairs=tile_pairs, particles=particles, motion=motion)
     all_stamps = tum_stamps(carmen.timestamps)
     grid = result.grid if result.grid is not None else problem.params.grid
     summary = {
@@ -296,8 +308,7 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
                               else "scan indices of the log (its timestamps do not increase strictly)"),
     }
     title = f"bayesmap slam: {path.name}, {problem.num_scans} scans, {settings['sweeps']} sweeps"
-    return SlamRun(problem, result, summary, all_stamps[chosen], title,
-                   select_keyframes(problem.odometry, *keyframes))
+    return SlamRun(problem, result, summary, all_stamps[chosen], title, kept)
 
 
 def slam_files(run: SlamRun, report: bool = False, rosmap: bool = False, maps: bool = False,
