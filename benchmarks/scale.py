@@ -112,7 +112,8 @@ def process_label(cmdline: list[str]) -> str:
 
 def poll_tree(pid: int, peaks: dict) -> float:
     """The resident memory of ``pid`` and all its descendants, MB (each one's RSS, /proc/PID/statm); ``peaks``
-    (label -> MB) keeps each process's largest high-water mark (:func:`hwm_mb`)."""
+    (label -> MB) keeps each process's largest high-water mark (:func:`hwm_mb`), a process whose command line reads
+    empty (between fork and exec, or exiting) left out."""
     import psutil
 
     total = 0
@@ -122,7 +123,7 @@ def poll_tree(pid: int, peaks: dict) -> float:
             label, hwm = process_label(proc.cmdline()), hwm_mb(proc.pid)
         except psutil.NoSuchProcess:
             continue
-        if hwm is not None:
+        if hwm is not None and label:  # an empty command line: a process between fork and exec, or one exiting
             peaks[label] = max(peaks.get(label, 0.0), hwm)
     return total / MB
 
