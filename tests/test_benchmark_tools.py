@@ -225,14 +225,15 @@ def test_target_at_truth_scores_the_slam_models_assess_and_tempers_only_the_read
     assert target_t == pytest.approx(target - 0.75 * readings, rel=1e-5, abs=1e-2)
     # the bound: certain probabilities (the draw itself) leave the target; a cell at one half adds its entropy, log 2,
     # and the prior's expectation in place of the draw's value
-    assert target_at_truth.map_entropy_bound(params, walls, target, walls) == pytest.approx(target, abs=1e-4)
+    # (2e-3: without x64 JAX sums the prior's 441 terms in float32, whose rounding at a sum near 300 reaches 1e-3)
+    assert target_at_truth.map_entropy_bound(params, walls, target, walls) == pytest.approx(target, abs=2e-3)
     half = walls.astype(np.float64).copy()
     half[0, 0] = 0.5
     q = params.prior_wall_prob
     drawn = np.log(q) if walls[0, 0] > 0.5 else np.log1p(-q)
     expected_change = 0.5 * np.log(q) + 0.5 * np.log1p(-q) - drawn + np.log(2.0)
     assert target_at_truth.map_entropy_bound(params, half, target, walls) == pytest.approx(target + expected_change,
-                                                                                          abs=1e-4)
+                                                                                          abs=2e-3)
     # the truth carried onto another first pose keeps every relative pose
     moved = target_at_truth.in_model_frame(path, np.array([1.0, -2.0, 0.7]))
     np.testing.assert_allclose(moved[0], [1.0, -2.0, 0.7], atol=1e-12)
