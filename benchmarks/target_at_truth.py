@@ -60,19 +60,26 @@ def in_model_frame(truth, first_pose) -> np.ndarray:
     return moved
 
 
+def scans_at(problem, params, path) -> tuple[np.ndarray, Problem]:
+    """``(path (S, 3), scans)``: ``path`` with its headings unwrapped (the motion model's heading is a real number)
+    and the problem's scans at it as a known-pose :class:`bayesmap.problem.Problem` on ``params``' grid (their
+    world-frame rays, which the map's draws and its score both read)."""
+    path = np.array(path, np.float64)
+    path[:, 2] = np.unwrap(path[:, 2])
+    angles = path[:, 2:3] + problem.sensor_angles
+    return path, Problem.from_world_frame(params, path[:, :2], angles, problem.readings)
+
+
 def target_log_density(problem, params, path, walls) -> tuple[float, float, float]:
     """``(target, motion, p readings)``: the target's log-density (nats) at ``path`` ``(S, 3)`` and ``walls``
     ``(nx, ny)`` on ``params``' grid: the motion model's log-density of the path, the prior's of the walls and the
     problem's power ``p`` times the readings' (at ``p = 1``, the SLAM model's ``assess``)."""
-    path = np.array(path, np.float64)
-    path[:, 2] = np.unwrap(path[:, 2])
+    path, scans = scans_at(problem, params, path)
     increments, covs = problem.motion_steps()
     motion = float(path_logpdf(jnp.asarray(path), jnp.asarray(path[0]), jnp.asarray(increments), jnp.asarray(covs)))
     walls = np.asarray(walls)
     prior = float(log_prior(walls, params.prior_wall_prob, params.coupling))
-    angles = path[:, 2:3] + problem.sensor_angles
-    joint = Problem.from_world_frame(params, path[:, :2], angles, problem.readings).table_log_joint(walls)
-    readings = problem.likelihood_power * (joint - prior)
+    readings = problem.likelihood_power * (scans.table_log_joint(walls) - prior)
     return motion + prior + readings, motion, readings
 
 
@@ -80,10 +87,8 @@ def drawn_walls(problem, params, path, key, sweeps: int) -> tuple[np.ndarray, np
     """``(walls (nx, ny), probabilities (nx, ny))``: the walls drawn by ``sweeps`` cellwise sweeps from an empty map
     at ``path`` ``(S, 3)`` with the chain's map model (``params``' grid, the problem's power), and each cell's wall
     probability averaged over the second half of the sweeps (its conditional probability at each)."""
-    path = np.asarray(path, np.float64)
-    angles = path[:, 2:3] + problem.sensor_angles
-    origins = np.repeat(path[:, :2], angles.shape[1], axis=0)
-    chain = tiled_map_chain(key, params, origins, angles.reshape(-1), problem.readings.reshape(-1),
+    _, scans = scans_at(problem, params, path)
+    chain = tiled_map_chain(key, params, scans.ray_origins, scans.ray_angles, scans.ray_readings,
                             jnp.zeros(params.grid.shape, jnp.float32), sweeps, problem.likelihood_power)
     return np.asarray(chain.walls), np.asarray(chain.wall_probs, np.float64)[sweeps // 2:].mean(axis=0)
 

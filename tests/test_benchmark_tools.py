@@ -205,6 +205,7 @@ def test_target_at_truth_scores_the_slam_models_assess_and_tempers_only_the_read
 
     from bayesmap.model.motion import path_logpdf
     from bayesmap.model.slam import log_joint_slam
+    from bayesmap.slam.posegraph import relative
     from bayesmap.slam.problem import slam_tutorial_problem
 
     problem = slam_tutorial_problem(seed=3, num_poses=4)
@@ -237,5 +238,4 @@ def test_target_at_truth_scores_the_slam_models_assess_and_tempers_only_the_read
     # the truth carried onto another first pose keeps every relative pose
     moved = target_at_truth.in_model_frame(path, np.array([1.0, -2.0, 0.7]))
     np.testing.assert_allclose(moved[0], [1.0, -2.0, 0.7], atol=1e-12)
-    from bayesmap.slam.posegraph import relative
     np.testing.assert_allclose(relative(moved[:-1], moved[1:]), relative(path[:-1], path[1:]), atol=1e-12)
