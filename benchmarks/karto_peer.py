@@ -64,7 +64,8 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage
 from bayesmap.io.carmen import beam_offsets, read_carmen
 from bayesmap.io.rosbag import compose_poses, invert_pose
-from bayesmap.runs.slam import log_slam
+from bayesmap.progress import StageRecorder
+from bayesmap.runs.slam import log_slam, path_hypotheses_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 KARTO_VENV = ROOT / "benchmarks" / ".venv-karto"
@@ -238,14 +239,17 @@ def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
     run, compilation included."""
     log = read_carmen(problem.log_path)
     stride = 1 if len(problem.scans) < 2 else int(problem.scans[1] - problem.scans[0])
+    stages = StageRecorder()
     run = log_slam(log, problem.log_path, scans=None if stride == 1 else f"::{stride}", seed=problem.seed,
-                   final_map=False)
+                   final_map=False, progress=stages)
     result, chosen, settings = run.result, run.chosen, run.settings
     if not np.array_equal(chosen, problem.scans):
         raise BayesmapError(f"bayesmap took scans {chosen[:3]}... where the problem has {problem.scans[:3]}...")
     extra["coverage"] = ellipse_coverage(result.mean_path, result.pose_cov, problem.truth)
     extra["position_sd_median_m"] = float(np.median(np.sqrt(result.pose_cov[:, 0, 0] + result.pose_cov[:, 1, 1])))
     extra["keyframes"] = settings["keyframes"]
+    extra["path_hypotheses"] = path_hypotheses_summary(result.path_hypotheses, chosen[run.keyframes])
+    extra["branches_s"] = sum(r.seconds for r in stages.finish() if r.stage == "branches")
     extra[ARRAYS] = slam_run_arrays(result, problem.truth)
     return result.mean_path, result.runtime_s
 

@@ -12,14 +12,15 @@ takes them), the script:
 * at each path, draws the walls by ``--sweeps`` cellwise sweeps from an empty map with the chain's map model
   (:func:`bayesmap.inference.tiled.tiled_map_chain`, the problem's parameters on a grid fitted to the start path
   with 1 m more margin, at the power ``p``), ``--chains`` times with different keys;
-* scores each (path, walls) by the target's log-density (:func:`target_log_density`: the motion model's, the
-  prior's and ``p`` times the readings') and by the bound with the walls integrated out (:func:`map_entropy_bound`).
+* scores each (path, walls) by the target's log-density (:func:`bayesmap.slam.evidence.target_log_density`: the
+  motion model's, the prior's and ``p`` times the readings') and by the bound with the walls integrated out
+  (:func:`bayesmap.slam.evidence.map_entropy_bound`).
 
 A row: the start path's ATE (m); at the truth less at the start path (nats), the lower bound of
-:func:`map_entropy_bound` (the walls integrated out under independent cells at the chain's wall probabilities; the
-mean over the chains, and its smallest and largest), one draw's joint density (the mean), and the draw's parts: the
-motion model's and ``p`` times the readings'. One draw's density alone does not weigh two paths: a path whose map
-is less certain draws a map of lower density, which the map's entropy makes up for
+:func:`bayesmap.slam.evidence.map_entropy_bound` (the walls integrated out under independent cells at the chain's
+wall probabilities; the mean over the chains, and its smallest and largest), one draw's joint density (the mean),
+and the draw's parts: the motion model's and ``p`` times the readings'. One draw's density alone does not weigh two
+paths: a path whose map is less certain draws a map of lower density, which the map's entropy makes up for
 (docs/validation/slam.md, "The target's own preference").
 
 Usage: PYTHONPATH=src:benchmarks python benchmarks/target_at_truth.py [--logs csail] [--seeds 0] [--scans every2]
@@ -32,7 +33,6 @@ import sys
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -42,12 +42,9 @@ from seeded_logs import table_main  # noqa: E402
 
 from bayesmap.errors import BayesmapError  # noqa: E402
 from bayesmap.evaluation.trajectory import absolute_trajectory_error  # noqa: E402
-from bayesmap.inference.tiled import tiled_map_chain  # noqa: E402
 from bayesmap.io.rosbag import compose_poses  # noqa: E402
-from bayesmap.model.motion import path_logpdf  # noqa: E402
-from bayesmap.model.prior import log_prior  # noqa: E402
-from bayesmap.problem import Problem  # noqa: E402
 from bayesmap.slam import pipeline, posegraph  # noqa: E402
+from bayesmap.slam.evidence import drawn_walls, map_entropy_bound, target_log_density  # noqa: E402
 from bayesmap.slam.problem import log_slam_problem  # noqa: E402
 
 
@@ -58,53 +55,6 @@ def in_model_frame(truth, first_pose) -> np.ndarray:
     moved = compose_poses(np.asarray(first_pose, np.float64), posegraph.relative(truth[0], truth))
     moved[:, 2] = first_pose[2] + np.unwrap(truth[:, 2]) - truth[0, 2]
     return moved
-
-
-def scans_at(problem, params, path) -> tuple[np.ndarray, Problem]:
-    """``(path (S, 3), scans)``: ``path`` with its headings unwrapped (the motion model's heading is a real number)
-    and the problem's scans at it as a known-pose :class:`bayesmap.problem.Problem` on ``params``' grid (their
-    world-frame rays, which the map's draws and its score both read)."""
-    path = np.array(path, np.float64)
-    path[:, 2] = np.unwrap(path[:, 2])
-    angles = path[:, 2:3] + problem.sensor_angles
-    return path, Problem.from_world_frame(params, path[:, :2], angles, problem.readings)
-
-
-def target_log_density(problem, params, path, walls) -> tuple[float, float, float]:
-    """``(target, motion, p readings)``: the target's log-density (nats) at ``path`` ``(S, 3)`` and ``walls``
-    ``(nx, ny)`` on ``params``' grid: the motion model's log-density of the path, the prior's of the walls and the
-    problem's power ``p`` times the readings' (at ``p = 1``, the SLAM model's ``assess``)."""
-    path, scans = scans_at(problem, params, path)
-    increments, covs = problem.motion_steps()
-    motion = float(path_logpdf(jnp.asarray(path), jnp.asarray(path[0]), jnp.asarray(increments), jnp.asarray(covs)))
-    walls = np.asarray(walls)
-    prior = float(log_prior(walls, params.prior_wall_prob, params.coupling))
-    readings = problem.likelihood_power * (scans.table_log_joint(walls) - prior)
-    return motion + prior + readings, motion, readings
-
-
-def drawn_walls(problem, params, path, key, sweeps: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(walls (nx, ny), probabilities (nx, ny))``: the walls drawn by ``sweeps`` cellwise sweeps from an empty map
-    at ``path`` ``(S, 3)`` with the chain's map model (``params``' grid, the problem's power), and each cell's wall
-    probability averaged over the second half of the sweeps (its conditional probability at each)."""
-    _, scans = scans_at(problem, params, path)
-    chain = tiled_map_chain(key, params, scans.ray_origins, scans.ray_angles, scans.ray_readings,
-                            jnp.zeros(params.grid.shape, jnp.float32), sweeps, problem.likelihood_power)
-    return np.asarray(chain.walls), np.asarray(chain.wall_probs, np.float64)[sweeps // 2:].mean(axis=0)
-
-
-def map_entropy_bound(params, probabilities, target: float, walls) -> float:
-    """The evidence lower bound of ``log p(path, readings)`` (tempered) with the walls integrated out under the
-    factorized ``q`` of each cell's wall ``probabilities`` (nx, ny): ``target`` (:func:`target_log_density` at the
-    drawn ``walls``) with the prior's log-probability of the draw replaced by its expectation under ``q``, plus
-    ``q``'s entropy. A single draw's joint is lower for a path whose map is less certain; the bound counts that
-    map's entropy. (The readings' term stays that of the one draw.)"""
-    q = np.clip(np.asarray(probabilities, np.float64), 1e-9, 1 - 1e-9)
-    pi = params.prior_wall_prob
-    drawn = float(log_prior(np.asarray(walls), pi, 0.0))
-    expected = float(np.sum(q * np.log(pi) + (1 - q) * np.log1p(-pi)))
-    entropy = float(-np.sum(q * np.log(q) + (1 - q) * np.log1p(-q)))
-    return target - drawn + expected + entropy
 
 
 def target_at_truth(log, truth, scans: str, sweeps: int, chains: int) -> dict:

@@ -14,7 +14,8 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.io.carmen import read_carmen
 from bayesmap.io.rosbag import read_bag
 from bayesmap.io.tum import read_tum, tum_stamps, write_tum
-from bayesmap.runs.slam import loop_hypotheses_summary
+from bayesmap.runs.slam import loop_hypotheses_summary, path_hypotheses_summary
+from bayesmap.slam.branches import BRANCHES, PathHypotheses
 from bayesmap.slam.keyframes import keyframe_problem, owners, select_keyframes
 from bayesmap.slam.pipeline import (
     FINAL_MAP_NOISE,
@@ -122,6 +123,10 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert "graph_cov_scale" not in settings and summary["loop_edges"] == 0
     assert summary["loop_hypotheses"] is None  # no loop edge, nothing to weigh
     assert settings["front_end_particles"] == 1 and summary["front_end_hypotheses"] == 1  # the single track
+    # no step's match is beyond the motion model's 99.9 % quantile here, so the front end's path is the only one
+    assert settings["branches"] == BRANCHES and summary["path_hypotheses"]["weighed"] == 1
+    assert summary["path_hypotheses"]["branch_scans"] == [None]
+    assert summary["path_hypotheses"]["above_1_percent"] == 1
     assert settings["motion"] == pytest.approx({"a1": 0.1, "a2": 0.05, "a3": 0.1, "a4": 0.05, "floor_xy": 0.01,
                                                 "floor_theta": 0.005})
     steps = front_end(chain, scan_data(chain)).step_cov
@@ -308,6 +313,8 @@ def test_evaluate_pairs_a_longer_truth_by_timestamp(tmp_path, monkeypatch, capsy
     (lambda t: ["slam", "--log", t / "square.log", "--tile-pairs", "0"], "--tile-pairs must be an integer >= 1, got 0"),
     (lambda t: ["slam", "--particles", "8"], "--particles"),
     (lambda t: ["slam", "--log", t / "square.log", "--particles", "0"], "--particles must be at least 1, got 0"),
+    (lambda t: ["slam", "--branches", "2"], "--branches"),
+    (lambda t: ["slam", "--log", t / "square.log", "--branches", "-1"], "--branches must be at least 0, got -1"),
     (lambda t: ["slam", "--motion-alphas", "0.1,0.05,0.1,0.05"], "--motion-alphas"),
     (lambda t: ["slam", "--log", t / "square.log", "--motion-alphas", "0.1,0.05"],
      "--motion-alphas must be four numbers A1,A2,A3,A4, got 2 in '0.1,0.05'"),
@@ -369,3 +376,15 @@ def test_summary_json_counts_the_loop_hypotheses_over_one_percent():
     assert summary == {"above_1_percent": 2, "weighed": 3, "consistent_sets": 2, "weights": [0.98, 0.015, 0.005],
                        "loop_edges": [3, 1, 0], "samples": [98, 2, 0]}  # 1.5 and 0.5: the larger remainder first
     assert loop_hypotheses_summary(None, 100) is None
+
+
+def test_path_hypotheses_summary_names_the_logs_scans():
+    """A branch's step is a keyframe's index in the run; summary.json names the log's scan (``scans[t]``), the
+    evidence less the front end's, and counts the hypotheses weighing at least 1 %."""
+    hypotheses = PathHypotheses(np.array([0, 3, 7]), np.array([0.0, 40.25, 17.5]), np.array([-100.0, -95.0, -90.0]),
+                                np.array([0.004, 0.2, 0.796]), 2)
+    summary = path_hypotheses_summary(hypotheses, np.array([0, 2, 4, 10, 12, 14, 16, 21]))
+    assert summary == {"above_1_percent": 2, "weighed": 3, "branch_scans": [None, 10, 21],
+                       "disagreement": [0.0, 40.25, 17.5], "evidence_nats": [0.0, 5.0, 10.0],
+                       "weights": [0.004, 0.2, 0.796], "chosen": 2}
+

@@ -26,6 +26,7 @@ from bayesmap.runs import infer as infer_run
 from bayesmap.runs import slam as slam_run
 from bayesmap.runs.inputs import parse_scans, read_log_or_bag, select_scans
 from bayesmap.runs.outputs import check_output_file, write_json
+from bayesmap.slam.branches import BRANCHES
 from bayesmap.slam.keyframes import KEYFRAME_DISTANCE, KEYFRAME_TURN
 from bayesmap.slam.pipeline import FRONT_END_PARTICLES
 
@@ -130,6 +131,11 @@ ParticlesOpt = _opt(Optional[int], "--particles", help="--log / --bag: hypothese
                     "filter over the path, each particle with its own local map); on a CPU its time grows about "
                     "linearly with them and its memory by about 30 MB a particle, on a GPU little; default "
                     f"{FRONT_END_PARTICLES}, the single-track front end")
+BranchesOpt = _opt(Optional[int], "--branches", help="--log / --bag: the most steps where the front end's match and "
+                   "the odometry disagree (beyond the motion model's 99.9 % quantile) at which the other hypothesis, "
+                   "the odometry's step, is also followed and both weighed by the model with the map integrated out; "
+                   "each costs a front end, a loop closure and a short map chain; 0: the single track alone; "
+                   f"default {BRANCHES}")
 MotionAlphasOpt = _opt(Optional[str], "--motion-alphas", help="--log / --bag: the odometry's noise A1,A2,A3,A4, "
                        "Probabilistic Robotics Table 5.6's alphas as standard deviations (rotation per rotation, rad "
                        "per m, translation per translation, m per rad; not AMCL's odom_alpha, which are variances); "
@@ -474,6 +480,7 @@ def slam(
     keyframe_turn: KeyframeTurnOpt = None,
     tile_pairs: TilePairsOpt = None,
     particles: ParticlesOpt = None,
+    branches: BranchesOpt = None,
     motion_alphas: MotionAlphasOpt = None,
     rosmap: RosmapOpt = False,
     maps: MapsOpt = False,

@@ -82,17 +82,9 @@ def test_correlative_path_recovers_the_true_path(window):
     assert np.abs(path - truth)[:, 2].max() < 0.02
 
 
-def test_the_fields_follow_the_robot_down_a_corridor():
-    """A robot drives 18 m down a 2 m corridor with door recesses at uneven spacing on both sides, its laser reaching
-    2.5 m. On fields of +-3 m, which must follow it (they hold at least 2.25 m on every side, so every endpoint of
-    the local map stays inside), the path is the one of +-30 m fields (no recentring needed in between), bit for
-    bit: the fields are moved (the cells both windows cover) and filled (the others) as a rebuild from every scan
-    would make them, and every cell coordinate is computed in one frame and shifted in integers. Fields that stayed
-    at the first pose would hold no wall beyond x = 4 m; moved fields that kept a cell they should have cleared, or
-    missed a scan that reaches a new cell, would change a match. Both paths are
-    closer to the truth than half the odometry's error (the corridor leaves the along-track position to the
-    recesses; the room test above measures accuracy). Run one scan per call, reporting each (a progress callback),
-    the +-3 m fields give the same path, bit for bit: the window's moves carry over from call to call."""
+def corridor_scans():
+    """An 18 m corridor, 2 m wide, with door recesses at uneven spacing on both sides, 31 scans of a laser reaching
+    2.5 m down its middle with noisy odometry: ``(grid, truth (31, 3), odometry (31, 3), ScanData)``."""
     grid = Grid(shape=(440, 66), resolution=0.05, origin=(0.0, 0.0))
     walls = np.zeros(grid.shape, np.float32)
     walls[[0, -1], :] = 1
@@ -109,6 +101,21 @@ def test_the_fields_follow_the_robot_down_a_corridor():
     odometry = noisy_odometry(truth, np.random.default_rng(1))
     inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
     data = ScanData(beams, readings, readings < 2.49, np.asarray(inc), np.asarray(cov))
+    return grid, truth, odometry, data
+
+
+def test_the_fields_follow_the_robot_down_a_corridor():
+    """A robot drives 18 m down a 2 m corridor with door recesses at uneven spacing on both sides, its laser reaching
+    2.5 m. On fields of +-3 m, which must follow it (they hold at least 2.25 m on every side, so every endpoint of
+    the local map stays inside), the path is the one of +-30 m fields (no recentring needed in between), bit for
+    bit: the fields are moved (the cells both windows cover) and filled (the others) as a rebuild from every scan
+    would make them, and every cell coordinate is computed in one frame and shifted in integers. Fields that stayed
+    at the first pose would hold no wall beyond x = 4 m; moved fields that kept a cell they should have cleared, or
+    missed a scan that reaches a new cell, would change a match. Both paths are
+    closer to the truth than half the odometry's error (the corridor leaves the along-track position to the
+    recesses; the room test above measures accuracy). Run one scan per call, reporting each (a progress callback),
+    the +-3 m fields give the same path, bit for bit: the window's moves carry over from call to call."""
+    grid, truth, odometry, data = corridor_scans()
     small, small_cov, _ = correlative_path(odometry[0], data, grid.resolution, half_width=3.0)
     large, large_cov, _ = correlative_path(odometry[0], data, grid.resolution, half_width=30.0)
     np.testing.assert_array_equal(small, large)
@@ -120,6 +127,32 @@ def test_the_fields_follow_the_robot_down_a_corridor():
     odometry_error = np.abs(odometry - truth)[:, :2].max()
     assert odometry_error > 0.4
     assert np.abs(small - truth)[:, :2].max() < odometry_error / 2
+
+
+def test_steps_forced_to_the_odometry_and_a_front_end_resumed_from_a_prefix():
+    """The other hypothesis at a step: scan 12 forced to the odometry's step from pose 11 (to float32 rounding of the
+    composition, 1e-5 m over 10 m), its covariance the motion model's plus the lattice's floor, every pose before it
+    the unforced front end's, bit for bit. Resumed from the unforced path at scan 12 (fields rebuilt from scans 0-11
+    in the window the loop had moved to, on +-3 m fields that move down the corridor), the path and covariances are
+    the forced run's from the first scan, bit for bit, and its progress starts at scan 11 of 30. An index outside
+    the scans is named."""
+    grid, truth, odometry, data = corridor_scans()
+    base = correlative_path(odometry[0], data, grid.resolution, half_width=3.0)
+    forced = correlative_path(odometry[0], data, grid.resolution, half_width=3.0, odometry_steps=[12])
+    np.testing.assert_array_equal(forced.path[:12], base.path[:12])
+    assert np.abs(forced.path[12:] - base.path[12:])[:, :2].max() > 1e-3  # the step differs
+    step = posegraph.relative(forced.path[11], forced.path[12])
+    np.testing.assert_allclose(step, data.increments[11], atol=1e-5)
+    np.testing.assert_allclose(forced.step_cov[11], data.covs[11] + np.asarray(step_lattice()[-1]), rtol=1e-6)
+    seen = []
+    resumed = correlative_path(odometry[0], data, grid.resolution, half_width=3.0, odometry_steps=[12], prefix=base,
+                               progress=seen.append)
+    np.testing.assert_array_equal(resumed.path, forced.path)
+    np.testing.assert_array_equal(resumed.step_cov, forced.step_cov)
+    assert seen[0] == Progress("front end", 11, 30, "scan") and seen[-1] == Progress("front end", 30, 30, "scan")
+    for bad in (0, 31, 2.5):
+        with pytest.raises(BayesmapError, match=f"odometry step {bad!r}"):
+            correlative_path(odometry[0], data, grid.resolution, odometry_steps=[bad])
 
 
 def test_a_window_shorter_than_every_step_leaves_the_odometry():
@@ -184,10 +217,10 @@ def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch)
     assert resolution == pipeline.FRONT_END_RESOLUTION
     assert options == {"likelihood_power": 0.25, "min_hit_fraction": MIN_HIT_FRACTION, "window": LOCAL_MAP_DISTANCE,
                        "progress": None, "levels": MATCH_LEVELS, "motion_tail": MOTION_TAIL_WEIGHT, "motion": motion,
-                       "field_seed": FIELD_SEED}
+                       "field_seed": FIELD_SEED, "odometry_steps": None, "prefix": None}
     assert chosen == {"likelihood_power": 0.25, "min_hit_fraction": 0.3, "window": 20.0, "progress": None,
                       "levels": MATCH_LEVELS, "motion_tail": MOTION_TAIL_WEIGHT, "motion": motion,
-                      "field_seed": FIELD_SEED}
+                      "field_seed": FIELD_SEED, "odometry_steps": None, "prefix": None}
 
 
 @pytest.mark.parametrize("heading_error", [0.3, 0.5])

@@ -37,6 +37,7 @@ from bayesmap.runs.outputs import (
     npy_bytes,
     write_outputs,
 )
+from bayesmap.slam.branches import BRANCHES
 from bayesmap.slam.joint import SlamResult, run_slam
 from bayesmap.slam.keyframes import KEYFRAME_DISTANCE, KEYFRAME_TURN, keyframe_problem, select_keyframes
 from bayesmap.slam.pipeline import (
@@ -82,6 +83,7 @@ class SlamRequest:
     keyframe_turn: Optional[float] = None
     tile_pairs: Optional[int] = None
     particles: Optional[int] = None
+    branches: Optional[int] = None
     motion_alphas: Optional[str] = None
     rosmap: bool = False
     maps: bool = False
@@ -189,12 +191,14 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
              sweeps: Optional[int] = None, burn_in: Optional[int] = None, seed: int = 0, final_map: bool = True,
              progress: Optional[ProgressCallback] = None, notify: Optional[Callable[[str], None]] = None,
              keyframe_distance: float = KEYFRAME_DISTANCE, keyframe_turn: float = KEYFRAME_TURN,
-             tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES, motion=None) -> LogSlam:
+             tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES, motion=None,
+             branches: int = BRANCHES) -> LogSlam:
     """Run :func:`bayesmap.slam.pipeline.run_keyframe_slam` on the ``scans`` (a :func:`parse_scans` spec) of a log
     read from ``path``, its keyframes chosen by ``keyframe_distance`` meters and ``keyframe_turn`` radians
     (:func:`bayesmap.slam.keyframes.select_keyframes`; 0: every scan), its map blocks in tiles
     of at most ``tile_pairs`` pairs (:data:`bayesmap.inference.tiled.TILE_PAIRS`), its front end keeping ``particles``
-    hypotheses (:data:`bayesmap.slam.pipeline.FRONT_END_PARTICLES`), its motion noise ``motion``
+    hypotheses (:data:`bayesmap.slam.pipeline.FRONT_END_PARTICLES`), at most ``branches`` branch points weighed
+    (:data:`bayesmap.slam.branches.BRANCHES`), its motion noise ``motion``
     (:class:`bayesmap.model.motion.MotionParams`; None: the defaults); without ``final_map``, no final map (for
     scoring the path alone).
 
@@ -221,12 +225,12 @@ def log_slam(carmen, path: Path, scans: Optional[str] = None, resolution: Option
         notify(f"bayesmap slam: {path.name}, {len(chosen)} scans ({len(keyframes)} keyframes), {sweeps} sweeps ...")
     result = run_keyframe_slam(problem, keyframes, rounds=sweeps, burn_in=burn_in, seed=seed, progress=progress,
                                final_map_sweeps=FINAL_MAP_SWEEPS if final_map else 0, tile_pairs=tile_pairs,
-                               particles=particles)
+                               particles=particles, branches=branches)
     p = problem.params
     settings = {"scans": scans if scans is not None else "all", "resolution": resolution,
                 "keyframe_distance_m": float(keyframe_distance), "keyframe_turn_rad": float(keyframe_turn),
                 "keyframes": int(len(keyframes)), "tile_pairs": int(tile_pairs),
-                "front_end_particles": int(particles), "sweeps": sweeps,
+                "front_end_particles": int(particles), "branches": int(branches), "sweeps": sweeps,
                 "burn_in": burn_in, "seed": seed, "prior_wall_prob": float(p.prior_wall_prob),
                 "sensor_noise": float(p.sensor_noise), "beam_model": p.beam_model, "geometry": p.geometry,
                 "range_offset_m": float(problem.range_offset),
@@ -265,6 +269,25 @@ def loop_hypotheses_summary(hypotheses, num_samples: int) -> dict | None:
             "samples": [int(c) for c in hypothesis_counts(num_samples, hypotheses.weights)[:5]]}
 
 
+def path_hypotheses_summary(hypotheses, scans) -> dict:
+    """The start paths weighed where the front end's match and the odometry disagreed
+    (:class:`bayesmap.slam.branches.PathHypotheses`, or None: no such step) as summary.json holds them:
+    ``{"above_1_percent": how many weigh at least 0.01, "weighed": how many, "branch_scans": the log's scan index of
+    each branch's odometry step (``scans`` ``(K,)``: the log's index of each keyframe; None for the front end's own
+    path), "disagreement": each step's squared Mahalanobis distance from the odometry, "evidence_nats": each
+    path's evidence less the front end's, "weights", "chosen": the row the chain started from}``; with no branch
+    point, the front end's path alone (one hypothesis, nothing weighed)."""
+    if hypotheses is None:
+        return {"above_1_percent": 1, "weighed": 1, "branch_scans": [None], "disagreement": [0.0],
+                "evidence_nats": [0.0], "weights": [1.0], "chosen": 0}
+    scans = np.asarray(scans)
+    return {"above_1_percent": hypotheses.distinct, "weighed": len(hypotheses.weights),
+            "branch_scans": [None if t == 0 else int(scans[t]) for t in hypotheses.odometry_steps],
+            "disagreement": [round(float(d), 2) for d in hypotheses.disagreement],
+            "evidence_nats": [round(float(e - hypotheses.evidence[0]), 1) for e in hypotheses.evidence],
+            "weights": [float(w) for w in hypotheses.weights], "chosen": int(hypotheses.chosen)}
+
+
 def grid_summary(grid) -> dict:
     """A grid as summary.json holds it: ``{"shape": [nx, ny], "resolution": m, "origin": [x, y]}``."""
     return {"shape": [int(n) for n in grid.shape], "resolution": float(grid.resolution),
@@ -276,10 +299,11 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
                      progress: Optional[ProgressCallback] = None,
                      notify: Optional[Callable[[str], None]] = None,
                      keyframes: tuple[float, float] = (KEYFRAME_DISTANCE, KEYFRAME_TURN),
-                     tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES, motion=None) -> SlamRun:
+                     tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES, motion=None,
+                     branches: int = BRANCHES) -> SlamRun:
     """SLAM on a real log or bag (:func:`log_slam`, its keyframes at ``keyframes`` = (meters, radians), its map
-    blocks in tiles of at most ``tile_pairs`` pairs, its front end keeping ``particles`` hypotheses, its motion noise
-    ``motion``), with its
+    blocks in tiles of at most ``tile_pairs`` pairs, its front end keeping ``particles`` hypotheses, at most
+    ``branches`` branch points weighed, its motion noise ``motion``), with its
     summary; trajectory.tum's stamps are the scans' timestamps where they increase strictly, else their indices
     (:func:`bayesmap.io.tum.tum_stamps`).
 
@@ -289,7 +313,8 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
     problem, result, chosen, settings, kept = log_slam(carmen, path, scans, resolution, sweeps, burn_in, seed,
                                                        progress=progress, notify=notify,
                                                        keyframe_distance=keyframes[0], keyframe_turn=keyframes[1],
-                                                       tile_pairs=tile_pairs, particles=particles, motion=motion)
+                                                       tile_pairs=tile_pairs, particles=particles, motion=motion,
+                                                       branches=branches)
     all_stamps = tum_stamps(carmen.timestamps)
     grid = result.grid if result.grid is not None else problem.params.grid
     summary = {
@@ -303,6 +328,7 @@ def run_log_slam_job(carmen, path: Path, scans: Optional[str] = None, resolution
         "loop_edges": result.loop_edges,
         "loop_hypotheses": loop_hypotheses_summary(result.loop_hypotheses, len(result.pose_samples)),
         "front_end_hypotheses": result.front_end_hypotheses,
+        "path_hypotheses": path_hypotheses_summary(result.path_hypotheses, chosen[kept]),
         "grid": grid_summary(grid),
         "trajectory_stamps": ("the scans' timestamps, seconds" if np.array_equal(all_stamps, carmen.timestamps)
                               else "scan indices of the log (its timestamps do not increase strictly)"),
@@ -373,14 +399,16 @@ def check_slam_request(req: SlamRequest) -> None:
     if req.log is None and req.bag is None:
         if (req.scans is not None or req.resolution is not None or req.keyframe_distance is not None
                 or req.keyframe_turn is not None or req.tile_pairs is not None or req.particles is not None
-                or req.motion_alphas is not None):
-            raise BayesmapError("--scans, --resolution, --tile-pairs, --particles, --motion-alphas and the keyframe "
-                                "options need --log FILE (or --bag PATH)")
+                or req.branches is not None or req.motion_alphas is not None):
+            raise BayesmapError("--scans, --resolution, --tile-pairs, --particles, --branches, --motion-alphas and "
+                                "the keyframe options need --log FILE (or --bag PATH)")
     elif req.num_poses is not None:
         raise BayesmapError("--num-poses applies to the tutorial scene, not to --log / --bag")
     check_tile_pairs_option(req.tile_pairs)
     if req.particles is not None and req.particles < 1:
         raise BayesmapError(f"--particles must be at least 1, got {req.particles}")
+    if req.branches is not None and req.branches < 0:
+        raise BayesmapError(f"--branches must be at least 0, got {req.branches}")
     motion_option(req.motion_alphas)
     check_output_dir(req.out, req.force, owned=SLAM_OWNED_FILES)
 
@@ -409,7 +437,8 @@ def slam(req: SlamRequest, progress: Optional[ProgressCallback] = None,
         run = run_log_slam_job(carmen, path, req.scans, req.resolution, req.sweeps, req.burn_in, req.seed,
                                stages, notify, keyframes, TILE_PAIRS if req.tile_pairs is None else req.tile_pairs,
                                FRONT_END_PARTICLES if req.particles is None else req.particles,
-                               motion_option(req.motion_alphas))
+                               motion_option(req.motion_alphas),
+                               BRANCHES if req.branches is None else req.branches)
     files = slam_files(run, report=req.report, rosmap=req.rosmap, maps=req.maps, stages=stages)
     return run, write_outputs(req.out, files, owned=SLAM_OWNED_FILES)
 

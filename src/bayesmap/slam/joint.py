@@ -210,6 +210,8 @@ class SlamResult(NamedTuple):
             :class:`bayesmap.slam.posegraph.LoopHypotheses`), or None (no loop edge found, or no loop closure).
         front_end_hypotheses: how many distinct front-end paths carried at least 1 % of the weight (real logs: 1
             for the single track; :func:`bayesmap.slam.particles.hypotheses`), or None.
+        path_hypotheses: the start paths weighed where the front end's match and the odometry disagreed
+            (:class:`bayesmap.slam.branches.PathHypotheses`), or None (no such step, or no branches).
     """
 
     pose_samples: np.ndarray
@@ -227,6 +229,7 @@ class SlamResult(NamedTuple):
     final_map_noise: float | None = None
     loop_hypotheses: object = None
     front_end_hypotheses: int | None = None
+    path_hypotheses: object = None
 
 
 def check_counts(sweeps, burn_in, chains) -> tuple[int, int, int]:

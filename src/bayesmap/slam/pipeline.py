@@ -8,6 +8,10 @@ mapping at known poses). :func:`run_log_slam` finds a start, then runs a blocked
    scans' field scores at the problem's likelihood power against the motion model (:func:`front_end`).
 2. **Back end**: loop closure and pose-graph optimization (:func:`bayesmap.slam.posegraph.close_loops`), each
    sequential edge weighted by the posterior covariance of the front end's step.
+   2b. **Branches** (:func:`branched_start`, :mod:`bayesmap.slam.branches`): at the few steps where the front
+   end's match and the odometry disagree beyond a quantile of the motion model, the front end again with that step
+   taken from the odometry, and the loop closure; every closed path weighed by the target with the walls integrated
+   out (:func:`bayesmap.slam.evidence.path_evidence`), the heaviest kept.
    Stages 1 and 2 only choose where the chain starts; they do not enter its target.
 3. **The grid**: fitted to the beam endpoints at that path, plus :data:`MAP_MARGIN` meters.
 4. **The joint chain**, :data:`ROUNDS` rounds of two blocks (Gibbs over blocks; docs/slam.md):
@@ -73,10 +77,21 @@ from bayesmap.model.generative import replace_params
 from bayesmap.model.motion import wrap_angle
 from bayesmap.progress import ProgressCallback, report
 from bayesmap.scenes import endpoints_per_cell, log_likelihood_power
+from bayesmap.slam.branches import (
+    BRANCH_GATE,
+    BRANCHES,
+    EVIDENCE_SWEEPS,
+    PathHypotheses,
+    branch_points,
+    hypothesis_weights,
+    step_disagreement,
+)
+from bayesmap.slam.evidence import path_evidence
 from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
 from bayesmap.slam.keyframes import keyframe_problem, owners, place_scans, placed_uncertainty
 from bayesmap.slam.particles import particle_path
 from bayesmap.slam.posegraph import (
+    LoopClosure,
     close_loops,
     concat_edges,
     marginal_covariances,
@@ -174,7 +189,8 @@ def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MAR
 def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTION,
               window: float = LOCAL_MAP_DISTANCE, particles: int = FRONT_END_PARTICLES, seed: int = 0,
               progress: ProgressCallback | None = None, levels=MATCH_LEVELS,
-              motion_tail: float = MOTION_TAIL_WEIGHT, field_seed: bool = FIELD_SEED) -> MatchedPath:
+              motion_tail: float = MOTION_TAIL_WEIGHT, field_seed: bool = FIELD_SEED,
+              odometry_steps=None, prefix: MatchedPath | None = None) -> MatchedPath:
     """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad) and its steps' posterior covariances
     (:class:`bayesmap.slam.scanmatch.MatchedPath`): correlative scan matching from the first
     odometry pose on fields of :data:`FRONT_END_RESOLUTION` meters that follow the robot
@@ -192,7 +208,8 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
     step that backed up under the problem's motion noise (:data:`bayesmap.slam.scanmatch.MOTION_TAIL_WEIGHT`;
     0: the motion model alone); the target's motion density is the model's. ``field_seed``: the search also
     descends from the scan's best fit alone at its first level (:data:`bayesmap.slam.scanmatch.FIELD_SEED`).
-    ``progress`` gets
+    ``odometry_steps``: scans that take the odometry's step, and ``prefix``: a path whose poses before the first of
+    them are kept (:func:`bayesmap.slam.scanmatch.correlative_path`; the single track only). ``progress`` gets
     ``Progress("front end", done, S - 1, "scan")`` as the scans are matched.
 
     Raises:
@@ -203,8 +220,53 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
                    progress=progress, levels=levels, motion_tail=motion_tail, motion=problem.motion,
                    field_seed=field_seed)
     if isinstance(particles, (int, np.integer)) and not isinstance(particles, bool) and particles == 1:
-        return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, **options)
+        return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, odometry_steps=odometry_steps,
+                                prefix=prefix, **options)
+    if odometry_steps is not None or prefix is not None:
+        raise BayesmapError("odometry_steps is for the single-track front end (particles 1)")
     return particle_path(odometry[0], data, FRONT_END_RESOLUTION, particles, seed=seed, **options).matched
+
+
+def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClosure, key,
+                   branches: int = BRANCHES, tile_pairs: int = TILE_PAIRS, progress: ProgressCallback | None = None,
+                   gate: float = BRANCH_GATE) -> tuple[MatchedPath, LoopClosure, PathHypotheses | None]:
+    """Stage 2b of the module docstring (:mod:`bayesmap.slam.branches`): the front end's path ``front`` and its
+    loop closure ``closed``, and at most ``branches`` branches (the front end again from each branch point, a step
+    whose match disagrees with the odometry beyond ``gate`` (:func:`bayesmap.slam.branches.branch_points`), with its
+    step taken from the odometry, resumed from ``front``; the loop closure), weighed by their evidence
+    (:func:`bayesmap.slam.evidence.path_evidence`, :data:`bayesmap.slam.branches.EVIDENCE_SWEEPS` sweeps, random
+    key ``key``, on one grid covering every hypothesis's beams, in tiles of at most ``tile_pairs`` pairs).
+    ``progress`` gets ``Progress("branches", done, H, "path")`` as each hypothesis is weighed.
+
+    Returns:
+        ``(front end, loop closure, hypotheses)`` of the heaviest hypothesis; ``hypotheses`` None where no step's
+        match disagrees with the odometry beyond ``gate`` (:data:`bayesmap.slam.branches.BRANCH_GATE`; then
+        ``front`` and ``closed`` themselves, and nothing is weighed).
+    """
+    points = branch_points(front.path, scans.increments, scans.covs, gate, branches)
+    if not len(points):
+        return front, closed, None
+    total = len(points) + 1
+    report(progress, "branches", 0, total, "path")
+    candidates = [(front, closed)]
+    for t in points:
+        other = front_end(problem, scans, odometry_steps=[int(t)], prefix=front)
+        candidates.append((other, close_loops(other.path, scans, step_cov=other.step_cov)))
+    ends = np.vstack([np.vstack([_returned_endpoints(scans, c.path), c.path[:, :2]]) for _, c in candidates])
+    params = with_grid(problem.params, Grid.covering(ends, resolution=problem.params.grid.resolution,
+                                                     margin=MAP_MARGIN))
+    evidence, shapes = [], None
+    for h, (_, c) in enumerate(candidates):
+        bound, shapes = path_evidence(key, problem, params, c.path, EVIDENCE_SWEEPS, tile_pairs, shapes,
+                                      MAP_SHAPE_HEADROOM)
+        evidence.append(bound)
+        report(progress, "branches", h + 1, total, "path")
+    weights = hypothesis_weights(evidence)
+    chosen = int(np.argmax(weights))
+    disagreement = np.concatenate([[0.0], step_disagreement(front.path, scans.increments, scans.covs)[points - 1]])
+    hypotheses = PathHypotheses(np.concatenate([[0], points]).astype(np.int64), disagreement,
+                                np.asarray(evidence, np.float64), weights, chosen)
+    return (*candidates[chosen], hypotheses)
 
 
 def with_grid(params, grid: Grid):
@@ -397,7 +459,7 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
                  progress: ProgressCallback | None = None, map_sweeps: int = MAP_SWEEPS, pose_sweeps: int = POSE_SWEEPS,
                  final_map_sweeps: int = FINAL_MAP_SWEEPS,
                  tile_pairs: int = TILE_PAIRS, particles: int = FRONT_END_PARTICLES,
-                 segment_length: int = SEGMENT_LENGTH) -> SlamResult:
+                 segment_length: int = SEGMENT_LENGTH, branches: int = BRANCHES) -> SlamResult:
     """Infer the path and the map of a real log (:func:`bayesmap.slam.problem.log_slam_problem`) with the pipeline
     of the module docstring.
 
@@ -409,7 +471,8 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         progress: a :data:`bayesmap.progress.ProgressCallback`, called stage after stage (each from ``done`` 0 up
             to its ``total``): ``"front end"`` per block of scans matched, ``"loop closure r/3"`` per loop
             candidate of each round of :func:`bayesmap.slam.posegraph.close_loops` that has any (unit ``"scan"``),
-            then per sweep ``"round r/R: map"`` and ``"round r/R: poses"`` for each round of the joint chain and
+            ``"branches"`` per hypothesis weighed where there are branch points (:func:`branched_start`), then per
+            sweep ``"round r/R: map"`` and ``"round r/R: poses"`` for each round of the joint chain and
             ``"final map"``.
             The chains then run one sweep per compiled call, with the same keys: the result is the same, bit for
             bit. None: no reports.
@@ -425,6 +488,9 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         segment_length: poses moved together by the chain's segment moves
             (:func:`bayesmap.slam.poses.segment_pose_mh`, :data:`bayesmap.slam.poses.SEGMENT_LENGTH`), an integer
             >= 1, or 0: single-pose moves only. Any value samples the same posterior.
+        branches: the most branch points weighed (stage 2b, :func:`branched_start`,
+            :data:`bayesmap.slam.branches.BRANCHES`), an integer >= 0 (0: the single track's start path); with the
+            particle front end (``particles`` > 1), none.
 
     Returns:
         A :class:`bayesmap.slam.joint.SlamResult`: ``pose_samples`` ``(N, S, 3)`` with ``N = (rounds - burn_in)
@@ -433,8 +499,8 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         ``chain_posterior``), ``graph_cov`` the graph's covariance.
 
     Raises:
-        BayesmapError: on bad counts, a bad ``final_map_sweeps``, ``tile_pairs`` or ``segment_length`` (the message
-            names the value).
+        BayesmapError: on bad counts, a bad ``final_map_sweeps``, ``tile_pairs``, ``segment_length`` or
+            ``branches`` (the message names the value).
     """
     _check_final_map_sweeps(final_map_sweeps)
     check_tile_pairs(tile_pairs)
@@ -444,10 +510,17 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     pose_sweeps, _, _ = check_counts(pose_sweeps, 0, 1)
     if isinstance(segment_length, bool) or not isinstance(segment_length, (int, np.integer)) or segment_length < 0:
         raise BayesmapError(f"segment_length must be an integer >= 0, got {segment_length!r}")
+    if isinstance(branches, bool) or not isinstance(branches, (int, np.integer)) or branches < 0:
+        raise BayesmapError(f"branches must be an integer >= 0, got {branches!r}")
     start = time.perf_counter()
     scans = scan_data(problem)
     front = front_end(problem, scans, particles=particles, seed=seed, progress=progress)
-    path, edges, hypotheses = close_loops(front.path, scans, progress=progress, step_cov=front.step_cov)
+    closed = close_loops(front.path, scans, progress=progress, step_cov=front.step_cov)
+    branched = None
+    if branches and particles == 1:
+        key = jax.random.fold_in(jax.random.key(seed), 2 * rounds + 1)  # none of the chain's or the final map's keys
+        front, closed, branched = branched_start(problem, scans, front, closed, key, branches, tile_pairs, progress)
+    path, edges, hypotheses = closed
     grid = fitted_grid(scans, path, problem.params.grid.resolution)
     walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, grid), path, seed,
                                                    (rounds, burn_in, map_sweeps, pose_sweeps), progress, tile_pairs,
@@ -465,7 +538,7 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
                       loop_edges=len(edges.i) - (len(path) - 1), graph_cov=graph_cov,
                       chain_posterior=chain_posterior if final else None, final_map_power=final_power,
                       final_map_noise=final_noise, loop_hypotheses=hypotheses,
-                      front_end_hypotheses=front.hypotheses)
+                      front_end_hypotheses=front.hypotheses, path_hypotheses=branched)
 
 
 def run_keyframe_slam(problem, keyframes, progress: ProgressCallback | None = None, **kwargs) -> SlamResult:

@@ -540,7 +540,8 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
                      half_width: float = MATCH_GRID_HALF_WIDTH,
                      likelihood_power: float = 1.0, min_hit_fraction: float = MIN_HIT_FRACTION,
                      progress: ProgressCallback | None = None, motion_tail: float = MOTION_TAIL_WEIGHT,
-                     motion: MotionParams | None = None, field_seed: bool = FIELD_SEED) -> MatchedPath:
+                     motion: MotionParams | None = None, field_seed: bool = FIELD_SEED,
+                     odometry_steps=None, prefix: MatchedPath | None = None) -> MatchedPath:
     """Sequential correlative scan matching of every scan against the field of the scans before it, with each step's
     posterior covariance (:func:`step_posterior`).
 
@@ -567,6 +568,13 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
             component's extra covariance (default :class:`bayesmap.model.motion.MotionParams`' defaults); the steps'
             own covariances are ``data``'s.
         field_seed: also descend from the first level's best by the field alone (:data:`FIELD_SEED`).
+        odometry_steps: indices ``t`` in ``1 .. S - 1`` of the scans whose pose is the odometry's prediction from
+            the pose before, whatever their match (as an untrusted match's: covariance the motion model's plus the
+            lattice's floor); the other hypothesis at a step where scan and odometry disagree
+            (:mod:`bayesmap.slam.branches`). None: none.
+        prefix: a :class:`MatchedPath` of the same scans by this function with the same settings and none of
+            ``odometry_steps`` before the first of them: its poses and steps before that scan are kept and matching
+            resumes there (:func:`resumed_window`), the same path as matching from the first scan.
 
     Returns:
         A :class:`MatchedPath`: the path, row 0 ``first_pose``, and the steps' covariances.
@@ -574,18 +582,41 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
     Raises:
         BayesmapError: if the shapes disagree, ``resolution`` or ``half_width`` is not a finite number > 0 or the
             grid would have fewer than 8 cells a side, ``likelihood_power`` is not in (0, 1], or
-            ``min_hit_fraction`` or ``motion_tail`` is not in [0, 1).
+            ``min_hit_fraction`` or ``motion_tail`` is not in [0, 1), or an index of ``odometry_steps`` is outside
+            ``1 .. S - 1`` (named).
     """
+    forced = odometry_mask(odometry_steps, data.readings.shape[0])
     setup = front_end_setup(first_pose, data, resolution, window, half_width, likelihood_power, min_hit_fraction,
                             motion_tail, motion)
     run = functools.partial(_correlative_steps, d=setup.scans, frame=setup.frame, span=setup.span,
                             prior_weight=setup.prior_weight, min_hit=setup.min_hit, steps=lattices(levels),
                             grid=setup.grid, half_width=float(half_width), power=setup.power,
                             posterior=step_lattice(), tail=(setup.tail_weight, setup.tail_cov),
-                            field_seed=bool(field_seed))
-    start = functools.partial(start_window, setup.first_pose, setup.scans, setup.frame, setup.grid)
-    carry = run_in_blocks(run, start, data.readings.shape[0], progress)
+                            field_seed=bool(field_seed), forced=jnp.asarray(forced))
+    first = 1
+    if prefix is not None and forced.any():
+        first = int(np.argmax(forced))
+        start = functools.partial(resumed_window, jnp.asarray(prefix.path, setup.frame.dtype),
+                                  jnp.asarray(prefix.step_cov, setup.frame.dtype), first, setup.scans, setup.frame,
+                                  setup.grid, float(half_width))
+    else:
+        start = functools.partial(start_window, setup.first_pose, setup.scans, setup.frame, setup.grid)
+    carry = run_in_blocks(run, start, data.readings.shape[0], progress, first)
     return MatchedPath(np.asarray(carry[0], np.float64), np.asarray(carry[-1], np.float64)[1:])
+
+
+def odometry_mask(steps, count: int) -> np.ndarray:
+    """``(count,)`` bool, True at the scan indices ``steps`` (an iterable of ints in ``1 .. count - 1``; None: none).
+
+    Raises:
+        BayesmapError: naming an index that is not an integer in ``1 .. count - 1``.
+    """
+    mask = np.zeros(count, bool)
+    for t in () if steps is None else steps:
+        if isinstance(t, bool) or not isinstance(t, (int, np.integer)) or not 1 <= t < count:
+            raise BayesmapError(f"odometry step {t!r} is not a scan index in 1..{count - 1}")
+        mask[int(t)] = True
+    return mask
 
 
 class FrontEndSetup(NamedTuple):
@@ -675,17 +706,17 @@ costs about 3.5 ms on the 2-core machine, a third of a scan's matching, so a cal
 by a third."""
 
 
-def run_in_blocks(run, start, count: int, progress: ProgressCallback | None):
-    """``run(start(), 1, count)``, a front end's loop over the scans ``1 .. count - 1`` from the carry
+def run_in_blocks(run, start, count: int, progress: ProgressCallback | None, first: int = 1):
+    """``run(start(), first, count)``, a front end's loop over the scans ``first .. count - 1`` from the carry
     ``start()`` makes (the single track's and the particles', :mod:`bayesmap.slam.particles`); with ``progress``,
     in about :data:`PROGRESS_REPORTS` blocks of scans, one call each (the same carry: the loop's bounds are
     arguments, one compilation), reporting the scans matched after each."""
-    if progress is None or count < 2:
-        return run(start(), 1, count)
-    report(progress, "front end", 0, count - 1, "scan")
+    if progress is None or count - first < 1:
+        return run(start(), first, count)
+    report(progress, "front end", first - 1, count - 1, "scan")
     carry = start()
     block = max(1, -(-(count - 1) // PROGRESS_REPORTS))
-    for lo in range(1, count, block):
+    for lo in range(first, count, block):
         hi = min(lo + block, count)
         carry = jax.block_until_ready(run(carry, lo, hi))
         report(progress, "front end", hi - 1, count - 1, "scan")
@@ -761,9 +792,23 @@ def start_window(first, d, frame, grid: Grid):
     return path, fields, stamps, offset, jnp.zeros((d.readings.shape[0], 3, 3), first.dtype)
 
 
+@functools.partial(jax.jit, static_argnames=("grid", "half_width"))
+def resumed_window(path, step_cov, t, d, frame, grid: Grid, half_width: float):
+    """The carry of :func:`correlative_path`'s loop before scan ``t`` of a path whose poses before ``t`` are those
+    of ``path`` ``(S, 3)`` (world coordinates) and steps those of ``step_cov`` ``(S - 1, 3, 3)``: the window's offset
+    as the loop moved it over the scans ``1 .. t - 1`` (:func:`recentred` replayed) and the fields and stamps of the
+    scans ``< t`` in it (a rebuild, the same to the bit as the loop's own, :func:`moved_window`)."""
+    def moved(u, offset):
+        return recentred(compose(path[u - 1] - frame, d.increments[u - 1]), offset, grid, half_width)[1]
+
+    offset = jax.lax.fori_loop(1, t, moved, jnp.full(2, -(grid.shape[0] // 2), jnp.int32))
+    fields, stamps = _rebuild(d, grid, frame, path, t, offset)
+    return path, fields, stamps, offset, jnp.concatenate([jnp.zeros((1, 3, 3), step_cov.dtype), step_cov])
+
+
 @functools.partial(jax.jit, static_argnames=("grid", "half_width", "field_seed"), donate_argnames=("carry",))
 def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, steps: Lattices, grid: Grid,
-                       half_width: float, power, posterior, tail, field_seed: bool = FIELD_SEED):
+                       half_width: float, power, posterior, tail, field_seed: bool = FIELD_SEED, forced=None):
     """The jitted loop of :func:`correlative_path` over the scans ``lo <= t < hi`` from ``carry`` (module level, so
     that another run with the same shapes and settings reuses the compiled code; the bounds are arguments, so runs in
     pieces share it): the carry ``(path (S, 3)`` in world coordinates, fields, stamps, window offset) after scan
@@ -774,7 +819,11 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
     the argmax the same); ``min_hit`` the least hit fraction of a trusted match; ``power`` the likelihood power and
     ``posterior`` the lattice (:func:`step_lattice`) of each step's covariance (:func:`step_posterior`), the last
     entry of the carry; ``tail`` ``(weight, covariance)`` the motion density's broad component in both;
-    ``field_seed`` :func:`search`'s."""
+    ``field_seed`` :func:`search`'s; ``forced`` ``(S,)`` bool: the scans that take the odometry's prediction
+    (:func:`odometry_mask`; None: none)."""
+    if forced is None:
+        forced = jnp.zeros(d.readings.shape[0], bool)
+
     def body(t, carry):
         path, fields, stamps, offset, step_cov = carry
         prev = path[t - 1] - frame
@@ -790,10 +839,11 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
         scan = (d.sensor_angles[t], d.readings[t], d.returned[t])
         best, _ = search(seen, grid, predicted, *scan, steps, log_prior, shift=moved, field_seed=field_seed)
         hits = hit_fraction(seen, grid, best, *scan, shift=moved)
-        world = jnp.where(hits < min_hit, predicted, best) + frame
+        odometry = (hits < min_hit) | forced[t]
+        world = jnp.where(odometry, predicted, best) + frame
         cov = step_posterior(seen, grid, best, prev, d.increments[t - 1], d.covs[t - 1], *scan, power, posterior,
                              shift=moved, tail=tail)
-        cov = jnp.where(hits < min_hit, d.covs[t - 1] + posterior[-1], cov)
+        cov = jnp.where(odometry, d.covs[t - 1] + posterior[-1], cov)
         fields, stamps = add_matched(d, grid, frame, world, t, moved, (fields, stamps))
         return path.at[t].set(world), fields, stamps, moved, step_cov.at[t].set(cov)
 

@@ -1,0 +1,126 @@
+"""Path hypotheses where the scan and the odometry disagree, weighed by the SLAM target with the walls integrated out.
+
+A single-track front end keeps, at every scan, the match it scores best against the last meters' local map. Where
+that match is far from the odometry's step (an aliased corridor, a scan that sees little), the other hypothesis, that
+the odometry was right and the match slipped, is lost for good: the chain that follows moves poses by centimeters.
+Here both are kept, at the few steps where they differ most, and the whole log decides between them:
+
+1. **Branch points** (:func:`branch_points`): the steps whose match lies farther from the odometry's step than
+   :data:`BRANCH_GATE` (squared Mahalanobis distance under the motion model's covariance of the step,
+   :func:`step_disagreement`), at most :data:`BRANCHES` of them, the farthest first.
+2. **Branches**: for each, the front end again from that scan with that step taken from the odometry
+   (:func:`bayesmap.slam.scanmatch.correlative_path`'s ``odometry_steps``, resumed from the single track's poses
+   before it), then the loop closure.
+3. **Weights** (:func:`hypothesis_weights`): each closed path's evidence, the SLAM target's lower bound with the
+   walls integrated out (:func:`bayesmap.slam.evidence.path_evidence`), normalized over the hypotheses. The chain
+   starts from the heaviest.
+
+This is a discrete search over start paths weighed by the target's own marginal, not a sampler of the path: the
+weights are those of the hypotheses found, each at one path, and the bound's draw adds Monte Carlo noise of tens of
+nats (docs/slam.md; [validation](../validation/slam.md#hypotheses-where-scan-and-odometry-disagree)).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from bayesmap.errors import BayesmapError
+from bayesmap.model.motion import wrap_angle
+from bayesmap.slam.posegraph import CONSISTENCY_GATE, relative
+
+BRANCH_GATE = CONSISTENCY_GATE
+"""Squared Mahalanobis distance (under the motion model's covariance of the step) beyond which a step's match and
+the odometry are two hypotheses: 16.27, the 99.9 % quantile of the chi-square distribution with 3 degrees of freedom,
+the loop closure's consistency gate. A quantile of the motion model, not fitted to any log: the odometry's own
+noise puts a step beyond it once in a thousand steps."""
+
+BRANCHES = 3
+"""The most branch points weighed per run: each costs a front end from its scan on, a loop closure and a short map
+chain (about 12 s on two cores for 200 keyframes), so this bounds the search's time (1.5x the run without it at
+most, [validation](../validation/slam.md#hypotheses-where-scan-and-odometry-disagree)). A compute budget, not a
+model setting: any value searches the same target."""
+
+EVIDENCE_SWEEPS = 4
+"""Cellwise sweeps of the map drawn at each hypothesis for its evidence (:func:`bayesmap.slam.evidence.
+path_evidence`): the wall probabilities of the last two. More sweeps move every hypothesis's bound alike (by about
+900 nats from 4 to 12 sweeps on CSAIL) and changed no choice on the logs measured
+([validation](../validation/slam.md#hypotheses-where-scan-and-odometry-disagree))."""
+
+WEIGHT_FLOOR = 0.01
+"""A hypothesis with at least this weight counts as a distinct one in summaries (as the loop closure's and the
+front end's hypotheses)."""
+
+
+class PathHypotheses(NamedTuple):
+    """The start paths weighed (:mod:`bayesmap.slam.branches`).
+
+    Attributes:
+        odometry_steps: ``(H,)`` int64: for each hypothesis the scan whose step it took from the odometry; 0 for
+            the front end's own path (row 0).
+        disagreement: ``(H,)`` float64: the squared Mahalanobis distance of that step's match from the odometry
+            (:func:`step_disagreement`; 0 for row 0).
+        evidence: ``(H,)`` float64: each closed path's evidence lower bound, nats
+            (:func:`bayesmap.slam.evidence.path_evidence`).
+        weights: ``(H,)`` float64, summing to 1 (:func:`hypothesis_weights`).
+        chosen: the row the chain starts from (the heaviest).
+    """
+
+    odometry_steps: np.ndarray
+    disagreement: np.ndarray
+    evidence: np.ndarray
+    weights: np.ndarray
+    chosen: int
+
+    @property
+    def distinct(self) -> int:
+        """How many hypotheses carry at least :data:`WEIGHT_FLOOR` of the weight."""
+        return int(np.sum(self.weights >= WEIGHT_FLOOR))
+
+
+def step_disagreement(path, increments, covs) -> np.ndarray:
+    """``(S - 1,)`` float64: for each step of ``path`` ``(S, 3)`` (x m, y m, theta rad), the squared Mahalanobis
+    distance of the path's step (in the frame of the pose before) from the odometry's ``increments`` ``(S - 1, 3)``
+    under the motion model's covariances ``covs`` ``(S - 1, 3, 3)``, the heading's difference wrapped to
+    ``(-pi, pi]``.
+
+    Raises:
+        BayesmapError: if the shapes disagree.
+    """
+    path, increments, covs = (np.asarray(a, np.float64) for a in (path, increments, covs))
+    if path.ndim != 2 or path.shape[1] != 3 or increments.shape != (len(path) - 1, 3) or covs.shape != (
+            len(path) - 1, 3, 3):
+        raise BayesmapError(f"shapes disagree: path {path.shape}, increments {increments.shape}, covs {covs.shape}")
+    delta = relative(path[:-1], path[1:]) - increments
+    delta[:, 2] = wrap_angle(delta[:, 2])
+    return np.einsum("ei,ei->e", delta, np.linalg.solve(covs, delta[..., None])[..., 0])
+
+
+def branch_points(path, increments, covs, gate: float = BRANCH_GATE, most: int = BRANCHES) -> np.ndarray:
+    """``(B,)`` int64, ``B <= most``: the scans ``t`` (in ``1 .. S - 1``) whose step into them from ``t - 1``
+    disagrees with the odometry by more than ``gate`` (:func:`step_disagreement`), the largest disagreement first.
+
+    Raises:
+        BayesmapError: if ``most`` is not an integer >= 0, ``gate`` is not a number >= 0, or the shapes disagree.
+    """
+    if isinstance(most, bool) or not isinstance(most, (int, np.integer)) or most < 0:
+        raise BayesmapError(f"most must be an integer >= 0, got {most!r}")
+    if isinstance(gate, bool) or not isinstance(gate, (int, float)) or not gate >= 0:
+        raise BayesmapError(f"gate must be a number >= 0, got {gate!r}")
+    distance = step_disagreement(path, increments, covs)
+    order = np.argsort(-distance, kind="stable")
+    return (order[distance[order] > gate][:most] + 1).astype(np.int64)
+
+
+def hypothesis_weights(evidence) -> np.ndarray:
+    """``(H,)`` float64 weights summing to 1: ``exp(evidence)`` normalized (``evidence`` ``(H,)`` nats, finite).
+
+    Raises:
+        BayesmapError: if ``evidence`` is empty or not finite.
+    """
+    evidence = np.asarray(evidence, np.float64)
+    if evidence.ndim != 1 or not len(evidence) or not np.all(np.isfinite(evidence)):
+        raise BayesmapError(f"evidence must be a non-empty vector of finite nats, got {evidence!r}")
+    w = np.exp(evidence - evidence.max())
+    return w / w.sum()
