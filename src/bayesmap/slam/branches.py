@@ -33,20 +33,22 @@ from bayesmap.slam.posegraph import CONSISTENCY_GATE, relative
 BRANCH_GATE = CONSISTENCY_GATE
 """Squared Mahalanobis distance (under the motion model's covariance of the step) beyond which a step's match and
 the odometry are two hypotheses: 16.27, the 99.9 % quantile of the chi-square distribution with 3 degrees of freedom,
-the loop closure's consistency gate. A quantile of the motion model, not fitted to any log: the odometry's own
-noise puts a step beyond it once in a thousand steps."""
+the loop closure's consistency gate. A quantile of the motion model, not fitted to any log: a true step that follows
+the motion model lies beyond it once in a thousand steps."""
 
 BRANCHES = 3
-"""The most branch points weighed per run: each costs a front end from its scan on, a loop closure and a short map
-chain (about 12 s on two cores for 200 keyframes), so this bounds the search's time (1.5x the run without it at
-most, [validation](../validation/slam.md#hypotheses-where-scan-and-odometry-disagree)). A compute budget, not a
-model setting: any value searches the same target."""
+"""The most branch points weighed per run. Each costs a front end from its scan on, a loop closure and a 4-sweep map
+chain: 10-50 s on CSAIL's 203-406 keyframes and 282 s on Freiburg 079's 1,389 (two cores), 1.4-2.5 times the run
+without it where a log has branch points, nothing where it has none
+([validation](../validation/slam.md#hypotheses-where-scan-and-odometry-disagree)). A compute budget, not a model
+setting: any value searches the same target, more of its branches. Where CSAIL every other scan had three branch
+points, the one chosen was the third farthest on seed 0 and the second on seeds 3, 4 and 10."""
 
 EVIDENCE_SWEEPS = 4
 """Cellwise sweeps of the map drawn at each hypothesis for its evidence (:func:`bayesmap.slam.evidence.
-path_evidence`): the wall probabilities of the last two. More sweeps move every hypothesis's bound alike (by about
-900 nats from 4 to 12 sweeps on CSAIL) and changed no choice on the logs measured
-([validation](../validation/slam.md#hypotheses-where-scan-and-odometry-disagree))."""
+path_evidence`): the wall probabilities of the last two. Twelve sweeps raised every hypothesis's bound by 870-1,090
+nats on CSAIL every other scan seeds 0 and 10 (five hypotheses each) and chose the same branch on both; four are the
+joint chain's own map block ([validation](../validation/slam.md#hypotheses-where-scan-and-odometry-disagree))."""
 
 WEIGHT_FLOOR = 0.01
 """A hypothesis with at least this weight counts as a distinct one in summaries (as the loop closure's and the
