@@ -388,3 +388,30 @@ def test_path_hypotheses_summary_names_the_logs_scans():
                        "disagreement": [0.0, 40.25, 17.5], "evidence_nats": [0.0, 5.0, 10.0],
                        "weights": [0.004, 0.2, 0.796], "chosen": 2}
 
+
+def test_summary_lines_name_the_start_paths_weighed(tmp_path):
+    """Where branch points were weighed, ``bayesmap slam`` says how many paths and which one the chain started from;
+    with none, no such line."""
+    from types import SimpleNamespace
+
+    from bayesmap.runs.slam import summary_lines
+
+    def lines(hypotheses):
+        summary = {"settings": {"sweeps": 3, "burn_in": 1}, "grid": {"shape": [4, 5], "resolution": 0.1},
+                   "path_hypotheses": hypotheses}
+        run = SimpleNamespace(problem=SimpleNamespace(source="x.log", readings=np.zeros((2, 3)), num_scans=2),
+                              result=SimpleNamespace(acceptance_rate=0.5, runtime_s=1.0,
+                                                     pose_cov=np.stack([np.eye(3), np.eye(3)])),
+                              summary=summary)
+        return [line for line in summary_lines(run, tmp_path, ["a"]) if line.startswith("start:")]
+
+    weighed = path_hypotheses_summary(PathHypotheses(np.array([0, 3, 7]), np.array([0.0, 40.0, 20.0]),
+                                                     np.array([0.0, 5.0, -90.0]), np.array([0.0, 1.0, 0.0]), 1),
+                                      np.array([0, 2, 4, 10, 12, 14, 16, 21]))
+    assert lines(weighed) == ["start:    3 paths weighed (the odometry's step at scans 10, 21); the one through "
+                              "scan 10 kept"]
+    alone = path_hypotheses_summary(PathHypotheses(np.array([0, 3]), np.array([0.0, 40.0]), np.array([0.0, -9.0]),
+                                                   np.array([1.0, 0.0]), 0), np.arange(8))
+    assert lines(alone) == ["start:    2 paths weighed (the odometry's step at scan 3); the front end's own kept"]
+    assert lines(path_hypotheses_summary(None, np.arange(8))) == []
+

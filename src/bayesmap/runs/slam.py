@@ -445,7 +445,8 @@ def slam(req: SlamRequest, progress: Optional[ProgressCallback] = None,
 
 def summary_lines(run: SlamRun, out: Path, written: list[str]) -> list[str]:
     """The lines ``bayesmap slam`` prints: data, sweeps and acceptance, runtime, the path (against the truth where
-    known, else its spread and the map's size), outputs."""
+    known, else its spread and the map's size), the start paths weighed where there were branch points
+    (:func:`path_hypotheses_summary`), outputs."""
     problem, result, summary = run.problem, run.result, run.summary
     settings = summary["settings"]
     lines = [f"data:     {problem.source}, {problem.readings.shape[1]} beams per scan",
@@ -461,5 +462,12 @@ def summary_lines(run: SlamRun, out: Path, written: list[str]) -> list[str]:
         g = summary["grid"]
         lines.append(f"path:     {problem.num_scans} poses; position sd median {np.median(sd):.3f} m, largest "
                      f"{sd.max():.3f} m; map {g['shape'][0]} x {g['shape'][1]} cells of {g['resolution']:g} m")
+    weighed = summary.get("path_hypotheses")
+    if weighed is not None and weighed["weighed"] > 1:
+        chosen = weighed["branch_scans"][weighed["chosen"]]
+        branches = weighed["branch_scans"][1:]
+        at = ("scan " if len(branches) == 1 else "scans ") + ", ".join(str(t) for t in branches)
+        lines.append(f"start:    {weighed['weighed']} paths weighed (the odometry's step at {at}); "
+                     + ("the front end's own kept" if chosen is None else f"the one through scan {chosen} kept"))
     lines.append(f"outputs:  {out}/ ({', '.join(written)})")
     return lines
