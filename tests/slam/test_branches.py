@@ -50,14 +50,14 @@ def test_branch_points_are_the_steps_beyond_the_gate_largest_first():
     _, path, increments, covs, _ = odometry_and_path()
     distance = step_disagreement(path, increments, covs)
     assert distance[2] > distance[6] > 0 and distance[6] > BRANCH_GATE  # both steps beyond the gate
-    np.testing.assert_array_equal(branch_points(path, increments, covs), [3, 7])
-    np.testing.assert_array_equal(branch_points(path, increments, covs, most=1), [3])
-    np.testing.assert_array_equal(branch_points(path, increments, covs, gate=distance[6]), [3])
-    assert branch_points(path, increments, covs, most=0).size == 0
+    np.testing.assert_array_equal(branch_points(distance), [3, 7])
+    np.testing.assert_array_equal(branch_points(distance, most=1), [3])
+    np.testing.assert_array_equal(branch_points(distance, gate=distance[6]), [3])
+    assert branch_points(distance, most=0).size == 0
     for bad, match in ((dict(most=-1), "most must be"), (dict(most=1.5), "most must be"),
                        (dict(gate=float("nan")), "gate must be"), (dict(gate=-1.0), "gate must be")):
         with pytest.raises(BayesmapError, match=match):
-            branch_points(path, increments, covs, **bad)
+            branch_points(distance, **bad)
 
 
 def test_hypothesis_weights_normalize_the_evidence():

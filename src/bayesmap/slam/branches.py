@@ -99,18 +99,19 @@ def step_disagreement(path, increments, covs) -> np.ndarray:
     return np.einsum("ei,ei->e", delta, np.linalg.solve(covs, delta[..., None])[..., 0])
 
 
-def branch_points(path, increments, covs, gate: float = BRANCH_GATE, most: int = BRANCHES) -> np.ndarray:
+def branch_points(distance, gate: float = BRANCH_GATE, most: int = BRANCHES) -> np.ndarray:
     """``(B,)`` int64, ``B <= most``: the scans ``t`` (in ``1 .. S - 1``) whose step into them from ``t - 1``
-    disagrees with the odometry by more than ``gate`` (:func:`step_disagreement`), the largest disagreement first.
+    disagrees with the odometry by more than ``gate``, by ``distance`` ``(S - 1,)`` (:func:`step_disagreement`), the
+    largest disagreement first.
 
     Raises:
-        BayesmapError: if ``most`` is not an integer >= 0, ``gate`` is not a number >= 0, or the shapes disagree.
+        BayesmapError: if ``most`` is not an integer >= 0 or ``gate`` is not a number >= 0.
     """
     if isinstance(most, bool) or not isinstance(most, (int, np.integer)) or most < 0:
         raise BayesmapError(f"most must be an integer >= 0, got {most!r}")
     if isinstance(gate, bool) or not isinstance(gate, (int, float)) or not gate >= 0:
         raise BayesmapError(f"gate must be a number >= 0, got {gate!r}")
-    distance = step_disagreement(path, increments, covs)
+    distance = np.asarray(distance, np.float64)
     order = np.argsort(-distance, kind="stable")
     return (order[distance[order] > gate][:most] + 1).astype(np.int64)
 

@@ -181,9 +181,10 @@ def _returned_endpoints(data: ScanData, path) -> np.ndarray:
 
 def fitted_grid(data: ScanData, path, resolution: float, margin: float = MAP_MARGIN) -> Grid:
     """The grid covering the returned beams' endpoints (:func:`scan_data`) and the sensor positions at ``path``
-    ``(S, 3)`` plus ``margin`` meters."""
-    return Grid.covering(np.vstack([_returned_endpoints(data, path), path[:, :2]]), resolution=resolution,
-                         margin=margin)
+    ``(S, 3)``, or at every path of a stack ``(H, S, 3)``, plus ``margin`` meters."""
+    paths = np.reshape(path, (-1, *np.shape(path)[-2:]))
+    points = [np.vstack([_returned_endpoints(data, p), p[:, :2]]) for p in paths]
+    return Grid.covering(np.vstack(points), resolution=resolution, margin=margin)
 
 
 def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTION,
@@ -223,7 +224,7 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
         return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, odometry_steps=odometry_steps,
                                 prefix=prefix, **options)
     if odometry_steps is not None or prefix is not None:
-        raise BayesmapError("odometry_steps is for the single-track front end (particles 1)")
+        raise BayesmapError("odometry_steps and prefix are for the single-track front end (particles 1)")
     return particle_path(odometry[0], data, FRONT_END_RESOLUTION, particles, seed=seed, **options).matched
 
 
@@ -243,7 +244,8 @@ def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClo
         match disagrees with the odometry beyond ``gate`` (:data:`bayesmap.slam.branches.BRANCH_GATE`; then
         ``front`` and ``closed`` themselves, and nothing is weighed).
     """
-    points = branch_points(front.path, scans.increments, scans.covs, gate, branches)
+    distance = step_disagreement(front.path, scans.increments, scans.covs)
+    points = branch_points(distance, gate, branches)
     if not len(points):
         return front, closed, None
     total = len(points) + 1
@@ -252,9 +254,8 @@ def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClo
     for t in points:
         other = front_end(problem, scans, odometry_steps=[int(t)], prefix=front)
         candidates.append((other, close_loops(other.path, scans, step_cov=other.step_cov)))
-    ends = np.vstack([np.vstack([_returned_endpoints(scans, c.path), c.path[:, :2]]) for _, c in candidates])
-    params = with_grid(problem.params, Grid.covering(ends, resolution=problem.params.grid.resolution,
-                                                     margin=MAP_MARGIN))
+    params = with_grid(problem.params, fitted_grid(scans, np.stack([c.path for _, c in candidates]),
+                                                   problem.params.grid.resolution))
     evidence, shapes = [], None
     for h, (_, c) in enumerate(candidates):
         bound, shapes = path_evidence(key, problem, params, c.path, EVIDENCE_SWEEPS, tile_pairs, shapes,
@@ -263,7 +264,7 @@ def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClo
         report(progress, "branches", h + 1, total, "path")
     weights = hypothesis_weights(evidence)
     chosen = int(np.argmax(weights))
-    disagreement = np.concatenate([[0.0], step_disagreement(front.path, scans.increments, scans.covs)[points - 1]])
+    disagreement = np.concatenate([[0.0], distance[points - 1]])
     hypotheses = PathHypotheses(np.concatenate([[0], points]).astype(np.int64), disagreement,
                                 np.asarray(evidence, np.float64), weights, chosen)
     return (*candidates[chosen], hypotheses)

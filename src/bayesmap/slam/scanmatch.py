@@ -808,7 +808,7 @@ def resumed_window(path, step_cov, t, d, frame, grid: Grid, half_width: float):
 
 @functools.partial(jax.jit, static_argnames=("grid", "half_width", "field_seed"), donate_argnames=("carry",))
 def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, steps: Lattices, grid: Grid,
-                       half_width: float, power, posterior, tail, field_seed: bool = FIELD_SEED, forced=None):
+                       half_width: float, power, posterior, tail, forced, field_seed: bool = FIELD_SEED):
     """The jitted loop of :func:`correlative_path` over the scans ``lo <= t < hi`` from ``carry`` (module level, so
     that another run with the same shapes and settings reuses the compiled code; the bounds are arguments, so runs in
     pieces share it): the carry ``(path (S, 3)`` in world coordinates, fields, stamps, window offset) after scan
@@ -819,11 +819,8 @@ def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, ste
     the argmax the same); ``min_hit`` the least hit fraction of a trusted match; ``power`` the likelihood power and
     ``posterior`` the lattice (:func:`step_lattice`) of each step's covariance (:func:`step_posterior`), the last
     entry of the carry; ``tail`` ``(weight, covariance)`` the motion density's broad component in both;
-    ``field_seed`` :func:`search`'s; ``forced`` ``(S,)`` bool: the scans that take the odometry's prediction
-    (:func:`odometry_mask`; None: none)."""
-    if forced is None:
-        forced = jnp.zeros(d.readings.shape[0], bool)
-
+    ``forced`` ``(S,)`` bool: the scans that take the odometry's prediction (:func:`odometry_mask`); ``field_seed``
+    :func:`search`'s."""
     def body(t, carry):
         path, fields, stamps, offset, step_cov = carry
         prev = path[t - 1] - frame
