@@ -687,6 +687,48 @@ def test_loop_closure_reports_each_rounds_candidates(monkeypatch):
     assert seen == [Progress(f"loop closure {r}/2", done, 3, "scan") for r in (1, 2) for done in range(4)]
 
 
+def test_a_loop_closure_that_reads_kept_matches_gives_the_same_path_with_fewer_searches(monkeypatch):
+    """``close_loops(matches=)``: a second path that is the first before scan 8 and moved after it (a branch, as
+    ``pipeline.branched_start`` makes) takes the kept matches of the candidates whose inputs lie before scan 8 instead
+    of searching them, and its loop closure equals one that searches every candidate, path and edges to the bit. With
+    loops 4 scans apart and local maps of the scans +-2 around ``s``, the room's first round matches scans 4, 7, 10
+    (against 0, 3, 6 or so): 4 and 7 have every input before scan 8. A kept match is found only where every input is
+    the same to the bit: the scans before 8 moved by 1e-12 m are searched again."""
+    monkeypatch.setattr(posegraph, "LOOP_GAP", 4)
+    monkeypatch.setattr(posegraph, "LOOP_NEIGHBOURS", 2)
+    searched = []
+    match = posegraph.match_to_local_maps
+
+    def counted(path, data, scans, *args, **kwargs):
+        searched.append(len(np.asarray(scans).reshape(-1)))
+        return match(path, data, scans, *args, **kwargs)
+
+    monkeypatch.setattr(posegraph, "match_to_local_maps", counted)
+    grid, truth, odometry, beams, readings = room_scans()
+    inc, cov = odometry_controls(odometry, make_motion_params((0.1, 0.05, 0.1, 0.05)))
+    data = ScanData(beams, readings, readings < 19.9, np.asarray(inc), np.asarray(cov))
+    matches = posegraph.LoopMatches()
+    posegraph.close_loops(odometry, data, rounds=2, matches=matches)
+    assert len(matches) == sum(searched) > 0 and matches.found == 0
+    branch = odometry.copy()
+    branch[8:, :2] += (0.04, -0.03)
+    branch[8:, 2] += 0.02
+    searched.clear()
+    plain = posegraph.close_loops(branch, data, rounds=2)
+    every = sum(searched)
+    searched.clear()
+    kept = posegraph.close_loops(branch, data, rounds=2, matches=matches)
+    assert matches.found == every - sum(searched) >= 2  # scans 4 and 7 of the first round at least
+    np.testing.assert_array_equal(kept.path, plain.path)
+    for name in ("i", "j", "z", "std"):
+        np.testing.assert_array_equal(getattr(kept.edges, name), getattr(plain.edges, name))
+    nudged = branch.copy()
+    nudged[:8, 0] += 1e-12
+    found = matches.found
+    posegraph.close_loops(nudged, data, rounds=1, matches=matches)
+    assert matches.found == found
+
+
 @pytest.mark.parametrize("angle, move", [(0.3, (2.0, -1.0)), (-1.0, (5.0, 3.0))])
 def test_a_held_out_scan_is_registered_into_the_frame_of_the_map_it_is_scored_on(angle, move):
     """``evaluation.slammap.register_heldout`` (the registered columns of benchmarks/slam_map.py): held-out scans of

@@ -92,6 +92,7 @@ from bayesmap.slam.keyframes import keyframe_problem, owners, place_scans, place
 from bayesmap.slam.particles import particle_path
 from bayesmap.slam.posegraph import (
     LoopClosure,
+    LoopMatches,
     close_loops,
     concat_edges,
     marginal_covariances,
@@ -230,14 +231,18 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
 
 def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClosure, key,
                    branches: int = BRANCHES, tile_pairs: int = TILE_PAIRS, progress: ProgressCallback | None = None,
-                   gate: float = BRANCH_GATE) -> tuple[MatchedPath, LoopClosure, PathHypotheses | None]:
+                   gate: float = BRANCH_GATE, matches: LoopMatches | None = None,
+                   ) -> tuple[MatchedPath, LoopClosure, PathHypotheses | None]:
     """Stage 2b of the module docstring (:mod:`bayesmap.slam.branches`): the front end's path ``front`` and its
     loop closure ``closed``, and at most ``branches`` branches (the front end again from each branch point, a step
     whose match disagrees with the odometry beyond ``gate`` (:func:`bayesmap.slam.branches.branch_points`), with its
     step taken from the odometry, resumed from ``front``; the loop closure), weighed by their evidence
     (:func:`bayesmap.slam.evidence.path_evidence`, :data:`bayesmap.slam.branches.EVIDENCE_SWEEPS` sweeps, random
     key ``key``, on one grid covering every hypothesis's beams, in tiles of at most ``tile_pairs`` pairs).
-    ``progress`` gets ``Progress("branches", done, H, "path")`` as each hypothesis is weighed.
+    ``progress`` gets ``Progress("branches", done, H, "path")`` as each hypothesis is weighed. ``matches``: the
+    loop matches ``closed`` made (:class:`bayesmap.slam.posegraph.LoopMatches`, filled by ``close_loops(...,
+    matches=)``): a branch's loop closure takes those whose inputs it shares (its first round's among the scans
+    before its branch point) instead of searching again, the same result; None: none kept.
 
     Returns:
         ``(front end, loop closure, hypotheses)`` of the heaviest hypothesis; ``hypotheses`` None where no step's
@@ -250,10 +255,11 @@ def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClo
         return front, closed, None
     total = len(points) + 1
     report(progress, "branches", 0, total, "path")
+    matches = LoopMatches() if matches is None else matches
     candidates = [(front, closed)]
     for t in points:
         other = front_end(problem, scans, odometry_steps=[int(t)], prefix=front)
-        candidates.append((other, close_loops(other.path, scans, step_cov=other.step_cov)))
+        candidates.append((other, close_loops(other.path, scans, step_cov=other.step_cov, matches=matches)))
     params = with_grid(problem.params, fitted_grid(scans, np.stack([c.path for _, c in candidates]),
                                                    problem.params.grid.resolution))
     evidence, shapes = [], None
@@ -516,11 +522,13 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     start = time.perf_counter()
     scans = scan_data(problem)
     front = front_end(problem, scans, particles=particles, seed=seed, progress=progress)
-    closed = close_loops(front.path, scans, progress=progress, step_cov=front.step_cov)
+    matches = LoopMatches() if branches and particles == 1 else None
+    closed = close_loops(front.path, scans, progress=progress, step_cov=front.step_cov, matches=matches)
     branched = None
-    if branches and particles == 1:
+    if matches is not None:
         key = jax.random.fold_in(jax.random.key(seed), 2 * rounds + 1)  # none of the chain's or the final map's keys
-        front, closed, branched = branched_start(problem, scans, front, closed, key, branches, tile_pairs, progress)
+        front, closed, branched = branched_start(problem, scans, front, closed, key, branches, tile_pairs, progress,
+                                                 matches=matches)
     path, edges, hypotheses = closed
     grid = fitted_grid(scans, path, problem.params.grid.resolution)
     walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, grid), path, seed,

@@ -296,13 +296,52 @@ def local_map_grid() -> Grid:
     return Grid(shape=(n, n), resolution=LOCAL_MAP_RESOLUTION, origin=(-LOCAL_MAP_HALF_WIDTH, -LOCAL_MAP_HALF_WIDTH))
 
 
+class LoopMatches:
+    """The loop matches one path's loop closure made, kept so that another path's loop closure of the same scans
+    takes those whose every input is the same to the bit instead of searching again: the matched scan, its window,
+    the local map's scans and their poses, and the search's start and center (:func:`match_loops`). A match is a
+    deterministic function of those inputs, so a loop closure that reads them gives the same path as one that
+    searches (tested). The start's other hypotheses (:func:`bayesmap.slam.pipeline.branched_start`) share the path
+    before their branch point with the single track, and with it the first round's matches among those scans.
+
+    Attributes:
+        found: how many matches were taken from the memo, counted across every loop closure that read it.
+    """
+
+    def __init__(self):
+        self._matches: dict = {}
+        self.found = 0
+
+    def __len__(self) -> int:
+        return len(self._matches)
+
+    @staticmethod
+    def key(t: int, width: float, neighbours, path, start, center) -> tuple:
+        """The inputs of one match, as bytes (:func:`match_loops`)."""
+        return (int(t), float(width), np.asarray(neighbours, np.int64).tobytes(),
+                np.asarray(path, np.float64)[np.asarray(neighbours)].tobytes(),
+                np.asarray(start, np.float64).tobytes(), np.asarray(center, np.float64).tobytes())
+
+    def get(self, key: tuple):
+        """The ``(pose (3,), hit fraction)`` kept at ``key``, or None."""
+        found = self._matches.get(key)
+        self.found += found is not None
+        return found
+
+    def put(self, key: tuple, pose, quality: float) -> None:
+        """Keep one match's ``pose`` ``(3,)`` and hit fraction at ``key``."""
+        self._matches[key] = (np.array(pose, np.float64), float(quality))
+
+
 def match_loops(path, data: ScanData, pairs, progress: ProgressCallback | None = None,
-                stage: str = "loop closure", half_widths=None) -> tuple[np.ndarray, np.ndarray]:
+                stage: str = "loop closure", half_widths=None,
+                matches: LoopMatches | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Match scan ``t`` against the local map around scan ``s`` for each pair of ``pairs`` ``(P, 2)``
     (:func:`match_to_local_maps` with :func:`loop_levels` of the pair's entry of ``half_widths`` ``(P,)``, default
     1.5 m for every pair, from ``t``'s estimate, the local map of the scans ``s - LOOP_NEIGHBOURS .. s +
     LOOP_NEIGHBOURS``, every :data:`LOCAL_MAP_STEP`-th, centered on ``s``), reporting ``Progress(stage, done, P,
-    "scan")`` before the first match and after each.
+    "scan")`` before the first match and after each. With ``matches`` (a :class:`LoopMatches`), a pair whose inputs
+    it holds takes the kept match instead of a search, and every match searched is kept in it.
 
     Returns:
         ``(poses (P, 3), hit_fraction (P,))``: scan ``t``'s matched world pose and its match quality
@@ -328,10 +367,23 @@ def match_loops(path, data: ScanData, pairs, progress: ProgressCallback | None =
             if p.done > 0 or offset == 0:
                 report(progress, stage, offset + p.done, len(pairs), p.unit)
 
-        poses[rows], quality[rows] = match_to_local_maps(
-            path, data, pairs[rows, 1], neighbours[rows], path[pairs[rows, 1]], path[pairs[rows, 0], :2],
+        keys = [None if matches is None else LoopMatches.key(pairs[r, 1], width, neighbours[r], path,
+                                                             path[pairs[r, 1]], path[pairs[r, 0], :2]) for r in rows]
+        kept = [None if key is None else matches.get(key) for key in keys]
+        for r, found in zip(rows, kept):
+            if found is not None:
+                poses[r], quality[r] = found
+        todo = rows[[found is None for found in kept]]
+        poses[todo], quality[todo] = match_to_local_maps(
+            path, data, pairs[todo, 1], neighbours[todo], path[pairs[todo, 1]], path[pairs[todo, 0], :2],
             levels=loop_levels(float(width)), progress=None if progress is None else shifted, stage=stage)
+        if matches is not None:
+            for r, key, found in zip(rows, keys, kept):
+                if found is None:
+                    matches.put(key, poses[r], quality[r])
         done += len(rows)
+        if progress is not None and len(todo) < len(rows):  # the kept ones count as matched
+            report(progress, stage, done, len(pairs), "scan")
     return poses, quality
 
 
@@ -421,10 +473,12 @@ def _search_local_map(fields, logs, center, angles, readings, returned, steps: L
 
 
 def loop_edges(path, data: ScanData, progress: ProgressCallback | None = None, stage: str = "loop closure",
-               sequential: Edges | None = None, sigmas: float = LOOP_WINDOW_SIGMAS) -> tuple[Edges, np.ndarray]:
+               sequential: Edges | None = None, sigmas: float = LOOP_WINDOW_SIGMAS,
+               matches: LoopMatches | None = None) -> tuple[Edges, np.ndarray]:
     """The accepted loop edges of ``path`` (:func:`loop_candidates`, the windows sized by ``sequential`` and
-    ``sigmas`` if ``sequential`` is given; :func:`match_loops`; quality at least :data:`LOOP_MIN_HIT_FRACTION`), with
-    :data:`LOOP_STD`; ``progress`` gets ``Progress(stage, done, P, "scan")`` per candidate matched.
+    ``sigmas`` if ``sequential`` is given; :func:`match_loops`, with ``matches`` as there; quality at least
+    :data:`LOOP_MIN_HIT_FRACTION`), with :data:`LOOP_STD`; ``progress`` gets ``Progress(stage, done, P, "scan")``
+    per candidate matched.
 
     Returns:
         ``(edges, half_widths (L,))``: the edges and the half width (meters) each one's search covered.
@@ -432,7 +486,7 @@ def loop_edges(path, data: ScanData, progress: ProgressCallback | None = None, s
     pairs, half_widths = loop_candidates(path, sequential, sigmas)
     if len(pairs) == 0:
         return Edges(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))), np.zeros(0)
-    poses, quality = match_loops(path, data, pairs, progress, stage, half_widths)
+    poses, quality = match_loops(path, data, pairs, progress, stage, half_widths, matches)
     ok = quality >= LOOP_MIN_HIT_FRACTION
     s, t = pairs[ok, 0], pairs[ok, 1]
     return (Edges(s, t, relative(np.asarray(path)[s], poses[ok]), np.tile(np.asarray(LOOP_STD), (int(ok.sum()), 1))),
@@ -822,7 +876,7 @@ class LoopClosure(NamedTuple):
 
 def close_loops(path, data: ScanData, rounds: int = ROUNDS, progress: ProgressCallback | None = None,
                 consistency_gate: float = CONSISTENCY_GATE, window_sigmas: float = LOOP_WINDOW_SIGMAS,
-                step_cov=None) -> LoopClosure:
+                step_cov=None, matches: LoopMatches | None = None) -> LoopClosure:
     """Alternate loop detection (:func:`loop_edges`) and the choice of loop edges with pose-graph optimization
     (:func:`optimize_with_loop_gate` at ``consistency_gate``) ``rounds`` times from the front end's ``path`` (fewer
     if a round finds no loop edge). ``progress`` gets ``Progress("loop closure r/rounds", done, P, "scan")`` per
@@ -839,6 +893,10 @@ def close_loops(path, data: ScanData, rounds: int = ROUNDS, progress: ProgressCa
     not pin down (a corridor, a match that was not trusted) is where a loop bends the path. None: every step at
     :data:`SEQUENTIAL_STD` ([validation](../validation/slam.md#the-steps-uncertainty-in-the-loop-closure)).
 
+    ``matches`` (a :class:`LoopMatches`, or None): the matches of another loop closure of the same scans, taken where
+    a candidate's inputs are the same to the bit (:func:`match_loops`; the same result as searching), and this one's
+    kept in it.
+
     Returns:
         A :class:`LoopClosure`: the optimized path, the graph's edges (the sequential edges of the front end's
         ``path``, :func:`sequential_edges`, with ``step_cov`` if given, followed by the loop edges kept in the last
@@ -853,7 +911,7 @@ def close_loops(path, data: ScanData, rounds: int = ROUNDS, progress: ProgressCa
     hypotheses = None
     for r in range(rounds):
         loops, half_widths = loop_edges(path, data, progress, f"loop closure {r + 1}/{rounds}",
-                                        sequential if r == 0 else None, window_sigmas)
+                                        sequential if r == 0 else None, window_sigmas, matches)
         if len(loops.i) == 0:
             break
         path, kept, hypotheses = optimize_with_loop_gate(path, sequential, loops, consistency_gate, half_widths)
