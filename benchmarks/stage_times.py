@@ -36,7 +36,8 @@ def main(argv=None) -> None:
     parser.add_argument("--logs", default="csail", help="comma-separated: intel, aces, csail, fr079")
     parser.add_argument("--seeds", default="0", help="odometry seeds, e.g. 0-4 or 0,10")
     parser.add_argument("--every", default="1", help="comma-separated scan strides, e.g. 1,2")
-    parser.add_argument("--branches", type=int, default=None, help="run_log_slam's branches (default: its own)")
+    parser.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
+                        help="a keyword of run_log_slam, an int or a float (repeatable), e.g. branches=0")
     args = parser.parse_args(argv)
     if args.src is not None:
         sys.path.insert(0, str(Path(args.src).resolve()))
@@ -50,13 +51,17 @@ def main(argv=None) -> None:
     from bayesmap.progress import StageRecorder
     from bayesmap.runs.slam import log_slam
 
-    if args.branches is not None:
+    options = {}
+    for text in args.option:
+        name, _, value = text.partition("=")
+        options[name] = float(value) if "." in value else int(value)
+    if options:
         run_log_slam = pipeline.run_log_slam
 
-        def with_branches(*a, **k):
-            return run_log_slam(*a, **{**k, "branches": args.branches})
+        def with_options(*a, **k):
+            return run_log_slam(*a, **{**k, **options})
 
-        pipeline.run_log_slam = with_branches
+        pipeline.run_log_slam = with_options
     for name in args.logs.split(","):
         for seed in _ints(args.seeds):
             for every in _ints(args.every):
@@ -71,7 +76,8 @@ def main(argv=None) -> None:
                 result, chosen = (run[1], run[2]) if isinstance(run, tuple) else (run.result, run.chosen)
                 ate = absolute_trajectory_error(result.mean_path, np.asarray(truth)[chosen])["rmse_m"]
                 print(json.dumps({"src": str(Path(bayesmap.__file__).parent.parent), "log": name, "seed": seed,
-                                  "every": every, "wall_s": round(wall, 1), "ate_m": round(float(ate), 3),
+                                  "every": every, "options": options, "wall_s": round(wall, 1),
+                                  "ate_m": round(float(ate), 3),
                                   "stages": {s["stage"]: round(s["seconds"], 1)
                                              for s in recorder.summary()["stages"]}}), flush=True)
 

@@ -19,10 +19,13 @@ from bayesmap.model.slam import slam_args, slam_choices, slam_model
 from bayesmap.slam.poses import (
     discrete_pose_gibbs,
     lattice_pose_mh,
+    moved_segment,
     pose_log_conditional,
     random_walk_pose_mh,
     scan_log_likelihood,
     scans_log_likelihood,
+    segment_log_ratio,
+    segment_pose_mh,
     slam_data,
 )
 from helpers import random_slam_scene
@@ -190,6 +193,52 @@ def test_scans_log_likelihood_equals_one_scan_at_a_time(geometry):
                              for m in range(len(path))])
             got = np.asarray(scans_log_likelihood(walls, path, angles, y, p))
             np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def test_segment_sweep_is_segment_moves_first_third_then_second_fourth():
+    """A sweep of segment_pose_mh (length 3, 11 scans) moves the first, third, ... segments at once, then the
+    second, fourth, ...: the same poses and acceptances as the segment moves one after another in that order, each
+    accepted by the public segment_log_ratio (the model's log joint difference, tested against assess) with segment
+    ``k``'s key the k-th of the sweep's splits, split again into the move's and the acceptance's, and the offset drawn
+    from the sweep key's first split (float64; poses equal to 1e-12). Eight sweeps with and without the cache, moves
+    accepted and rejected. The odometry is the path itself with a tight motion model (0.02 m and rad), so that a
+    segment's acceptance turns on whether its neighbour moved: the same replay in the order 0, 1, 2, ..., or with
+    every segment scored against the sweep's starting path (neighbours moved at once), fails."""
+    with enable_x64():
+        params, path, walls, _, _, angles, y, _ = random_slam_scene(1, num_scans=11)
+        inc, cov = motion.odometry_controls(path, motion.make_motion_params((0, 0, 0, 0), 0.02, 0.02))
+        data = slam_data(inc, cov, angles, y, params)
+        length, scale = 3, np.array([0.02, 0.02, 0.02])
+        kernel = segment_pose_mh(data, length, (0.02, 0.02))
+        step = jax.jit(kernel.step)
+        s = len(path)
+        for cached in (True, False):
+            state = kernel.init(path, walls)
+            if not cached:
+                state = state._replace(scan_log_lik=None)
+            ref = np.array(path, dtype=np.float64)
+            counts = [0, 0]
+            for key in jax.random.split(jax.random.key(12), 8):
+                state, info = step(key, state)
+                k_offset, k_moves = jax.random.split(key)
+                offset = int(jax.random.randint(k_offset, (), 0, length))
+                count = (s - 2) // length + 2
+                keys = jax.random.split(k_moves, count)
+                for k in [*range(0, count, 2), *range(1, count, 2)]:
+                    first = 1 + offset + (k - 1) * length
+                    a, b = max(first, 1), min(first + length - 1, s - 1)
+                    if a > b:
+                        continue
+                    k_delta, k_acc = jax.random.split(keys[k])
+                    delta = scale * np.asarray(jax.random.normal(k_delta, (3,), jnp.float64))
+                    ratio = float(segment_log_ratio(a, b, delta, ref, walls, data))
+                    accept = np.log(float(jax.random.uniform(k_acc, (), jnp.float64))) < ratio
+                    assert np.all(np.asarray(info.accepted[a - 1:b]) == accept), (k, a, b)
+                    if accept:
+                        ref = np.asarray(moved_segment(ref, a, b, jnp.asarray(delta)))
+                    counts[int(accept)] += 1
+                np.testing.assert_allclose(np.asarray(state.poses), ref, rtol=0, atol=1e-12)
+            assert min(counts) >= 3, counts
 
 
 def test_random_walk_sweep_is_single_pose_moves_odd_then_even():

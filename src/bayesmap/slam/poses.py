@@ -534,34 +534,41 @@ def segment_log_ratio(a: int, b: int, delta, poses, walls, data: SlamData, likel
                             f"b={b!r}")
     eta = check_scan_powers(likelihood_power, s)
     like = _scan_log_likelihoods(data, poses, jnp.asarray(walls, jnp.float32))
-    return _segment_log_ratio_jit(int(a), int(b), jnp.asarray(delta, poses.dtype), poses, jnp.asarray(walls),
-                                  data, eta, like)[0]
+    one = jnp.asarray([int(a)]), jnp.asarray([int(b)]), jnp.asarray([True])
+    return _segment_log_ratios_jit(*one, jnp.asarray(delta, poses.dtype)[None], poses, jnp.asarray(walls), data, eta,
+                                   like, int(b) - int(a) + 1)[0][0]
 
 
-def _segment_log_ratio(a, b, delta, poses, walls, data: SlamData, eta, like, length: int | None = None):
-    """``(log ratio, moved poses (S, 3), their scans' log-likelihoods (S,))`` of the segment move ``a..b`` by
-    ``delta``, casting only the segment's scans: ``length`` of them from ``a`` (at least ``b - a + 1``; None: every
-    scan), ``like`` ``(S,)`` the current scans' untempered log-likelihoods."""
+def _segment_log_ratios(a, b, valid, delta, poses, walls, data: SlamData, eta, like, length: int):
+    """The segment moves ``a[i]..b[i]`` by ``delta[i]`` (``(n,)``, ``(n,)``, ``(n, 3)``; ``valid`` ``(n,)`` bool: a
+    move that is not is all padding), each scored against ``poses`` ``(S, 3)`` as it is, casting only the segments'
+    scans (``length`` rows each, at least ``b - a + 1``): ``(log ratios (n,), the rows' indices (n, length) and
+    whether each is in its segment, the moved rows (n, length, 3), their scans' untempered log-likelihoods (n,
+    length))``; ``like`` ``(S,)`` the current scans' untempered log-likelihoods."""
     s = poses.shape[0]
-    moved = moved_segment(poses, a, b, delta)
-    n = s if length is None else length
-    idx = jnp.minimum(a + jnp.arange(n), s - 1)
-    inside = (a + jnp.arange(n)) <= b
-    cast = scans_log_likelihood(walls, moved[idx], data.sensor_angles[idx], data.readings[idx],
-                                data.params).astype(poses.dtype)
-    new_like = like.at[jnp.where(inside, idx, s)].set(cast, mode="drop")
+    rows = jnp.arange(length)
+    idx = jnp.minimum(a[:, None] + rows, s - 1)
+    inside = valid[:, None] & (a[:, None] + rows <= b[:, None])
+    anchor = poses[a]
+    within = motion_error(anchor[:, None], poses[idx], jnp.zeros(3, poses.dtype))  # in the frame of pose a
+    moved = compose(compose(anchor, delta)[:, None], within)
+    n = a.shape[0]
+    cast = scans_log_likelihood(walls, moved.reshape(-1, 3), data.sensor_angles[idx].reshape(n * length, -1),
+                                data.readings[idx].reshape(n * length, -1),
+                                data.params).astype(poses.dtype).reshape(n, length)
     power = eta if jnp.ndim(eta) == 0 else eta[idx]
-    scans = jnp.sum(jnp.where(inside, power * (cast - like[idx]), 0.0))
-    before = (motion_logpdf(poses[a - 1], moved[a], data.increments[a - 1], data.covs[a - 1])
-              - motion_logpdf(poses[a - 1], poses[a], data.increments[a - 1], data.covs[a - 1]))
-    nxt = jnp.minimum(b + 1, s - 1)
-    step = jnp.minimum(b, s - 2)
-    after = (motion_logpdf(moved[b], poses[nxt], data.increments[step], data.covs[step])
-             - motion_logpdf(poses[b], poses[nxt], data.increments[step], data.covs[step]))
-    return before + jnp.where(b < s - 1, after, 0.0) + scans, moved, new_like
+    scans = jnp.sum(jnp.where(inside, power * (cast - like[idx]), 0.0), axis=1)
+    step_logpdf = jax.vmap(motion_logpdf)
+    before = (step_logpdf(poses[a - 1], moved[:, 0], data.increments[a - 1], data.covs[a - 1])
+              - step_logpdf(poses[a - 1], poses[a], data.increments[a - 1], data.covs[a - 1]))
+    last = jnp.take_along_axis(moved, (b - a)[:, None, None], axis=1)[:, 0]  # the moved pose b
+    nxt, step = jnp.minimum(b + 1, s - 1), jnp.minimum(b, s - 2)
+    after = (step_logpdf(last, poses[nxt], data.increments[step], data.covs[step])
+             - step_logpdf(poses[b], poses[nxt], data.increments[step], data.covs[step]))
+    return before + jnp.where(b < s - 1, after, 0.0) + scans, idx, inside, moved, cast
 
 
-_segment_log_ratio_jit = jax.jit(_segment_log_ratio, static_argnames=("length",))
+_segment_log_ratios_jit = jax.jit(_segment_log_ratios, static_argnames=("length",))
 
 
 def segment_pose_mh(data: SlamData, length: int = SEGMENT_LENGTH, step_std=SEGMENT_STEP_STD,
@@ -573,10 +580,13 @@ def segment_pose_mh(data: SlamData, length: int = SEGMENT_LENGTH, step_std=SEGME
     scans leave free to slide as a whole (along a corridor, where every scan fits the side walls equally well) moves
     by the odometry's few centimeters at a time. This kernel moves ``length`` consecutive poses together. A sweep
     draws an offset ``o`` uniformly in ``0..length - 1`` (independently of the state) and cuts poses ``1..S-1`` into
-    the segments ``1..o``, ``o+1..o+length``, ...; for each segment ``a..b`` in order it proposes ``delta ~ N(0,
+    the segments ``1..o``, ``o+1..o+length``, ...; for each segment ``a..b`` it proposes ``delta ~ N(0,
     diag(step_std)^2)`` in the frame of pose ``a`` and the path :func:`moved_segment` ``(x, a, b, delta)``, and
     accepts with probability ``min(1, pi(x') / pi(x))`` (:func:`segment_log_ratio`: only the two end steps and the
-    segment's scans change).
+    segment's scans change). The first, third, ... segments move at once, then the second, fourth, ...: given the
+    walls, two segments that are not neighbours share no pose and no motion term, so their moves are independent and
+    a block of them is the same kernel as the same moves one after another (tested against such a replay), with
+    every block's scans cast in one call.
 
     Why the ratio has no proposal term: the move ``(x, delta) -> (x', delta^-1)`` is an involution (from ``x'`` the
     move ``delta^-1`` in the frame of the moved pose ``a`` returns ``x``), it moves each pose of the segment by a rigid
@@ -618,30 +628,41 @@ def segment_pose_mh(data: SlamData, length: int = SEGMENT_LENGTH, step_std=SEGME
 
 
 def _segment_sweep(length, scale, data, eta, key, state: PoseState):
-    """:func:`segment_pose_mh`'s sweep (the state's cached scan log-likelihoods used and kept where it has them)."""
+    """:func:`segment_pose_mh`'s sweep: the even segments' moves at once, then the odd segments' (two segments that
+    are not neighbours share no pose and no motion term, so given the walls their moves are independent; each block
+    padded to the same number of segments, the padding's moves dropped; one compiled block, run twice), the current
+    poses' scan log-likelihoods from the state's cache where it has one."""
     s = state.poses.shape[0]
     k_offset, k_moves = jax.random.split(key)
     offset = jax.random.randint(k_offset, (), 0, length)
     count = (s - 2) // length + 2  # segments enough for any offset (the extra ones empty)
     keys = jax.random.split(k_moves, count)
+    size = (count + 1) // 2  # segments per block
     cached = state.scan_log_lik is not None
     like = state.scan_log_lik if cached else _scan_log_likelihoods(data, state.poses, state.walls)
 
-    def body(k, carry):
+    def block(parity, carry):
         poses, like, accepted = carry
-        start = 1 + offset + (k - 1) * length
-        a, b = jnp.maximum(start, 1), jnp.minimum(start + length - 1, s - 1)
-        k_delta, k_acc = jax.random.split(keys[k])
-        delta = scale * jax.random.normal(k_delta, (3,), scale.dtype)
-        a_safe = jnp.minimum(a, s - 1)
-        log_ratio, moved, new_like = _segment_log_ratio(a_safe, jnp.maximum(b, a_safe), delta, poses, state.walls,
-                                                        data, eta, like, length)
-        accept = (a <= b) & (jnp.log(jax.random.uniform(k_acc, (), scale.dtype)) < log_ratio)
-        idx = jnp.arange(1, s)
-        accepted = jnp.where((idx >= a) & (idx <= b), accept, accepted)
-        return jnp.where(accept, moved, poses), jnp.where(accept, new_like, like), accepted
+        k = parity + 2 * jnp.arange(size)  # (size,) this block's segments
+        first = 1 + offset + (k - 1) * length
+        a, b = jnp.maximum(first, 1), jnp.minimum(first + length - 1, s - 1)
+        valid = (k < count) & (a <= b)
+        a = jnp.minimum(a, s - 1)
+        b = jnp.maximum(b, a)
+        k_delta, k_acc = jnp.moveaxis(jax.vmap(jax.random.split)(keys[jnp.minimum(k, count - 1)]), 1, 0)
+        delta = scale * jax.vmap(lambda kk: jax.random.normal(kk, (3,), scale.dtype))(k_delta)  # (size, 3)
+        log_ratio, idx, inside, moved, cast = _segment_log_ratios(a, b, valid, delta, poses, state.walls, data,
+                                                                  eta, like, length)
+        u = jax.vmap(lambda kk: jax.random.uniform(kk, (), scale.dtype))(k_acc)
+        accept = valid & (jnp.log(u) < log_ratio)
+        slot = jnp.where(inside & accept[:, None], idx, s).reshape(-1)  # out of range: dropped
+        poses = poses.at[slot].set(moved.reshape(-1, 3), mode="drop")
+        like = like.at[slot].set(cast.reshape(-1), mode="drop")
+        member = jnp.where(inside, idx, s).reshape(-1)
+        accepted = accepted.at[member - 1].set(jnp.repeat(accept, length), mode="drop")
+        return poses, like, accepted
 
-    poses, like, accepted = jax.lax.fori_loop(0, count, body, (state.poses, like, jnp.zeros(s - 1, bool)))
+    poses, like, accepted = jax.lax.fori_loop(0, 2, block, (state.poses, like, jnp.zeros(s - 1, bool)))
     t = jnp.arange(1, s)
     motion = jax.vmap(lambda tt: _motion_terms(tt, poses[tt][None], poses, data)[0])(t)
     power = eta if jnp.ndim(eta) == 0 else eta[t]
