@@ -195,6 +195,25 @@ def test_scans_log_likelihood_equals_one_scan_at_a_time(geometry):
             np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
 
 
+def check_sweeps_against_replay(kernel, path, walls, key, sweeps: int, replay):
+    """``sweeps`` sweeps of ``kernel`` from ``path``, with the state's cached scan log-likelihoods and without: after
+    each, ``replay(sweep key, info, reference path, counts)`` moves the reference path move by move (counting the
+    rejected and accepted moves in ``counts``) and the sweep's poses must equal it to 1e-12; at least three moves of
+    each kind."""
+    step = jax.jit(kernel.step)
+    for cached in (True, False):
+        state = kernel.init(path, walls)
+        if not cached:
+            state = state._replace(scan_log_lik=None)
+        ref = np.array(path, dtype=np.float64)
+        counts = [0, 0]
+        for k in jax.random.split(key, sweeps):
+            state, info = step(k, state)
+            ref = replay(k, info, ref, counts)
+            np.testing.assert_allclose(np.asarray(state.poses), ref, rtol=0, atol=1e-12)
+        assert min(counts) >= 3, counts
+
+
 def test_segment_sweep_is_segment_moves_first_third_then_second_fourth():
     """A sweep of segment_pose_mh (length 3, 11 scans) moves the first, third, ... segments at once, then the
     second, fourth, ...: the same poses and acceptances as the segment moves one after another in that order, each
@@ -208,37 +227,30 @@ def test_segment_sweep_is_segment_moves_first_third_then_second_fourth():
         params, path, walls, _, _, angles, y, _ = random_slam_scene(1, num_scans=11)
         inc, cov = motion.odometry_controls(path, motion.make_motion_params((0, 0, 0, 0), 0.02, 0.02))
         data = slam_data(inc, cov, angles, y, params)
-        length, scale = 3, np.array([0.02, 0.02, 0.02])
-        kernel = segment_pose_mh(data, length, (0.02, 0.02))
-        step = jax.jit(kernel.step)
-        s = len(path)
-        for cached in (True, False):
-            state = kernel.init(path, walls)
-            if not cached:
-                state = state._replace(scan_log_lik=None)
-            ref = np.array(path, dtype=np.float64)
-            counts = [0, 0]
-            for key in jax.random.split(jax.random.key(12), 8):
-                state, info = step(key, state)
-                k_offset, k_moves = jax.random.split(key)
-                offset = int(jax.random.randint(k_offset, (), 0, length))
-                count = (s - 2) // length + 2
-                keys = jax.random.split(k_moves, count)
-                for k in [*range(0, count, 2), *range(1, count, 2)]:
-                    first = 1 + offset + (k - 1) * length
-                    a, b = max(first, 1), min(first + length - 1, s - 1)
-                    if a > b:
-                        continue
-                    k_delta, k_acc = jax.random.split(keys[k])
-                    delta = scale * np.asarray(jax.random.normal(k_delta, (3,), jnp.float64))
-                    ratio = float(segment_log_ratio(a, b, delta, ref, walls, data))
-                    accept = np.log(float(jax.random.uniform(k_acc, (), jnp.float64))) < ratio
-                    assert np.all(np.asarray(info.accepted[a - 1:b]) == accept), (k, a, b)
-                    if accept:
-                        ref = np.asarray(moved_segment(ref, a, b, jnp.asarray(delta)))
-                    counts[int(accept)] += 1
-                np.testing.assert_allclose(np.asarray(state.poses), ref, rtol=0, atol=1e-12)
-            assert min(counts) >= 3, counts
+        length, scale, s = 3, np.array([0.02, 0.02, 0.02]), len(path)
+
+        def replay(key, info, ref, counts):
+            k_offset, k_moves = jax.random.split(key)
+            offset = int(jax.random.randint(k_offset, (), 0, length))
+            count = (s - 2) // length + 2
+            keys = jax.random.split(k_moves, count)
+            for k in [*range(0, count, 2), *range(1, count, 2)]:
+                first = 1 + offset + (k - 1) * length
+                a, b = max(first, 1), min(first + length - 1, s - 1)
+                if a > b:
+                    continue
+                k_delta, k_acc = jax.random.split(keys[k])
+                delta = scale * np.asarray(jax.random.normal(k_delta, (3,), jnp.float64))
+                ratio = float(segment_log_ratio(a, b, delta, ref, walls, data))
+                accept = np.log(float(jax.random.uniform(k_acc, (), jnp.float64))) < ratio
+                assert np.all(np.asarray(info.accepted[a - 1:b]) == accept), (k, a, b)
+                if accept:
+                    ref = np.asarray(moved_segment(ref, a, b, jnp.asarray(delta)))
+                counts[int(accept)] += 1
+            return ref
+
+        check_sweeps_against_replay(segment_pose_mh(data, length, (0.02, 0.02)), path, walls, jax.random.key(12), 8,
+                                    replay)
 
 
 def test_random_walk_sweep_is_single_pose_moves_odd_then_even():
@@ -252,25 +264,18 @@ def test_random_walk_sweep_is_single_pose_moves_odd_then_even():
         params, path, walls, inc, cov, angles, y, _ = random_slam_scene(2, num_scans=7)
         data = slam_data(inc, cov, angles, y, params)
         scale = np.array([0.02, 0.02, 0.02])
-        kernel = random_walk_pose_mh(data, scale)
-        step = jax.jit(kernel.step)
-        for cached in (True, False):
-            state = kernel.init(path, walls)
-            if not cached:
-                state = state._replace(scan_log_lik=None)
-            ref = np.array(path, dtype=np.float64)
-            counts = [0, 0]
-            for key in jax.random.split(jax.random.key(11), 3):
-                state, info = step(key, state)
-                keys = jax.random.split(key, len(path) - 1)
-                for t in (1, 3, 5, 2, 4, 6):
-                    k_prop, k_acc = jax.random.split(keys[t - 1])
-                    proposal = ref[t] + scale * np.asarray(jax.random.normal(k_prop, (3,), jnp.float64))
-                    logc = np.asarray(pose_log_conditional(t, np.stack([ref[t], proposal]), ref, walls, data))
-                    accept = np.log(float(jax.random.uniform(k_acc, (), jnp.float64))) < logc[1] - logc[0]
-                    assert bool(info.accepted[t - 1]) == accept, t
-                    assert float(info.log_conditional[t - 1]) == pytest.approx(logc[int(accept)], abs=1e-9)
-                    ref[t] = proposal if accept else ref[t]
-                    counts[int(accept)] += 1
-                np.testing.assert_allclose(np.asarray(state.poses), ref, rtol=0, atol=1e-12)
-            assert min(counts) >= 3, counts
+
+        def replay(key, info, ref, counts):
+            keys = jax.random.split(key, len(path) - 1)
+            for t in (1, 3, 5, 2, 4, 6):
+                k_prop, k_acc = jax.random.split(keys[t - 1])
+                proposal = ref[t] + scale * np.asarray(jax.random.normal(k_prop, (3,), jnp.float64))
+                logc = np.asarray(pose_log_conditional(t, np.stack([ref[t], proposal]), ref, walls, data))
+                accept = np.log(float(jax.random.uniform(k_acc, (), jnp.float64))) < logc[1] - logc[0]
+                assert bool(info.accepted[t - 1]) == accept, t
+                assert float(info.log_conditional[t - 1]) == pytest.approx(logc[int(accept)], abs=1e-9)
+                ref[t] = proposal if accept else ref[t]
+                counts[int(accept)] += 1
+            return ref
+
+        check_sweeps_against_replay(random_walk_pose_mh(data, scale), path, walls, jax.random.key(11), 3, replay)
