@@ -21,8 +21,14 @@ from bayesmap.slam.scanmatch import (
     MIN_HIT_FRACTION,
     MOTION_TAIL_WEIGHT,
     ScanData,
+    add_to_fields,
+    bound_span,
+    bounded_lattice_argmax,
     correlative_path,
     empty_fields,
+    lattice_scores,
+    lattices,
+    search,
     step_lattice,
     step_posterior,
 )
@@ -685,6 +691,58 @@ def test_loop_closure_reports_each_rounds_candidates(monkeypatch):
     np.testing.assert_array_equal(edges.j, quiet_edges.j)
     assert len(edges.i) > len(odometry) - 1  # loop edges were found, so both rounds ran
     assert seen == [Progress(f"loop closure {r}/2", done, 3, "scan") for r in (1, 2) for done in range(4)]
+
+
+@pytest.mark.parametrize("width", posegraph.LOOP_WINDOWS)
+def test_the_bounded_first_level_finds_the_whole_lattices_best(width):
+    """``bounded_lattice_argmax`` (branch and bound over squares of translations) against scoring every candidate of
+    the loop search's first level (``loop_levels(width)``): the same index and the same score to the bit, on the
+    room's local map of scans 0, 2, 4 (local-map grid, +-16 m) for eight scans started up to 1.3 m and 0.1 rad off,
+    two with endpoints past the grid's edge (started 15 m out), with squares of 4 x 4 translations scored 64 at a time
+    (the default) and single candidates one at a time; and ``search`` with ``bound_span`` gives the pose and score of
+    ``search`` without it. Boxes moved two cells off each beam's (no margin, the wrong side) fail it."""
+    import jax
+
+    from bayesmap.slam import scanmatch
+
+    grid, truth, odometry, beams, readings = room_scans()
+    beams, readings = jnp.asarray(beams), jnp.asarray(readings)
+    returned = readings < 19.9
+    local = posegraph.local_map_grid()
+    shift = np.array([*truth[2, :2], 0.0])
+    seen = np.array([0, 2, 4])
+    fields = add_to_fields(empty_fields(local), local, jnp.asarray(truth[seen] - shift), beams[seen], readings[seen],
+                           returned[seen])
+    logs = (None,) + tuple(scanmatch.log_field(f) for f in fields[1:])
+    levels = posegraph.loop_levels(width)
+    steps = lattices(levels)
+    (xy, theta), f = list(steps)[0]
+    span = bound_span(levels[0][0], local.resolution)
+    sizes = ((4, 64), (1, 1))  # (block, chunk): the default, and single candidates one at a time
+
+    @jax.jit
+    def both(start, angles, ranges, hits):
+        scores = lattice_scores(logs[f], local, start, xy, theta, angles, ranges, hits, False, log_field=logs[f])
+        bounded = [bounded_lattice_argmax(logs[f], local, start, xy, theta, angles, ranges, hits,
+                                          bound_span(levels[0][0], local.resolution, block), block, chunk)
+                   for block, chunk in sizes]
+        plain = search(fields, local, start, angles, ranges, hits, steps, log_fields=logs)
+        quick = search(fields, local, start, angles, ranges, hits, steps, log_fields=logs, bound_span=span)
+        return scores, bounded, plain, quick
+
+    rng = np.random.default_rng(3)
+    for k, t in enumerate((1, 3, 5, 6, 7, 8, 9, 10)):
+        start = truth[t] - shift + np.concatenate([rng.uniform(-1.3, 1.3, 2), rng.uniform(-0.1, 0.1, 1)])
+        if k >= 6:
+            start[:2] += 15.0  # endpoints past the local map's edge
+        scores, bounded, plain, quick = both(jnp.asarray(start), beams[t], readings[t], returned[t])
+        scores = np.asarray(scores)
+        for (index, score), size in zip(bounded, sizes):
+            assert int(index) == int(np.argmax(scores)) and float(score) == float(scores.max()), (k, t, size)
+        np.testing.assert_array_equal(np.asarray(quick[0]), np.asarray(plain[0]))
+        assert float(quick[1]) == float(plain[1])
+    with pytest.raises(BayesmapError, match="bounded"):
+        search(fields, local, jnp.asarray(start), beams[1], readings[1], returned[1], steps, bound_span=span)
 
 
 def test_a_loop_closure_that_reads_kept_matches_gives_the_same_path_with_fewer_searches(monkeypatch):

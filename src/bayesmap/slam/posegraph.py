@@ -46,6 +46,7 @@ from bayesmap.slam.scanmatch import (
     Lattices,
     ScanData,
     add_to_fields,
+    bound_span,
     empty_fields,
     hit_fraction,
     lattices,
@@ -434,6 +435,7 @@ def match_to_local_maps(path, data: ScanData, scans, neighbours, starts, centers
             raise BayesmapError(f"{name} must index the {count} scans of the data, got {index.min()}..{index.max()}")
     grid = local_map_grid()
     steps = lattices(levels)
+    span = None if levels[0][4] == 0 else bound_span(levels[0][0], grid.resolution)  # (nearest-cell first level)
     angles, readings, returned = (jnp.asarray(np.asarray(a)) for a in (data.sensor_angles, data.readings,
                                                                        data.returned))
     poses, quality = np.zeros((len(scans), 3)), np.zeros(len(scans))
@@ -442,19 +444,21 @@ def match_to_local_maps(path, data: ScanData, scans, neighbours, starts, centers
     for k, t in enumerate(scans):
         shift = np.array([centers[k, 0], centers[k, 1], 0.0])  # local frame: the center at the origin
         best, q = _match_one(jnp.asarray(neighbours[k]), int(t), jnp.asarray(path[neighbours[k]] - shift),
-                             jnp.asarray(starts[k] - shift), angles, readings, returned, steps, grid)
+                             jnp.asarray(starts[k] - shift), angles, readings, returned, steps, grid, span)
         poses[k], quality[k] = np.asarray(best, np.float64) + shift, float(q)
         report(progress, stage, k + 1, len(scans), "scan")
     return poses, quality
 
 
-def _match_one(neighbours, t, local_poses, center, angles, readings, returned, steps: Lattices, grid: Grid):
+def _match_one(neighbours, t, local_poses, center, angles, readings, returned, steps: Lattices, grid: Grid,
+               span: int | None):
     """One match of :func:`match_to_local_maps`: scan ``t`` searched from ``center`` against the fields of the scans
     ``neighbours`` at ``local_poses``. Two compiled calls (module level, so that every run with these shapes shares
     them): the local map, then the search, which reads the coarse field's logarithm as an argument
-    (:func:`bayesmap.slam.scanmatch.log_field`)."""
+    (:func:`bayesmap.slam.scanmatch.log_field`), its first level by branch and bound where ``span`` is given
+    (:func:`bayesmap.slam.scanmatch.search`'s ``bound_span``: the same match as scoring every candidate)."""
     fields, logs = _local_map(neighbours, local_poses, angles, readings, returned, grid)
-    return _search_local_map(fields, logs, center, angles[t], readings[t], returned[t], steps, grid)
+    return _search_local_map(fields, logs, center, angles[t], readings[t], returned[t], steps, grid, span)
 
 
 @functools.partial(jax.jit, static_argnames=("grid",))
@@ -465,10 +469,12 @@ def _local_map(neighbours, local_poses, angles, readings, returned, grid: Grid):
     return fields, (None,) + tuple(log_field(f) for f in fields[1:])
 
 
-@functools.partial(jax.jit, static_argnames=("grid",))
-def _search_local_map(fields, logs, center, angles, readings, returned, steps: Lattices, grid: Grid):
-    """:func:`bayesmap.slam.scanmatch.search` from ``center`` and the match's hit fraction."""
-    best, _ = search(fields, grid, center, angles, readings, returned, steps, log_fields=logs)
+@functools.partial(jax.jit, static_argnames=("grid", "span"))
+def _search_local_map(fields, logs, center, angles, readings, returned, steps: Lattices, grid: Grid,
+                      span: int | None = None):
+    """:func:`bayesmap.slam.scanmatch.search` from ``center`` (``span`` its ``bound_span``) and the match's hit
+    fraction."""
+    best, _ = search(fields, grid, center, angles, readings, returned, steps, log_fields=logs, bound_span=span)
     return best, hit_fraction(fields, grid, best, angles, readings, returned)
 
 
