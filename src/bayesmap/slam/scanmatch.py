@@ -312,8 +312,10 @@ def bound_span(step: float, resolution: float, block: int = BOUND_BLOCK) -> int:
 def bounded_lattice_argmax(log_field, grid: Grid, center, xy, theta, sensor_angles, readings, returned,
                            span: int, block: int = BOUND_BLOCK, chunk: int = BOUND_CHUNK):
     """The index ``a * len(theta) + b`` of the best of :func:`lattice_scores` at the nearest cell of ``log_field``
-    (:func:`log_field`; no window, no shift) over the lattice ``center + (xy[a], theta[b])`` (``xy`` a square
-    lattice in the order of :func:`_lattice`), and its score: the same as ``argmax`` of the scores of every candidate
+    (:func:`log_field`, ``(nx, ny)`` on ``grid``; no window, no shift) over the lattice ``center + (xy[a], theta[b])``
+    (``center`` ``(3,)`` x m, y m, theta rad; ``xy`` ``(n^2, 2)`` meters, a square lattice in the order of
+    :func:`lattices`' offsets; ``theta`` ``(B,)`` rad) of one scan (``sensor_angles``, ``readings``, ``returned``
+    ``(K,)``), and its score: the same as ``argmax`` of the scores of every candidate
     (the first of equal ones), found by branch and bound (Olson 2009, "Real-time correlative scan matching"). Each
     ``block x block`` square of translations at one heading is bounded by the sum over the scan's returned beams of
     the largest value of ``log_field`` in the box of cells any of its candidates' endpoints can land in (one cell of
