@@ -332,8 +332,8 @@ def bounded_lattice_argmax(log_field, grid: Grid, center, xy, theta, sensor_angl
     pairs = side * side * heads
     floor = jnp.log(jnp.zeros((), log_field.dtype) + FIELD_FLOOR)
     padded = jnp.pad(log_field, span, constant_values=floor)
-    rows = jax.lax.reduce_window(padded, -jnp.inf, jax.lax.max, (span, 1), (1, 1), "VALID")  # (the max is separable)
-    boxes = jax.lax.reduce_window(rows, -jnp.inf, jax.lax.max, (1, span), (1, 1), "VALID")  # at each box's low corner
+    strips = jax.lax.reduce_window(padded, -jnp.inf, jax.lax.max, (span, 1), (1, 1), "VALID")  # (the max separates)
+    boxes = jax.lax.reduce_window(strips, -jnp.inf, jax.lax.max, (1, span), (1, 1), "VALID")  # at each box's low corner
     heading = center[2] + theta
     angle = heading[:, None] + sensor_angles
     reach = readings[..., None] * jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)  # (B, K, 2)
