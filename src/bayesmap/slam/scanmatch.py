@@ -265,6 +265,17 @@ def field_scores(field, grid: Grid, candidates, sensor_angles, readings, returne
     return _log_score(_endpoint_values(field, grid, ends, interpolate), returned)
 
 
+def _beam_reach(center, theta, sensor_angles, readings):
+    """``(B, K, 2)``: each beam's endpoint less the sensor's position at the headings ``center[2] + theta``."""
+    angle = (center[2] + theta)[:, None] + sensor_angles
+    return readings[..., None] * jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)
+
+
+def _unmapped(dtype):
+    """The log score of an endpoint off the map (:func:`log_field` of an empty cell)."""
+    return log_field(jnp.zeros((), dtype))
+
+
 def lattice_scores(field, grid: Grid, center, xy, theta, sensor_angles, readings, returned, interpolate: bool,
                     window=None, log_field=None, shift=None):
     """:func:`field_scores` of the candidates ``center + (xy[a], theta[b])`` in the order ``a * len(theta) + b``
@@ -272,13 +283,11 @@ def lattice_scores(field, grid: Grid, center, xy, theta, sensor_angles, readings
     candidate, the field masked by ``window`` (:func:`_lookup`). ``log_field``: :func:`log_field` of ``field``, read
     instead of taking a logarithm per endpoint where the nearest cell's value is looked up (the same values);
     ``shift`` as in :func:`search`."""
-    heading = center[2] + theta  # (B,)
-    angle = heading[:, None] + sensor_angles  # (B, K)
-    reach = readings[..., None] * jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)  # (B, K, 2)
+    reach = _beam_reach(center, theta, sensor_angles, readings)  # (B, K, 2)
     ends = ((center[:2] + xy)[:, None, None, :] + reach[None]).reshape(-1, *reach.shape[1:])  # (A B, K, 2)
     if interpolate or log_field is None:
         return _log_score(_endpoint_values(field, grid, ends, interpolate, window, shift), returned)
-    floor = jnp.log(jnp.zeros((), field.dtype) + FIELD_FLOOR)  # the log of an endpoint off the map
+    floor = _unmapped(field.dtype)
     cells, inside = _cells(grid, ends, shift)
     if window is not None:  # a cell off the window counts as unmapped
         inside = inside & (window[0][cells[..., 0], cells[..., 1]] >= window[1])
@@ -330,13 +339,10 @@ def bounded_lattice_argmax(log_field, grid: Grid, center, xy, theta, sensor_angl
     heads = theta.shape[0]
     side = -(-n // block)
     pairs = side * side * heads
-    floor = jnp.log(jnp.zeros((), log_field.dtype) + FIELD_FLOOR)
-    padded = jnp.pad(log_field, span, constant_values=floor)
+    padded = jnp.pad(log_field, span, constant_values=_unmapped(log_field.dtype))
     strips = jax.lax.reduce_window(padded, -jnp.inf, jax.lax.max, (span, 1), (1, 1), "VALID")  # (the max separates)
     boxes = jax.lax.reduce_window(strips, -jnp.inf, jax.lax.max, (1, span), (1, 1), "VALID")  # at each box's low corner
-    heading = center[2] + theta
-    angle = heading[:, None] + sensor_angles
-    reach = readings[..., None] * jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)  # (B, K, 2)
+    reach = _beam_reach(center, theta, sensor_angles, readings)  # (B, K, 2)
     first = jnp.arange(side) * block  # each square's first row (and column) of the lattice
     low = jnp.stack(jnp.meshgrid(xy[first * n, 0], xy[first, 1], indexing="ij"), axis=-1).reshape(-1, 2)  # (side^2, 2)
     ends = (center[:2] + low)[:, None, None, :] + reach[None]  # (side^2, B, K, 2)
@@ -503,8 +509,7 @@ def search(fields: tuple, grid: Grid, center, sensor_angles, readings, returned,
         j, score = bounded_lattice_argmax(log_fields[f], grid, center, xy, theta, sensor_angles, readings, returned,
                                           bound_span)
         a, b = j // theta.shape[0], j % theta.shape[0]
-        first = jnp.concatenate([center[:2] + xy[a], (center[2] + theta[b])[None]])
-        return descend(first, score, levels[1:])
+        return descend(lattice_poses(center, xy[a][None], theta[b][None])[0], score, levels[1:])
     cands, field = level_scores(center, levels[0])
     scores = with_prior(cands, field)
     j = jnp.argmax(scores)
