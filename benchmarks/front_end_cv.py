@@ -22,6 +22,9 @@ motion model's log-density. Two of its settings are chosen here:
   (``close_loops(step_cov=...)``, what ``run_log_slam`` does), 0 for every step at
   :data:`bayesmap.slam.posegraph.SEQUENTIAL_STD`. The loop closure's settings reuse one front end per (log, seed,
   scans).
+* ``loop_map_travel``: the loop closure's too, the meters of travel on each side of a loop candidate's scan that
+  its local map may span (:data:`bayesmap.slam.posegraph.LOOP_MAP_TRAVEL`; ``inf``: ten scans either side however
+  far apart).
 * ``particles``: how many hypotheses the front end keeps (:data:`bayesmap.slam.pipeline.FRONT_END_PARTICLES`;
   :mod:`bayesmap.slam.particles`).
 * ``first_heading_step``, ``first_heading_reach`` and ``second_heading_steps``: the heading lattice of the front
@@ -70,7 +73,7 @@ repeated, so the grid can be split between processes and resumed.
 Usage: PYTHONPATH=src python benchmarks/front_end_cv.py --records F
            [--parameter power|min_hit_fraction|window|consistency_gate|particles|loop_window_sigmas|step_covariances|
                         first_heading_step|first_heading_reach|second_heading_steps|keyframe_heading_sd|
-                        field_seed]
+                        field_seed|motion_tail|loop_map_travel]
            [--values 1,0.3,0.1,0.03] [--seeds 0-2] [--logs intel,aces,csail] [--scans all,heldout] [--noise 1]
 """
 
@@ -105,7 +108,8 @@ DEFAULTS = {"power": SLAM_LIKELIHOOD_POWER, "min_hit_fraction": scanmatch.MIN_HI
             "first_heading_reach": scanmatch.MATCH_LEVELS[0][1] * scanmatch.MATCH_LEVELS[0][3],
             "second_heading_steps": scanmatch.MATCH_LEVELS[1][3],
             "step_covariances": 1, "motion_tail": scanmatch.MOTION_TAIL_WEIGHT,
-            "keyframe_heading_sd": math.inf, "field_seed": int(scanmatch.FIELD_SEED)}
+            "keyframe_heading_sd": math.inf, "field_seed": int(scanmatch.FIELD_SEED),
+            "loop_map_travel": posegraph.LOOP_MAP_TRAVEL}
 """The settings this script can vary, and the value each takes while the other is varied (the defaults of
 :func:`bayesmap.slam.pipeline.front_end`)."""
 
@@ -151,9 +155,14 @@ def start_path(log, truth, scans: str, parameter: str, value: float, name: tuple
                                              field_seed=bool(setting["field_seed"]))
     matched = FRONT_ENDS[key]
     front = matched.path
-    closed, edges, _ = posegraph.close_loops(front, data, consistency_gate=setting["consistency_gate"],
-                                             window_sigmas=setting["loop_window_sigmas"],
-                                             step_cov=matched.step_cov if setting["step_covariances"] else None)
+    saved = posegraph.LOOP_MAP_TRAVEL
+    posegraph.LOOP_MAP_TRAVEL = float(setting["loop_map_travel"])  # read by the loop closure at the call
+    try:
+        closed, edges, _ = posegraph.close_loops(front, data, consistency_gate=setting["consistency_gate"],
+                                                 window_sigmas=setting["loop_window_sigmas"],
+                                                 step_cov=matched.step_cov if setting["step_covariances"] else None)
+    finally:
+        posegraph.LOOP_MAP_TRAVEL = saved
     truth = truth if kept is None else truth[kept]
     return {"parameter": parameter, "value": value, "scans": scans,
             "front_end_ate_m": absolute_trajectory_error(front, truth)["rmse_m"],

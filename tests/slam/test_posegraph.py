@@ -1,10 +1,12 @@
 """The pose graph's Laplace uncertainty: marginal covariances against a dense inverse of a numerically
 differentiated information matrix and against the closed form of a chain of edges; perturb-and-solve draws against
-those covariances within Monte Carlo error; and the log pipeline's combination of the chain's and the graph's
-spread."""
+those covariances within Monte Carlo error; the log pipeline's combination of the chain's and the graph's spread;
+and the scans of a loop candidate's local map against the travel they may span."""
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bayesmap.errors import BayesmapError
 from bayesmap.slam.joint import pose_summary
@@ -15,6 +17,7 @@ from bayesmap.slam.posegraph import (
     concat_edges,
     edge_jacobians,
     edge_residuals,
+    local_map_neighbours,
     marginal_covariances,
     optimize_pose_graph,
     relative,
@@ -243,3 +246,59 @@ def test_a_second_loop_hypothesis_gets_its_share_of_the_samples():
     nothing = LoopHypotheses([np.array([0, 1]), np.array([0, 2])], np.array([1.0, 0.0]), 2, loops)
     for got, want in zip(graph_uncertainty(5, chain, edges, nothing), graph_uncertainty(5, chain, edges)):
         np.testing.assert_array_equal(got, want)
+
+
+def _steps(lengths):
+    """Odometry increments ``(S - 1, 3)`` straight ahead with the given lengths (meters)."""
+    lengths = np.asarray(lengths, np.float64)
+    return np.column_stack([lengths, np.zeros_like(lengths), np.zeros_like(lengths)])
+
+
+def test_a_local_map_is_every_other_scan_of_ten_either_side_where_they_lie_within_travel():
+    centers = np.array([0, 3, 15, 29])
+    unlimited = np.clip(centers[:, None] + np.arange(-10, 11, 2), 0, 29)
+    np.testing.assert_array_equal(local_map_neighbours(centers, _steps(np.full(29, 0.9)), 10.0), unlimited)
+    np.testing.assert_array_equal(local_map_neighbours(centers, _steps(np.full(29, 2.0)), np.inf), unlimited)
+
+
+def test_a_side_that_reaches_past_travel_spreads_its_scans_over_those_within_it():
+    np.testing.assert_array_equal(local_map_neighbours([15], _steps(np.full(39, 2.0)), 10.0)[0], np.arange(10, 21))
+    # 1 m steps before scan 15 (ten scans within 10 m), 3 m after it (three within 10 m: 3, 6, 9 m)
+    lengths = np.concatenate([np.full(15, 1.0), np.full(20, 3.0)])
+    row = local_map_neighbours([15], _steps(lengths), 10.0)[0]
+    np.testing.assert_array_equal(row, [5, 7, 9, 11, 13, 15, 16, 16, 17, 17, 18])  # rint of 0.6, 1.2, ..., 3
+    # the next scan already beyond travel: that side repeats the scan itself
+    np.testing.assert_array_equal(local_map_neighbours([15], _steps(np.full(39, 12.0)), 10.0)[0], np.full(11, 15))
+
+
+@settings(max_examples=200, deadline=None)
+@given(lengths=st.lists(st.floats(0.0, 3.0), min_size=1, max_size=60), travel=st.floats(0.1, 30.0),
+       where=st.floats(0.0, 1.0))
+def test_every_local_map_scan_lies_within_travel_or_the_side_is_the_unlimited_one(lengths, travel, where):
+    steps = _steps(lengths)
+    last = len(lengths)
+    s = int(round(where * last))
+    row = local_map_neighbours([s], steps, travel)[0]
+    along = np.concatenate([[0.0], np.cumsum(lengths)])
+    assert row.shape == (11,) and row[5] == s and np.all(np.diff(row) >= 0)
+    for side, sign in ((row[:5][::-1], -1), (row[6:], 1)):
+        unlimited = np.clip(s + sign * np.arange(2, 11, 2), 0, last)
+        reach = np.clip(s + sign * np.arange(11), 0, last)
+        if np.all(np.abs(along[reach] - along[s]) <= travel):
+            np.testing.assert_array_equal(side, unlimited)
+            continue
+        assert np.all(np.abs(along[side] - along[s]) <= travel)
+        farthest = side[-1]  # the farthest scan within travel: the next one along is beyond it
+        assert abs(along[farthest + sign] - along[s]) > travel
+
+
+@pytest.mark.parametrize("travel", [0.0, -1.0, True, "10"])
+def test_local_map_neighbours_refuse_a_bad_travel(travel):
+    with pytest.raises(BayesmapError, match="travel"):
+        local_map_neighbours([0], _steps([1.0, 1.0]), travel)
+
+
+@pytest.mark.parametrize("center", [-1, 3])
+def test_local_map_neighbours_refuse_a_scan_outside_the_log(center):
+    with pytest.raises(BayesmapError, match="centers"):
+        local_map_neighbours([center], _steps([1.0, 1.0]), 10.0)

@@ -6,7 +6,8 @@ consistent start for the joint chain (graph SLAM: Lu & Milios 1997, "Globally co
   them). A scan ``t`` whose estimate lies within :data:`LOOP_RADIUS` meters of an older scan ``s``
   (``t - s >= LOOP_GAP``) is matched (correlative scan matching, :func:`bayesmap.slam.scanmatch.search`, with
   the wide window :data:`LOOP_LEVELS`) against a local map of the scans ``s - LOOP_NEIGHBOURS .. s +
-  LOOP_NEIGHBOURS`` at their estimates; if at least :data:`LOOP_MIN_HIT_FRACTION` of its returned beams land on that
+  LOOP_NEIGHBOURS`` within :data:`LOOP_MAP_TRAVEL` meters of travel at their estimates
+  (:func:`local_map_neighbours`); if at least :data:`LOOP_MIN_HIT_FRACTION` of its returned beams land on that
   map, the match gives a loop edge ``s -> t``. In the first round, before any loop ties the path, the window and the
   radius grow with the drift the sequential edges allow between ``s`` and ``t`` (:func:`loop_candidates`,
   :func:`chain_covariances`, :data:`LOOP_WINDOWS`).
@@ -67,6 +68,14 @@ LOOP_NEIGHBOURS = 10
 LOCAL_MAP_STEP = 2
 """Take every this many scans of ``s - LOOP_NEIGHBOURS .. s + LOOP_NEIGHBOURS`` into the local map (neighbouring
 scans overlap almost entirely; half of them cost half as much)."""
+
+LOOP_MAP_TRAVEL = 10.0
+"""Meters of travel (the odometry's path length) on each side of ``s`` that a loop candidate's local map may span:
+where the :data:`LOOP_NEIGHBOURS` scans on one side reach farther, that side's scans are spread over those within it
+(:func:`local_map_neighbours`), since the front end's path is not rigid over more than its own local map's
+:data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`. ``inf``: no limit. Chosen among 5, 10, 20 m and no limit by
+leave-one-log-out cross-validation of the start path's ATE, Intel, ACES and CSAIL, every scan's keyframes and every
+other scan, seeds 0-4 ([validation](../validation/defaults.md#loop_map_travel))."""
 
 LOOP_STRIDE = 3
 """Match only every this many scans ``t`` as loop candidates: a robot coming back stays near the old path for
@@ -339,8 +348,8 @@ def match_loops(path, data: ScanData, pairs, progress: ProgressCallback | None =
                 matches: LoopMatches | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Match scan ``t`` against the local map around scan ``s`` for each pair of ``pairs`` ``(P, 2)``
     (:func:`match_to_local_maps` with :func:`loop_levels` of the pair's entry of ``half_widths`` ``(P,)``, default
-    1.5 m for every pair, from ``t``'s estimate, the local map of the scans ``s - LOOP_NEIGHBOURS .. s +
-    LOOP_NEIGHBOURS``, every :data:`LOCAL_MAP_STEP`-th, centered on ``s``), reporting ``Progress(stage, done, P,
+    1.5 m for every pair, from ``t``'s estimate, the local map of the scans :func:`local_map_neighbours` gives
+    ``s``, centered on ``s``), reporting ``Progress(stage, done, P,
     "scan")`` before the first match and after each. With ``matches`` (a :class:`LoopMatches`), a pair whose inputs
     it holds takes the kept match instead of a search, and every match searched is kept in it.
 
@@ -357,8 +366,7 @@ def match_loops(path, data: ScanData, pairs, progress: ProgressCallback | None =
                    else np.asarray(half_widths, np.float64).reshape(-1))
     if len(half_widths) != len(pairs):
         raise BayesmapError(f"half_widths {half_widths.shape} must have one entry per pair {pairs.shape}")
-    offsets = np.arange(-LOOP_NEIGHBOURS, LOOP_NEIGHBOURS + 1, LOCAL_MAP_STEP)
-    neighbours = np.clip(pairs[:, :1] + offsets, 0, len(path) - 1)
+    neighbours = local_map_neighbours(pairs[:, 0], data.increments)
     poses, quality = np.zeros((len(pairs), 3)), np.zeros(len(pairs))
     done = 0
     for width in np.unique(half_widths):  # one compiled search per window
@@ -386,6 +394,50 @@ def match_loops(path, data: ScanData, pairs, progress: ProgressCallback | None =
         if progress is not None and len(todo) < len(rows):  # the kept ones count as matched
             report(progress, stage, done, len(pairs), "scan")
     return poses, quality
+
+
+def local_map_neighbours(centers, increments, travel: float | None = None) -> np.ndarray:
+    """The scans of each loop candidate's local map: for each scan ``s`` of ``centers`` ``(P,)``, the scans ``s -
+    LOOP_NEIGHBOURS .. s + LOOP_NEIGHBOURS``, every :data:`LOCAL_MAP_STEP`-th (clipped to the log: a scan near an end
+    repeats the first or last scan, which adds nothing to a local map), except on a side whose farthest scan lies
+    more than ``travel`` meters of the odometry's path length from ``s``: there the same number of scans spread
+    evenly (rounded) over the scans within ``travel`` (repeats where they are fewer).
+
+    Args:
+        centers: ``(P,)`` int scan indices.
+        increments: ``(S - 1, 3)`` the odometry's steps (dx m, dy m, dtheta rad; only their lengths are read).
+        travel: meters (> 0, or ``inf``); None: :data:`LOOP_MAP_TRAVEL`, read at the call.
+
+    Returns:
+        ``(P, 2 (LOOP_NEIGHBOURS // LOCAL_MAP_STEP) + 1)`` int64, ``s`` in the middle column.
+
+    Raises:
+        BayesmapError: if ``travel`` is not a number > 0 or a center is outside ``0 .. S - 1``.
+    """
+    travel = LOOP_MAP_TRAVEL if travel is None else travel
+    if isinstance(travel, bool) or not isinstance(travel, (int, float, np.floating)) or not travel > 0:
+        raise BayesmapError(f"travel must be a number of meters > 0 (or inf), got {travel!r}")
+    steps = np.asarray(increments, np.float64).reshape(-1, 3)
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(steps[:, 0], steps[:, 1]))])
+    centers = np.asarray(centers, np.int64).reshape(-1)
+    last = len(along) - 1
+    if centers.size and (centers.min() < 0 or centers.max() > last):
+        raise BayesmapError(f"centers must be scan indices in 0..{last}, got {centers.min()}..{centers.max()}")
+    reach, per_side = LOOP_NEIGHBOURS, LOOP_NEIGHBOURS // LOCAL_MAP_STEP
+    full = np.arange(LOCAL_MAP_STEP, reach + 1, LOCAL_MAP_STEP)  # one side's offsets, unlimited
+    rows = np.zeros((len(centers), 2 * per_side + 1), np.int64)
+    for k, s in enumerate(centers):
+        sides = []
+        for sign in (-1, 1):
+            ends = np.clip(s + sign * np.arange(reach + 1), 0, last)
+            within = np.abs(along[ends] - along[s]) <= travel
+            if within.all():
+                sides.append(sign * full)
+            else:
+                m = int(np.argmin(within)) - 1  # the farthest scan within travel, in steps from s
+                sides.append(sign * np.rint(np.linspace(0, m, per_side + 1)[1:]).astype(np.int64))
+        rows[k] = np.clip(s + np.concatenate([sides[0][::-1], [0], sides[1]]), 0, last)
+    return rows
 
 
 def match_to_local_maps(path, data: ScanData, scans, neighbours, starts, centers=None, levels=LOOP_LEVELS,
