@@ -349,9 +349,9 @@ def match_loops(path, data: ScanData, pairs, progress: ProgressCallback | None =
     """Match scan ``t`` against the local map around scan ``s`` for each pair of ``pairs`` ``(P, 2)``
     (:func:`match_to_local_maps` with :func:`loop_levels` of the pair's entry of ``half_widths`` ``(P,)``, default
     1.5 m for every pair, from ``t``'s estimate, the local map of the scans :func:`local_map_neighbours` gives
-    ``s``, centered on ``s``), reporting ``Progress(stage, done, P,
-    "scan")`` before the first match and after each. With ``matches`` (a :class:`LoopMatches`), a pair whose inputs
-    it holds takes the kept match instead of a search, and every match searched is kept in it.
+    ``s``, centered on ``s``), reporting ``Progress(stage, done, P, "scan")`` before the first match and after
+    each. With ``matches`` (a :class:`LoopMatches`), a pair whose inputs it holds takes the kept match instead of a
+    search, and every match searched is kept in it.
 
     Returns:
         ``(poses (P, 3), hit_fraction (P,))``: scan ``t``'s matched world pose and its match quality
