@@ -501,9 +501,15 @@ def moved_segment(poses, a, b, delta):
     idx = jnp.arange(poses.shape[0])
     inside = (idx >= a) & (idx <= b)
     anchor = poses[a]
-    within = motion_error(anchor, poses, jnp.zeros(3, poses.dtype))  # each pose in the frame of pose a
-    moved = compose(compose(anchor, jnp.asarray(delta, poses.dtype)), within)
+    moved = _moved_rigidly(anchor, compose(anchor, jnp.asarray(delta, poses.dtype)), poses)
     return jnp.where(inside[:, None], moved, poses)
+
+
+def _moved_rigidly(anchor, target, poses):
+    """``target (+) (anchor^-1 (+) poses)``: ``poses`` ``(..., 3)`` moved with ``anchor`` (broadcast) as one rigid
+    body that takes ``anchor`` to ``target`` (:func:`moved_segment`'s rows, ``target = anchor (+) delta``)."""
+    within = motion_error(anchor, poses, jnp.zeros(3, poses.dtype))  # each pose in the frame of the anchor
+    return compose(target, within)
 
 
 def segment_log_ratio(a: int, b: int, delta, poses, walls, data: SlamData, likelihood_power: float = 1.0):
@@ -550,8 +556,7 @@ def _segment_log_ratios(a, b, valid, delta, poses, walls, data: SlamData, eta, l
     idx = jnp.minimum(a[:, None] + rows, s - 1)
     inside = valid[:, None] & (a[:, None] + rows <= b[:, None])
     anchor = poses[a]
-    within = motion_error(anchor[:, None], poses[idx], jnp.zeros(3, poses.dtype))  # in the frame of pose a
-    moved = compose(compose(anchor, delta)[:, None], within)
+    moved = _moved_rigidly(anchor[:, None], compose(anchor, delta)[:, None], poses[idx])  # (n, length, 3)
     n = a.shape[0]
     cast = scans_log_likelihood(walls, moved.reshape(-1, 3), data.sensor_angles[idx].reshape(n * length, -1),
                                 data.readings[idx].reshape(n * length, -1),
