@@ -390,3 +390,23 @@ def test_replace_rays_bad_inputs():
         table.replace_rays([0], [7.0, 1.0], [0.0])
     with pytest.raises(BayesmapError, match="beam angle 0 is nan"):
         table.replace_rays([0], [2.0, 1.0], [float("nan")])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(0.0, 1.0), st.floats(0.0, 1.0))
+def test_rays_of_a_range_of_pairs_are_those_of_each_pair(seed, a, b):
+    """``rays_of_range(start, stop)`` is ``pair_rays[start:stop]`` for any range, on tables with rays of no pairs
+    (a ray limit of 0) among the others; and the exits computed with it are those of ``exits_of_pairs`` (a binary
+    search a pair), to the bit."""
+    grid = Grid((12, 9), 0.25, (-1.0, 0.5))
+    rng = np.random.default_rng(seed)
+    xmin, xmax, ymin, ymax = grid.extent
+    pos = np.stack([rng.uniform(xmin, xmax, 60), rng.uniform(ymin, ymax, 60)], axis=-1)
+    limits = np.where(rng.uniform(size=60) < 0.3, 0.0, 4.0)
+    table = build_ray_table(grid, pos, rng.uniform(0, 2 * math.pi, 60), max_distance=4.0, ray_limits=limits)
+    assert np.all(table.lengths[limits == 0] == 0) and table.num_pairs > 0
+    start, stop = sorted(int(x * table.num_pairs) for x in (a, b))
+    stop = max(stop, start + 1) if start < table.num_pairs else table.num_pairs
+    start = min(start, stop - 1)
+    np.testing.assert_array_equal(table.rays_of_range(start, stop), table.pair_rays[start:stop])
+    np.testing.assert_array_equal(table.pair_exits, table.exits_of_pairs(np.arange(table.num_pairs)))

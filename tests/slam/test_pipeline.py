@@ -105,7 +105,9 @@ def test_a_step_whose_odometry_slipped_is_weighed_and_the_scans_win(slam_problem
 
     import jax
 
-    from bayesmap.slam.pipeline import branched_start, front_end, scan_data
+    from bayesmap.slam.branches import EVIDENCE_SWEEPS
+    from bayesmap.slam.evidence import draw_evidence, drawn_map
+    from bayesmap.slam.pipeline import MAP_SHAPE_HEADROOM, branched_start, fitted_grid, front_end, scan_data, with_grid
     from bayesmap.slam.posegraph import close_loops, relative
 
     odometry = np.array(slam_problem.odometry, np.float64)
@@ -116,11 +118,11 @@ def test_a_step_whose_odometry_slipped_is_weighed_and_the_scans_win(slam_problem
         scans = scan_data(problem)
         front = front_end(problem, scans)
         closed = close_loops(front.path, scans, step_cov=front.step_cov)
-        start_front, start_closed, hypotheses = branched_start(problem, scans, front, closed, jax.random.key(0),
-                                                               gate=1.0)
+        start_front, start_closed, hypotheses, start_map = branched_start(problem, scans, front, closed,
+                                                                          jax.random.key(0), gate=1.0)
         assert start_front is front and start_closed is closed
         if not slips:
-            assert hypotheses is None
+            assert hypotheses is None and start_map is None
             continue
         np.testing.assert_array_equal(hypotheses.odometry_steps, [0, 6])
         assert hypotheses.disagreement[1] > 1.0
@@ -129,3 +131,49 @@ def test_a_step_whose_odometry_slipped_is_weighed_and_the_scans_win(slam_problem
         branch = front_end(problem, scans, odometry_steps=[6], prefix=front).path
         np.testing.assert_array_equal(branch[:6], front.path[:6])
         np.testing.assert_allclose(relative(branch[5], branch[6]), scans.increments[5], atol=1e-5)
+        # the start map: the grid of both hypotheses' beams and the chosen one's evidence draw, to the bit
+        branch_closed = close_loops(branch, scans, step_cov=front_end(problem, scans, odometry_steps=[6],
+                                                                      prefix=front).step_cov)
+        assert start_map.grid == fitted_grid(scans, np.stack([closed.path, branch_closed.path]),
+                                             problem.params.grid.resolution)
+        params = with_grid(problem.params, start_map.grid)
+        draw = drawn_map(problem, params, closed.path, jax.random.key(0), EVIDENCE_SWEEPS,
+                         headroom=MAP_SHAPE_HEADROOM)
+        np.testing.assert_array_equal(start_map.draw.wall_probs, draw.wall_probs)
+        np.testing.assert_array_equal(start_map.draw.walls, draw.walls)
+        assert hypotheses.evidence[0] == draw_evidence(problem, params, closed.path, draw)
+
+
+def test_the_chain_takes_the_chosen_starts_evidence_draw_as_its_first_map_block(slam_problem, monkeypatch):
+    """With a branch point (the slipped odometry of the test above, the gate at 1), ``run_log_slam`` draws every
+    hypothesis's evidence with the chain's first map key on the grid of every hypothesis's beams, and its chain
+    takes the chosen start's draw as its first map block. A run whose evidence draws 5 sweeps, where the chain's
+    4-sweep block must be drawn again, gives the same chain to the bit: the same kernel from the empty map at
+    the same path with the same key. Its evidence differs, its choice does not (the scans win by over 100 nats)."""
+    import dataclasses
+    import functools
+
+    import bayesmap.slam.pipeline as pipeline
+
+    odometry = np.array(slam_problem.odometry, np.float64)
+    heading = odometry[5, 2]
+    odometry[6:, :2] += 0.4 * np.array([-np.sin(heading), np.cos(heading)])
+    slipped = dataclasses.replace(slam_problem, odometry=odometry)
+    monkeypatch.setattr(pipeline, "branched_start", functools.partial(pipeline.branched_start, gate=1.0))
+    blocks = []
+    map_round = pipeline._map_round
+    monkeypatch.setattr(pipeline, "_map_round", lambda *a, **k: blocks.append(k["stage"]) or map_round(*a, **k))
+    run = {**RUN, "map_sweeps": pipeline.EVIDENCE_SWEEPS, "final_map_sweeps": 0}  # one round: one map block
+    taken = run_log_slam(slipped, **run)
+    assert blocks == []
+    monkeypatch.setattr(pipeline, "EVIDENCE_SWEEPS", pipeline.EVIDENCE_SWEEPS + 1)
+    drawn_again = run_log_slam(slipped, **run)
+    assert blocks == ["round 1/1: map"]
+    for result in (taken, drawn_again):
+        np.testing.assert_array_equal(result.path_hypotheses.odometry_steps, [0, 6])
+        assert result.path_hypotheses.chosen == 0
+    assert not np.array_equal(taken.path_hypotheses.evidence, drawn_again.path_hypotheses.evidence)
+    assert taken.grid == drawn_again.grid
+    np.testing.assert_array_equal(taken.posterior, drawn_again.posterior)  # (no final map: the chain's)
+    np.testing.assert_array_equal(taken.pose_samples, drawn_again.pose_samples)
+    np.testing.assert_array_equal(taken.last_walls, drawn_again.last_walls)

@@ -87,6 +87,14 @@ class RayTable:
         without building :attr:`pair_rays` (a binary search in :attr:`offsets`)."""
         return np.searchsorted(self.offsets, pairs, side="right") - 1
 
+    def rays_of_range(self, start: int, stop: int) -> np.ndarray:
+        """``(stop - start,)`` int64, the ray of each pair ``start .. stop - 1`` (``0 <= start < stop <= P``):
+        ``pair_rays[start:stop]``, each ray's index repeated over its pairs in the range (two binary searches, where
+        :meth:`rays_of_pairs` does one a pair)."""
+        first, last = np.searchsorted(self.offsets, [start, stop - 1], side="right") - 1
+        bounds = np.clip(self.offsets[first:last + 2], start, stop)
+        return np.repeat(np.arange(first, last + 1, dtype=np.int64), np.diff(bounds))
+
     @cached_property
     def pair_positions(self) -> np.ndarray:
         """``(P,)`` int64 position of each pair along its ray (0 = closest to the sensor)."""
@@ -125,8 +133,8 @@ class RayTable:
             return out
         frame = self._frame()
         for start in range(0, self.num_pairs, _CHUNK_PAIRS):
-            out[start:start + _CHUNK_PAIRS] = self._exits(np.arange(start, min(start + _CHUNK_PAIRS, self.num_pairs)),
-                                                          frame)
+            stop = min(start + _CHUNK_PAIRS, self.num_pairs)
+            out[start:stop] = self._exits(np.arange(start, stop), frame, self.rays_of_range(start, stop))
         return out
 
     def _frame(self) -> tuple[np.ndarray, np.ndarray]:
@@ -139,13 +147,14 @@ class RayTable:
         indices, any order): ``pair_exits[pairs]``, to the bit, without computing every pair's."""
         return self._exits(pairs, self._frame())
 
-    def _exits(self, pairs, frame) -> np.ndarray:
-        """:meth:`exits_of_pairs` given the rays' :meth:`_frame` (computed once by callers that need many)."""
+    def _exits(self, pairs, frame, rays=None) -> np.ndarray:
+        """:meth:`exits_of_pairs` given the rays' :meth:`_frame` (computed once by callers that need many) and,
+        where the caller has them, the pairs' rays."""
         pairs = np.asarray(pairs, dtype=np.int64)
         dtype = self.pair_dists.dtype
         if not pairs.size:
             return np.empty(pairs.shape, dtype=dtype)
-        rays = self.rays_of_pairs(pairs)
+        rays = self.rays_of_pairs(pairs) if rays is None else rays
         p, u = frame[0][rays], frame[1][rays]
         flat = self.pair_cells[pairs].astype(np.int64)
         cells = np.stack([flat // self.grid.shape[1], flat % self.grid.shape[1]], axis=-1).astype(np.float64)

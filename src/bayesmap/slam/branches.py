@@ -48,7 +48,8 @@ EVIDENCE_SWEEPS = 4
 """Cellwise sweeps of the map drawn at each hypothesis for its evidence (:func:`bayesmap.slam.evidence.
 path_evidence`): the wall probabilities of the last two. Twelve sweeps raised every hypothesis's bound by 870-1,090
 nats on CSAIL every other scan seeds 0 and 10 (five hypotheses each) and chose the same branch on both; four are the
-joint chain's own map block ([validation](../validation/slam.md#hypotheses-where-scan-and-odometry-disagree))."""
+joint chain's own map block (:data:`bayesmap.slam.pipeline.MAP_SWEEPS`), so that the chosen start's draw is the
+chain's first block ([validation](../validation/slam.md#hypotheses-where-scan-and-odometry-disagree))."""
 
 WEIGHT_FLOOR = 0.01
 """A hypothesis with at least this weight counts as a distinct one in summaries (as the loop closure's and the

@@ -11,9 +11,12 @@ mapping at known poses). :func:`run_log_slam` finds a start, then runs a blocked
    2b. **Branches** (:func:`branched_start`, :mod:`bayesmap.slam.branches`): at the few steps where the front
    end's match and the odometry disagree beyond a quantile of the motion model, the front end again with that step
    taken from the odometry, and the loop closure; every closed path weighed by the target with the walls integrated
-   out (:func:`bayesmap.slam.evidence.path_evidence`), the heaviest kept.
+   out (:func:`bayesmap.slam.evidence.path_evidence`, each a short map chain from the empty map with the joint
+   chain's first map key), the heaviest kept.
    Stages 1 and 2 only choose where the chain starts; they do not enter its target.
-3. **The grid**: fitted to the beam endpoints at that path, plus :data:`MAP_MARGIN` meters.
+3. **The grid**: fitted to the beam endpoints at that path, plus :data:`MAP_MARGIN` meters; where branches were
+   weighed, the grid that holds every hypothesis's beams, on which the heaviest one's map was drawn: that draw is
+   the joint chain's first map block (the same sweeps from the same map, at the same path, with the same key).
 4. **The joint chain**, :data:`ROUNDS` rounds of two blocks (Gibbs over blocks; docs/slam.md):
 
    * the walls given the poses: the ray-cell table is built at the current poses
@@ -60,6 +63,7 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
 from __future__ import annotations
 
 import time
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -71,7 +75,7 @@ from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.inference.cellwise import SweepShapes
 from bayesmap.inference.chains import run_recorded_chains
-from bayesmap.inference.tiled import TILE_PAIRS, check_tile_pairs, tiled_map_chain
+from bayesmap.inference.tiled import TILE_PAIRS, TiledChain, check_tile_pairs, tiled_map_chain
 from bayesmap.memory import drop_compiled_programs
 from bayesmap.model.generative import replace_params
 from bayesmap.model.motion import wrap_angle
@@ -86,7 +90,7 @@ from bayesmap.slam.branches import (
     hypothesis_weights,
     step_disagreement,
 )
-from bayesmap.slam.evidence import path_evidence
+from bayesmap.slam.evidence import check_evidence_arguments, draw_evidence, drawn_map
 from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
 from bayesmap.slam.keyframes import keyframe_problem, owners, place_scans, placed_uncertainty
 from bayesmap.slam.particles import particle_path
@@ -229,30 +233,43 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
     return particle_path(odometry[0], data, FRONT_END_RESOLUTION, particles, seed=seed, **options).matched
 
 
+class StartMap(NamedTuple):
+    """The map drawn at the start path the branches chose (:func:`branched_start`): the grid that holds every
+    hypothesis's beams, and the chosen hypothesis's draw for its evidence
+    (:func:`bayesmap.slam.evidence.drawn_map`, :data:`bayesmap.slam.branches.EVIDENCE_SWEEPS` sweeps from an empty
+    map), which is the joint chain's first map block at that path when drawn with the chain's first key."""
+
+    grid: Grid
+    draw: TiledChain
+
+
 def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClosure, key,
                    branches: int = BRANCHES, tile_pairs: int = TILE_PAIRS, progress: ProgressCallback | None = None,
                    gate: float = BRANCH_GATE, matches: LoopMatches | None = None,
-                   ) -> tuple[MatchedPath, LoopClosure, PathHypotheses | None]:
+                   ) -> tuple[MatchedPath, LoopClosure, PathHypotheses | None, StartMap | None]:
     """Stage 2b of the module docstring (:mod:`bayesmap.slam.branches`): the front end's path ``front`` and its
     loop closure ``closed``, and at most ``branches`` branches (the front end again from each branch point, a step
     whose match disagrees with the odometry beyond ``gate`` (:func:`bayesmap.slam.branches.branch_points`), with its
     step taken from the odometry, resumed from ``front``; the loop closure), weighed by their evidence
     (:func:`bayesmap.slam.evidence.path_evidence`, :data:`bayesmap.slam.branches.EVIDENCE_SWEEPS` sweeps, random
-    key ``key``, on one grid covering every hypothesis's beams, in tiles of at most ``tile_pairs`` pairs).
-    ``progress`` gets ``Progress("branches", done, H, "path")`` as each hypothesis is weighed. ``matches``: the
-    loop matches ``closed`` made (:class:`bayesmap.slam.posegraph.LoopMatches`, filled by ``close_loops(...,
-    matches=)``): a branch's loop closure takes those whose inputs it shares (its first round's among the scans
-    before its branch point) instead of searching again, the same result; None: none kept.
+    key ``key`` for every hypothesis, on one grid covering every hypothesis's beams, in tiles of at most
+    ``tile_pairs`` pairs). ``progress`` gets ``Progress("branches", done, H, "path")`` as each hypothesis is weighed.
+    ``matches``: the loop matches ``closed`` made (:class:`bayesmap.slam.posegraph.LoopMatches`, filled by
+    ``close_loops(..., matches=)``): a branch's loop closure takes those whose inputs it shares (its first round's
+    among the scans before its branch point) instead of searching again, the same result; None: none kept. The
+    compiled programs of the front end and the loop closure are dropped before the evidence
+    (:func:`bayesmap.memory.drop_compiled_programs`), whose map sweep the joint chain then shares.
 
     Returns:
-        ``(front end, loop closure, hypotheses)`` of the heaviest hypothesis; ``hypotheses`` None where no step's
-        match disagrees with the odometry beyond ``gate`` (:data:`bayesmap.slam.branches.BRANCH_GATE`; then
-        ``front`` and ``closed`` themselves, and nothing is weighed).
+        ``(front end, loop closure, hypotheses, start map)`` of the heaviest hypothesis, ``start map`` its
+        :class:`StartMap`; ``hypotheses`` and ``start map`` None where no step's match disagrees with the odometry
+        beyond ``gate`` (:data:`bayesmap.slam.branches.BRANCH_GATE`; then ``front`` and ``closed`` themselves, and
+        nothing is weighed).
     """
     distance = step_disagreement(front.path, scans.increments, scans.covs)
     points = branch_points(distance, gate, branches)
     if not len(points):
-        return front, closed, None
+        return front, closed, None, None
     total = len(points) + 1
     report(progress, "branches", 0, total, "path")
     matches = LoopMatches() if matches is None else matches
@@ -262,18 +279,33 @@ def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClo
         candidates.append((other, close_loops(other.path, scans, step_cov=other.step_cov, matches=matches)))
     params = with_grid(problem.params, fitted_grid(scans, np.stack([c.path for _, c in candidates]),
                                                    problem.params.grid.resolution))
-    evidence, shapes = [], None
+    check_evidence_arguments(params, EVIDENCE_SWEEPS)
+    drop_compiled_programs()  # (the branches' front ends and loop closures are done)
+    # where the run reports progress, its chain's map blocks run one sweep per compiled call: so do the draws
+    # here, unreported, and the chain shares their compiled sweep
+    silent = None if progress is None else _unreported
+    evidence, shapes, chosen_draw = [], None, None
     for h, (_, c) in enumerate(candidates):
-        bound, shapes = path_evidence(key, problem, params, c.path, EVIDENCE_SWEEPS, tile_pairs, shapes,
-                                      MAP_SHAPE_HEADROOM)
-        evidence.append(bound)
+        with on_sweep_devices():  # where the chain's map blocks run (bayesmap.devices)
+            draw = drawn_map(problem, params, c.path, key, EVIDENCE_SWEEPS, tile_pairs, shapes, MAP_SHAPE_HEADROOM,
+                             silent)
+            evidence.append(draw_evidence(problem, params, c.path, draw))
+        shapes = draw.shapes
+        if evidence[-1] > max(evidence[:-1], default=-np.inf):  # the first of equal maxima, as argmax
+            chosen_draw = draw
+        del draw
         report(progress, "branches", h + 1, total, "path")
     weights = hypothesis_weights(evidence)
-    chosen = int(np.argmax(weights))
+    chosen = int(np.argmax(evidence))  # (the draw kept)
     disagreement = np.concatenate([[0.0], distance[points - 1]])
     hypotheses = PathHypotheses(np.concatenate([[0], points]).astype(np.int64), disagreement,
                                 np.asarray(evidence, np.float64), weights, chosen)
-    return (*candidates[chosen], hypotheses)
+    # the sizes the last draw's sweep was compiled for (at least every earlier draw's) go on to the chain's
+    return (*candidates[chosen], hypotheses, StartMap(params.grid, chosen_draw._replace(shapes=shapes)))
+
+
+def _unreported(_progress) -> None:
+    """A progress callback that reports nothing."""
 
 
 def with_grid(params, grid: Grid):
@@ -393,24 +425,34 @@ def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None):
     return (mean + shift, mixture_cov, np.concatenate([s for _, _, _, s in parts]), graph_cov)
 
 
+def chain_keys(seed: int, rounds: int) -> jax.Array:
+    """``(2 rounds,)`` the joint chain's random keys: round ``r``'s map block ``2 r``, its pose block ``2 r + 1``
+    (:func:`run_log_slam`)."""
+    return jax.random.split(jax.random.key(seed), 2 * rounds)
+
+
 @on_sweep_devices()  # the sweeps on the CPU, also where JAX's default device is a GPU (bayesmap.devices)
 def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tuple[int, int, int, int],
                  progress: ProgressCallback | None, tile_pairs: int = TILE_PAIRS,
-                 segment_length: int = SEGMENT_LENGTH) -> tuple:
+                 segment_length: int = SEGMENT_LENGTH, first_map: TiledChain | None = None) -> tuple:
     """Stage 4 of the module docstring: the joint chain from ``path`` ``(S, 3)`` and an empty map on ``params``'s
     grid, ``counts`` = ``(rounds, burn_in, map_sweeps, pose_sweeps)``, reporting each round's map and pose sweeps
     (stages ``"round r/R: map"`` and ``"round r/R: poses"``), the map blocks in tiles of at most ``tile_pairs``, each
     pose sweep a random-walk sweep then, with ``segment_length`` > 0, a sweep of segment moves of that many poses.
+    ``first_map``: the first round's map block already drawn (``map_sweeps`` sweeps from the empty map at ``path``
+    with the chain's first key, :func:`chain_keys`; :class:`StartMap`), reported as done; the compiled programs are
+    then kept (the caller dropped those it no longer needs). None: the first block drawn here, after dropping them.
 
     Returns:
         ``(last walls (nx, ny) float32, pose samples (N, S, 3) float64, wall probabilities (M, nx, ny),
         acceptances (N, S - 1) bool)`` of the rounds after the burn-in (the last walls: of the last round).
     """
     rounds, burn_in, map_sweeps, pose_sweeps = counts
-    # the front end's and the loop closure's compiled searches, and what they hold (about 250 MB on Intel), are not
-    # needed again before the scans between keyframes are placed; the map blocks' sweep is then compiled once
-    # (:data:`MAP_SHAPE_HEADROOM`) and the pose sweeps' once
-    drop_compiled_programs()
+    if first_map is None:
+        # the front end's and the loop closure's compiled searches, and what they hold (about 250 MB on Intel), are
+        # not needed again before the scans between keyframes are placed; the map blocks' sweep is then compiled
+        # once (:data:`MAP_SHAPE_HEADROOM`) and the pose sweeps' once
+        drop_compiled_programs()
     data = slam_data(scans.increments, scans.covs, problem.sensor_angles, problem.readings, params)
     pose_kernel = random_walk_pose_mh(data, likelihood_power=problem.likelihood_power)
     if segment_length:
@@ -418,12 +460,17 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
                                                                           likelihood_power=problem.likelihood_power))
     walls = jnp.zeros(params.grid.shape, jnp.float32)
     poses = jnp.asarray(path, data.increments.dtype)
-    keys = jax.random.split(jax.random.key(seed), 2 * rounds)
+    keys = chain_keys(seed, rounds)
     samples, probs, accepted, shapes = [], [], [], None
     for r in range(rounds):
-        walls, wall_probs, shapes = _map_round(keys[2 * r], problem, params, np.asarray(poses, np.float64), walls,
-                                               map_sweeps, progress=progress, stage=f"round {r + 1}/{rounds}: map",
-                                               tile_pairs=tile_pairs, shapes=shapes, headroom=MAP_SHAPE_HEADROOM)
+        stage = f"round {r + 1}/{rounds}: map"
+        if r == 0 and first_map is not None:
+            walls, wall_probs, shapes = first_map.walls, first_map.wall_probs, first_map.shapes
+            report(progress, stage, map_sweeps, map_sweeps, "sweep")
+        else:
+            walls, wall_probs, shapes = _map_round(keys[2 * r], problem, params, np.asarray(poses, np.float64), walls,
+                                                   map_sweeps, progress=progress, stage=stage, tile_pairs=tile_pairs,
+                                                   shapes=shapes, headroom=MAP_SHAPE_HEADROOM)
         pose_samples, acc = run_recorded_chains(keys[2 * r + 1], pose_kernel.init(poses, walls),
                                                 pose_kernel, pose_sweeps, _pose_record, progress=progress,
                                                 stage=f"round {r + 1}/{rounds}: poses")
@@ -502,8 +549,9 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     Returns:
         A :class:`bayesmap.slam.joint.SlamResult`: ``pose_samples`` ``(N, S, 3)`` with ``N = (rounds - burn_in)
         pose_sweeps`` and ``pose_cov`` with the graph's uncertainty (:func:`graph_uncertainty`), ``posterior`` on
-        ``grid``, the grid fitted to the start path (the final map's, or the chain's without one; the chain's is
-        ``chain_posterior``), ``graph_cov`` the graph's covariance.
+        ``grid``, the grid fitted to the start path (to every start path weighed, where branches were; the final
+        map's, or the chain's without one; the chain's is ``chain_posterior``), ``graph_cov`` the graph's
+        covariance.
 
     Raises:
         BayesmapError: on bad counts, a bad ``final_map_sweeps``, ``tile_pairs``, ``segment_length`` or
@@ -524,16 +572,23 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     front = front_end(problem, scans, particles=particles, seed=seed, progress=progress)
     matches = LoopMatches() if branches and particles == 1 else None
     closed = close_loops(front.path, scans, progress=progress, step_cov=front.step_cov, matches=matches)
-    branched = None
+    branched, start_map = None, None
     if matches is not None:
-        key = jax.random.fold_in(jax.random.key(seed), 2 * rounds + 1)  # none of the chain's or the final map's keys
-        front, closed, branched = branched_start(problem, scans, front, closed, key, branches, tile_pairs, progress,
-                                                 matches=matches)
+        # every hypothesis's evidence is drawn with the chain's first map key: the chosen one's draw is then the
+        # chain's first map block at its start path (the same sweeps from the empty map), which the chain takes
+        front, closed, branched, start_map = branched_start(problem, scans, front, closed, chain_keys(seed, rounds)[0],
+                                                            branches, tile_pairs, progress, matches=matches)
     path, edges, hypotheses = closed
-    grid = fitted_grid(scans, path, problem.params.grid.resolution)
+    if start_map is None:
+        grid = fitted_grid(scans, path, problem.params.grid.resolution)
+    else:  # the grid of every hypothesis's beams, the start map's
+        grid = start_map.grid
+    first_map = start_map.draw if start_map is not None and map_sweeps == EVIDENCE_SWEEPS else None
+    if start_map is not None and first_map is None:
+        drop_compiled_programs()  # (the evidence's sweep, compiled for another number of sweeps)
     walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, grid), path, seed,
                                                    (rounds, burn_in, map_sweeps, pose_sweeps), progress, tile_pairs,
-                                                   int(segment_length))
+                                                   int(segment_length), first_map)
     mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, hypotheses)
     chain_posterior = probs.astype(np.float64).mean(axis=0)
     posterior, final_power, final_noise = chain_posterior, None, None
