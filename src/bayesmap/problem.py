@@ -46,7 +46,7 @@ from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.geometry.raytable import RayTable, build_ray_table, visible_cells
 from bayesmap.geometry.tiles import table_chunks
 from bayesmap.model.generative import ModelParams, cut_chords, log_joint, log_joint_scans, ray_limits
-from bayesmap.model.likelihood import chunked_log_likelihoods
+from bayesmap.model.likelihood import chunked_length, chunked_log_likelihoods
 from bayesmap.model.passable import PASS_WALLS, pass_mixture
 from bayesmap.model.prior import disagreeing_pairs
 
@@ -414,7 +414,14 @@ class Problem:
         sensor_args = tuple(jnp.asarray(a, dtype=dtype) for a in params.sensor_args)
         n = len(readings)
         y = np.asarray(readings, dtype)
-        chords = np.asarray(cut_chords(y, np.asarray(chords, dtype), params))
+        # the operations run on arrays padded to the tables' length L (no wall past n): one compilation per L
+        # instead of one per piece's n, whose first values they leave as they are
+        size = chunked_length(n)
+        padded_y = np.zeros(size, dtype)
+        padded_y[:n] = y
+        padded_chords = np.full((size, *np.shape(chords)[1:]), params.max_range, dtype)
+        padded_chords[:n] = chords
+        chords = np.asarray(cut_chords(padded_y, padded_chords, params))[:n]
         chord = params.geometry == "chord"
 
         def wall(entry, exit_):  # (L,) padded past n, as the samplers' tables
@@ -422,9 +429,9 @@ class Problem:
 
         parts = [wall(chords[:, k, 0], chords[:, k, 1]) for k in range(chords.shape[1])]
         if not params.penetrable:
-            return np.asarray(parts[0][:n])
+            return np.asarray(parts[0])[:n]
         none = np.full(n, params.max_range, dtype)
-        return np.asarray(pass_mixture(parts[0], parts[1], wall(none, none), params.wall_pass_prob)[:n])
+        return np.asarray(pass_mixture(parts[0], parts[1], wall(none, none), params.wall_pass_prob))[:n]
 
     @cached_property
     def visible(self) -> np.ndarray | None:

@@ -159,3 +159,20 @@ def test_max_range_rule_and_inputs():
         likelihood_inputs(table, y, normal, 1.5)
     with pytest.raises(BayesmapError, match="readings"):
         likelihood_inputs(table, y[:3], normal)
+
+
+def test_chunked_length_is_the_length_of_the_chunked_table():
+    """``chunked_length(n)``, the length arrays are padded to so that one compilation serves every ``n`` of it, is
+    the length ``chunked_log_likelihoods`` returns for ``n`` entries (one, two and four chunks, at their edges), and
+    grows in whole chunks."""
+    from bayesmap.model.likelihood import chunked_length
+
+    params = make_params()
+    args = tuple(jnp.asarray(a, jnp.float32) for a in params.sensor_args)
+    for n in (0, 1, PAIR_CHUNK - 1, PAIR_CHUNK, 2 * PAIR_CHUNK + 3, 3 * PAIR_CHUNK):
+        y = np.full(n, 2.0, np.float32)
+        got = chunked_log_likelihoods(params.beam_model, args, y, np.full(n, 1.0, np.float32))
+        assert len(got) == chunked_length(n) > n and chunked_length(n) % PAIR_CHUNK == 0
+    assert chunked_length(3 * PAIR_CHUNK) == 4 * PAIR_CHUNK
+    with pytest.raises(ValueError, match="-1"):
+        chunked_length(-1)

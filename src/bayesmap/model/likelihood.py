@@ -165,6 +165,19 @@ table of any size then runs one compilation. 65,536 float entries: 256 KB of eac
 microseconds) small beside its work."""
 
 
+def chunked_length(n: int) -> int:
+    """The length ``L`` of :func:`chunked_log_likelihoods`' result for ``n`` entries: ``PAIR_CHUNK *
+    padded_length(n // PAIR_CHUNK + 1)``, ``L > n``; arrays padded to it run the same compiled operations for
+    every ``n`` of one ``L``.
+
+    Raises:
+        ValueError: on a negative ``n``.
+    """
+    if n < 0:
+        raise ValueError(f"n must be >= 0, got {n}")
+    return PAIR_CHUNK * padded_length(n // PAIR_CHUNK + 1)
+
+
 def chunked_log_likelihoods(beam_model: str, sensor_args, y: np.ndarray, d: np.ndarray,
                             exits: np.ndarray | None = None) -> jax.Array:
     """``(L,)`` :func:`log_likelihood_table` of the readings ``y`` and distances ``d`` (``(N,)`` float, meters; with
