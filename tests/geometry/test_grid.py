@@ -1,5 +1,7 @@
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
@@ -88,3 +90,25 @@ def test_check_inside_names_the_position():
         Grid((21, 21)).check_inside([25, 3])
     with pytest.raises(BayesmapError, match="finite"):
         Grid((21, 21)).check_inside([np.nan, 3])
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0.05, 0.1, 0.3]))
+def test_a_covering_grid_is_a_window_of_one_covering_more(seed, resolution):
+    """Two ``covering`` grids of one resolution, the second covering the first's points and more: the first's cells
+    are a window of the second's, and ``window`` finds it (each cell's center the same point, to 1e-9 m)."""
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-30, 30, (20, 2))
+    more = np.vstack([points, rng.uniform(-40, 40, (5, 2))])
+    sub, grid = Grid.covering(points, resolution, 2.0), Grid.covering(more, resolution, 2.0)
+    cells = grid.window(sub)
+    np.testing.assert_allclose(grid.cell_centers()[cells], sub.cell_centers(), atol=1e-9)
+
+
+def test_window_refuses_a_grid_that_is_not_one_by_name():
+    grid = Grid((10, 8), 0.1, (0.0, 0.0))
+    for sub in (Grid((3, 3), 0.2, (0.0, 0.0)), Grid((3, 3), 0.1, (0.05, 0.0)), Grid((3, 3), 0.1, (-0.1, 0.0)),
+                Grid((11, 3), 0.1, (0.0, 0.0))):
+        with pytest.raises(BayesmapError, match="grid"):
+            grid.window(sub)
+    assert grid.window(Grid((3, 2), 0.1, (0.2, 0.5))) == (slice(2, 5), slice(5, 7))

@@ -173,7 +173,15 @@ def test_the_chain_takes_the_chosen_starts_evidence_draw_as_its_first_map_block(
         np.testing.assert_array_equal(result.path_hypotheses.odometry_steps, [0, 6])
         assert result.path_hypotheses.chosen == 0
     assert not np.array_equal(taken.path_hypotheses.evidence, drawn_again.path_hypotheses.evidence)
-    assert taken.grid == drawn_again.grid
+    # the chain ran on the grid of both hypotheses' beams; its maps come back on the start path's own grid
+    from bayesmap.slam.pipeline import fitted_grid, front_end, scan_data
+    from bayesmap.slam.posegraph import close_loops
+
+    scans = scan_data(slipped)
+    front = front_end(slipped, scans)
+    start = close_loops(front.path, scans, step_cov=front.step_cov).path
+    assert taken.grid == drawn_again.grid == fitted_grid(scans, start, slipped.params.grid.resolution)
+    assert taken.posterior.shape == taken.last_walls.shape == taken.grid.shape
     np.testing.assert_array_equal(taken.posterior, drawn_again.posterior)  # (no final map: the chain's)
     np.testing.assert_array_equal(taken.pose_samples, drawn_again.pose_samples)
     np.testing.assert_array_equal(taken.last_walls, drawn_again.last_walls)

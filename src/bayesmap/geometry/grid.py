@@ -106,6 +106,26 @@ class Grid:
                 f"[{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}]"
             )
 
+    def window(self, sub: "Grid") -> tuple[slice, slice]:
+        """The index ranges ``(along x, along y)`` of this grid's cells that are the cells of ``sub``, a grid of the
+        same resolution whose cells are some of this one's (``array[grid.window(sub)]`` is an ``(nx, ny)`` array of
+        this grid restricted to ``sub``; two :meth:`covering` grids of one resolution, the one covering the other's
+        points, are such a pair).
+
+        Raises:
+            BayesmapError: if ``sub``'s resolution differs, its cells are not this grid's (an origin off this grid's
+                lattice by more than 1e-6 of a cell), or it reaches outside this grid.
+        """
+        if sub.resolution != self.resolution:
+            raise BayesmapError(f"grid resolution {sub.resolution!r} m is not this grid's {self.resolution!r} m")
+        offset = (np.asarray(sub.origin) - np.asarray(self.origin)) / self.resolution
+        start = np.round(offset).astype(int)
+        if np.any(np.abs(offset - start) > 1e-6) or np.any(start < 0) or np.any(
+                start + np.asarray(sub.shape) > np.asarray(self.shape)):
+            raise BayesmapError(f"grid {sub.shape} at {sub.origin} is not a window of grid {self.shape} at "
+                                f"{self.origin} ({self.resolution:g} m cells)")
+        return slice(int(start[0]), int(start[0]) + sub.shape[0]), slice(int(start[1]), int(start[1]) + sub.shape[1])
+
     @classmethod
     def covering(cls, points, resolution: float, margin: float = 0.0) -> "Grid":
         """The smallest grid with the given resolution whose cells cover all world ``points`` ``(n, 2)`` (meters)

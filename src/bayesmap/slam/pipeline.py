@@ -14,9 +14,11 @@ mapping at known poses). :func:`run_log_slam` finds a start, then runs a blocked
    out (:func:`bayesmap.slam.evidence.path_evidence`, each a short map chain from the empty map with the joint
    chain's first map key), the heaviest kept.
    Stages 1 and 2 only choose where the chain starts; they do not enter its target.
-3. **The grid**: fitted to the beam endpoints at that path, plus :data:`MAP_MARGIN` meters; where branches were
-   weighed, the grid that holds every hypothesis's beams, on which the heaviest one's map was drawn: that draw is
-   the joint chain's first map block (the same sweeps from the same map, at the same path, with the same key).
+3. **The grid**: fitted to the beam endpoints at that path, plus :data:`MAP_MARGIN` meters. Where branches were
+   weighed, the chain runs on the grid that holds every hypothesis's beams, on which the heaviest one's map was
+   drawn: that draw is the joint chain's first map block (the same sweeps from the same map, at the same path, with
+   the same key); its maps are then restricted to the start path's grid (the cells beyond it only the other
+   hypotheses' beams reach), the grid of the final map and of the maps returned.
 4. **The joint chain**, :data:`ROUNDS` rounds of two blocks (Gibbs over blocks; docs/slam.md):
 
    * the walls given the poses: the ray-cell table is built at the current poses
@@ -549,9 +551,9 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     Returns:
         A :class:`bayesmap.slam.joint.SlamResult`: ``pose_samples`` ``(N, S, 3)`` with ``N = (rounds - burn_in)
         pose_sweeps`` and ``pose_cov`` with the graph's uncertainty (:func:`graph_uncertainty`), ``posterior`` on
-        ``grid``, the grid fitted to the start path (to every start path weighed, where branches were; the final
-        map's, or the chain's without one; the chain's is ``chain_posterior``), ``graph_cov`` the graph's
-        covariance.
+        ``grid``, the grid fitted to the start path (the final map's, or the chain's without one, restricted to it
+        where the chain ran on the grid of every start path weighed; the chain's is ``chain_posterior``),
+        ``graph_cov`` the graph's covariance.
 
     Raises:
         BayesmapError: on bad counts, a bad ``final_map_sweeps``, ``tile_pairs``, ``segment_length`` or
@@ -579,16 +581,17 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         front, closed, branched, start_map = branched_start(problem, scans, front, closed, chain_keys(seed, rounds)[0],
                                                             branches, tile_pairs, progress, matches=matches)
     path, edges, hypotheses = closed
-    if start_map is None:
-        grid = fitted_grid(scans, path, problem.params.grid.resolution)
-    else:  # the grid of every hypothesis's beams, the start map's
-        grid = start_map.grid
+    grid = fitted_grid(scans, path, problem.params.grid.resolution)  # the start path's: the maps returned
+    chain_grid = grid if start_map is None else start_map.grid  # (the grid of every hypothesis's beams)
     first_map = start_map.draw if start_map is not None and map_sweeps == EVIDENCE_SWEEPS else None
     if start_map is not None and first_map is None:
         drop_compiled_programs()  # (the evidence's sweep, compiled for another number of sweeps)
-    walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, grid), path, seed,
+    walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, chain_grid), path, seed,
                                                    (rounds, burn_in, map_sweeps, pose_sweeps), progress, tile_pairs,
                                                    int(segment_length), first_map)
+    if chain_grid != grid:  # the cells the start path's beams reach; the others only the other hypotheses' do
+        cells = chain_grid.window(grid)
+        walls, probs = walls[cells], probs[:, cells[0], cells[1]]
     mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, hypotheses)
     chain_posterior = probs.astype(np.float64).mean(axis=0)
     posterior, final_power, final_noise = chain_posterior, None, None
