@@ -70,7 +70,11 @@ def drawn_map(problem, params, path, key, sweeps: int, tile_pairs: int = TILE_PA
     (:class:`bayesmap.inference.tiled.TiledChain`: its last walls ``(nx, ny)`` float32, each sweep's wall
     probabilities ``(sweeps, nx, ny)``, the sizes its sweep was compiled for). ``progress`` gets
     ``Progress("evidence", done, sweeps, "sweep")``; the sweeps then run one per compiled call, as a chain's that
-    reports (the same draw, bit for bit)."""
+    reports (the same draw, bit for bit).
+
+    Raises:
+        BayesmapError: as :func:`bayesmap.inference.tiled.tiled_map_chain` (``sweeps`` < 1, ``tile_pairs`` < 1).
+    """
     _, scans = scans_at(problem, params, path)
     return tiled_map_chain(key, params, scans.ray_origins, scans.ray_angles, scans.ray_readings,
                            jnp.zeros(params.grid.shape, jnp.float32), sweeps, problem.likelihood_power,
