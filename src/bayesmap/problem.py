@@ -46,7 +46,7 @@ from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.geometry.raytable import RayTable, build_ray_table, visible_cells
 from bayesmap.geometry.tiles import table_chunks
 from bayesmap.model.generative import ModelParams, cut_chords, log_joint, log_joint_scans, ray_limits
-from bayesmap.model.likelihood import chunked_length, chunked_log_likelihoods
+from bayesmap.model.likelihood import chunked_length, chunked_log_likelihoods, padded
 from bayesmap.model.passable import PASS_WALLS, pass_mixture
 from bayesmap.model.prior import disagreeing_pairs
 
@@ -417,11 +417,8 @@ class Problem:
         # the operations run on arrays padded to the tables' length L (no wall past n): one compilation per L
         # instead of one per piece's n, whose first values they leave as they are
         size = chunked_length(n)
-        padded_y = np.zeros(size, dtype)
-        padded_y[:n] = y
-        padded_chords = np.full((size, *np.shape(chords)[1:]), params.max_range, dtype)
-        padded_chords[:n] = chords
-        chords = np.asarray(cut_chords(padded_y, padded_chords, params))[:n]
+        chords = np.asarray(cut_chords(padded(y, size, 0.0), padded(np.asarray(chords, dtype), size, params.max_range),
+                                       params))[:n]
         chord = params.geometry == "chord"
 
         def wall(entry, exit_):  # (L,) padded past n, as the samplers' tables

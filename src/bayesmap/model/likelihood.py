@@ -138,8 +138,10 @@ def padded_length(n: int) -> int:
     return -(-n // 2 ** e) * 2 ** e
 
 
-def _padded(values: np.ndarray, length: int, fill: float) -> np.ndarray:
-    out = np.full(length, fill, dtype=values.dtype)
+def padded(values: np.ndarray, length: int, fill: float) -> np.ndarray:
+    """``values`` ``(n, ...)`` followed by rows of ``fill`` up to ``(length, ...)`` (``length >= n``), in their
+    dtype: the padding that lets arrays of many lengths share one compilation (:func:`chunked_length`)."""
+    out = np.full((length, *values.shape[1:]), fill, dtype=values.dtype)
     out[:len(values)] = values
     return out
 
@@ -189,8 +191,8 @@ def chunked_log_likelihoods(beam_model: str, sensor_args, y: np.ndarray, d: np.n
     size = len(y)
     num = size // PAIR_CHUNK + 1
     length = num * PAIR_CHUNK
-    y, d = _padded(np.asarray(y, dtype), length, 0.0), _padded(np.asarray(d, dtype), length, np.inf)
-    exits = None if exits is None else _padded(np.asarray(exits, dtype), length, 0.0)
+    y, d = padded(np.asarray(y, dtype), length, 0.0), padded(np.asarray(d, dtype), length, np.inf)
+    exits = None if exits is None else padded(np.asarray(exits, dtype), length, 0.0)
     parts = []
     for k in range(num):
         chunk = slice(k * PAIR_CHUNK, (k + 1) * PAIR_CHUNK)

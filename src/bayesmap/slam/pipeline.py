@@ -286,19 +286,18 @@ def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClo
     # where the run reports progress, its chain's map blocks run one sweep per compiled call: so do the draws
     # here, unreported, and the chain shares their compiled sweep
     silent = None if progress is None else _unreported
-    evidence, shapes, chosen_draw = [], None, None
+    evidence, shapes, chosen, chosen_draw = [], None, 0, None
     for h, (_, c) in enumerate(candidates):
         with on_sweep_devices():  # where the chain's map blocks run (bayesmap.devices)
             draw = drawn_map(problem, params, c.path, key, EVIDENCE_SWEEPS, tile_pairs, shapes, MAP_SHAPE_HEADROOM,
                              silent)
             evidence.append(draw_evidence(problem, params, c.path, draw))
         shapes = draw.shapes
-        if evidence[-1] > max(evidence[:-1], default=-np.inf):  # the first of equal maxima, as argmax
-            chosen_draw = draw
+        if h == 0 or evidence[h] > evidence[chosen]:  # the heaviest, the first of equal ones; only its draw is kept
+            chosen, chosen_draw = h, draw
         del draw
         report(progress, "branches", h + 1, total, "path")
     weights = hypothesis_weights(evidence)
-    chosen = int(np.argmax(evidence))  # (the draw kept)
     disagreement = np.concatenate([[0.0], distance[points - 1]])
     hypotheses = PathHypotheses(np.concatenate([[0], points]).astype(np.int64), disagreement,
                                 np.asarray(evidence, np.float64), weights, chosen)
@@ -584,8 +583,6 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     grid = fitted_grid(scans, path, problem.params.grid.resolution)  # the start path's: the maps returned
     chain_grid = grid if start_map is None else start_map.grid  # (the grid of every hypothesis's beams)
     first_map = start_map.draw if start_map is not None and map_sweeps == EVIDENCE_SWEEPS else None
-    if start_map is not None and first_map is None:
-        drop_compiled_programs()  # (the evidence's sweep, compiled for another number of sweeps)
     walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, chain_grid), path, seed,
                                                    (rounds, burn_in, map_sweeps, pose_sweeps), progress, tile_pairs,
                                                    int(segment_length), first_map)
