@@ -382,11 +382,11 @@ def test_path_hypotheses_summary_names_the_logs_scans():
     """A branch's step is a keyframe's index in the run; summary.json names the log's scan (``scans[t]``), the
     evidence less the front end's, and counts the hypotheses weighing at least 1 %."""
     hypotheses = PathHypotheses(np.array([0, 3, 7]), np.array([0.0, 40.25, 17.5]), np.array([-100.0, -95.0, -90.0]),
-                                np.array([0.004, 0.2, 0.796]), 2)
+                                np.array([0.004, 0.2, 0.796]), 2, np.array([0, 5, -1]))
     summary = path_hypotheses_summary(hypotheses, np.array([0, 2, 4, 10, 12, 14, 16, 21]))
     assert summary == {"above_1_percent": 2, "weighed": 3, "branch_scans": [None, 10, 21],
-                       "disagreement": [0.0, 40.25, 17.5], "evidence_nats": [0.0, 5.0, 10.0],
-                       "weights": [0.004, 0.2, 0.796], "chosen": 2}
+                       "rejoin_scans": [None, 14, None], "disagreement": [0.0, 40.25, 17.5],
+                       "evidence_nats": [0.0, 5.0, 10.0], "weights": [0.004, 0.2, 0.796], "chosen": 2}
 
 
 def test_summary_lines_name_the_start_paths_weighed(tmp_path):
@@ -406,12 +406,13 @@ def test_summary_lines_name_the_start_paths_weighed(tmp_path):
         return [line for line in summary_lines(run, tmp_path, ["a"]) if line.startswith("start:")]
 
     weighed = path_hypotheses_summary(PathHypotheses(np.array([0, 3, 7]), np.array([0.0, 40.0, 20.0]),
-                                                     np.array([0.0, 5.0, -90.0]), np.array([0.0, 1.0, 0.0]), 1),
+                                                     np.array([0.0, 5.0, -90.0]), np.array([0.0, 1.0, 0.0]), 1,
+                                                     np.array([0, 4, -1])),
                                       np.array([0, 2, 4, 10, 12, 14, 16, 21]))
     assert lines(weighed) == ["start:    3 paths weighed (the odometry's step at scans 10, 21); the one through "
                               "scan 10 kept"]
     alone = path_hypotheses_summary(PathHypotheses(np.array([0, 3]), np.array([0.0, 40.0]), np.array([0.0, -9.0]),
-                                                   np.array([1.0, 0.0]), 0), np.arange(8))
+                                                   np.array([1.0, 0.0]), 0, np.array([0, -1])), np.arange(8))
     assert lines(alone) == ["start:    2 paths weighed (the odometry's step at scan 3); the front end's own kept"]
     assert lines(path_hypotheses_summary(None, np.arange(8))) == []
 

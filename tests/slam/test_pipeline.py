@@ -125,6 +125,7 @@ def test_a_step_whose_odometry_slipped_is_weighed_and_the_scans_win(slam_problem
             assert hypotheses is None and start_map is None
             continue
         np.testing.assert_array_equal(hypotheses.odometry_steps, [0, 6])
+        np.testing.assert_array_equal(hypotheses.rejoined, [0, -1])  # (12 scans from nearly one place: no 10 m)
         assert hypotheses.disagreement[1] > 1.0
         assert hypotheses.chosen == 0 and hypotheses.weights[0] > 1 - 1e-9 and hypotheses.distinct == 1
         assert np.all(hypotheses.evidence[1:] < hypotheses.evidence[0] - 100)
@@ -142,6 +143,47 @@ def test_a_step_whose_odometry_slipped_is_weighed_and_the_scans_win(slam_problem
         np.testing.assert_array_equal(start_map.draw.wall_probs, draw.wall_probs)
         np.testing.assert_array_equal(start_map.draw.walls, draw.walls)
         assert hypotheses.evidence[0] == draw_evidence(problem, params, closed.path, draw)
+
+
+def test_a_branch_that_rejoins_is_the_rerun_up_to_there_and_the_single_tracks_steps_after(slam_problem):
+    """With no travel asked of the agreement (the log's 12 scans hardly move), the slipped branch rejoins at the
+    first scan after its branch point from which its steps agree with the single track's
+    (:func:`bayesmap.slam.branches.rejoin_scan` of the front end run to the end); its path, as its closed path's
+    grid and evidence show, is that run up to there and the single track's steps after it, to the bit."""
+    import dataclasses
+
+    import jax
+
+    from bayesmap.slam.branches import EVIDENCE_SWEEPS, rejoin_scan, spliced, steps_apart
+    from bayesmap.slam.evidence import draw_evidence, drawn_map
+    from bayesmap.slam.pipeline import MAP_SHAPE_HEADROOM, branched_start, fitted_grid, front_end, scan_data, with_grid
+    from bayesmap.slam.posegraph import close_loops
+    from bayesmap.slam.scanmatch import path_length
+
+    odometry = np.array(slam_problem.odometry, np.float64)
+    heading = odometry[5, 2]
+    odometry[6:, :2] += 0.4 * np.array([-np.sin(heading), np.cos(heading)])
+    slipped = dataclasses.replace(slam_problem, odometry=odometry)
+    scans = scan_data(slipped)
+    front = front_end(slipped, scans)
+    closed = close_loops(front.path, scans, step_cov=front.step_cov)
+    whole = front_end(slipped, scans, odometry_steps=[6], prefix=front)
+    j = rejoin_scan(steps_apart(front.path, front.step_cov, whole.path, whole.step_cov),
+                    path_length(scans.increments), 6, window=0.0)
+    assert j is not None and 6 < j < len(front.path) - 1
+    *_, hypotheses, start_map = branched_start(slipped, scans, front, closed, jax.random.key(0), gate=1.0,
+                                               rejoin_travel=0.0)
+    np.testing.assert_array_equal(hypotheses.rejoined, [0, j])
+    branch = spliced(type(whole)(whole.path[:j + 1], whole.step_cov[:j]), front)
+    assert np.abs(branch.path[j + 1:] - whole.path[j + 1:]).max() > 0  # not the run to the end
+    branch_closed = close_loops(branch.path, scans, step_cov=branch.step_cov)
+    assert start_map.grid == fitted_grid(scans, np.stack([closed.path, branch_closed.path]),
+                                         slipped.params.grid.resolution)
+    params = with_grid(slipped.params, start_map.grid)
+    first = drawn_map(slipped, params, closed.path, jax.random.key(0), EVIDENCE_SWEEPS, headroom=MAP_SHAPE_HEADROOM)
+    draw = drawn_map(slipped, params, branch_closed.path, jax.random.key(0), EVIDENCE_SWEEPS, shapes=first.shapes,
+                     headroom=MAP_SHAPE_HEADROOM)
+    assert hypotheses.evidence[1] == draw_evidence(slipped, params, branch_closed.path, draw)
 
 
 def test_the_chain_takes_the_chosen_starts_evidence_draw_as_its_first_map_block(slam_problem, monkeypatch):

@@ -161,6 +161,30 @@ def test_steps_forced_to_the_odometry_and_a_front_end_resumed_from_a_prefix():
             correlative_path(odometry[0], data, grid.resolution, odometry_steps=[bad])
 
 
+def test_a_front_end_stopped_where_until_says_is_the_whole_runs_up_to_there():
+    """``until`` sees the path matched so far after each block (one scan a block here: 30 steps), every pose and
+    covariance the whole run's to the bit, and the run ends at the scan it returns: a scan before the block's last
+    one (17 of 0..19) cuts the path there. Resumed from a prefix, the blocks start at its first forced scan."""
+    grid, truth, odometry, data = corridor_scans()
+    base = correlative_path(odometry[0], data, grid.resolution, half_width=3.0)
+    whole = correlative_path(odometry[0], data, grid.resolution, half_width=3.0, odometry_steps=[12])
+    seen = []
+
+    def until(path, step_cov):
+        np.testing.assert_array_equal(path, whole.path[:len(path)])
+        np.testing.assert_array_equal(step_cov, whole.step_cov[:len(path) - 1])
+        seen.append(len(path))
+        return 17 if len(path) == 20 else None
+
+    stopped = correlative_path(odometry[0], data, grid.resolution, half_width=3.0, odometry_steps=[12], prefix=base,
+                               until=until)
+    assert seen == list(range(13, 21))
+    np.testing.assert_array_equal(stopped.path, whole.path[:18])
+    np.testing.assert_array_equal(stopped.step_cov, whole.step_cov[:17])
+    never = correlative_path(odometry[0], data, grid.resolution, half_width=3.0, until=lambda path, cov: None)
+    np.testing.assert_array_equal(never.path, base.path)
+
+
 def test_a_window_shorter_than_every_step_leaves_the_odometry():
     """With a local map of the last 1 micrometer of travel, no earlier scan is in any match's window, so each scan is
     placed at the motion model's mode, the odometry's prediction, up to the finest lattice step per scan (3 mm and
@@ -223,10 +247,10 @@ def test_the_log_front_end_matches_at_the_problems_likelihood_power(monkeypatch)
     assert resolution == pipeline.FRONT_END_RESOLUTION
     assert options == {"likelihood_power": 0.25, "min_hit_fraction": MIN_HIT_FRACTION, "window": LOCAL_MAP_DISTANCE,
                        "progress": None, "levels": MATCH_LEVELS, "motion_tail": MOTION_TAIL_WEIGHT, "motion": motion,
-                       "field_seed": FIELD_SEED, "odometry_steps": None, "prefix": None}
+                       "field_seed": FIELD_SEED, "odometry_steps": None, "prefix": None, "until": None}
     assert chosen == {"likelihood_power": 0.25, "min_hit_fraction": 0.3, "window": 20.0, "progress": None,
                       "levels": MATCH_LEVELS, "motion_tail": MOTION_TAIL_WEIGHT, "motion": motion,
-                      "field_seed": FIELD_SEED, "odometry_steps": None, "prefix": None}
+                      "field_seed": FIELD_SEED, "odometry_steps": None, "prefix": None, "until": None}
 
 
 @pytest.mark.parametrize("heading_error", [0.3, 0.5])

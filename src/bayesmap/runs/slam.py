@@ -274,15 +274,18 @@ def path_hypotheses_summary(hypotheses, scans) -> dict:
     (:class:`bayesmap.slam.branches.PathHypotheses`, or None: no such step) as summary.json holds them:
     ``{"above_1_percent": how many weigh at least 0.01, "weighed": how many, "branch_scans": the log's scan index of
     each branch's odometry step (``scans`` ``(K,)``: the log's index of each keyframe; None for the front end's own
-    path), "disagreement": each step's squared Mahalanobis distance from the odometry, "evidence_nats": each
-    path's evidence less the front end's, "weights", "chosen": the row the chain started from}``; with no branch
-    point, the front end's path alone (one hypothesis, nothing weighed)."""
+    path), "rejoin_scans": the log's scan index after which each branch's steps are the front end's (None for
+    the front end's own path and a branch that never rejoined it), "disagreement": each step's squared Mahalanobis
+    distance from the odometry, "evidence_nats": each path's evidence less the front end's, "weights", "chosen":
+    the row the chain started from}``; with no branch point, the front end's path alone (one hypothesis, nothing
+    weighed)."""
     if hypotheses is None:
-        return {"above_1_percent": 1, "weighed": 1, "branch_scans": [None], "disagreement": [0.0],
-                "evidence_nats": [0.0], "weights": [1.0], "chosen": 0}
+        return {"above_1_percent": 1, "weighed": 1, "branch_scans": [None], "rejoin_scans": [None],
+                "disagreement": [0.0], "evidence_nats": [0.0], "weights": [1.0], "chosen": 0}
     scans = np.asarray(scans)
     return {"above_1_percent": hypotheses.distinct, "weighed": len(hypotheses.weights),
             "branch_scans": [None if t == 0 else int(scans[t]) for t in hypotheses.odometry_steps],
+            "rejoin_scans": [None if j <= 0 else int(scans[j]) for j in hypotheses.rejoined],
             "disagreement": [round(float(d), 2) for d in hypotheses.disagreement],
             "evidence_nats": [round(float(e - hypotheses.evidence[0]), 1) for e in hypotheses.evidence],
             "weights": [float(w) for w in hypotheses.weights], "chosen": int(hypotheses.chosen)}

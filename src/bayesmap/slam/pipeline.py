@@ -90,7 +90,10 @@ from bayesmap.slam.branches import (
     PathHypotheses,
     branch_points,
     hypothesis_weights,
+    rejoin_scan,
+    spliced,
     step_disagreement,
+    steps_apart,
 )
 from bayesmap.slam.evidence import check_evidence_arguments, draw_evidence, drawn_map
 from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
@@ -115,6 +118,7 @@ from bayesmap.slam.scanmatch import (
     MatchedPath,
     ScanData,
     correlative_path,
+    path_length,
 )
 
 FRONT_END_RESOLUTION = 0.05
@@ -198,7 +202,7 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
               window: float = LOCAL_MAP_DISTANCE, particles: int = FRONT_END_PARTICLES, seed: int = 0,
               progress: ProgressCallback | None = None, levels=MATCH_LEVELS,
               motion_tail: float = MOTION_TAIL_WEIGHT, field_seed: bool = FIELD_SEED,
-              odometry_steps=None, prefix: MatchedPath | None = None) -> MatchedPath:
+              odometry_steps=None, prefix: MatchedPath | None = None, until=None) -> MatchedPath:
     """The front end's path ``(S, 3)`` float64 (x m, y m, theta rad) and its steps' posterior covariances
     (:class:`bayesmap.slam.scanmatch.MatchedPath`): correlative scan matching from the first
     odometry pose on fields of :data:`FRONT_END_RESOLUTION` meters that follow the robot
@@ -216,9 +220,9 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
     step that backed up under the problem's motion noise (:data:`bayesmap.slam.scanmatch.MOTION_TAIL_WEIGHT`;
     0: the motion model alone); the target's motion density is the model's. ``field_seed``: the search also
     descends from the scan's best fit alone at its first level (:data:`bayesmap.slam.scanmatch.FIELD_SEED`).
-    ``odometry_steps``: scans that take the odometry's step, and ``prefix``: a path whose poses before the first of
-    them are kept (:func:`bayesmap.slam.scanmatch.correlative_path`; the single track only). ``progress`` gets
-    ``Progress("front end", done, S - 1, "scan")`` as the scans are matched.
+    ``odometry_steps``: scans that take the odometry's step, ``prefix``: a path whose poses before the first of
+    them are kept, and ``until``: where to stop (:func:`bayesmap.slam.scanmatch.correlative_path`; the single track
+    only). ``progress`` gets ``Progress("front end", done, S - 1, "scan")`` as the scans are matched.
 
     Raises:
         BayesmapError: as :func:`bayesmap.slam.scanmatch.correlative_path` and
@@ -229,9 +233,9 @@ def front_end(problem, data: ScanData, min_hit_fraction: float = MIN_HIT_FRACTIO
                    field_seed=field_seed)
     if isinstance(particles, (int, np.integer)) and not isinstance(particles, bool) and particles == 1:
         return correlative_path(odometry[0], data, FRONT_END_RESOLUTION, odometry_steps=odometry_steps,
-                                prefix=prefix, **options)
-    if odometry_steps is not None or prefix is not None:
-        raise BayesmapError("odometry_steps and prefix are for the single-track front end (particles 1)")
+                                prefix=prefix, until=until, **options)
+    if odometry_steps is not None or prefix is not None or until is not None:
+        raise BayesmapError("odometry_steps, prefix and until are for the single-track front end (particles 1)")
     return particle_path(odometry[0], data, FRONT_END_RESOLUTION, particles, seed=seed, **options).matched
 
 
@@ -248,11 +252,15 @@ class StartMap(NamedTuple):
 def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClosure, key,
                    branches: int = BRANCHES, tile_pairs: int = TILE_PAIRS, progress: ProgressCallback | None = None,
                    gate: float = BRANCH_GATE, matches: LoopMatches | None = None,
+                   rejoin_travel: float = LOCAL_MAP_DISTANCE,
                    ) -> tuple[MatchedPath, LoopClosure, PathHypotheses | None, StartMap | None]:
     """Stage 2b of the module docstring (:mod:`bayesmap.slam.branches`): the front end's path ``front`` and its
     loop closure ``closed``, and at most ``branches`` branches (the front end again from each branch point, a step
     whose match disagrees with the odometry beyond ``gate`` (:func:`bayesmap.slam.branches.branch_points`), with its
-    step taken from the odometry, resumed from ``front``; the loop closure), weighed by their evidence
+    step taken from the odometry, resumed from ``front``, until it rejoins ``front``
+    (:func:`bayesmap.slam.branches.rejoin_scan` at ``gate`` over ``rejoin_travel`` meters, the front end's local
+    map's span :data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE`), ``front``'s later steps after that
+    (:func:`bayesmap.slam.branches.spliced`); the loop closure), weighed by their evidence
     (:func:`bayesmap.slam.evidence.path_evidence`, :data:`bayesmap.slam.branches.EVIDENCE_SWEEPS` sweeps, random
     key ``key`` for every hypothesis, on one grid covering every hypothesis's beams, in tiles of at most
     ``tile_pairs`` pairs). ``progress`` gets ``Progress("branches", done, H, "path")`` as each hypothesis is weighed.
@@ -275,9 +283,15 @@ def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClo
     total = len(points) + 1
     report(progress, "branches", 0, total, "path")
     matches = LoopMatches() if matches is None else matches
-    candidates = [(front, closed)]
+    candidates, rejoined, travelled = [(front, closed)], [0], path_length(scans.increments)
     for t in points:
-        other = front_end(problem, scans, odometry_steps=[int(t)], prefix=front)
+        def until(path, step_cov, t=int(t)):  # where the branch's steps have become the single track's
+            return rejoin_scan(steps_apart(front.path, front.step_cov, path, step_cov), travelled, t,
+                               rejoin_travel, gate)
+
+        other = front_end(problem, scans, odometry_steps=[int(t)], prefix=front, until=until)
+        rejoined.append(len(other.path) - 1 if len(other.path) < len(front.path) else -1)
+        other = spliced(other, front)
         candidates.append((other, close_loops(other.path, scans, step_cov=other.step_cov, matches=matches)))
     params = with_grid(problem.params, fitted_grid(scans, np.stack([c.path for _, c in candidates]),
                                                    problem.params.grid.resolution))
@@ -300,7 +314,7 @@ def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClo
     weights = hypothesis_weights(evidence)
     disagreement = np.concatenate([[0.0], distance[points - 1]])
     hypotheses = PathHypotheses(np.concatenate([[0], points]).astype(np.int64), disagreement,
-                                np.asarray(evidence, np.float64), weights, chosen)
+                                np.asarray(evidence, np.float64), weights, chosen, np.asarray(rejoined, np.int64))
     # the sizes the last draw's sweep was compiled for (at least every earlier draw's) go on to the chain's
     return (*candidates[chosen], hypotheses, StartMap(params.grid, chosen_draw._replace(shapes=shapes)))
 

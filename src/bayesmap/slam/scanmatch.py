@@ -654,7 +654,7 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
                      likelihood_power: float = 1.0, min_hit_fraction: float = MIN_HIT_FRACTION,
                      progress: ProgressCallback | None = None, motion_tail: float = MOTION_TAIL_WEIGHT,
                      motion: MotionParams | None = None, field_seed: bool = FIELD_SEED,
-                     odometry_steps=None, prefix: MatchedPath | None = None) -> MatchedPath:
+                     odometry_steps=None, prefix: MatchedPath | None = None, until=None) -> MatchedPath:
     """Sequential correlative scan matching of every scan against the field of the scans before it, with each step's
     posterior covariance (:func:`step_posterior`).
 
@@ -688,9 +688,15 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
         prefix: a :class:`MatchedPath` of the same scans by this function with the same settings and none of
             ``odometry_steps`` before the first of them: its poses and steps before that scan are kept and matching
             resumes there (:func:`resumed_window`), the same path as matching from the first scan.
+        until: None, or a function of the path matched so far, ``path (n, 3)`` and ``step_cov (n - 1, 3, 3)``
+            float64 (poses ``0 .. n - 1``), that returns a scan index ``j < n`` to stop at, or None to go on: it is
+            called after each block of ``ceil((S - 1) / 100)`` scans (:func:`run_in_blocks`), and the path returned
+            ends at ``j`` (a branch that rejoins the single track, :func:`bayesmap.slam.branches.rejoin_scan`). The
+            path up to ``j`` is the same as without it.
 
     Returns:
-        A :class:`MatchedPath`: the path, row 0 ``first_pose``, and the steps' covariances.
+        A :class:`MatchedPath`: the path, row 0 ``first_pose``, and the steps' covariances (``S`` poses; ``j + 1``
+        where ``until`` stopped it at ``j``).
 
     Raises:
         BayesmapError: if the shapes disagree, ``resolution`` or ``half_width`` is not a finite number > 0 or the
@@ -714,8 +720,16 @@ def correlative_path(first_pose, data: ScanData, resolution: float, levels=MATCH
                                   setup.grid, float(half_width))
     else:
         start = functools.partial(start_window, setup.first_pose, setup.scans, setup.frame, setup.grid)
-    carry = run_in_blocks(run, start, data.readings.shape[0], progress, first)
-    return MatchedPath(np.asarray(carry[0], np.float64), np.asarray(carry[-1], np.float64)[1:])
+    stops = []
+
+    def stopped(carry, hi) -> bool:  # (the path so far to the host before the next block's call donates it)
+        j = until(np.asarray(carry[0][:hi], np.float64), np.asarray(carry[-1][1:hi], np.float64))
+        stops.extend([] if j is None else [int(j)])
+        return j is not None
+
+    carry = run_in_blocks(run, start, data.readings.shape[0], progress, first, None if until is None else stopped)
+    path, step_cov = np.asarray(carry[0], np.float64), np.asarray(carry[-1], np.float64)[1:]
+    return MatchedPath(path, step_cov) if not stops else MatchedPath(path[:stops[0] + 1], step_cov[:stops[0]])
 
 
 def odometry_mask(steps, count: int) -> np.ndarray:
@@ -790,7 +804,7 @@ def front_end_setup(first_pose, data: ScanData, resolution: float, window: float
         raise BayesmapError(f"half_width {half_width!r} m is under 4 cells of {resolution!r} m")
     dtype = jnp.result_type(float)
     first_pose = np.asarray(first_pose, np.float64)
-    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.asarray(data.increments, np.float64)[:, :2].T))])
+    travelled = path_length(data.increments)
     arrays = ScanData(*(jnp.asarray(a, dtype=bool if a.dtype == bool else dtype) for a in map(np.asarray, data)))
     return FrontEndSetup(scans=FrontEndScans(*arrays, travelled=jnp.asarray(travelled, dtype)),
                          first_pose=jnp.asarray(first_pose, dtype),
@@ -819,12 +833,14 @@ costs about 3.5 ms on the 2-core machine, a third of a scan's matching, so a cal
 by a third."""
 
 
-def run_in_blocks(run, start, count: int, progress: ProgressCallback | None, first: int = 1):
+def run_in_blocks(run, start, count: int, progress: ProgressCallback | None, first: int = 1, until=None):
     """``run(start(), first, count)``, a front end's loop over the scans ``first .. count - 1`` from the carry
-    ``start()`` makes (the single track's and the particles', :mod:`bayesmap.slam.particles`); with ``progress``,
-    in about :data:`PROGRESS_REPORTS` blocks of scans, one call each (the same carry: the loop's bounds are
-    arguments, one compilation), reporting the scans matched after each."""
-    if progress is None or count - first < 1:
+    ``start()`` makes (the single track's and the particles', :mod:`bayesmap.slam.particles`); with ``progress`` or
+    ``until``, in blocks of ``ceil((count - 1) / PROGRESS_REPORTS)`` scans (:data:`PROGRESS_REPORTS`), one call each
+    (the same carry: the loop's bounds are arguments, one compilation), reporting the scans matched after each;
+    ``until(carry, hi) -> bool``, called after the block that ends before scan ``hi``, stops the loop there when
+    True."""
+    if (progress is None and until is None) or count - first < 1:
         return run(start(), first, count)
     report(progress, "front end", first - 1, count - 1, "scan")
     carry = start()
@@ -833,7 +849,16 @@ def run_in_blocks(run, start, count: int, progress: ProgressCallback | None, fir
         hi = min(lo + block, count)
         carry = jax.block_until_ready(run(carry, lo, hi))
         report(progress, "front end", hi - 1, count - 1, "scan")
+        if until is not None and until(carry, hi):
+            break
     return carry
+
+
+def path_length(increments) -> np.ndarray:
+    """``(S,)`` float64: the odometry's path length at each scan, meters, from its increments ``(S - 1, 3)`` (0 at the
+    first scan): what the front end's local map is measured in (:data:`LOCAL_MAP_DISTANCE`)."""
+    increments = np.asarray(increments, np.float64)
+    return np.concatenate([[0.0], np.cumsum(np.hypot(increments[:, 0], increments[:, 1]))])
 
 
 def add_matched(d, grid: Grid, frame, world, u, offset, carry):
