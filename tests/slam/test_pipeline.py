@@ -92,6 +92,16 @@ def test_bad_segment_length_refused_by_name(slam_problem, bad):
         run_log_slam(slam_problem, segment_length=bad, **RUN)
 
 
+def slipped_problem(problem):
+    """``problem`` with its odometry slipped 0.4 m sideways into scan 6 (every later odometry pose moved with it)."""
+    import dataclasses
+
+    odometry = np.array(problem.odometry, np.float64)
+    heading = odometry[5, 2]
+    odometry[6:, :2] += 0.4 * np.array([-np.sin(heading), np.cos(heading)])
+    return dataclasses.replace(problem, odometry=odometry)
+
+
 def test_a_step_whose_odometry_slipped_is_weighed_and_the_scans_win(slam_problem):
     """Twelve Intel scans of a robot turning in place, their odometry made to slip 0.4 m sideways into scan 6 (every
     later odometry pose moved with it). The front end's match at scan 6 follows the scans, 3.7 (squared
@@ -101,7 +111,6 @@ def test_a_step_whose_odometry_slipped_is_weighed_and_the_scans_win(slam_problem
     they share with the earlier ones. Weighed by the target with the map integrated out, the front end's own path
     wins by over 100 nats (a weight of 1 to float precision), and it is the start returned. Without the slip no
     step is a branch point: nothing is weighed and the start is the front end's."""
-    import dataclasses
 
     import jax
 
@@ -110,10 +119,7 @@ def test_a_step_whose_odometry_slipped_is_weighed_and_the_scans_win(slam_problem
     from bayesmap.slam.pipeline import MAP_SHAPE_HEADROOM, branched_start, fitted_grid, front_end, scan_data, with_grid
     from bayesmap.slam.posegraph import close_loops, relative
 
-    odometry = np.array(slam_problem.odometry, np.float64)
-    heading = odometry[5, 2]
-    odometry[6:, :2] += 0.4 * np.array([-np.sin(heading), np.cos(heading)])
-    slipped = dataclasses.replace(slam_problem, odometry=odometry)
+    slipped = slipped_problem(slam_problem)
     for problem, slips in ((slipped, True), (slam_problem, False)):
         scans = scan_data(problem)
         front = front_end(problem, scans)
@@ -150,7 +156,6 @@ def test_a_branch_that_rejoins_is_the_rerun_up_to_there_and_the_single_tracks_st
     first scan after its branch point from which its steps agree with the single track's
     (:func:`bayesmap.slam.branches.rejoin_scan` of the front end run to the end); its path, as its closed path's
     grid and evidence show, is that run up to there and the single track's steps after it, to the bit."""
-    import dataclasses
 
     import jax
 
@@ -160,10 +165,7 @@ def test_a_branch_that_rejoins_is_the_rerun_up_to_there_and_the_single_tracks_st
     from bayesmap.slam.posegraph import close_loops
     from bayesmap.slam.scanmatch import path_length
 
-    odometry = np.array(slam_problem.odometry, np.float64)
-    heading = odometry[5, 2]
-    odometry[6:, :2] += 0.4 * np.array([-np.sin(heading), np.cos(heading)])
-    slipped = dataclasses.replace(slam_problem, odometry=odometry)
+    slipped = slipped_problem(slam_problem)
     scans = scan_data(slipped)
     front = front_end(slipped, scans)
     closed = close_loops(front.path, scans, step_cov=front.step_cov)
@@ -192,15 +194,11 @@ def test_the_chain_takes_the_chosen_starts_evidence_draw_as_its_first_map_block(
     takes the chosen start's draw as its first map block. A run whose evidence draws 5 sweeps, where the chain's
     4-sweep block must be drawn again, gives the same chain to the bit: the same kernel from the empty map at
     the same path with the same key. Its evidence differs, its choice does not (the scans win by over 100 nats)."""
-    import dataclasses
     import functools
 
     import bayesmap.slam.pipeline as pipeline
 
-    odometry = np.array(slam_problem.odometry, np.float64)
-    heading = odometry[5, 2]
-    odometry[6:, :2] += 0.4 * np.array([-np.sin(heading), np.cos(heading)])
-    slipped = dataclasses.replace(slam_problem, odometry=odometry)
+    slipped = slipped_problem(slam_problem)
     monkeypatch.setattr(pipeline, "branched_start", functools.partial(pipeline.branched_start, gate=1.0))
     blocks = []
     map_round = pipeline._map_round
