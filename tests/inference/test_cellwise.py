@@ -267,3 +267,22 @@ def test_fitted_shapes():
     for bad in (-0.1, float("nan"), True):
         with pytest.raises(BayesmapError, match="headroom"):
             fitted_shapes(needed, None, bad)
+
+
+def test_fitted_shapes_reserve_the_next_width():
+    """With a headroom, new sizes also hold a group of twice the widest width, as large as the widest group, so that
+    a table with a cell crossed by more rays than any before fits them; sizes that fit keep theirs (no group added
+    again), and none is added past the widest width supported or without a headroom."""
+    from bayesmap.inference.cellwise import MAX_WIDTH, SweepShapes, fitted_shapes
+
+    needed = SweepShapes(groups=((8, 100), (16, 30)), rest=0, rays=500, pairs=9000)
+    first = fitted_shapes(needed, None, 0.1)
+    assert first == SweepShapes(groups=((8, 112), (16, 40), (32, 40)), rest=0, rays=552, pairs=9904)
+    wider = SweepShapes(groups=((8, 104), (16, 28), (32, 6)), rest=0, rays=520, pairs=9500)
+    assert fitted_shapes(wider, first, 0.1) == first  # the same compiled sweep
+    assert fitted_shapes(needed, first, 0.1) == first
+    grown = fitted_shapes(needed._replace(pairs=9999), first, 0.1)
+    assert grown.groups == first.groups and grown.pairs == 11000  # the reserved group already there
+    widest = SweepShapes(groups=((8, 100), (MAX_WIDTH, 3)), rest=0, rays=500, pairs=9000)
+    assert fitted_shapes(widest, None, 0.1).groups == ((8, 112), (MAX_WIDTH, 8))
+    assert fitted_shapes(needed) == needed

@@ -169,3 +169,40 @@ def test_a_chain_run_with_progress_is_the_chain_run_in_one_scan(tutorial):
     size = compiled_chain_count()
     run_chain(jax.random.key(6), algorithm, walls, 13, progress=seen.append)
     assert compiled_chain_count() == size
+
+
+@pytest.mark.parametrize("reported", [False, True])
+def test_a_chain_compiled_ahead_runs_without_compiling_again(reported, caplog):
+    """``compile_recorded_chain`` compiles the program ``run_recorded_chains`` then runs (with a progress callback,
+    one sweep per call; without, the whole chain): the run compiles nothing of its own (JAX's compile log) and
+    records what a run compiled on the spot records, to the bit. A pose kernel, as ``run_log_slam`` compiles its
+    pose block on another thread."""
+    import logging
+
+    import jax
+    import jax.numpy as jnp
+
+    from bayesmap.inference.chains import compile_recorded_chain, run_recorded_chains
+    from bayesmap.slam.poses import random_walk_pose_mh, slam_data
+    from bayesmap.slam.problem import slam_tutorial_problem
+
+    def record(state, info):
+        return state.poses, info.accepted
+
+    problem = slam_tutorial_problem(seed=3, num_poses=5)
+    increments, covs = problem.motion_steps()
+    kernel = random_walk_pose_mh(slam_data(increments, covs, problem.sensor_angles, problem.readings,
+                                           problem.params))
+    state = kernel.init(jnp.asarray(problem.odometry), jnp.asarray(problem.truth, jnp.float32))
+    progress = (lambda p: None) if reported else None
+    jax.clear_caches()
+    fresh = run_recorded_chains(jax.random.key(1), state, kernel, 6, record, progress=progress)
+    jax.clear_caches()
+    compile_recorded_chain(jax.random.key(0), state, kernel, 6, record, reported)
+    caplog.set_level(logging.WARNING)
+    with jax.log_compiles(True):
+        ahead = run_recorded_chains(jax.random.key(1), state, kernel, 6, record, progress=progress)
+    compiled = [r.getMessage() for r in caplog.records if "Finished XLA compilation" in r.getMessage()]
+    assert not any("_sweeps_jit" in m or "_run_jit" in m for m in compiled), compiled
+    for a, b in zip(ahead, fresh, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

@@ -12,7 +12,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.model.generative import replace_params
 from bayesmap.model.motion import path_logpdf
 from bayesmap.model.slam import log_joint_slam
-from bayesmap.slam.evidence import map_entropy_bound, path_evidence, target_log_density
+from bayesmap.slam.evidence import drawn_map, map_entropy_bound, path_evidence, target_log_density
 from bayesmap.slam.problem import SlamProblem, slam_tutorial_problem
 from helpers import TINY_SLAM_ODOMETRY, exact_slam_log_joint, tiny_slam_problem
 
@@ -48,6 +48,20 @@ def test_the_target_is_the_slam_models_assess_and_tempers_only_the_readings():
     drawn = np.log(q) if walls[0, 0] > 0.5 else np.log1p(-q)
     expected_change = 0.5 * np.log(q) + 0.5 * np.log1p(-q) - drawn + np.log(2.0)
     assert map_entropy_bound(params, half, target, walls) == pytest.approx(target + expected_change, abs=2e-3)
+
+
+@pytest.mark.parametrize("power, pass_prob", [(1.0, 0.0), (0.25, 0.0), (0.25, 0.05)])
+def test_a_draws_readings_term_is_the_targets(power, pass_prob):
+    """The readings' term a draw's sweep leaves (``TiledChain.readings_log_lik``, from its own table, float32 rows)
+    is the target's (:func:`target_log_density`, a table of its own in float64) at the drawn walls, tempered or not,
+    also where a beam can pass a wall cell: to float32 precision (1e-5 relative; the sum of some 300 rays)."""
+    problem = dataclasses.replace(slam_tutorial_problem(seed=3, num_poses=4), likelihood_power=power)
+    params = replace_params(problem.params, wall_pass_prob=pass_prob)
+    path = problem.true_poses + np.concatenate([[[0.0, 0.0, 0.0]], np.full((3, 3), 0.02)])
+    for key in range(3):
+        chain = drawn_map(problem, params, path, jax.random.key(key), 3)
+        _, _, readings = target_log_density(problem, params, path, chain.walls)
+        assert chain.readings_log_lik == pytest.approx(readings, rel=1e-5, abs=1e-3)
 
 
 def tiny_problem():

@@ -193,7 +193,9 @@ def test_the_chain_takes_the_chosen_starts_evidence_draw_as_its_first_map_block(
     hypothesis's evidence with the chain's first map key on the grid of every hypothesis's beams, and its chain
     takes the chosen start's draw as its first map block. A run whose evidence draws 5 sweeps, where the chain's
     4-sweep block must be drawn again, gives the same chain to the bit: the same kernel from the empty map at
-    the same path with the same key. Its evidence differs, its choice does not (the scans win by over 100 nats)."""
+    the same path with the same key. Its evidence differs, its choice does not (the scans win by over 100 nats). The
+    first run compiles the chain's pose block on another thread while the evidence is drawn, the second does not:
+    the same samples, to the bit."""
     import functools
 
     import bayesmap.slam.pipeline as pipeline
@@ -203,12 +205,16 @@ def test_the_chain_takes_the_chosen_starts_evidence_draw_as_its_first_map_block(
     blocks = []
     map_round = pipeline._map_round
     monkeypatch.setattr(pipeline, "_map_round", lambda *a, **k: blocks.append(k["stage"]) or map_round(*a, **k))
+    compiled = []  # the pose block compiled on the other thread while the evidence is drawn (for the same chain)
+    compile_pose_block = pipeline.compile_pose_block
+    monkeypatch.setattr(pipeline, "compile_pose_block",
+                        lambda *a, **k: compiled.append(a[2].grid) or compile_pose_block(*a, **k))
     run = {**RUN, "map_sweeps": pipeline.EVIDENCE_SWEEPS, "final_map_sweeps": 0}  # one round: one map block
     taken = run_log_slam(slipped, **run)
-    assert blocks == []
+    assert blocks == [] and len(compiled) == 1
     monkeypatch.setattr(pipeline, "EVIDENCE_SWEEPS", pipeline.EVIDENCE_SWEEPS + 1)
     drawn_again = run_log_slam(slipped, **run)
-    assert blocks == ["round 1/1: map"]
+    assert blocks == ["round 1/1: map"] and len(compiled) == 1  # (the chain drops it before its first block)
     for result in (taken, drawn_again):
         np.testing.assert_array_equal(result.path_hypotheses.odometry_steps, [0, 6])
         assert result.path_hypotheses.chosen == 0
@@ -221,6 +227,7 @@ def test_the_chain_takes_the_chosen_starts_evidence_draw_as_its_first_map_block(
     front = front_end(slipped, scans)
     start = close_loops(front.path, scans, step_cov=front.step_cov).path
     assert taken.grid == drawn_again.grid == fitted_grid(scans, start, slipped.params.grid.resolution)
+    assert compiled[0].shape[0] * compiled[0].shape[1] > taken.grid.shape[0] * taken.grid.shape[1]  # the chain's
     assert taken.posterior.shape == taken.last_walls.shape == taken.grid.shape
     np.testing.assert_array_equal(taken.posterior, drawn_again.posterior)  # (no final map: the chain's)
     np.testing.assert_array_equal(taken.pose_samples, drawn_again.pose_samples)

@@ -98,7 +98,8 @@ def cell_exit_distance(p, u, cell, xp=jnp):
         ``(...)`` distance in cells, in the dtype of ``p`` and ``u`` (``inf`` for a ray that moves along neither
         axis). For a cell the ray does not cross the number has no meaning. Never raises.
     """
-    return xp.min(_face_distances(p, u, cell, xp), axis=-1)
+    faces = _face_distances(p, u, cell, xp)
+    return xp.minimum(faces[..., 0], faces[..., 1])  # (the same numbers as ``min`` over the axis, faster in numpy)
 
 
 def _face_distances(p, u, cell, xp=jnp):

@@ -185,7 +185,11 @@ def fitted_shapes(needed: SweepShapes, at_least: SweepShapes | None = None, head
     """The sizes to pad a sweep's arrays to: each size of ``needed`` that fits the one of ``at_least`` takes that one
     (so that a kernel built with a previous kernel's :attr:`CellwiseKernel.shapes` reuses its compilation); one that
     does not fit, or has none, is ``needed`` times ``1 + headroom`` rounded up to a multiple of 8 (exactly ``needed``
-    with no headroom). A width group of ``at_least`` that ``needed`` lacks is kept (cells that are all padding).
+    with no headroom). A width group of ``at_least`` that ``needed`` lacks is kept (cells that are all padding). With
+    a headroom, sizes that do not all fit ``at_least`` also get a group of twice the widest width (up to
+    :data:`MAX_WIDTH`), of as many padding cells as the widest group's size, where no group is wider than ``needed``'s
+    widest: a table at moved poses may have a cell crossed by more rays than any before (on CSAIL's hypotheses, a
+    group of 2,048 lanes the first table lacked), and would compile anew for it.
 
     Raises:
         BayesmapError: on a negative or non-finite ``headroom``.
@@ -201,8 +205,11 @@ def fitted_shapes(needed: SweepShapes, at_least: SweepShapes | None = None, head
 
     had, need = ({} if at_least is None else dict(at_least.groups)), dict(needed.groups)
     groups = tuple((w, fit(need.get(w, 0), had.get(w))) for w in sorted(set(had) | set(need)))
-    return SweepShapes(groups, *(fit(getattr(needed, f), None if at_least is None else getattr(at_least, f))
-                                 for f in ("rest", "rays", "pairs")))
+    sizes = SweepShapes(groups, *(fit(getattr(needed, f), None if at_least is None else getattr(at_least, f))
+                                  for f in ("rest", "rays", "pairs")))
+    if headroom and sizes != at_least and need and max(need) == groups[-1][0] and 2 * max(need) <= MAX_WIDTH:
+        sizes = sizes._replace(groups=groups + ((2 * max(need), groups[-1][1]),))
+    return sizes
 
 
 def checkerboard_groups(groups, shape: tuple[int, int]):
@@ -242,23 +249,26 @@ def _lanes(table: RayTable, counts: np.ndarray, groups, rank: np.ndarray, pair_l
 
     The pairs are sorted once into the order of the lanes (group by group, cells ascending, a cell's pairs in ray
     order), so that each group's pairs are one contiguous slice, written row by row into its padded ``(n, W)``
-    arrays, a block of rows at a time. Memory besides the lanes: the sorted pair indices (8 bytes per pair) and
-    one block's temporaries (fresh pages cost more than the work on them).
+    arrays, a block of rows at a time. Memory besides the lanes: the sorted pair indices (8 bytes per pair), each
+    pair's ray while the rays and positions are written (4 bytes per pair) and one block's temporaries (fresh pages
+    cost more than the work on them).
     """
     if not groups:
         return ()
     size = dict(shapes.groups)
     order = table.pairs_by_cell(rank)
     firsts = np.cumsum([0] + [int(counts[cells].sum()) for _, cells in groups])  # each group's first sorted pair
+    pair_rays = np.repeat(np.arange(table.num_rays, dtype=np.int32), table.lengths)  # (a gather, not a search)
     parts = []
     for (width, cells), first in zip(groups, firsts):
         rays = np.full((size[width], width), shapes.rays, dtype=np.int32)
         positions = np.zeros((size[width], width), dtype=np.int32)
         for rows, valid, pair in _row_blocks(counts[cells], width, order, first):
-            ray = table.rays_of_pairs(pair)
+            ray = pair_rays[pair]
             rays[rows][valid] = ray
             positions[rows][valid] = pair - table.offsets[ray]
         parts.append((rays, positions))
+    del pair_rays
     pair_ll = np.asarray(pair_ll)
     lanes = []
     for (width, cells), first, (rays, positions) in zip(groups, firsts, parts):
@@ -347,6 +357,18 @@ class CellwiseKernel(KernelFields):
             padding += [0.0] * 6
         rows = jnp.stack(columns, axis=1)
         return rows.at[self._num_rays].set(jnp.array(padding, dtype))  # the padding lanes' row
+
+    def readings_log_likelihood(self, state: CellwiseState) -> float:
+        """The readings' tempered log-likelihood (nats) at the state's walls, ``eta log p(readings | walls)``, from its
+        per-ray rows (:class:`CellwiseState`), summed in float64: each ray's ``log p(y | first wall)``, tempered in
+        the tables, or with wall cells a beam can pass its mixture of the first two walls and none, times ``eta``.
+        The padding rays' rows add 0. The readings' term of the target the sweep samples, which
+        :meth:`bayesmap.problem.Problem.table_log_joint` computes in float64 from a table of its own (they agree to
+        the kernel's float precision, tested)."""
+        rows = np.asarray(state.ray_walls, np.float64)[:self._num_rays]
+        if self._penetrable:
+            return float(np.asarray(self._eta, np.float64) * rows[:, 7].sum())
+        return float(rows[:, 2].sum())
 
     def init(self, walls) -> CellwiseState:
         """State for the map ``walls`` ``(nx, ny)``."""

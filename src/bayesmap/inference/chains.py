@@ -208,6 +208,21 @@ def run_recorded_chains(key, initial_state, algorithm: SamplingAlgorithm, num_sw
     return _run(keys, initial_state, arrays, static, num_sweeps, record, "keys", progress, stage)[1]
 
 
+def compile_recorded_chain(key, initial_state, algorithm: SamplingAlgorithm, num_sweeps: int, record,
+                           reported: bool) -> None:
+    """Compile ahead of time the program :func:`run_recorded_chains` (one chain) runs with these arguments: with
+    ``reported`` (a ``progress`` callback given) its one-sweep program, else its chain of ``num_sweeps`` sweeps.
+    JAX keeps the executable, so that the first such call does not compile again: compile on another thread while
+    this one works. ``initial_state`` may hold ``jax.ShapeDtypeStruct``s (``jax.eval_shape`` of ``init``)."""
+    arrays, static = _split(algorithm)
+    if reported:
+        keys = jax.eval_shape(lambda k: jax.random.split(k, 1), key)  # one sweep's keys, as _run_keys slices them
+        arrays = [a if isinstance(a, jax.Array) else jnp.asarray(a) for a in arrays]  # (as _run_keys passes them)
+        _sweeps_jit.lower(keys, initial_state, arrays, static, record, None).compile()
+    else:
+        _run_jit.lower(key, initial_state, arrays, static, int(num_sweeps), record, None).compile()
+
+
 def compiled_chain_count() -> int:
     """How many chains are compiled and kept so far (by :func:`run_chain_from`, :func:`run_chains_from`,
     :func:`compile_chain` and :func:`run_recorded_chains`, whole or one sweep per call): one per distinct static part

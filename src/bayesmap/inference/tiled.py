@@ -82,6 +82,9 @@ class TiledChain(NamedTuple):
         shapes: with one tile, the sizes its sweep was compiled for
             (:attr:`bayesmap.inference.cellwise.CellwiseKernel.shapes`: pass them to the next chain of a similar
             table to reuse the compilation); None with several.
+        readings_log_lik: with one tile, the readings' tempered log-likelihood (nats) at ``walls``
+            (:meth:`bayesmap.inference.cellwise.CellwiseKernel.readings_log_likelihood`, from the sweep's own
+            table); None with several.
     """
 
     walls: jax.Array
@@ -89,6 +92,7 @@ class TiledChain(NamedTuple):
     tiles: tuple[Tile, ...]
     samples: np.ndarray
     shapes: SweepShapes | None = None
+    readings_log_lik: float | None = None
 
 
 class _TileProgress:
@@ -250,10 +254,11 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
         gibbs, tile = whole
         shapes = gibbs.kernel.shapes
         chain = _map_chain(key, gibbs, walls, sweeps, focus, progress, stage)
+        readings_log_lik = gibbs.kernel.readings_log_likelihood(chain.final_state)
         del gibbs, whole
         release_freed_memory()
         return TiledChain(jnp.asarray(chain.samples[-1], jnp.float32), np.asarray(chain.wall_probs), (tile,),
-                          np.asarray(chain.samples), shapes)
+                          np.asarray(chain.samples), shapes, readings_log_lik)
     counts = rays_per_cell(grid, origins, angles, params.max_range, limits)
     tiles = tuple(split_tiles(counts, max_pairs))
     del counts

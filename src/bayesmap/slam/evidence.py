@@ -39,10 +39,15 @@ def scans_at(problem, params, path) -> tuple[np.ndarray, Problem]:
     and the scans of ``problem`` (a :class:`bayesmap.slam.problem.SlamProblem`) at it as a known-pose
     :class:`bayesmap.problem.Problem` on ``params``' grid (their world-frame rays, which the map's draws and its
     score both read)."""
-    path = np.array(path, np.float64)
-    path[:, 2] = np.unwrap(path[:, 2])
+    path = _unwrapped(path)
     angles = path[:, 2:3] + problem.sensor_angles
     return path, Problem.from_world_frame(params, path[:, :2], angles, problem.readings)
+
+
+def _unwrapped(path) -> np.ndarray:
+    path = np.array(path, np.float64)
+    path[:, 2] = np.unwrap(path[:, 2])
+    return path
 
 
 def target_log_density(problem, params, path, walls) -> tuple[float, float, float]:
@@ -51,12 +56,16 @@ def target_log_density(problem, params, path, walls) -> tuple[float, float, floa
     prior's of the walls and the problem's power ``p`` times the readings' (at ``p = 1``, the SLAM model's
     ``assess``)."""
     path, scans = scans_at(problem, params, path)
-    increments, covs = problem.motion_steps()
-    motion = float(_path_logpdf(jnp.asarray(path), jnp.asarray(path[0]), jnp.asarray(increments), jnp.asarray(covs)))
-    walls = np.asarray(walls)
-    prior = float(_log_prior(walls, params.prior_wall_prob, params.coupling))
+    motion, prior = _motion_and_prior(problem, params, path, walls)
     readings = problem.likelihood_power * (scans.table_log_joint(walls) - prior)
     return motion + prior + readings, motion, readings
+
+
+def _motion_and_prior(problem, params, path, walls) -> tuple[float, float]:
+    """The motion model's log-density of ``path`` ``(S, 3)`` (headings unwrapped) and the prior's of ``walls``."""
+    increments, covs = problem.motion_steps()
+    motion = float(_path_logpdf(jnp.asarray(path), jnp.asarray(path[0]), jnp.asarray(increments), jnp.asarray(covs)))
+    return motion, float(_log_prior(np.asarray(walls), params.prior_wall_prob, params.coupling))
 
 
 def drawn_map(problem, params, path, key, sweeps: int, tile_pairs: int = TILE_PAIRS,
@@ -141,7 +150,13 @@ def check_evidence_arguments(params, sweeps) -> None:
 def draw_evidence(problem, params, path, chain: TiledChain) -> float:
     """:func:`path_evidence`'s bound (nats) from ``chain``, a :func:`drawn_map` of at least 2 sweeps at ``path``
     ``(S, 3)`` on ``params``' grid: :func:`map_entropy_bound` of its wall probabilities averaged over the second
-    half of its sweeps and the target at its last walls (:func:`target_log_density`)."""
+    half of its sweeps and the target at its last walls (:func:`target_log_density`; its readings' term the one
+    the chain's sweep computed, :attr:`bayesmap.inference.tiled.TiledChain.readings_log_lik`, where it has one: no
+    second table, the same to the kernel's float precision)."""
     walls, probabilities = _walls_and_probabilities(chain)
-    target, _, _ = target_log_density(problem, params, path, walls)
+    if chain.readings_log_lik is None:
+        target, _, _ = target_log_density(problem, params, path, walls)
+    else:
+        motion, prior = _motion_and_prior(problem, params, _unwrapped(path), walls)
+        target = motion + prior + chain.readings_log_lik
     return map_entropy_bound(params, probabilities, target, walls)

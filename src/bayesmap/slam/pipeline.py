@@ -65,7 +65,8 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
 from __future__ import annotations
 
 import time
-from typing import NamedTuple
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -76,7 +77,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.geometry.raycast import scan_endpoints
 from bayesmap.inference.cellwise import SweepShapes
-from bayesmap.inference.chains import run_recorded_chains
+from bayesmap.inference.chains import compile_recorded_chain, run_recorded_chains
 from bayesmap.inference.tiled import TILE_PAIRS, TiledChain, check_tile_pairs, tiled_map_chain
 from bayesmap.memory import drop_compiled_programs
 from bayesmap.model.generative import replace_params
@@ -252,7 +253,7 @@ class StartMap(NamedTuple):
 def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClosure, key,
                    branches: int = BRANCHES, tile_pairs: int = TILE_PAIRS, progress: ProgressCallback | None = None,
                    gate: float = BRANCH_GATE, matches: LoopMatches | None = None,
-                   rejoin_travel: float = LOCAL_MAP_DISTANCE,
+                   rejoin_travel: float = LOCAL_MAP_DISTANCE, on_grid: Callable | None = None,
                    ) -> tuple[MatchedPath, LoopClosure, PathHypotheses | None, StartMap | None]:
     """Stage 2b of the module docstring (:mod:`bayesmap.slam.branches`): the front end's path ``front`` and its
     loop closure ``closed``, and at most ``branches`` branches (the front end again from each branch point, a step
@@ -268,7 +269,9 @@ def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClo
     ``close_loops(..., matches=)``): a branch's loop closure takes those whose inputs it shares (its first round's
     among the scans before its branch point) instead of searching again, the same result; None: none kept. The
     compiled programs of the front end and the loop closure are dropped before the evidence
-    (:func:`bayesmap.memory.drop_compiled_programs`), whose map sweep the joint chain then shares.
+    (:func:`bayesmap.memory.drop_compiled_programs`), whose map sweep the joint chain then shares. ``on_grid``:
+    called with the chain's model on the grid of every hypothesis's beams (:class:`StartMap`'s) once it is known,
+    before the draws (:func:`run_log_slam` then compiles the chain's pose block on another thread).
 
     Returns:
         ``(front end, loop closure, hypotheses, start map)`` of the heaviest hypothesis, ``start map`` its
@@ -297,6 +300,8 @@ def branched_start(problem, scans: ScanData, front: MatchedPath, closed: LoopClo
                                                    problem.params.grid.resolution))
     check_evidence_arguments(params, EVIDENCE_SWEEPS)
     drop_compiled_programs()  # (the branches' front ends and loop closures are done)
+    if on_grid is not None:
+        on_grid(params)
     # where the run reports progress, its chain's map blocks run one sweep per compiled call: so do the draws
     # here, unreported, and the chain shares their compiled sweep
     silent = None if progress is None else _unreported
@@ -449,7 +454,8 @@ def chain_keys(seed: int, rounds: int) -> jax.Array:
 @on_sweep_devices()  # the sweeps on the CPU, also where JAX's default device is a GPU (bayesmap.devices)
 def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tuple[int, int, int, int],
                  progress: ProgressCallback | None, tile_pairs: int = TILE_PAIRS,
-                 segment_length: int = SEGMENT_LENGTH, first_map: TiledChain | None = None) -> tuple:
+                 segment_length: int = SEGMENT_LENGTH, first_map: TiledChain | None = None,
+                 compiling: Future | None = None) -> tuple:
     """Stage 4 of the module docstring: the joint chain from ``path`` ``(S, 3)`` and an empty map on ``params``'s
     grid, ``counts`` = ``(rounds, burn_in, map_sweeps, pose_sweeps)``, reporting each round's map and pose sweeps
     (stages ``"round r/R: map"`` and ``"round r/R: poses"``), the map blocks in tiles of at most ``tile_pairs``, each
@@ -457,6 +463,8 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
     ``first_map``: the first round's map block already drawn (``map_sweeps`` sweeps from the empty map at ``path``
     with the chain's first key, :func:`chain_keys`; :class:`StartMap`), reported as done; the compiled programs are
     then kept (the caller dropped those it no longer needs). None: the first block drawn here, after dropping them.
+    ``compiling``: the pose block's compilation under way on another thread (:func:`compile_pose_block`), waited
+    for before the first pose sweep.
 
     Returns:
         ``(last walls (nx, ny) float32, pose samples (N, S, 3) float64, wall probabilities (M, nx, ny),
@@ -468,11 +476,7 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
         # not needed again before the scans between keyframes are placed; the map blocks' sweep is then compiled
         # once (:data:`MAP_SHAPE_HEADROOM`) and the pose sweeps' once
         drop_compiled_programs()
-    data = slam_data(scans.increments, scans.covs, problem.sensor_angles, problem.readings, params)
-    pose_kernel = random_walk_pose_mh(data, likelihood_power=problem.likelihood_power)
-    if segment_length:
-        pose_kernel = composed_pose_kernels(pose_kernel, segment_pose_mh(data, segment_length,
-                                                                          likelihood_power=problem.likelihood_power))
+    data, pose_kernel = _pose_kernel(problem, scans, params, segment_length)
     walls = jnp.zeros(params.grid.shape, jnp.float32)
     poses = jnp.asarray(path, data.increments.dtype)
     keys = chain_keys(seed, rounds)
@@ -486,6 +490,9 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
             walls, wall_probs, shapes = _map_round(keys[2 * r], problem, params, np.asarray(poses, np.float64), walls,
                                                    map_sweeps, progress=progress, stage=stage, tile_pairs=tile_pairs,
                                                    shapes=shapes, headroom=MAP_SHAPE_HEADROOM)
+        if compiling is not None:  # the pose block compiled on another thread (run_log_slam): wait for it
+            compiling.result()
+            compiling = None
         pose_samples, acc = run_recorded_chains(keys[2 * r + 1], pose_kernel.init(poses, walls),
                                                 pose_kernel, pose_sweeps, _pose_record, progress=progress,
                                                 stage=f"round {r + 1}/{rounds}: poses")
@@ -495,6 +502,30 @@ def _joint_chain(problem, scans: ScanData, params, path, seed: int, counts: tupl
             probs.append(wall_probs)
             accepted.append(np.asarray(acc))
     return walls, np.concatenate(samples), np.concatenate(probs), np.concatenate(accepted)
+
+
+def _pose_kernel(problem, scans: ScanData, params, segment_length: int):
+    """``(data, kernel)``: the joint chain's pose block on ``params``' grid (module docstring, stage 4)."""
+    data = slam_data(scans.increments, scans.covs, problem.sensor_angles, problem.readings, params)
+    kernel = random_walk_pose_mh(data, likelihood_power=problem.likelihood_power)
+    if segment_length:
+        kernel = composed_pose_kernels(kernel, segment_pose_mh(data, segment_length,
+                                                               likelihood_power=problem.likelihood_power))
+    return data, kernel
+
+
+@on_sweep_devices()  # (where _joint_chain runs its sweeps: the same program)
+def compile_pose_block(problem, scans: ScanData, params, num_poses: int, seed: int, counts: tuple[int, int, int, int],
+                       reported: bool, segment_length: int = SEGMENT_LENGTH) -> None:
+    """Compile the joint chain's pose block ahead of time: the program :func:`_joint_chain` runs for a path of
+    ``num_poses`` poses on ``params``' grid with ``counts`` and ``segment_length`` as there, one sweep per call
+    with ``reported`` (a progress callback), for :func:`run_log_slam` to run on another thread while the branches'
+    maps are drawn (their tables are built on one core: the compilation, 3-4 s on two cores, then takes the other).
+    JAX keeps the program; the chain's first pose block does not compile it again. Runs the pose block's ``init``
+    once (every scan cast at a path of zeros, on an empty map)."""
+    data, kernel = _pose_kernel(problem, scans, params, segment_length)
+    state = kernel.init(jnp.zeros((num_poses, 3), data.increments.dtype), jnp.zeros(params.grid.shape, jnp.float32))
+    compile_recorded_chain(chain_keys(seed, counts[0])[1], state, kernel, counts[3], _pose_record, reported)
 
 
 def _final_map(problem, scans: ScanData, grid: Grid, mean, walls, key, sweeps: int,
@@ -587,19 +618,32 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     front = front_end(problem, scans, particles=particles, seed=seed, progress=progress)
     matches = LoopMatches() if branches and particles == 1 else None
     closed = close_loops(front.path, scans, progress=progress, step_cov=front.step_cov, matches=matches)
-    branched, start_map = None, None
-    if matches is not None:
-        # every hypothesis's evidence is drawn with the chain's first map key: the chosen one's draw is then the
-        # chain's first map block at its start path (the same sweeps from the empty map), which the chain takes
-        front, closed, branched, start_map = branched_start(problem, scans, front, closed, chain_keys(seed, rounds)[0],
-                                                            branches, tile_pairs, progress, matches=matches)
-    path, edges, hypotheses = closed
-    grid = fitted_grid(scans, path, problem.params.grid.resolution)  # the start path's: the maps returned
-    chain_grid = grid if start_map is None else start_map.grid  # (the grid of every hypothesis's beams)
-    first_map = start_map.draw if start_map is not None and map_sweeps == EVIDENCE_SWEEPS else None
-    walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, chain_grid), path, seed,
-                                                   (rounds, burn_in, map_sweeps, pose_sweeps), progress, tile_pairs,
-                                                   int(segment_length), first_map)
+    branched, start_map, counts = None, None, (rounds, burn_in, map_sweeps, pose_sweeps)
+    background = ThreadPoolExecutor(1, thread_name_prefix="compile") if matches is not None else None
+    compiling = []
+
+    def on_grid(params):  # the chain's grid is known: compile its pose block while the maps are drawn
+        if map_sweeps == EVIDENCE_SWEEPS:  # (else the chain drops the compiled programs before its first block)
+            compiling.append(background.submit(compile_pose_block, problem, scans, params, len(front.path), seed,
+                                               counts, progress is not None, int(segment_length)))
+
+    try:
+        if matches is not None:
+            # every hypothesis's evidence is drawn with the chain's first map key: the chosen one's draw is then
+            # the chain's first map block at its start path (the same sweeps from the empty map), which it takes
+            front, closed, branched, start_map = branched_start(problem, scans, front, closed,
+                                                                chain_keys(seed, rounds)[0], branches, tile_pairs,
+                                                                progress, matches=matches, on_grid=on_grid)
+        path, edges, hypotheses = closed
+        grid = fitted_grid(scans, path, problem.params.grid.resolution)  # the start path's: the maps returned
+        chain_grid = grid if start_map is None else start_map.grid  # (the grid of every hypothesis's beams)
+        first_map = start_map.draw if start_map is not None and map_sweeps == EVIDENCE_SWEEPS else None
+        walls, samples, probs, accepted = _joint_chain(problem, scans, with_grid(problem.params, chain_grid), path,
+                                                       seed, counts, progress, tile_pairs, int(segment_length),
+                                                       first_map, compiling[0] if compiling else None)
+    finally:
+        if background is not None:
+            background.shutdown(wait=True, cancel_futures=True)
     if chain_grid != grid:  # the cells the start path's beams reach; the others only the other hypotheses' do
         cells = chain_grid.window(grid)
         walls, probs = walls[cells], probs[:, cells[0], cells[1]]
