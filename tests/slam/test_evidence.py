@@ -64,6 +64,25 @@ def test_a_draws_readings_term_is_the_targets(power, pass_prob):
         assert chain.readings_log_lik == pytest.approx(readings, rel=1e-5, abs=1e-3)
 
 
+def test_a_tiled_draw_is_scored_by_the_targets_own_table():
+    """A draw swept a tile at a time has no one table to read its readings' term from
+    (``readings_log_lik`` None): its bound then takes the target's (:func:`target_log_density` at its last walls)."""
+    from bayesmap.slam.evidence import draw_evidence
+
+    problem = slam_tutorial_problem(seed=3, num_poses=4)
+    params = problem.params
+    path = problem.true_poses + np.concatenate([[[0.0, 0.0, 0.0]], np.full((3, 3), 0.02)])
+    whole = drawn_map(problem, params, path, jax.random.key(0), 3)
+    tiled = drawn_map(problem, params, path, jax.random.key(0), 3, tile_pairs=4000)
+    assert whole.readings_log_lik is not None and len(whole.tiles) == 1
+    assert tiled.readings_log_lik is None and len(tiled.tiles) > 1
+    walls = np.asarray(tiled.walls)
+    probabilities = np.asarray(tiled.wall_probs, np.float64)[1:].mean(axis=0)
+    target, _, _ = target_log_density(problem, params, path, walls)
+    assert draw_evidence(problem, params, path, tiled) == pytest.approx(
+        map_entropy_bound(params, probabilities, target, walls), rel=1e-12)
+
+
 def tiny_problem():
     params, inc, cov, candidates, angles, y = tiny_slam_problem()
     problem = SlamProblem(params=params, motion=None, odometry=TINY_SLAM_ODOMETRY, sensor_angles=angles, readings=y,
