@@ -1,0 +1,64 @@
+"""The whole `bayesmap slam --log` command's wall time and peak memory on seeded logs, for this checkout's package or
+another commit's.
+
+    PYTHONPATH=src:benchmarks .venv/bin/python benchmarks/slam_command_times.py --logs csail --seeds 0-4 --every 2,1
+    git worktree add /tmp/base 685e56c
+    PYTHONPATH=src:benchmarks .venv/bin/python benchmarks/slam_command_times.py --src /tmp/base/src --seeds 0-4
+
+Each run makes the log with ``noisy_odometry.py --seed N`` (:mod:`seeded_logs`, as ``karto_peer.py`` and
+``stage_times.py``), then runs the command in a fresh process under ``/usr/bin/time`` (final map and figures included,
+as a user runs it; ``--scans ::N`` for ``--every N``) and prints one JSON line: the package's source directory, log,
+seed, every, wall seconds, peak resident memory (MB) and the summary's ``runtime_s``. ``--src`` imports the package
+from another source tree (a ``git worktree`` of an older commit). Run one at a time on an otherwise idle machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from karto_peer import parse_seeds
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--src", default=None, help="the package's source directory (default: this checkout's)")
+    parser.add_argument("--logs", default="csail", help="comma-separated: intel, aces, csail, fr079")
+    parser.add_argument("--seeds", default="0", help="odometry seeds, e.g. 0-4 or 0,10")
+    parser.add_argument("--every", default="1", help="comma-separated scan strides, e.g. 2,1")
+    args = parser.parse_args(argv)
+    here = Path(__file__).resolve().parent
+    src = Path(args.src).resolve() if args.src else here.parent / "src"
+    sys.path.insert(0, str(here))
+    from seeded_logs import write_seeded_log
+
+    command = ("import sys; from bayesmap.__main__ import main; sys.argv = ['bayesmap'] + sys.argv[1:]; "
+               "sys.exit(main())")
+    for name in args.logs.split(","):
+        for seed in parse_seeds(args.seeds):
+            with tempfile.TemporaryDirectory() as tmp:
+                write_seeded_log(name, seed, Path(tmp) / f"{name}-odom")
+                for every in (int(e) for e in args.every.split(",")):
+                    out = Path(tmp) / f"out-{every}"
+                    scans = [] if every == 1 else ["--scans", f"::{every}"]
+                    timing = Path(tmp) / "time.txt"
+                    run = subprocess.run(["/usr/bin/time", "-f", "%e %M", "-o", str(timing), sys.executable, "-c",
+                                          command, "slam", "--log", str(Path(tmp) / f"{name}-odom.log.gz"), *scans,
+                                          "--out", str(out)],
+                                         env={**os.environ, "PYTHONPATH": str(src)}, capture_output=True, text=True)
+                    if run.returncode:
+                        raise SystemExit(f"slam --log failed on {name} seed {seed}: {run.stderr[-500:]}")
+                    wall, peak_kb = timing.read_text().split()[-2:]
+                    summary = json.loads((out / "summary.json").read_text())
+                    print(json.dumps({"src": str(src), "log": name, "seed": seed, "every": every,
+                                      "wall_s": float(wall), "peak_mb": round(int(peak_kb) / 1024),
+                                      "runtime_s": round(summary["runtime_s"], 1)}), flush=True)
+
+
+if __name__ == "__main__":
+    main()
