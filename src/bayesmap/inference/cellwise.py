@@ -258,7 +258,7 @@ def _lanes(table: RayTable, counts: np.ndarray, groups, rank: np.ndarray, pair_l
     size = dict(shapes.groups)
     order = table.pairs_by_cell(rank)
     firsts = np.cumsum([0] + [int(counts[cells].sum()) for _, cells in groups])  # each group's first sorted pair
-    pair_rays = np.repeat(np.arange(table.num_rays, dtype=np.int32), table.lengths)  # (a gather, not a search)
+    pair_rays = table.per_pair(np.arange(table.num_rays, dtype=np.int32))  # (a gather below, not a search)
     parts = []
     for (width, cells), first in zip(groups, firsts):
         rays = np.full((size[width], width), shapes.rays, dtype=np.int32)
