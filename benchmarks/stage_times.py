@@ -6,10 +6,11 @@
 
 Each run makes the log with ``noisy_odometry.py --seed N`` (:mod:`seeded_logs`, as ``karto_peer.py``), runs
 ``bayesmap.runs.slam.log_slam`` on every ``--every``-th scan without the final map (as ``karto_peer.py`` runs it), and
-prints one JSON line: the package's source directory, log, seed, every, wall seconds, ATE (m) and the seconds of each
-stage (``bayesmap.progress.StageRecorder``). ``--src`` imports the package from another source tree (a ``git
-worktree`` of an older commit: the same scans and odometry, its own pipeline); ``--branches N`` sets ``run_log_slam``'s
-``branches`` (a package that has them). Run one at a time on an otherwise idle machine: the stages share the cores.
+prints one JSON line: the package's source directory, log, seed, every, wall seconds, ATE (m), the peak resident
+memory (MB), and the seconds and peak resident memory of each stage (``bayesmap.progress.StageRecorder``). ``--src``
+imports the package from another source tree (a ``git worktree`` of an older commit: the same scans and odometry,
+its own pipeline); ``--option branches=N`` sets ``run_log_slam``'s ``branches`` (a package that has them). Run one
+at a time on an otherwise idle machine: the stages share the cores.
 """
 
 from __future__ import annotations
@@ -78,8 +79,11 @@ def main(argv=None) -> None:
                 print(json.dumps({"src": str(Path(bayesmap.__file__).parent.parent), "log": name, "seed": seed,
                                   "every": every, "options": options, "wall_s": round(wall, 1),
                                   "ate_m": round(float(ate), 3),
+                                  "peak_mb": round(recorder.summary()["peak_rss_mb"]),
                                   "stages": {s["stage"]: round(s["seconds"], 1)
-                                             for s in recorder.summary()["stages"]}}), flush=True)
+                                             for s in recorder.summary()["stages"]},
+                                  "stage_peak_mb": {s["stage"]: round(s["peak_rss_mb"])
+                                                    for s in recorder.summary()["stages"]}}), flush=True)
 
 
 if __name__ == "__main__":

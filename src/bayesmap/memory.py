@@ -79,12 +79,12 @@ _KEEP_COMPILED = contextvars.ContextVar("bayesmap_keep_compiled", default=False)
 
 
 def drop_compiled_programs() -> None:
-    """Drop every program JAX has compiled in this process, and what the programs hold (``jax.clear_caches``),
-    unless called inside :func:`keep_compiled_programs`. Called between the stages of a whole-log run
+    """Drop every program JAX has compiled in this process, and what the programs hold (``jax.clear_caches``), unless
+    called inside :func:`keep_compiled_programs`. Called between the stages of a whole-log run
     (:mod:`bayesmap.slam.pipeline`: after the loop closure and before the final map; :mod:`bayesmap.inference.tiled`:
-    after each tile), whose next stage compiles programs of its own: on 300 scans of Intel the final map's peak was
-    929 MB with it against 1,286 MB without. JAX's caches hold every compiled function of the process, the caller's
-    too: the next call of any of them compiles again. Never raises."""
+    after each tile whose sweep no other tile shares), whose next stage compiles programs of its own: on 300 scans of
+    Intel the final map's peak was 929 MB with it against 1,286 MB without. JAX's caches hold every compiled function of
+    the process, the caller's too: the next call of any of them compiles again. Never raises."""
     if not _KEEP_COMPILED.get():
         import jax  # (not at the top: the command imports this module before numpy and JAX, limit_malloc_arenas)
 

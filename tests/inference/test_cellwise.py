@@ -196,7 +196,7 @@ and model flags share one compilation."""
 
 @pytest.mark.parametrize("model", [{}, {"beam_model": "normal"}, {"coupling": 0.4, "neighbourhood": 4},
                                    {"wall_pass_prob": 0.2}, {"frozen": True}])
-def test_a_padded_sweep_makes_the_same_draws(model):
+def test_a_padded_sweep_makes_the_same_draws(model, monkeypatch):
     """A kernel padded to larger sizes (headroom 0.5, and a width group of 4,096 lanes its table lacks, so cells that
     are all padding) draws every cell as the exact one does: the same maps, conditional probabilities and per-ray
     rows, sweep after sweep with the same keys, for each sensor and prior kind and with frozen cells. Another table
@@ -204,6 +204,9 @@ def test_a_padded_sweep_makes_the_same_draws(model):
     Exact equality: the real lanes, rows and uniforms are the same numbers in the same order."""
     import dataclasses
 
+    import bayesmap.inference.cellwise as cellwise
+
+    monkeypatch.setattr(cellwise, "MAX_PADDED_LANES", float("inf"))  # (padding far past the table's own work)
     model = dict(model)
     frozen = np.random.default_rng(5).random((6, 7)) < 0.3 if model.pop("frozen", False) else None
     beam_model = model.pop("beam_model", "beam")
@@ -275,14 +278,30 @@ def test_fitted_shapes_reserve_the_next_width():
     again), and none is added past the widest width supported or without a headroom."""
     from bayesmap.inference.cellwise import MAX_WIDTH, SweepShapes, fitted_shapes
 
-    needed = SweepShapes(groups=((8, 100), (16, 30)), rest=0, rays=500, pairs=9000)
+    needed = SweepShapes(groups=((8, 1000), (16, 30)), rest=0, rays=500, pairs=9000)
     first = fitted_shapes(needed, None, 0.1)
-    assert first == SweepShapes(groups=((8, 112), (16, 40), (32, 40)), rest=0, rays=552, pairs=9904)
-    wider = SweepShapes(groups=((8, 104), (16, 28), (32, 6)), rest=0, rays=520, pairs=9500)
+    assert first == SweepShapes(groups=((8, 1104), (16, 40), (32, 40)), rest=0, rays=552, pairs=9904)
+    wider = SweepShapes(groups=((8, 1040), (16, 28), (32, 6)), rest=0, rays=520, pairs=9500)
     assert fitted_shapes(wider, first, 0.1) == first  # the same compiled sweep
     assert fitted_shapes(needed, first, 0.1) == first
     grown = fitted_shapes(needed._replace(pairs=9999), first, 0.1)
     assert grown.groups == first.groups and grown.pairs == 11000  # the reserved group already there
-    widest = SweepShapes(groups=((8, 100), (MAX_WIDTH, 3)), rest=0, rays=500, pairs=9000)
-    assert fitted_shapes(widest, None, 0.1).groups == ((8, 112), (MAX_WIDTH, 8))
+    widest = SweepShapes(groups=((8, 1000), (MAX_WIDTH, 3)), rest=0, rays=500, pairs=9000)
+    assert fitted_shapes(widest, None, 0.1).groups == ((8, 1104), (MAX_WIDTH, 8))
     assert fitted_shapes(needed) == needed
+
+
+def test_fitted_shapes_do_not_pad_a_small_table_to_a_large_ones_work():
+    """Sizes from ``at_least`` whose width groups would hold more than ``MAX_PADDED_LANES`` times the lanes (cells
+    times width) of the table's own sizes are not taken (a small tile after a dense one would sweep the dense one's
+    padding): the table is sized for itself, with its headroom; at the limit they are still taken."""
+    from bayesmap.inference.cellwise import MAX_PADDED_LANES, SweepShapes, fitted_shapes
+
+    dense = SweepShapes(groups=((8, 1000), (64, 4000)), rest=16, rays=9000, pairs=300000)
+    small = SweepShapes(groups=((8, 900), (64, 100)), rest=8, rays=400, pairs=9000)
+    assert fitted_shapes(small, dense, 0.1) == fitted_shapes(small, None, 0.1)
+    lanes = 8 * 1000 + 64 * 4000
+    cells = int(np.ceil((lanes / MAX_PADDED_LANES - 8 * 1000) / 64))  # the fewest 64-wide cells within the limit
+    assert fitted_shapes(small._replace(groups=((8, 1000), (64, cells))), dense) == dense
+    assert fitted_shapes(small._replace(groups=((8, 1000), (64, cells - 1))), dense).groups == ((8, 1000),
+                                                                                                (64, cells - 1))

@@ -266,3 +266,32 @@ def test_map_chains_split_over_four_devices_are_the_chains_one_at_a_time(tmp_pat
         np.testing.assert_array_equal(got["walls"][c], np.asarray(one.walls))
         np.testing.assert_array_equal(got["probs"][c], one.wall_probs)
     assert not np.array_equal(got["probs"][0], got["probs"][1])
+
+
+def test_tiles_share_one_compiled_sweep_and_pad_no_draw():
+    """A chain in four tiles pads each tile's sweep to the sizes of the tile before (with a headroom of 0.5): the
+    tiles compile fewer sweeps than there are tiles, and a second chain given the first's ``shapes`` compiles none,
+    while its draws are those of the same chain unpadded (``shapes`` None, no headroom), bit for bit. Without the
+    padding (each tile at its own sizes) every tile of this scene compiles a sweep of its own."""
+    from bayesmap.inference.chains import compiled_chain_count
+
+    rng, grid, origins, angles = _rays(8, num_rays=600)
+    params, y, limits = _model(grid, len(angles), rng, cut_past_reading=0.5)
+    walls = np.zeros(grid.shape, np.float32)
+    budget = int(ray_cells(grid, origins, angles, limits).sum()) // 3  # four tiles
+
+    def chain(key, shapes=None, headroom=0.0):
+        return tiled_map_chain(jax.random.key(key), params, origins, angles, y, walls, 3, max_pairs=budget,
+                               shapes=shapes, headroom=headroom)
+
+    before = compiled_chain_count()
+    first = chain(1, headroom=0.5)
+    compiled = compiled_chain_count() - before
+    assert len(first.tiles) >= 4 and 1 <= compiled < len(first.tiles)
+    before = compiled_chain_count()
+    padded = chain(2, first.shapes, 0.5)
+    assert compiled_chain_count() == before
+    plain = chain(2)
+    np.testing.assert_array_equal(padded.wall_probs, plain.wall_probs)
+    np.testing.assert_array_equal(padded.samples, plain.samples)
+    np.testing.assert_array_equal(np.asarray(padded.walls), np.asarray(plain.walls))

@@ -50,9 +50,22 @@ def cell_frame(grid: Grid, origins: np.ndarray, beam_angles: np.ndarray):
     numbers depend only on its own origin and angle, not on the other rays of the batch (``replace_rays`` relies on
     it; ``test_replace_rays_equals_a_rebuild`` checks it)."""
     dtype = jnp.result_type(float)
-    p_table = np.asarray(grid.to_cell_coords(jnp.asarray(origins, dtype=dtype)))
-    u_table = np.asarray(unit_dir(jnp.asarray(beam_angles, dtype=dtype)))
+    origins, beam_angles = np.asarray(origins), np.asarray(beam_angles)
+    num_rays = len(beam_angles)
+    pad = padded_length(num_rays) - num_rays  # (JAX compiles each operation once per length: a few lengths)
+    origins = np.pad(origins, ((0, pad), (0, 0)))
+    beam_angles = np.pad(beam_angles, (0, pad))
+    p_table = np.asarray(grid.to_cell_coords(jnp.asarray(origins, dtype=dtype)))[:num_rays]
+    u_table = np.asarray(unit_dir(jnp.asarray(beam_angles, dtype=dtype)))[:num_rays]
     return p_table, u_table
+
+
+def padded_length(n: int) -> int:
+    """The length ``n`` rays are padded to before JAX's operations run on them one by one (each operation compiles
+    once per length of its arrays, and JAX keeps every program it compiled until
+    :func:`bayesmap.memory.drop_compiled_programs`): the next power of two, at least 64, so that the tables of a
+    whole log's tiles and chunks, of many lengths, share a few programs."""
+    return 1 << max(6, (int(n) - 1).bit_length())
 
 
 @jax.jit

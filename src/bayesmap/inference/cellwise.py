@@ -108,6 +108,13 @@ SPECULATIVE_CELLS = 16  # the fewest consecutive cells scored at once from the s
 # changes a row (see the module docstring); not a block of a joint update (``block_size`` of the fast samplers)
 SPECULATIVE_LANES = 2048  # narrow groups score SPECULATIVE_LANES // width cells at once, if more
 MAX_WIDTH = 1 << 16
+MAX_PADDED_LANES = 1.5
+"""The most lanes (each width group's cells times its width) a sweep padded to an earlier kernel's sizes may have, as a
+multiple of the lanes of the sizes its own table would get (:func:`fitted_shapes`): padding cells are swept like cells,
+so a small tile padded to a dense one's sizes would do the dense one's work. Beyond it the sweep is sized for its own
+table and compiles anew (about 2 s on two cores). A speed knob, not a model setting (padding changes no draw), and
+not tuned: Freiburg 079's tiles and a SLAM run's map blocks stay well within it
+([validation](../validation/slam.md#tiles-that-share-one-compiled-sweep))."""
 
 
 class CellwiseState(NamedTuple):
@@ -189,7 +196,9 @@ def fitted_shapes(needed: SweepShapes, at_least: SweepShapes | None = None, head
     a headroom, sizes that do not all fit ``at_least`` also get a group of twice the widest width (up to
     :data:`MAX_WIDTH`), of as many padding cells as the widest group's size, where no group is wider than ``needed``'s
     widest: a table at moved poses may have a cell crossed by more rays than any before (on CSAIL's hypotheses, a
-    group of 2,048 lanes the first table lacked), and would compile anew for it.
+    group of 2,048 lanes the first table lacked), and would compile anew for it. Where the sizes from ``at_least``
+    would hold more than :data:`MAX_PADDED_LANES` times the lanes of ``needed``'s own sizes (without ``at_least``),
+    the own sizes are returned.
 
     Raises:
         BayesmapError: on a negative or non-finite ``headroom``.
@@ -205,11 +214,20 @@ def fitted_shapes(needed: SweepShapes, at_least: SweepShapes | None = None, head
 
     had, need = ({} if at_least is None else dict(at_least.groups)), dict(needed.groups)
     groups = tuple((w, fit(need.get(w, 0), had.get(w))) for w in sorted(set(had) | set(need)))
+    if had:
+        own = fitted_shapes(needed, None, headroom)
+        if _lanes_of(groups) > MAX_PADDED_LANES * _lanes_of(own.groups):  # a small table padded to a large one's work
+            return own
     sizes = SweepShapes(groups, *(fit(getattr(needed, f), None if at_least is None else getattr(at_least, f))
                                   for f in ("rest", "rays", "pairs")))
     if headroom and sizes != at_least and need and max(need) == groups[-1][0] and 2 * max(need) <= MAX_WIDTH:
         sizes = sizes._replace(groups=groups + ((2 * max(need), groups[-1][1]),))
     return sizes
+
+
+def _lanes_of(groups) -> int:
+    """The lanes of width groups ``((width, cells), ...)``: each group's cells times its width."""
+    return sum(width * cells for width, cells in groups)
 
 
 def checkerboard_groups(groups, shape: tuple[int, int]):

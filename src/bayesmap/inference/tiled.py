@@ -12,8 +12,12 @@ chain a tile of the grid at a time when the log's pairs exceed a budget (:data:`
    the block's cells run with the rest frozen (``CellwiseGibbs(..., frozen=...)``; with ``focus``, after the first
    :data:`~bayesmap.inference.focus.FOCUS_START` sweeps most of them of the block's cells in doubt only:
    :func:`bayesmap.inference.focus.focused_chain`); the block's last draw is written
-   into the map, the tile's cells' conditional probabilities into the record, and the table and the compiled sweep
-   are dropped before the next tile.
+   into the map, the tile's cells' conditional probabilities into the record, and the table is dropped before the
+   next tile. Where the caller shares compiled sweeps between chains (``shapes`` or a ``headroom``: a SLAM run's
+   map blocks and draws), each tile's sweep is padded to the sizes of the one before where they fit (padding
+   changes no draw), so that the tiles, and the next chain's, run one compiled sweep; otherwise each tile's sweep is
+   sized for its own table, and its compiled program is dropped before the next tile (the padding cost ``infer``'s
+   100 sweeps more than the compilations it saved).
 
 Each of a tile's sweeps draws every cell of the tile (or every cell of it in doubt) from its full conditional given
 every other cell of the map (the tile's table gives it exactly the conditional of the whole table: tested), so each
@@ -54,11 +58,11 @@ from bayesmap.progress import Progress, ProgressCallback, report
 
 TILE_PAIRS = 12_000_000
 """The most (beam, cell) pairs one tile of a map chain holds (:func:`tiled_map_chain`): a map whose beams cross more
-cells is swept a tile at a time. A memory knob, not a model setting (any value samples the same posterior): a tile
-takes about 35 bytes a pair in the sampler plus the tracing of its beams, so about 0.4 GB at this value; each tile
-compiles its own sweep (about 5 s on two cores). Chosen as the larger of two budgets measured on Freiburg 079's SLAM
-run (its map stages peak at 1.7 GB; at 6 million at 1.4-1.5 GB, taking 45 % longer), on the validation page
-(docs/validation/defaults.md#tile_pairs)."""
+cells is swept a tile at a time. A memory knob, not a model setting (any value samples the same posterior): a tile takes
+about 35 bytes a pair in the sampler plus the tracing of its beams, so about 0.4 GB at this value; each tile compiles
+its own sweep (about 2 s on two cores) unless its caller shares them (module docstring). Chosen as the larger of two
+budgets measured on Freiburg 079's SLAM run (its map stages peak at 1.7 GB; at 6 million at 1.4-1.5 GB, taking 45 %
+longer), on the validation page (docs/validation/defaults.md#tile_pairs)."""
 
 TILE_MARGIN = 0.5
 """How far, in meters, the cells sampled with a tile reach beyond it on every side (clipped to the grid): a tile is
@@ -79,9 +83,9 @@ class TiledChain(NamedTuple):
         samples: ``(sweeps, nx, ny)`` bool, each cell's draw in each sweep of its tile (with one tile, the map after
             each sweep; with several, the records of one sweep are not one joint map: module docstring).
         tiles: the tiles, in the order they were sampled (one tile, the whole grid, when the log fit the budget).
-        shapes: with one tile, the sizes its sweep was compiled for
-            (:attr:`bayesmap.inference.cellwise.CellwiseKernel.shapes`: pass them to the next chain of a similar
-            table to reuse the compilation); None with several.
+        shapes: the sizes its sweep was compiled for (the last tile's with several;
+            :attr:`bayesmap.inference.cellwise.CellwiseKernel.shapes`): pass them to the next chain of a similar
+            table to reuse the compilation.
         readings_log_lik: with one tile, the readings' tempered log-likelihood (nats) at ``walls``
             (:meth:`bayesmap.inference.cellwise.CellwiseKernel.readings_log_likelihood`, from the sweep's own
             table); None with several.
@@ -221,11 +225,13 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
         progress: gets ``Progress(stage, done, sweeps, "sweep")`` before the table is built and as the sweeps
             run (with tiles, ``done`` counts the sweeps of every tile divided by the number of tiles).
         stage: the stage the reports name.
-        shapes: when the whole table fits ``max_pairs``, its sweep's arrays are padded at least to these
+        shapes: the sweep's arrays are padded at least to these where they fit
             (:class:`~bayesmap.inference.cellwise.CellwiseGibbs`; the same draws): the ``shapes`` of a previous
-            chain's :class:`TiledChain`, to reuse its compiled sweep. Tiles are not padded. None: no padding.
+            chain's :class:`TiledChain`, to reuse its compiled sweep; with tiles, the first tile's, and each later
+            tile's padded to the sizes of the one before. None: the first tile's (or the whole table's) not padded,
+            and, with no ``headroom`` either, each tile sized for itself (module docstring).
         headroom: the padding of a size ``shapes`` does not give or that does not fit it, a fraction >= 0
-            (:func:`~bayesmap.inference.cellwise.fitted_shapes`).
+            (:func:`~bayesmap.inference.cellwise.fitted_shapes`); > 0 also pads the tiles as ``shapes`` does.
         focus: after the first sweeps, sweep mostly the cells in doubt (:func:`bayesmap.inference.focus.
             focused_chain`, the whole table or each tile); False: every sweep visits every cell.
 
@@ -270,6 +276,7 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
     grow = int(np.ceil(margin / grid.resolution - 1e-9))
     bounds = np.linspace(0, sweeps, passes + 1).round().astype(int)  # pass p records sweeps bounds[p]:bounds[p+1]
     visits = [(p, k) for p in range(passes) for k in range(len(tiles)) if bounds[p + 1] > bounds[p]]
+    shared = shapes is not None or headroom > 0  # the caller's chains share compiled sweeps: so do its tiles
     for visit, (p, k) in enumerate(visits):
         tile, first, count = tiles[k], int(bounds[p]), int(bounds[p + 1] - bounds[p])
         inside = tile.mask(grid.shape)
@@ -277,8 +284,10 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
                      min(tile.j1 + grow, grid.shape[1]))
         sampled = block.mask(grid.shape)
         table, rays = tile_table(grid, origins, angles, params.max_range, limits, current, block, kept)
-        gibbs = CellwiseGibbs(table, readings[rays], params, likelihood_power, frozen=~sampled)
+        gibbs = CellwiseGibbs(table, readings[rays], params, likelihood_power, frozen=~sampled,
+                              shapes=shapes if shared else None, headroom=headroom)
         del table
+        shapes = gibbs.kernel.shapes  # (shared: the next tile's sweep padded to these runs this one's compiled sweep)
         release_freed_memory()
         sub = None if progress is None else _TileProgress(progress, stage, visit, count, len(visits), sweeps)
         chain = _map_chain(keys[p, k], gibbs, current, count, focus, sub, stage)
@@ -287,6 +296,7 @@ def tiled_map_chain(key, params: ModelParams, origins, beam_angles, readings, wa
         probs[first:first + count, inside] = np.asarray(chain.wall_probs)[:, inside]
         samples[first:first + count, inside] = np.asarray(chain.samples)[:, inside]
         del gibbs, chain
-        drop_compiled_programs()  # each tile compiles its sweep for its own shapes: drop the tile before
+        if not shared:
+            drop_compiled_programs()  # the next tile compiles a sweep for its own sizes: drop this one's
         release_freed_memory()
-    return TiledChain(jnp.asarray(current), probs, tiles, samples)
+    return TiledChain(jnp.asarray(current), probs, tiles, samples, shapes)

@@ -127,8 +127,8 @@ def path_evidence(key, problem, params, path, sweeps: int, tile_pairs: int = TIL
     :func:`draw_evidence`. Two paths of the same scans compare by it on any grids that hold their beams.
 
     Returns:
-        ``(bound, shapes)``: the bound and the sizes its sweep was compiled for (to pass to the next path's; None
-        with tiles).
+        ``(bound, shapes)``: the bound and the sizes its sweep was compiled for (to pass to the next path's; with
+        tiles, the last tile's).
 
     Raises:
         BayesmapError: if ``params`` has a coupled prior (the bound is for independent cells) or ``sweeps`` < 2.

@@ -344,10 +344,10 @@ def _map_round(key, problem, params, poses, walls, sweeps: int, power: float | N
                shapes: SweepShapes | None = None, headroom: float = 0.0):
     """One map block: the table at ``poses`` and ``sweeps`` cellwise sweeps from ``walls`` (likelihood power
     ``power``, default the problem's), in tiles of at most ``tile_pairs`` pairs
-    (:func:`bayesmap.inference.tiled.tiled_map_chain`); the whole table's sweep padded to ``shapes`` with
-    ``headroom`` (the same draws; :class:`bayesmap.inference.cellwise.CellwiseGibbs`), so that the blocks of a
-    joint chain share one compilation. Returns the chain's ``(last walls (nx, ny) float32, wall probabilities
-    (sweeps, nx, ny), the sizes its sweep was compiled for (None with tiles))``. ``progress`` gets
+    (:func:`bayesmap.inference.tiled.tiled_map_chain`); the sweep (the whole table's or each tile's) padded to
+    ``shapes`` with ``headroom`` (the same draws; :class:`bayesmap.inference.cellwise.CellwiseGibbs`), so that the
+    blocks of a joint chain share one compilation. Returns the chain's ``(last walls (nx, ny) float32, wall
+    probabilities (sweeps, nx, ny), the sizes its sweep was compiled for (the last tile's))``. ``progress`` gets
     ``Progress(stage, done, sweeps, "sweep")`` from before the table is built and as the sweeps run."""
     theta = poses[:, 2:3] + problem.sensor_angles
     origins = np.repeat(poses[:, :2], problem.sensor_angles.shape[1], axis=0)
