@@ -413,13 +413,15 @@ def test_rays_of_a_range_of_pairs_are_those_of_each_pair(seed, a, b):
 
 
 def test_cell_frame_pads_the_rays_to_a_few_lengths_and_gives_the_same_numbers():
-    """``cell_frame`` runs JAX's operations on the rays padded to ``padded_length`` (the next power of two, at least
-    64): each ray's numbers are those of the operations on the rays alone, bit for bit, and a batch of another length
-    within the same power of two compiles no new program (without the padding, every length of a whole log's tiles
-    and chunks stayed compiled: hundreds of MB on Freiburg 079's map draws)."""
-    from bayesmap.geometry.traversal import cell_frame, padded_length
+    """``cell_frame`` runs JAX's operations on the rays padded to ``power_of_two_length`` (the next power of two, at
+    least 64): each ray's numbers are those of the operations on the rays alone, bit for bit, and a batch of another
+    length within the same power of two compiles no new program (without the padding, every length of a whole log's
+    tiles and chunks stayed compiled: hundreds of MB on Freiburg 079's map draws)."""
+    from bayesmap.geometry.traversal import cell_frame, power_of_two_length
 
-    assert [padded_length(n) for n in (0, 1, 64, 65, 1000, 1024, 1025)] == [64, 64, 64, 128, 1024, 1024, 2048]
+    assert [power_of_two_length(n, 64) for n in (0, 1, 64, 65, 1000, 1024, 1025)] == [64, 64, 64, 128, 1024, 1024,
+                                                                                       2048]
+    assert [power_of_two_length(n, 1024) for n in (1, 1000, 1025)] == [1024, 1024, 2048]
     grid = Grid((40, 30), resolution=0.05, origin=(-1.0, 0.5))
     rng = np.random.default_rng(4)
     origins, angles_ = rng.uniform([-0.9, 0.6], [0.9, 1.9], (700, 2)), rng.uniform(-np.pi, np.pi, 700)

@@ -52,7 +52,7 @@ def cell_frame(grid: Grid, origins: np.ndarray, beam_angles: np.ndarray):
     dtype = jnp.result_type(float)
     origins, beam_angles = np.asarray(origins), np.asarray(beam_angles)
     num_rays = len(beam_angles)
-    pad = padded_length(num_rays) - num_rays  # (JAX compiles each operation once per length: a few lengths)
+    pad = power_of_two_length(num_rays, 64) - num_rays  # (JAX compiles each operation once per length)
     origins = np.pad(origins, ((0, pad), (0, 0)))
     beam_angles = np.pad(beam_angles, (0, pad))
     p_table = np.asarray(grid.to_cell_coords(jnp.asarray(origins, dtype=dtype)))[:num_rays]
@@ -60,12 +60,15 @@ def cell_frame(grid: Grid, origins: np.ndarray, beam_angles: np.ndarray):
     return p_table, u_table
 
 
-def padded_length(n: int) -> int:
-    """The length ``n`` rays are padded to before JAX's operations run on them one by one (each operation compiles
-    once per length of its arrays, and JAX keeps every program it compiled until
-    :func:`bayesmap.memory.drop_compiled_programs`): the next power of two, at least 64, so that the tables of a
-    whole log's tiles and chunks, of many lengths, share a few programs."""
-    return 1 << max(6, (int(n) - 1).bit_length())
+def power_of_two_length(n: int, at_least: int) -> int:
+    """The length ``n`` rays or pairs are padded to before JAX runs on them: the next power of two, at least
+    ``at_least`` (a power of two). Each operation or jitted function compiles once per length of its arrays, and JAX
+    keeps every program it compiled until :func:`bayesmap.memory.drop_compiled_programs`: the tables of a whole
+    log's tiles and chunks, of many lengths, then share a few programs (:func:`cell_frame`, 64;
+    :func:`exact_pair_distances`, 1024). A power of two also keeps every entry in the vectorized body of XLA's CPU
+    loop (:func:`exact_pair_distances`). :func:`bayesmap.model.likelihood.padded_length` pads by at most 25 % instead,
+    for functions whose work the padding adds to."""
+    return max(int(at_least), 1 << (int(n) - 1).bit_length())
 
 
 @jax.jit
@@ -92,7 +95,7 @@ def exact_pair_distances(p, u, cells) -> np.ndarray:
     n = len(p)
     if n == 0:
         return np.zeros(0, dtype=p.dtype)
-    size = max(1024, 1 << (n - 1).bit_length())
+    size = power_of_two_length(n, 1024)
     if size > n:
         fill = np.zeros((size - n, 2), dtype=p.dtype)
         p, u, cells = (np.concatenate([a, fill + a[:1]]) for a in (p, u, cells))
