@@ -27,8 +27,12 @@ at power ``W`` where the scan, not the motion model, sets them (a quick look at 
 covariance times ``P / w_t``, ``w_t`` its scan's own magnitude adjustment at the beams' automatic bandwidth
 (``beam_correlation.py``'s ``scan_adjustments``, at most 1; ``P`` where the beams' gradients are degenerate).
 
+With ``--first-pose``, one more column per covariance above (the reported one, and the one at ``--step-power``
+where given): the coverage in the model's own gauge, the truth placed by its first pose on the path's first pose
+(which the model holds fixed; :func:`first_pose_coverage`) instead of by the best rigid alignment.
+
 Usage: PYTHONPATH=src python benchmarks/step_covariance.py [--logs aces] [--seeds 0] [--scans all,every2]
-    [--step-power W|beams] [--aligned]
+    [--step-power W|beams] [--aligned] [--first-pose]
 """
 
 from __future__ import annotations
@@ -88,7 +92,22 @@ def aligned_covariances(path, edges, draws: int = 4000, seed: int = 0) -> np.nda
     return np.einsum("nsi,nsj->sij", d, d) / draws
 
 
-def run(name: str, seed: int, scans: str, step_power: float | str | None = None, aligned: bool = False) -> str:
+def first_pose_coverage(path, cov, truth, level: float = 0.95) -> float:
+    """The fraction of true positions inside the ``level`` ellipses of ``cov`` ``(S, 3, 3)`` about ``path`` ``(S,
+    3)``, the truth ``(S, 3)`` carried rigidly so that its first pose is the path's: the gauge of a posterior whose
+    first pose is fixed (the SLAM model's), where :func:`ellipse_coverage` aligns the truth by the best rigid motion
+    of every pose. A pose whose difference from the truth is zero (the first) counts as inside."""
+    steps = posegraph.relative(np.repeat(truth[:1], len(truth), axis=0), truth)  # the truth in its first pose's frame
+    c, s = math.cos(path[0, 2]), math.sin(path[0, 2])
+    placed = path[0, :2] + steps[:, :2] @ np.array([[c, s], [-s, c]])
+    diff = placed - path[:, :2]
+    squared = np.einsum("si,sij,sj->s", diff, np.linalg.pinv(cov[:, :2, :2], hermitian=True), diff)
+    inside = (squared <= -2.0 * math.log1p(-level)) | np.all(np.abs(diff) < 1e-9, axis=1)
+    return float(np.mean(inside))
+
+
+def run(name: str, seed: int, scans: str, step_power: float | str | None = None, aligned: bool = False,
+        first_pose: bool = False) -> str:
     """One row of the table (module docstring)."""
     problem, truth = scan_set_problem(name, seed, scans)
     data = pipeline.scan_data(problem)
@@ -116,9 +135,14 @@ def run(name: str, seed: int, scans: str, step_power: float | str | None = None,
         sequential = posegraph.with_step_covariances(edges.take(slice(0, len(path) - 1)),
                                                      front.step_cov * (problem.likelihood_power / power)[:, None, None])
         graph = posegraph.concat_edges(sequential, loop_edges)
-        other = f" {ellipse_coverage(path, posegraph.marginal_covariances(path, graph), truth):.3f} |"
+        powered = posegraph.marginal_covariances(path, graph)
+        other = f" {ellipse_coverage(path, powered, truth):.3f} |"
     if aligned:
         other += f" {ellipse_coverage(path, aligned_covariances(path, edges), truth):.3f} |"
+    if first_pose:
+        other += f" {first_pose_coverage(path, cov, truth):.3f} |"
+        if step_power is not None:
+            other += f" {first_pose_coverage(path, powered, truth):.3f} |"
     return (f"| {name} | {seed} | {scans} | {absolute_trajectory_error(path, truth)['rmse_m']:.3f} | "
             f"{ellipse_coverage(path, cov, truth):.3f} | {ellipse_coverage(path, scaled, truth):.3f} | "
             f"{unit_weight:.3f} | {weighted:.3f} | {_ratio(error, front.step_cov)} | "
@@ -136,6 +160,8 @@ def main(argv: list[str] | None = None) -> int:
                              "each step's at its scan's own (beam_correlation.py's automatic bandwidth)")
     parser.add_argument("--aligned", action="store_true",
                         help="also the coverage of the covariance with the path's rigid motion aligned out")
+    parser.add_argument("--first-pose", action="store_true",
+                        help="also the coverages with the truth placed by its first pose (the model's gauge)")
     args = parser.parse_args(argv)
     if args.step_power is not None and args.step_power != "beams":
         try:
@@ -151,11 +177,13 @@ def main(argv: list[str] | None = None) -> int:
           "step error / sd (x, y, theta) | steps beyond 10 sd in heading | error / sd without them | "
           "step sd median m | p90 m | front end s |"
           + ("" if args.step_power is None else f" coverage, steps at power {args.step_power} |")
-          + (" coverage, rigid motion aligned out |" if args.aligned else ""))
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("" if args.step_power is None else "---|")
-          + ("---|" if args.aligned else ""))
+          + (" coverage, rigid motion aligned out |" if args.aligned else "")
+          + (" coverage, truth placed by its first pose |" if args.first_pose else "")
+          + (" the same, steps at that power |" if args.first_pose and args.step_power is not None else ""))
+    extra = (args.step_power is not None) + args.aligned + args.first_pose * (1 + (args.step_power is not None))
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * extra)
     for name, seed, scans in runs:
-        print(run(name, seed, scans, args.step_power, args.aligned), flush=True)
+        print(run(name, seed, scans, args.step_power, args.aligned, args.first_pose), flush=True)
     return 0
 
 
