@@ -50,6 +50,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from beam_correlation import BANDWIDTHS, scan_adjustments  # noqa: E402
 from karto_peer import parse_seeds  # noqa: E402
 from seeded_logs import scan_set_problem, scan_set_runs  # noqa: E402
+from target_at_truth import in_model_frame  # noqa: E402
 
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage  # noqa: E402
 from bayesmap.model.motion import wrap_angle  # noqa: E402
@@ -94,13 +95,11 @@ def aligned_covariances(path, edges, draws: int = 4000, seed: int = 0) -> np.nda
 
 def first_pose_coverage(path, cov, truth, level: float = 0.95) -> float:
     """The fraction of true positions inside the ``level`` ellipses of ``cov`` ``(S, 3, 3)`` about ``path`` ``(S,
-    3)``, the truth ``(S, 3)`` carried rigidly so that its first pose is the path's: the gauge of a posterior whose
-    first pose is fixed (the SLAM model's), where :func:`ellipse_coverage` aligns the truth by the best rigid motion
-    of every pose. A pose whose difference from the truth is zero (the first) counts as inside."""
-    steps = posegraph.relative(np.repeat(truth[:1], len(truth), axis=0), truth)  # the truth in its first pose's frame
-    c, s = math.cos(path[0, 2]), math.sin(path[0, 2])
-    placed = path[0, :2] + steps[:, :2] @ np.array([[c, s], [-s, c]])
-    diff = placed - path[:, :2]
+    3)``, the truth ``(S, 3)`` carried rigidly so that its first pose is the path's (``target_at_truth.py``'s
+    :func:`in_model_frame`): the gauge of a posterior whose first pose is fixed (the SLAM model's), where
+    :func:`ellipse_coverage` aligns the truth by the best rigid motion of every pose. A pose whose difference from
+    the truth is zero (the first) counts as inside."""
+    diff = in_model_frame(truth, path[0])[:, :2] - path[:, :2]
     squared = np.einsum("si,sij,sj->s", diff, np.linalg.pinv(cov[:, :2, :2], hermitian=True), diff)
     inside = (squared <= -2.0 * math.log1p(-level)) | np.all(np.abs(diff) < 1e-9, axis=1)
     return float(np.mean(inside))

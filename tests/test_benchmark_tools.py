@@ -211,3 +211,24 @@ def test_target_at_truth_carries_the_truth_onto_the_first_pose():
     np.testing.assert_allclose(moved[0], [1.0, -2.0, 0.7], atol=1e-12)
     np.testing.assert_allclose(relative(moved[:-1], moved[1:]), relative(path[:-1], path[1:]), atol=1e-12)
     assert np.all(np.abs(np.diff(moved[:, 2])) < np.pi)
+
+
+def test_first_pose_coverage_places_the_truth_by_its_first_pose_only():
+    """A truth moved rigidly is inside every ellipse; an offset of the later poses, which a fit to every pose would
+    partly absorb, is counted where it lies."""
+    import numpy as np
+    import step_covariance
+
+    from bayesmap.evaluation.trajectory import ellipse_coverage
+
+    rng = np.random.default_rng(0)
+    path = np.cumsum(rng.normal(0, 0.3, (50, 3)), axis=0)
+    cov = np.repeat(np.eye(3)[None] * 1e-4, 50, axis=0)  # 1 cm standard deviations
+    cov[0] = 0.0  # the fixed first pose
+    turn = np.array([[np.cos(0.7), -np.sin(0.7)], [np.sin(0.7), np.cos(0.7)]])
+    truth = np.column_stack([path[:, :2] @ turn.T + [3.0, -2.0], path[:, 2] + 0.7])
+    assert step_covariance.first_pose_coverage(path, cov, truth) == 1.0
+    shifted = truth.copy()
+    shifted[10:, :2] += 0.05  # 5 standard deviations, from the eleventh pose on
+    assert step_covariance.first_pose_coverage(path, cov, shifted) == 10 / 50
+    assert ellipse_coverage(path, cov, shifted) > 0.5  # a fit to every pose absorbs most of the offset
