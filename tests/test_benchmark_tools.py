@@ -1,5 +1,6 @@
 """The benchmarks' own helpers: the trace reader of ``benchmarks/sweep_cost.py --profile``, the selection rules
-of ``benchmarks/map_cv.py``, and the watchdog, slopes and table of ``benchmarks/scale.py``."""
+of ``benchmarks/map_cv.py``, the watchdog, slopes and table of ``benchmarks/scale.py``, and the truth carried onto
+the model's first pose by ``target_at_truth.py`` and ``step_covariance.py``."""
 
 import gzip
 import json
