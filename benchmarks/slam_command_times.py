@@ -8,8 +8,11 @@ another commit's.
 Each run makes the log with ``noisy_odometry.py --seed N`` (:mod:`seeded_logs`, as ``karto_peer.py`` and
 ``stage_times.py``), then runs the command in a fresh process under ``/usr/bin/time`` (final map and figures included,
 as a user runs it; ``--scans ::N`` for ``--every N``) and prints one JSON line: the package's source directory, log,
-seed, every, wall seconds, peak resident memory (MB) and the summary's ``runtime_s``. ``--src`` imports the package
-from another source tree (a ``git worktree`` of an older commit). Run one at a time on an otherwise idle machine.
+seed, every, wall seconds, the whole run's peak resident memory (MB; the summary's ``peak_rss_mb``), the peak
+``/usr/bin/time`` reads at the process's exit (``time_peak_mb``: lower, since the stage recorder resets the
+kernel's high-water mark at each stage, :class:`bayesmap.progress.ProcessPeak`) and the summary's ``runtime_s``.
+``--src`` imports the package from another source tree (a ``git worktree`` of an older commit). Run one at a time on
+an otherwise idle machine.
 """
 
 from __future__ import annotations
@@ -56,7 +59,8 @@ def main(argv=None) -> None:
                     wall, peak_kb = timing.read_text().split()[-2:]
                     summary = json.loads((out / "summary.json").read_text())
                     print(json.dumps({"src": str(src), "log": name, "seed": seed, "every": every,
-                                      "wall_s": float(wall), "peak_mb": round(int(peak_kb) / 1024),
+                                      "wall_s": float(wall), "peak_mb": round(summary["peak_rss_mb"]),
+                                      "time_peak_mb": round(int(peak_kb) / 1024),
                                       "runtime_s": round(summary["runtime_s"], 1)}), flush=True)
 
 
