@@ -10,6 +10,7 @@ the table built from scratch at the new poses (``assert_identical_tables``).
 """
 
 import dataclasses
+import logging
 import math
 
 import jax
@@ -412,7 +413,7 @@ def test_rays_of_a_range_of_pairs_are_those_of_each_pair(seed, a, b):
     np.testing.assert_array_equal(table.pair_exits, table.exits_of_pairs(np.arange(table.num_pairs)))
 
 
-def test_cell_frame_pads_the_rays_to_a_few_lengths_and_gives_the_same_numbers():
+def test_cell_frame_pads_the_rays_to_a_few_lengths_and_gives_the_same_numbers(caplog):
     """``cell_frame`` runs JAX's operations on the rays padded to ``power_of_two_length`` (the next power of two, at
     least 64): each ray's numbers are those of the operations on the rays alone, bit for bit, and a batch of another
     length within the same power of two compiles no new program (without the padding, every length of a whole log's
@@ -429,20 +430,9 @@ def test_cell_frame_pads_the_rays_to_a_few_lengths_and_gives_the_same_numbers():
     dtype = jnp.result_type(float)
     np.testing.assert_array_equal(p, np.asarray(grid.to_cell_coords(jnp.asarray(origins, dtype))))
     np.testing.assert_array_equal(u, np.asarray(unit_dir(jnp.asarray(angles_, dtype))))
-    compiled = []
-    with jax.log_compiles():
-        import logging
-
-        class Seen(logging.Handler):
-            def emit(self, record):
-                compiled.append(record.getMessage())
-
-        seen = Seen(level=logging.WARNING)
-        logging.getLogger("jax").addHandler(seen)
-        try:
-            p_part, u_part = cell_frame(grid, origins[:600], angles_[:600])
-        finally:
-            logging.getLogger("jax").removeHandler(seen)
-    assert not [m for m in compiled if "XLA compilation" in m]
+    with jax.log_compiles(True), caplog.at_level(logging.WARNING):
+        caplog.clear()
+        p_part, u_part = cell_frame(grid, origins[:600], angles_[:600])
+    assert not [r.getMessage() for r in caplog.records if "XLA compilation" in r.getMessage()]
     np.testing.assert_array_equal(p_part, p[:600])
     np.testing.assert_array_equal(u_part, u[:600])
