@@ -73,17 +73,16 @@ def main(argv=None) -> None:
                     run = log_slam(log, Path(tmp) / "x.log", scans=None if every == 1 else f"::{every}", seed=seed,
                                    final_map=False, progress=recorder)
                     wall = time.perf_counter() - start
-                recorder.finish()
+                summary = recorder.summary()
                 result, chosen = (run[1], run[2]) if isinstance(run, tuple) else (run.result, run.chosen)
                 ate = absolute_trajectory_error(result.mean_path, np.asarray(truth)[chosen])["rmse_m"]
                 print(json.dumps({"src": str(Path(bayesmap.__file__).parent.parent), "log": name, "seed": seed,
                                   "every": every, "options": options, "wall_s": round(wall, 1),
                                   "ate_m": round(float(ate), 3),
-                                  "peak_mb": round(recorder.summary()["peak_rss_mb"]),
-                                  "stages": {s["stage"]: round(s["seconds"], 1)
-                                             for s in recorder.summary()["stages"]},
+                                  "peak_mb": round(summary["peak_rss_mb"]),
+                                  "stages": {s["stage"]: round(s["seconds"], 1) for s in summary["stages"]},
                                   "stage_peak_mb": {s["stage"]: round(s["peak_rss_mb"])
-                                                    for s in recorder.summary()["stages"]}}), flush=True)
+                                                    for s in summary["stages"]}}), flush=True)
 
 
 if __name__ == "__main__":
