@@ -8,11 +8,13 @@ another commit's.
 Each run makes the log with ``noisy_odometry.py --seed N`` (:mod:`seeded_logs`, as ``karto_peer.py`` and
 ``stage_times.py``), then runs the command in a fresh process under ``/usr/bin/time`` (final map and figures included,
 as a user runs it; ``--scans ::N`` for ``--every N``) and prints one JSON line: the package's source directory, log,
-seed, every, wall seconds, the whole run's peak resident memory (MB; the summary's ``peak_rss_mb``), the peak
-``/usr/bin/time`` reads at the process's exit (``time_peak_mb``: lower, since the stage recorder resets the
-kernel's high-water mark at each stage, :class:`bayesmap.progress.ProcessPeak`) and the summary's ``runtime_s``.
-``--src`` imports the package from another source tree (a ``git worktree`` of an older commit). Run one at a time on
-an otherwise idle machine.
+seed, every, wall seconds, the path's ATE against the truth (m), the whole run's peak resident memory (MB; the
+summary's ``peak_rss_mb``), the peak ``/usr/bin/time`` reads at the process's exit (``time_peak_mb``: lower, since
+the stage recorder resets the kernel's high-water mark at each stage, :class:`bayesmap.progress.ProcessPeak`; null
+where the machine has no ``/usr/bin/time``, and then the wall seconds are this script's clock around the process),
+the summary's ``runtime_s`` and each stage's seconds (``stages``). ``--src`` imports the package from another source
+tree (a ``git worktree`` of an older commit), put before any ``PYTHONPATH`` already set (on a lent GPU machine,
+``benchmarks/gpu/setup.sh``'s). Run one at a time on an otherwise idle machine.
 """
 
 from __future__ import annotations
@@ -20,11 +22,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
+import numpy as np
 from karto_peer import parse_seeds
 
 
@@ -40,28 +45,42 @@ def main(argv=None) -> None:
     sys.path.insert(0, str(here))
     from seeded_logs import write_seeded_log
 
+    from bayesmap.evaluation.trajectory import absolute_trajectory_error
+    from bayesmap.io.tum import read_tum
+
     command = ("import sys; from bayesmap.__main__ import main; sys.argv = ['bayesmap'] + sys.argv[1:]; "
                "sys.exit(main())")
     for name in args.logs.split(","):
         for seed in parse_seeds(args.seeds):
             with tempfile.TemporaryDirectory() as tmp:
                 write_seeded_log(name, seed, Path(tmp) / f"{name}-odom")
+                truth_stamps, truth = read_tum(Path(tmp) / f"{name}-odom.truth.tum")
                 for every in (int(e) for e in args.every.split(",")):
                     out = Path(tmp) / f"out-{every}"
                     scans = [] if every == 1 else ["--scans", f"::{every}"]
                     timing = Path(tmp) / "time.txt"
-                    run = subprocess.run(["/usr/bin/time", "-f", "%e %M", "-o", str(timing), sys.executable, "-c",
-                                          command, "slam", "--log", str(Path(tmp) / f"{name}-odom.log.gz"), *scans,
-                                          "--out", str(out)],
-                                         env={**os.environ, "PYTHONPATH": str(src)}, capture_output=True, text=True)
+                    timer = ["/usr/bin/time", "-f", "%e %M", "-o", str(timing)] if shutil.which("/usr/bin/time") else []
+                    path = os.pathsep.join(p for p in (str(src), os.environ.get("PYTHONPATH", "")) if p)
+                    start = time.perf_counter()
+                    run = subprocess.run([*timer, sys.executable, "-c", command, "slam", "--log",
+                                          str(Path(tmp) / f"{name}-odom.log.gz"), *scans, "--out", str(out)],
+                                         env={**os.environ, "PYTHONPATH": path}, capture_output=True, text=True)
+                    wall = time.perf_counter() - start
                     if run.returncode:
                         raise SystemExit(f"slam --log failed on {name} seed {seed}: {run.stderr[-500:]}")
-                    wall, peak_kb = timing.read_text().split()[-2:]
+                    time_peak_mb = None
+                    if timer:
+                        wall, peak_kb = timing.read_text().split()[-2:]
+                        time_peak_mb = round(int(peak_kb) / 1024)
                     summary = json.loads((out / "summary.json").read_text())
+                    stamps, poses = read_tum(out / "trajectory.tum")
+                    ate = absolute_trajectory_error(poses, truth[np.searchsorted(truth_stamps, stamps)])["rmse_m"]
                     print(json.dumps({"src": str(src), "log": name, "seed": seed, "every": every,
-                                      "wall_s": float(wall), "peak_mb": round(summary["peak_rss_mb"]),
-                                      "time_peak_mb": round(int(peak_kb) / 1024),
-                                      "runtime_s": round(summary["runtime_s"], 1)}), flush=True)
+                                      "wall_s": round(float(wall), 1), "ate_m": round(float(ate), 3),
+                                      "peak_mb": round(summary["peak_rss_mb"]),
+                                      "time_peak_mb": time_peak_mb, "runtime_s": round(summary["runtime_s"], 1),
+                                      "stages": {st["stage"]: st["seconds"] for st in summary["stages"]}}),
+                          flush=True)
 
 
 if __name__ == "__main__":
