@@ -197,8 +197,9 @@ def fitted_shapes(needed: SweepShapes, at_least: SweepShapes | None = None, head
     :data:`MAX_WIDTH`), of as many padding cells as the widest group's size, where no group is wider than ``needed``'s
     widest: a table at moved poses may have a cell crossed by more rays than any before (on CSAIL's hypotheses, a
     group of 2,048 lanes the first table lacked), and would compile anew for it. Where the sizes from ``at_least``
-    would hold more than :data:`MAX_PADDED_LANES` times the lanes of ``needed``'s own sizes (without ``at_least``),
-    the own sizes are returned.
+    would hold more than :data:`MAX_PADDED_LANES` times the lanes of ``needed``'s own sizes (without ``at_least``;
+    with a headroom, its reserved group of twice the widest width counted in them, so the limit is that much more
+    lenient than the lanes ``needed`` fills), the own sizes are returned.
 
     Raises:
         BayesmapError: on a negative or non-finite ``headroom``.
