@@ -55,6 +55,7 @@ from bayesmap.slam.scanmatch import (
     LOCAL_MAP_DISTANCE,
     MATCH_GRID_HALF_WIDTH,
     MATCH_LEVELS,
+    MATCHER_COMPILER_OPTIONS,
     MIN_HIT_FRACTION,
     MOTION_TAIL_WEIGHT,
     FrontEndSetup,
@@ -260,7 +261,8 @@ def step(key, state: ParticleState, context: ParticleContext) -> tuple[ParticleS
     return state, ParticleInfo(ess=ess, resampled=resampled, evidence=evidence, trusted=trusted)
 
 
-@functools.partial(jax.jit, donate_argnames=("state",), static_argnames=("grid", "half_width", "draw", "field_seed"))
+@functools.partial(jax.jit, donate_argnames=("state",), static_argnames=("grid", "half_width", "draw", "field_seed"),
+                   compiler_options=MATCHER_COMPILER_OPTIONS)
 def _steps(state, lo, hi, key, setup_arrays, grid, levels, lattice, widths, half_width, draw, field_seed):
     """:func:`step` over the scans ``lo <= t < hi`` from ``state`` (whose ``t`` is ``lo``), the key of scan ``t``
     ``fold_in(key, t)``."""

@@ -44,6 +44,7 @@ from bayesmap.io.rosbag import compose_poses, invert_pose
 from bayesmap.model.motion import wrap_angle
 from bayesmap.progress import ProgressCallback, report
 from bayesmap.slam.scanmatch import (
+    MATCHER_COMPILER_OPTIONS,
     Lattices,
     ScanData,
     add_to_fields,
@@ -513,7 +514,7 @@ def _match_one(neighbours, t, local_poses, center, angles, readings, returned, s
     return _search_local_map(fields, logs, center, angles[t], readings[t], returned[t], steps, grid, span)
 
 
-@functools.partial(jax.jit, static_argnames=("grid",))
+@functools.partial(jax.jit, static_argnames=("grid",), compiler_options=MATCHER_COMPILER_OPTIONS)
 def _local_map(neighbours, local_poses, angles, readings, returned, grid: Grid):
     """The fields of the scans ``neighbours`` at ``local_poses``, and the log of each but the fine one."""
     fields = add_to_fields(empty_fields(grid), grid, local_poses, angles[neighbours], readings[neighbours],
@@ -521,7 +522,7 @@ def _local_map(neighbours, local_poses, angles, readings, returned, grid: Grid):
     return fields, (None,) + tuple(log_field(f) for f in fields[1:])
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "span"))
+@functools.partial(jax.jit, static_argnames=("grid", "span"), compiler_options=MATCHER_COMPILER_OPTIONS)
 def _search_local_map(fields, logs, center, angles, readings, returned, steps: Lattices, grid: Grid,
                       span: int | None = None):
     """:func:`bayesmap.slam.scanmatch.search` from ``center`` (``span`` its ``bound_span``) and the match's hit

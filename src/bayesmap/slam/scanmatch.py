@@ -311,6 +311,17 @@ BOUND_CHUNK = 64
 """Squares :func:`bounded_lattice_argmax` scores at once (a speed setting: any value gives the same match)."""
 
 
+MATCHER_COMPILER_OPTIONS = {"xla_cpu_use_thunk_runtime": False} if jax.__version_info__ < (0, 7) else None
+"""XLA options the scan matchers' compiled loops are built with (the front end's, the particle front end's and the
+loop closure's local maps and searches): a speed setting. On a CPU, XLA's runtime of before its thunk runtime, which
+JAX 0.4.32 made the default and which is slower for loops of many small steps (jax-ml/jax#26145); JAX 0.7 removed the
+older one, so from there None, the default. With it the front end of CSAIL (406 scans, the 2-core machine) takes
+5.3 s warm against 10.9 s, the loop closure 2.1 s against 2.6 s; the paths are the same to the bit and the steps'
+covariances within 3e-9 of each other. The chain's pose sweeps run slower on it (2.2 s a round against 5.2-5.8 s)
+and the placing of scans no faster, so they keep the default
+([validation](../validation/scale.md#the-scan-matchers-on-xlas-earlier-cpu-runtime)). A GPU's compilation ignores
+it."""
+
 def bound_span(step: float, resolution: float, block: int = BOUND_BLOCK) -> int:
     """The side, in cells, of the box every endpoint of a ``block x block`` square of translations ``step`` meters
     apart can land in on cells of ``resolution`` meters, one cell of margin each side
@@ -944,7 +955,8 @@ def resumed_window(path, step_cov, t, d, frame, grid: Grid, half_width: float):
     return path, fields, stamps, offset, jnp.concatenate([jnp.zeros((1, 3, 3), step_cov.dtype), step_cov])
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "half_width", "field_seed"), donate_argnames=("carry",))
+@functools.partial(jax.jit, static_argnames=("grid", "half_width", "field_seed"), donate_argnames=("carry",),
+                   compiler_options=MATCHER_COMPILER_OPTIONS)
 def _correlative_steps(carry, lo, hi, d, frame, span, prior_weight, min_hit, steps: Lattices, grid: Grid,
                        half_width: float, power, posterior, tail, forced, field_seed: bool = FIELD_SEED):
     """The jitted loop of :func:`correlative_path` over the scans ``lo <= t < hi`` from ``carry`` (module level, so
