@@ -44,8 +44,8 @@ BRANCHES = 3
 """The most branch points weighed per run. Each costs a front end from its scan until it rejoins the single track
 (:func:`rejoin_scan`: about 10 m of travel where it does), a loop closure and a 4-sweep map chain: the whole
 stage 9-24 s on CSAIL's 203-406 keyframes and 45-86 s on Freiburg 079's 1,389 (one to three branch points, two
-cores), nothing where a log has none. With them the whole `slam --log` takes 1.28-1.49 times 685e56c's on CSAIL's
-seeds 0-4 at both scan rates (seed 1 every scan 1.36-1.40), and 1.07-1.32 times on Freiburg 079's seeds 0, 2 and 3
+cores), nothing where a log has none. With them the whole `slam --log` takes 1.21-1.48 times 685e56c's on CSAIL's
+seeds 0-4 at both scan rates, and 1.07-1.32 times on Freiburg 079's seeds 0, 2 and 3
 (seed 3 1.14) ([validation](../validation/slam.md#time-against-the-pipeline-at-685e56c)). A compute budget, not a model
 setting: any value searches the same target, more of its branches. Where CSAIL every other scan had three branch
 points, the one chosen was the third farthest on seed 0 and the second on seeds 3, 4 and 10."""
