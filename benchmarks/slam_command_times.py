@@ -29,7 +29,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 from karto_peer import parse_seeds
 
 
@@ -46,10 +45,12 @@ def main(argv=None) -> None:
     from seeded_logs import write_seeded_log
 
     from bayesmap.evaluation.trajectory import absolute_trajectory_error
-    from bayesmap.io.tum import read_tum
+    from bayesmap.io.tum import match_stamps, read_tum
 
     command = ("import sys; from bayesmap.__main__ import main; sys.argv = ['bayesmap'] + sys.argv[1:]; "
                "sys.exit(main())")
+    timed = shutil.which("/usr/bin/time") is not None
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(src), os.environ.get("PYTHONPATH", "")) if p)}
     for name in args.logs.split(","):
         for seed in parse_seeds(args.seeds):
             with tempfile.TemporaryDirectory() as tmp:
@@ -59,22 +60,21 @@ def main(argv=None) -> None:
                     out = Path(tmp) / f"out-{every}"
                     scans = [] if every == 1 else ["--scans", f"::{every}"]
                     timing = Path(tmp) / "time.txt"
-                    timer = ["/usr/bin/time", "-f", "%e %M", "-o", str(timing)] if shutil.which("/usr/bin/time") else []
-                    path = os.pathsep.join(p for p in (str(src), os.environ.get("PYTHONPATH", "")) if p)
+                    timer = ["/usr/bin/time", "-f", "%e %M", "-o", str(timing)] if timed else []
                     start = time.perf_counter()
                     run = subprocess.run([*timer, sys.executable, "-c", command, "slam", "--log",
                                           str(Path(tmp) / f"{name}-odom.log.gz"), *scans, "--out", str(out)],
-                                         env={**os.environ, "PYTHONPATH": path}, capture_output=True, text=True)
+                                         env=env, capture_output=True, text=True)
                     wall = time.perf_counter() - start
                     if run.returncode:
                         raise SystemExit(f"slam --log failed on {name} seed {seed}: {run.stderr[-500:]}")
                     time_peak_mb = None
-                    if timer:
+                    if timed:
                         wall, peak_kb = timing.read_text().split()[-2:]
                         time_peak_mb = round(int(peak_kb) / 1024)
                     summary = json.loads((out / "summary.json").read_text())
                     stamps, poses = read_tum(out / "trajectory.tum")
-                    ate = absolute_trajectory_error(poses, truth[np.searchsorted(truth_stamps, stamps)])["rmse_m"]
+                    ate = absolute_trajectory_error(poses, truth[match_stamps(stamps, truth_stamps)])["rmse_m"]
                     print(json.dumps({"src": str(src), "log": name, "seed": seed, "every": every,
                                       "wall_s": round(float(wall), 1), "ate_m": round(float(ate), 3),
                                       "peak_mb": round(summary["peak_rss_mb"]),
