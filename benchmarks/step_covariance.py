@@ -27,12 +27,17 @@ at power ``W`` where the scan, not the motion model, sets them (a quick look at 
 covariance times ``P / w_t``, ``w_t`` its scan's own magnitude adjustment at the beams' automatic bandwidth
 (``beam_correlation.py``'s ``scan_adjustments``, at most 1; ``P`` where the beams' gradients are degenerate).
 
+With ``--local-maps``, two more columns: the coverage with each step's scan information tied to the scans of its
+local map (:class:`bayesmap.slam.posegraph.LocalMaps`, :func:`bayesmap.slam.scanmatch.local_map_shares`; what
+``slam --log`` reports) and the median position standard deviation (m) of that graph's covariance against the
+plain graph's.
+
 With ``--first-pose``, one more column per covariance above (the reported one, and the one at ``--step-power``
 where given): the coverage in the model's own gauge, the truth placed by its first pose on the path's first pose
 (which the model holds fixed; :func:`first_pose_coverage`) instead of by the best rigid alignment.
 
 Usage: PYTHONPATH=src python benchmarks/step_covariance.py [--logs aces] [--seeds 0] [--scans all,every2]
-    [--step-power W|beams] [--aligned] [--first-pose]
+    [--step-power W|beams] [--aligned] [--first-pose] [--local-maps]
 """
 
 from __future__ import annotations
@@ -55,6 +60,7 @@ from target_at_truth import in_model_frame  # noqa: E402
 from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage  # noqa: E402
 from bayesmap.model.motion import wrap_angle  # noqa: E402
 from bayesmap.slam import pipeline, posegraph  # noqa: E402
+from bayesmap.slam.scanmatch import local_map_shares  # noqa: E402
 
 RETIRED_SCALE = 0.36
 """The factor on the graph's fixed edge deviations that bayesmap reported before the step posteriors."""
@@ -106,7 +112,7 @@ def first_pose_coverage(path, cov, truth, level: float = 0.95) -> float:
 
 
 def run(name: str, seed: int, scans: str, step_power: float | str | None = None, aligned: bool = False,
-        first_pose: bool = False) -> str:
+        first_pose: bool = False, local_maps: bool = False) -> str:
     """One row of the table (module docstring)."""
     problem, truth = scan_set_problem(name, seed, scans)
     data = pipeline.scan_data(problem)
@@ -138,6 +144,11 @@ def run(name: str, seed: int, scans: str, step_power: float | str | None = None,
         other = f" {ellipse_coverage(path, powered, truth):.3f} |"
     if aligned:
         other += f" {ellipse_coverage(path, aligned_covariances(path, edges), truth):.3f} |"
+    if local_maps:
+        tied = posegraph.marginal_covariances(path, edges, posegraph.LocalMaps(local_map_shares(front.path, data),
+                                                                               np.asarray(data.covs, np.float64)))
+        median_sd = [np.median(np.sqrt(c[:, 0, 0] + c[:, 1, 1])) for c in (tied, cov)]
+        other += f" {ellipse_coverage(path, tied, truth):.3f} | {median_sd[0]:.3f} / {median_sd[1]:.3f} |"
     if first_pose:
         other += f" {first_pose_coverage(path, cov, truth):.3f} |"
         if step_power is not None:
@@ -159,6 +170,8 @@ def main(argv: list[str] | None = None) -> int:
                              "each step's at its scan's own (beam_correlation.py's automatic bandwidth)")
     parser.add_argument("--aligned", action="store_true",
                         help="also the coverage of the covariance with the path's rigid motion aligned out")
+    parser.add_argument("--local-maps", action="store_true",
+                        help="also the coverage with each step tied to its local map's scans (slam --log's)")
     parser.add_argument("--first-pose", action="store_true",
                         help="also the coverages with the truth placed by its first pose (the model's gauge)")
     args = parser.parse_args(argv)
@@ -177,12 +190,15 @@ def main(argv: list[str] | None = None) -> int:
           "step sd median m | p90 m | front end s |"
           + ("" if args.step_power is None else f" coverage, steps at power {args.step_power} |")
           + (" coverage, rigid motion aligned out |" if args.aligned else "")
+          + (" coverage, steps tied to their local maps | position sd median m, tied / plain |"
+             if args.local_maps else "")
           + (" coverage, truth placed by its first pose |" if args.first_pose else "")
           + (" the same, steps at that power |" if args.first_pose and args.step_power is not None else ""))
-    extra = (args.step_power is not None) + args.aligned + args.first_pose * (1 + (args.step_power is not None))
+    extra = ((args.step_power is not None) + args.aligned + 2 * args.local_maps
+             + args.first_pose * (1 + (args.step_power is not None)))
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * extra)
     for name, seed, scans in runs:
-        print(run(name, seed, scans, args.step_power, args.aligned, args.first_pose), flush=True)
+        print(run(name, seed, scans, args.step_power, args.aligned, args.first_pose, args.local_maps), flush=True)
     return 0
 
 

@@ -25,8 +25,16 @@ from bayesmap.slam.pipeline import (
     front_end,
     scan_data,
 )
-from bayesmap.slam.posegraph import Edges, LoopHypotheses
+from bayesmap.slam.posegraph import (
+    Edges,
+    LocalMaps,
+    LoopHypotheses,
+    marginal_covariances,
+    sequential_edges,
+    with_covariances,
+)
 from bayesmap.slam.problem import log_slam_problem
+from bayesmap.slam.scanmatch import local_map_shares
 from helpers import SHARED_DATA, run_cli, run_main
 
 pytestmark = pytest.mark.compute_bound  # (pyproject.toml, Makefile: run at XLA's default optimization)
@@ -114,12 +122,6 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert final_map_power(slam_problem, data, slam_problem.odometry, wide) == pytest.approx(known.likelihood_power)
     assert abs(at_mean - known.likelihood_power) > 0.2 * known.likelihood_power
     assert summary["pose_samples"] == len(samples) and 0 <= summary["acceptance_rate"] <= 1
-    # the pose graph's spread is in the covariances, with no factor: 25 scans close no loop (LOOP_GAP), so the graph
-    # is a chain of sequential edges over the keyframes, each with its front-end step's posterior covariance
-    # Sigma_t, and keyframe k's (x, y) block is the sum over steps 1..k of [R, l] Sigma_t [R, l]^T (R a rotation, l
-    # the lever arm to keyframe k), whose trace is at least that of the (x, y) block given the heading, the Schur
-    # complement Sigma_xy - Sigma_xt Sigma_tx / Sigma_tt (its minimum over l); a scan between keyframes has its
-    # keyframe's and more
     assert "graph_cov_scale" not in settings and summary["loop_edges"] == 0
     assert summary["loop_hypotheses"] is None  # no loop edge, nothing to weigh
     assert settings["front_end_particles"] == 1 and summary["front_end_hypotheses"] == 1  # the single track
@@ -129,11 +131,25 @@ def test_slam_log_writes_every_output(log_run, aces_odom):
     assert summary["path_hypotheses"]["above_1_percent"] == 1
     assert settings["motion"] == pytest.approx({"a1": 0.1, "a2": 0.05, "a3": 0.1, "a4": 0.05, "floor_xy": 0.01,
                                                 "floor_theta": 0.005})
-    steps = front_end(chain, scan_data(chain)).step_cov
+    # the pose graph's spread is in the covariances, with no factor: 25 scans close no loop (LOOP_GAP), so the graph
+    # is the sequential edges over the keyframes, each with its front-end step's posterior covariance, the scan's part
+    # tied to the scans of its local map (LocalMaps); linearized at the mean path, it is a keyframe's covariance less
+    # the chain's own (positive semidefinite) spread, and a scan between keyframes has its keyframe's and more. Tied
+    # to the local maps, the last keyframe's position variance is a sixth of the plain chain's, which adds every
+    # step's (the chain's own spread, about a centimeter, is far below the difference).
+    front = front_end(chain, scan_data(chain))
+    steps = front.step_cov
+    sequential = with_covariances(sequential_edges(front.path), steps)
+    tied = marginal_covariances(poses[keyframes], sequential,
+                                LocalMaps(local_map_shares(front.path, scan_data(chain)), scan_data(chain).covs))
+    plain = marginal_covariances(poses[keyframes], sequential)
+    k = owners(25, keyframes)
+    excess = cov - tied[k]
+    assert np.all(np.linalg.eigvalsh(excess[:, :2, :2]) >= -1e-6 * np.trace(tied[k, :2, :2], axis1=1, axis2=2)[:, None])
+    assert np.trace(tied[-1, :2, :2]) < np.trace(plain[-1, :2, :2]) / 2  # 0.0072 against 0.044 m^2
+    assert np.trace(cov[keyframes[-1], :2, :2]) < np.trace(plain[-1, :2, :2]) / 2  # the run's graph is the tied one
     given_heading = steps[:, :2, :2] - np.einsum("si,sj->sij", steps[:, :2, 2], steps[:, :2, 2]) / steps[:, 2:, 2:]
     accumulated = np.concatenate([[0.0], np.cumsum(np.trace(given_heading, axis1=1, axis2=2))])
-    k = owners(25, keyframes)
-    assert np.all(cov[:, 0, 0] + cov[:, 1, 1] >= accumulated[k] * (1 - 1e-6))
     assert accumulated[-1] > 20 * 2 * 0.012**2 / 12  # the steps are wider than the lattice's floor
     posterior = np.load(log_run / "posterior.npy")
     assert list(posterior.shape) == summary["grid"]["shape"] and summary["grid"]["resolution"] == 0.2

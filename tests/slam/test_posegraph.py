@@ -1,10 +1,12 @@
 """The pose graph's Laplace uncertainty: marginal covariances against a dense inverse of a numerically
 differentiated information matrix and against the closed form of a chain of edges; perturb-and-solve draws against
 those covariances within Monte Carlo error; the log pipeline's combination of the chain's and the graph's spread;
-and the scans of a loop candidate's local map against the travel they may span."""
+and the scans of a loop candidate's local map against the travel they may span; the sequential edges tied to the
+front end's local maps against a numerically differentiated information matrix and the plain edges."""
 
 import numpy as np
 import pytest
+import scipy.sparse
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -13,6 +15,7 @@ from bayesmap.slam.joint import pose_summary
 from bayesmap.slam.pipeline import graph_uncertainty, hypothesis_counts
 from bayesmap.slam.posegraph import (
     Edges,
+    LocalMaps,
     LoopHypotheses,
     concat_edges,
     edge_jacobians,
@@ -95,6 +98,122 @@ def test_a_straight_chain_adds_the_edges_variances():
     # y: each edge's own sy^2, plus edge m's heading error swinging the n - m metres after it
     expected_y = k * sy**2 + np.array([sum((n - m) ** 2 for m in range(1, n + 1)) for n in k]) * st**2
     np.testing.assert_allclose(cov[:, 1, 1], expected_y, rtol=1e-9)
+
+
+def _compose(a, b):
+    """Pose ``b`` ``(..., 3)`` (in ``a``'s frame) carried into the world by pose ``a`` ``(..., 3)``."""
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1], a[..., 1] + s * b[..., 0] + c * b[..., 1],
+                     a[..., 2] + b[..., 2]], axis=-1)
+
+
+def _local_maps(count, rng):
+    """Shares of each step's local map: step 1 on scan 0, step 2 on scans 0-1, later steps on the three scans before
+    them, random weights summing to 1."""
+    rows, cols, vals = [], [], []
+    for t in range(1, count):
+        members = np.arange(max(0, t - 3), t)
+        rows += [t - 1] * len(members)
+        cols += list(members)
+        vals += list(rng.dirichlet(np.ones(len(members))))
+    return scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(count - 1, count))
+
+
+def test_local_maps_are_the_inverse_of_the_numerical_information():
+    """LocalMaps: each step's information split between its motion model (on the step from pose ``t - 1``) and its
+    scan (on pose ``t`` against its local map's scans: where scan ``t`` lies if it keeps its place relative to scan
+    ``s``, averaged by the shares). The motion covariances are chosen so that the split is known: twice the step's
+    (half the information each), zero (a step the odometry fixes: all of it the scan's) and half the step's (the
+    motion model's information capped at the step's: none of it the scan's). The marginal covariances are those of a
+    dense inverse of the numerically differentiated residuals' information, as for the plain graph."""
+    path, edges = _graph(seed=4, count=10)
+    count = len(path)
+    step_cov = _covariances(np.random.default_rng(6), count - 1)
+    edges = with_step_covariances(edges, step_cov)
+    shares = _local_maps(count, np.random.default_rng(7))
+    motion_cov = 2 * step_cov
+    motion_cov[3] = 0.0
+    motion_cov[5] = step_cov[5] / 2
+    motion_part = np.full(count - 1, 0.5)
+    motion_part[3], motion_part[5] = 0.0, 1.0
+    whitening = whitening_matrices(edges)[: count - 1]
+    loops = edges.take(slice(count - 1, None))
+    dense_shares = shares.toarray()
+
+    def residuals(x):
+        x = np.concatenate([path[:1], x.reshape(count - 1, 3)])
+        out = [edge_residuals(x, loops).reshape(-1)]
+        for t in range(1, count):
+            motion = relative(x[t - 1], x[t]) - edges.z[t - 1]
+            s = np.flatnonzero(dense_shares[t - 1])
+            kept = _compose(x[s], relative(path[s], path[t]))  # scan t carried by each local-map scan
+            seen = (dense_shares[t - 1, s, None] * kept).sum(axis=0)
+            c, sn = np.cos(path[t - 1, 2]), np.sin(path[t - 1, 2])  # the step covariance's frame, held
+            d = x[t] - seen
+            scan = np.array([c * d[0] + sn * d[1], -sn * d[0] + c * d[1], d[2]])
+            out += [np.sqrt(motion_part[t - 1]) * whitening[t - 1] @ motion,
+                    np.sqrt(1 - motion_part[t - 1]) * whitening[t - 1] @ scan]
+        return np.concatenate(out)
+
+    x0, h = path[1:].reshape(-1), 1e-6
+    jac = np.column_stack([(residuals(x0 + h * e) - residuals(x0 - h * e)) / (2 * h) for e in np.eye(len(x0))])
+    dense = np.linalg.inv(jac.T @ jac)
+    cov = marginal_covariances(path, edges, LocalMaps(shares, motion_cov))
+    for k in range(1, count):
+        np.testing.assert_allclose(cov[k], dense[3 * k - 3:3 * k, 3 * k - 3:3 * k], rtol=1e-6, atol=1e-12)
+    assert not np.allclose(cov, marginal_covariances(path, edges), rtol=1e-2)
+
+
+def test_local_maps_of_the_previous_scan_alone_are_the_plain_graph():
+    """Every share on scan ``t - 1``: the motion model's part and the scan's sum to the step's information on the
+    same edge, so the covariances and the draws' spread are the plain graph's, whatever the motion covariances."""
+    path, edges = _graph(seed=5, count=12)
+    count = len(path)
+    rng = np.random.default_rng(8)
+    edges = with_step_covariances(edges, _covariances(rng, count - 1))
+    previous = scipy.sparse.csr_matrix((np.ones(count - 1), (np.arange(count - 1), np.arange(count - 1))),
+                                       shape=(count - 1, count))
+    local_maps = LocalMaps(previous, _covariances(rng, count - 1) * rng.uniform(0.3, 3.0, (count - 1, 1, 1)))
+    np.testing.assert_allclose(marginal_covariances(path, edges, local_maps), marginal_covariances(path, edges),
+                               rtol=1e-9, atol=1e-15)
+    draws = sample_deviations(3, path, edges, 4000, local_maps)
+    var = marginal_covariances(path, edges)[1:, [0, 1, 2], [0, 1, 2]]
+    np.testing.assert_allclose((draws[:, 1:] ** 2).mean(axis=0) / var, 1.0, atol=5 * np.sqrt(2 / 4000))
+
+
+def test_a_corridor_matched_against_three_scans_drifts_less():
+    """Thirty poses a meter apart along x, each step's information all the scan's (the odometry fixes nothing):
+    matched against scan ``t - 1`` alone the x variance grows by a step's each pose (a random walk); against the
+    mean of the three scans before, the last pose's is at most a third of that (a random walk whose steps average
+    a lag of 2 grows at a quarter of the rate, plus what the first poses add)."""
+    count, sd = 30, np.array([0.03, 0.03, 0.01])
+    path = np.column_stack([np.arange(count, dtype=float), np.zeros(count), np.zeros(count)])
+    i, j = np.arange(count - 1), np.arange(1, count)
+    edges = with_step_covariances(Edges(i, j, relative(path[i], path[j]), np.tile(sd, (count - 1, 1))),
+                                  np.tile(np.diag(sd**2), (count - 1, 1, 1)))
+    rows = [t - 1 for t in range(1, count) for _ in range(min(t, 3))]
+    cols = [s for t in range(1, count) for s in range(max(0, t - 3), t)]
+    vals = [1.0 / min(t, 3) for t in range(1, count) for _ in range(min(t, 3))]
+    shares = scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(count - 1, count))
+    plain = marginal_covariances(path, edges)
+    three = marginal_covariances(path, edges, LocalMaps(shares, np.zeros((count - 1, 3, 3))))
+    np.testing.assert_allclose(plain[-1, 0, 0], (count - 1) * sd[0] ** 2, rtol=1e-9)
+    assert three[-1, 0, 0] <= plain[-1, 0, 0] / 3
+    assert np.all(np.diff(three[:, 0, 0]) > 0)  # still growing along the corridor
+
+
+def test_local_maps_that_do_not_fit_the_graph_are_named():
+    path, edges = _graph(seed=5)
+    count = len(path)
+    shares = _local_maps(count, np.random.default_rng(0))
+    with pytest.raises(BayesmapError, match="must be"):
+        marginal_covariances(path, edges, LocalMaps(shares[:-1], np.zeros((count - 1, 3, 3))))
+    later = scipy.sparse.csr_matrix(([1.0], ([2], [5])), shape=(count - 1, count))
+    with pytest.raises(BayesmapError, match="only the scans before it"):
+        marginal_covariances(path, edges, LocalMaps(later, np.zeros((count - 1, 3, 3))))
+    swapped = edges._replace(i=edges.j, j=edges.i)
+    with pytest.raises(BayesmapError, match="sequential edges"):
+        marginal_covariances(path, swapped, LocalMaps(shares, np.zeros((count - 1, 3, 3))))
 
 
 def test_perturb_and_solve_draws_have_the_marginal_covariances():

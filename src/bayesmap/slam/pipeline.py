@@ -44,7 +44,9 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
    marginal_covariances`), linearized at the chain's mean path, with each sequential edge's covariance the
    posterior covariance of the front end's step (:func:`bayesmap.slam.scanmatch.step_posterior`: the target's
    tempered scan likelihood against the local map, times the motion model, integrated over a lattice around the
-   match; Olson 2009) and the loop edges' :data:`bayesmap.slam.posegraph.LOOP_STD`. No factor is fitted on truth.
+   match; Olson 2009), its scan's part tied to the scans of the local map it was matched against
+   (:class:`bayesmap.slam.posegraph.LocalMaps`, :func:`bayesmap.slam.scanmatch.local_map_shares`), and the loop
+   edges' :data:`bayesmap.slam.posegraph.LOOP_STD`. No factor is fitted on truth.
    The reported covariance of a pose is the chain's plus the graph's; each pose sample is a chain sample plus a
    draw of the graph's correlated deviation of the whole path (:func:`bayesmap.slam.posegraph.sample_deviations`),
    in antithetic pairs so that the samples' mean is the chain's mean path (docs/slam.md). Where the loop closure's
@@ -101,6 +103,7 @@ from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
 from bayesmap.slam.keyframes import keyframe_problem, owners, place_scans, placed_uncertainty
 from bayesmap.slam.particles import particle_path
 from bayesmap.slam.posegraph import (
+    LocalMaps,
     LoopClosure,
     LoopMatches,
     close_loops,
@@ -119,6 +122,7 @@ from bayesmap.slam.scanmatch import (
     MatchedPath,
     ScanData,
     correlative_path,
+    local_map_shares,
     path_length,
 )
 
@@ -379,14 +383,14 @@ def hypothesis_counts(num: int, weights) -> np.ndarray:
     return counts
 
 
-def _antithetic(seed: int, path, edges, num: int) -> np.ndarray:
+def _antithetic(seed: int, path, edges, num: int, local_maps: LocalMaps | None = None) -> np.ndarray:
     """``num`` graph deviations of ``path`` (:func:`bayesmap.slam.posegraph.sample_deviations`) in antithetic pairs
     (``ceil(num / 2)`` draws and their negatives); zeros for a single one."""
-    half = sample_deviations(seed, path, edges, (num + 1) // 2)
+    half = sample_deviations(seed, path, edges, (num + 1) // 2, local_maps)
     return np.concatenate([half, -half])[:num] if num > 1 else np.zeros((num, *np.shape(path)))
 
 
-def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None):
+def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None, local_maps: LocalMaps | None = None):
     """Stage 5 of the module docstring: the chain's pose samples with the pose graph's uncertainty (the graph's
     Laplace approximation, Lu & Milios 1997; antithetic pairs, Hammersley & Morton 1956; docs/slam.md), and with
     the loop closure's other hypotheses where they weigh enough to get samples.
@@ -403,6 +407,9 @@ def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None):
             sequential edges and its loop edges, optimized from the chain's mean path, and its samples are that
             path plus a chain sample's deviation from the chain's mean plus that graph's deviation: a mixture of
             the hypotheses' Laplace approximations, each with the chain's local spread.
+        local_maps: None, or what the front end matched each step against
+            (:class:`bayesmap.slam.posegraph.LocalMaps`): every hypothesis's graph then ties each step's scan
+            information to its local map's scans (:func:`bayesmap.slam.posegraph.marginal_covariances`).
 
     Returns:
         ``(mean (S, 3), cov (S, 3, 3), samples (N, S, 3), graph_cov (S, 3, 3))`` float64. With one hypothesis
@@ -419,11 +426,11 @@ def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None):
     """
     chain_samples = np.asarray(chain_samples, np.float64)
     mean, chain_cov = pose_summary(chain_samples)
-    graph_cov = marginal_covariances(mean, edges)
+    graph_cov = marginal_covariances(mean, edges, local_maps)
     n = len(chain_samples)
     counts = np.array([n]) if hypotheses is None else hypothesis_counts(n, hypotheses.weights)
     if counts[0] == n:
-        return mean, chain_cov + graph_cov, chain_samples + _antithetic(seed, mean, edges, n), graph_cov
+        return mean, chain_cov + graph_cov, chain_samples + _antithetic(seed, mean, edges, n, local_maps), graph_cov
     sequential = edges.take(slice(0, len(mean) - 1))
     parts, starts = [], np.concatenate([[0], np.cumsum(counts)])
     for h in np.flatnonzero(counts):
@@ -432,10 +439,10 @@ def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None):
         else:
             graph = concat_edges(sequential, hypotheses.loops.take(hypotheses.sets[h]))
             path = optimize_pose_graph(mean, graph)
-            cov_h = marginal_covariances(path, graph)
+            cov_h = marginal_covariances(path, graph, local_maps)
         local = chain_samples[starts[h]: starts[h + 1]] - mean
         local[:, :, 2] = wrap_angle(local[:, :, 2])
-        samples = path + local + _antithetic(seed + int(h), path, graph, int(counts[h]))
+        samples = path + local + _antithetic(seed + int(h), path, graph, int(counts[h]), local_maps)
         parts.append((counts[h] / n, path, chain_cov + cov_h, samples))
     offsets = [np.concatenate([p[:, :2] - mean[:, :2], wrap_angle(p[:, 2:] - mean[:, 2:])], axis=1)
                for _, p, _, _ in parts]
@@ -647,7 +654,8 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
     if chain_grid != grid:  # the cells the start path's beams reach; the others only the other hypotheses' do
         cells = chain_grid.window(grid)
         walls, probs = walls[cells], probs[:, cells[0], cells[1]]
-    mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, hypotheses)
+    local_maps = LocalMaps(local_map_shares(front.path, scans), np.asarray(scans.covs, np.float64))
+    mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, hypotheses, local_maps)
     chain_posterior = probs.astype(np.float64).mean(axis=0)
     posterior, final_power, final_noise = chain_posterior, None, None
     if final:

@@ -53,6 +53,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
+import scipy.sparse
+import scipy.spatial
 
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
@@ -872,6 +874,63 @@ def path_length(increments) -> np.ndarray:
     first scan): what the front end's local map is measured in (:data:`LOCAL_MAP_DISTANCE`)."""
     increments = np.asarray(increments, np.float64)
     return np.concatenate([[0.0], np.cumsum(np.hypot(increments[:, 0], increments[:, 1]))])
+
+
+def local_map_shares(path, data: ScanData, window: float | None = LOCAL_MAP_DISTANCE,
+                     radius: float = FIELDS[0][1]) -> scipy.sparse.csr_matrix:
+    """Which scans each front-end step was matched against: row ``t - 1`` holds, for each scan ``s`` of step ``t``'s
+    local map (the scans ``s < t`` within ``window`` meters of travel before it by the odometry, as
+    :func:`correlative_path` windows its fields), the share of scan ``t``'s returned endpoints at ``path[t]`` whose
+    nearest local-map endpoint within ``radius`` meters (the fine field's reach, :data:`FIELDS`) is one of scan
+    ``s``'s, at ``path[s]``. The field is a scatter-max over the endpoints, so the nearest endpoint is the one that
+    sets an endpoint's field value, and moving scan ``s`` moves what it sets. A step with no endpoint within reach of
+    its local map puts its whole share on scan ``t - 1``. What :class:`bayesmap.slam.posegraph.LocalMaps` ties each
+    step's scan information to.
+
+    Args:
+        path: ``(S, 3)`` float the poses the local maps were built at (x m, y m, theta rad): the front end's path.
+        data: the scans and odometry (:class:`ScanData`), ``S`` scans.
+        window: meters of travel (:data:`LOCAL_MAP_DISTANCE`); None: every scan before.
+        radius: meters, > 0.
+
+    Returns:
+        ``(S - 1, S)`` float64 sparse rows, each summing to 1, nonzero only in columns ``< t`` of row ``t - 1``.
+
+    Raises:
+        BayesmapError: if ``path`` is not ``(S, 3)`` for the ``S`` scans of ``data``, or ``radius`` or ``window`` is
+            not a finite number > 0.
+    """
+    readings = np.asarray(data.readings, np.float64)
+    count = readings.shape[0]
+    path = np.asarray(path, np.float64)
+    if path.shape != (count, 3):
+        raise BayesmapError(f"path must be ({count}, 3), one pose per scan, got shape {path.shape}")
+    for name, value in (("radius", radius), ("window", 1.0 if window is None else window)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+            raise BayesmapError(f"{name} must be a finite number of meters > 0, got {value!r}")
+    angles = path[:, 2:] + np.asarray(data.sensor_angles, np.float64)
+    ends = np.stack([path[:, :1] + readings * np.cos(angles), path[:, 1:2] + readings * np.sin(angles)], axis=-1)
+    returned = np.asarray(data.returned, bool)
+    travelled = path_length(data.increments)
+    first = np.zeros(count, np.int64) if window is None else np.searchsorted(travelled, travelled - window)
+    rows, cols, vals = [], [], []
+    for t in range(1, count):
+        members = np.arange(first[t], t)
+        points = ends[members][returned[members]]
+        share = None
+        if len(points) and returned[t].any():
+            owner = np.repeat(members, returned[members].sum(axis=1))
+            distance, nearest = scipy.spatial.cKDTree(points).query(ends[t][returned[t]], distance_upper_bound=radius)
+            hit = np.isfinite(distance)
+            if hit.any():
+                scans, counts = np.unique(owner[nearest[hit]], return_counts=True)
+                share = (scans, counts / counts.sum())
+        scans, weights = share if share is not None else (np.array([t - 1]), np.array([1.0]))
+        rows.append(np.full(len(scans), t - 1)), cols.append(scans), vals.append(weights)
+    if count < 2:
+        return scipy.sparse.csr_matrix((0, count))
+    return scipy.sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                   shape=(count - 1, count))
 
 
 def add_matched(d, grid: Grid, frame, world, u, offset, carry):
