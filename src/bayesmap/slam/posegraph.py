@@ -242,7 +242,8 @@ class LocalMaps(NamedTuple):
     :func:`sample_deviations`; docs/slam.md, "The path's uncertainty").
 
     A step's posterior (:func:`bayesmap.slam.scanmatch.step_posterior`) is scan ``t``'s pose given its local map,
-    the scans of the last 10 m at their poses, times the motion model from pose ``t - 1``. Its information is the
+    the scans of the last :data:`bayesmap.slam.scanmatch.LOCAL_MAP_DISTANCE` meters of travel at their poses, times
+    the motion model from pose ``t - 1``. Its information is the
     motion model's plus the scan's; the motion model's ties pose ``t`` to pose ``t - 1``, the scan's to the scans of
     the local map: moving them moves the field it was matched in. So the graph splits each sequential edge's
     information in two: the motion model's (the inverse of ``motion_cov``, capped in every direction at the step's)

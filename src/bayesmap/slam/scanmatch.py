@@ -926,7 +926,9 @@ def local_map_shares(path, data: ScanData, window: float | None = LOCAL_MAP_DIST
                 scans, counts = np.unique(owner[nearest[hit]], return_counts=True)
                 share = (scans, counts / counts.sum())
         scans, weights = share if share is not None else (np.array([t - 1]), np.array([1.0]))
-        rows.append(np.full(len(scans), t - 1)), cols.append(scans), vals.append(weights)
+        rows.append(np.full(len(scans), t - 1))
+        cols.append(scans)
+        vals.append(weights)
     if count < 2:
         return scipy.sparse.csr_matrix((0, count))
     return scipy.sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
