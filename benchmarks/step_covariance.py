@@ -27,10 +27,11 @@ at power ``W`` where the scan, not the motion model, sets them (a quick look at 
 covariance times ``P / w_t``, ``w_t`` its scan's own magnitude adjustment at the beams' automatic bandwidth
 (``beam_correlation.py``'s ``scan_adjustments``, at most 1; ``P`` where the beams' gradients are degenerate).
 
-With ``--local-maps``, two more columns: the coverage with each step's scan information tied to the scans of its
-local map (:class:`bayesmap.slam.posegraph.LocalMaps`, :func:`bayesmap.slam.scanmatch.local_map_shares`; what
-``slam --log`` reports) and the median position standard deviation (m) of that graph's covariance against the
-plain graph's.
+With ``--local-maps``, three more columns: the coverage with each step's scan information tied to the scans of its
+local map (:class:`bayesmap.slam.posegraph.LocalMaps`, :func:`bayesmap.slam.scanmatch.local_map_shares`), the
+median position standard deviation (m) of that graph's covariance against the plain graph's, and the coverage with
+the loop edges' covariances their matches' posteriors as well (:func:`bayesmap.slam.posegraph.loop_posteriors`; what
+``slam --log`` reports).
 
 With ``--first-pose``, one more column per covariance above (the reported one, and the one at ``--step-power``
 where given): the coverage in the model's own gauge, the truth placed by its first pose on the path's first pose
@@ -148,7 +149,13 @@ def run(name: str, seed: int, scans: str, step_power: float | str | None = None,
         tied = posegraph.marginal_covariances(path, edges, posegraph.LocalMaps(local_map_shares(front.path, data),
                                                                                np.asarray(data.covs, np.float64)))
         median_sd = [np.median(np.sqrt(c[:, 0, 0] + c[:, 1, 1])) for c in (tied, cov)]
-        other += f" {ellipse_coverage(path, tied, truth):.3f} | {median_sd[0]:.3f} / {median_sd[1]:.3f} |"
+        loops = edges.take(slice(len(path) - 1, None))
+        own = posegraph.with_covariances(loops, posegraph.loop_posteriors(path, data, loops, problem.likelihood_power))
+        both = posegraph.marginal_covariances(path, posegraph.concat_edges(edges.take(slice(0, len(path) - 1)), own),
+                                              posegraph.LocalMaps(local_map_shares(front.path, data),
+                                                                  np.asarray(data.covs, np.float64)))
+        other += (f" {ellipse_coverage(path, tied, truth):.3f} | {median_sd[0]:.3f} / {median_sd[1]:.3f} |"
+                  f" {ellipse_coverage(path, both, truth):.3f} |")
     if first_pose:
         other += f" {first_pose_coverage(path, cov, truth):.3f} |"
         if step_power is not None:
@@ -171,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--aligned", action="store_true",
                         help="also the coverage of the covariance with the path's rigid motion aligned out")
     parser.add_argument("--local-maps", action="store_true",
-                        help="also the coverage with each step tied to its local map's scans (slam --log's)")
+                        help="also the coverage with each step tied to its local map's scans, then with the loop "
+                             "edges' posteriors too (slam --log's)")
     parser.add_argument("--first-pose", action="store_true",
                         help="also the coverages with the truth placed by its first pose (the model's gauge)")
     args = parser.parse_args(argv)
@@ -191,10 +199,10 @@ def main(argv: list[str] | None = None) -> int:
           + ("" if args.step_power is None else f" coverage, steps at power {args.step_power} |")
           + (" coverage, rigid motion aligned out |" if args.aligned else "")
           + (" coverage, steps tied to their local maps | position sd median m, tied / plain |"
-             if args.local_maps else "")
+             " coverage, and the loop edges' posteriors |" if args.local_maps else "")
           + (" coverage, truth placed by its first pose |" if args.first_pose else "")
           + (" the same, steps at that power |" if args.first_pose and args.step_power is not None else ""))
-    extra = ((args.step_power is not None) + args.aligned + 2 * args.local_maps
+    extra = ((args.step_power is not None) + args.aligned + 3 * args.local_maps
              + args.first_pose * (1 + (args.step_power is not None)))
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * extra)
     for name, seed, scans in runs:

@@ -942,3 +942,34 @@ def test_fields_and_searches_of_two_shifted_windows_agree_to_the_bit():
         np.testing.assert_array_equal(found[0], found[1])
         if not masked:
             assert np.abs(found[0][:2] - truth[2, :2]).max() < 0.03 and found[0][4] > 0.5
+
+
+def test_a_loop_edges_posterior_is_its_matchs_density_without_a_motion_term():
+    """posegraph.loop_posteriors in the room (exact readings, the true path): scan 9's match against the local map
+    of scan 2's neighbours, placed by the edge's z, in scan 2's frame, is the step posterior of the same match under
+    a motion model a kilometre wide (its log-density varies by under 1e-7 over the lattice), built from the same
+    neighbours' fields: the local map, the frame and the placement are the loop closure's. At power 1 the
+    position's spread is below 0.6 of power 0.1's (a Gaussian's would be sqrt(0.1) = 0.32; the lattice's floor and
+    its cells hold it above that)."""
+    _, truth, _, beams, readings = room_scans()
+    data = ScanData(beams, readings, readings < 19.9, np.zeros((len(truth) - 1, 3)), np.zeros((len(truth) - 1, 3, 3)))
+    loops = posegraph.Edges(np.array([2]), np.array([9]), posegraph.relative(truth[2:3], truth[9:10]),
+                            np.full((1, 3), 0.1))
+    cov = posegraph.loop_posteriors(truth, data, loops, 0.1)
+    power_one = posegraph.loop_posteriors(truth, data, loops, 1.0)
+    neighbours = posegraph.local_map_neighbours(np.array([2]), data.increments)[0]
+    shift = np.array([truth[2, 0], truth[2, 1], 0.0])
+    grid = posegraph.local_map_grid()
+    fields = add_to_fields(empty_fields(grid), grid, jnp.asarray(truth[neighbours] - shift), beams[neighbours],
+                           readings[neighbours], data.returned[neighbours])
+    prev, center = jnp.asarray(truth[2] - shift), jnp.asarray(truth[9] - shift)
+    broad = step_posterior(fields, grid, center, prev, jnp.asarray(posegraph.relative(truth[2], truth[9])),
+                           jnp.eye(3) * 1e6, beams[9], readings[9], data.returned[9], 0.1, step_lattice())
+    np.testing.assert_allclose(cov[0], np.asarray(broad), rtol=1e-4, atol=1e-9)
+    assert np.all(np.linalg.eigvalsh(cov[0]) > 0)
+    spread = np.sqrt(np.trace(cov[0, :2, :2]))
+    assert spread < 0.1 and np.sqrt(np.trace(power_one[0, :2, :2])) < 0.6 * spread
+    with pytest.raises(BayesmapError, match=r"likelihood_power must be in \(0, 1\].*got 0.0"):
+        posegraph.loop_posteriors(truth, data, loops, 0.0)
+    with pytest.raises(BayesmapError, match=r"path must be \(12, 3\)"):
+        posegraph.loop_posteriors(truth[:5], data, loops, 0.1)

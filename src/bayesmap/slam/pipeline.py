@@ -45,8 +45,9 @@ see the poses of the round's start, which is still an exact blocked Gibbs chain,
    posterior covariance of the front end's step (:func:`bayesmap.slam.scanmatch.step_posterior`: the target's
    tempered scan likelihood against the local map, times the motion model, integrated over a lattice around the
    match; Olson 2009), its scan's part tied to the scans of the local map it was matched against
-   (:class:`bayesmap.slam.posegraph.LocalMaps`, :func:`bayesmap.slam.scanmatch.local_map_shares`), and the loop
-   edges' :data:`bayesmap.slam.posegraph.LOOP_STD`. No factor is fitted on truth.
+   (:class:`bayesmap.slam.posegraph.LocalMaps`, :func:`bayesmap.slam.scanmatch.local_map_shares`), and each
+   loop edge's covariance its match's posterior (:func:`bayesmap.slam.posegraph.loop_posteriors`, where the
+   optimization keeps :data:`bayesmap.slam.posegraph.LOOP_STD`). No factor is fitted on truth.
    The reported covariance of a pose is the chain's plus the graph's; each pose sample is a chain sample plus a
    draw of the graph's correlated deviation of the whole path (:func:`bayesmap.slam.posegraph.sample_deviations`),
    in antithetic pairs so that the samples' mean is the chain's mean path (docs/slam.md). Where the loop closure's
@@ -103,14 +104,17 @@ from bayesmap.slam.joint import SlamResult, check_counts, pose_summary
 from bayesmap.slam.keyframes import keyframe_problem, owners, place_scans, placed_uncertainty
 from bayesmap.slam.particles import particle_path
 from bayesmap.slam.posegraph import (
+    Edges,
     LocalMaps,
     LoopClosure,
     LoopMatches,
     close_loops,
     concat_edges,
+    loop_posteriors,
     marginal_covariances,
     optimize_pose_graph,
     sample_deviations,
+    with_covariances,
 )
 from bayesmap.slam.poses import SEGMENT_LENGTH, composed_pose_kernels, random_walk_pose_mh, segment_pose_mh, slam_data
 from bayesmap.slam.scanmatch import (
@@ -390,7 +394,25 @@ def _antithetic(seed: int, path, edges, num: int, local_maps: LocalMaps | None =
     return np.concatenate([half, -half])[:num] if num > 1 else np.zeros((num, *np.shape(path)))
 
 
-def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None, local_maps: LocalMaps | None = None):
+class LoopPosteriors:
+    """Loop edges with their matches' posterior covariances (:func:`bayesmap.slam.posegraph.loop_posteriors` at
+    ``path`` ``(S, 3)``, the scans ``data`` and the likelihood ``power``), each edge's computed once however many
+    hypotheses hold it (keyed by its two scans): :func:`graph_uncertainty`'s ``loop_posterior``."""
+
+    def __init__(self, path, data: ScanData, power: float):
+        self.path, self.data, self.power, self.known = np.asarray(path, np.float64), data, power, {}
+
+    def __call__(self, loops: Edges) -> Edges:
+        pairs = list(zip(np.asarray(loops.i).tolist(), np.asarray(loops.j).tolist()))
+        new = [k for k, pair in enumerate(pairs) if pair not in self.known]
+        if new:
+            found = loop_posteriors(self.path, self.data, loops.take(np.asarray(new, np.int64)), self.power)
+            self.known.update({pairs[k]: c for k, c in zip(new, found)})
+        return with_covariances(loops, np.array([self.known[p] for p in pairs]).reshape(len(pairs), 3, 3))
+
+
+def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None, local_maps: LocalMaps | None = None,
+                      loop_posterior: Callable | None = None):
     """Stage 5 of the module docstring: the chain's pose samples with the pose graph's uncertainty (the graph's
     Laplace approximation, Lu & Milios 1997; antithetic pairs, Hammersley & Morton 1956; docs/slam.md), and with
     the loop closure's other hypotheses where they weigh enough to get samples.
@@ -410,6 +432,10 @@ def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None, local_ma
         local_maps: None, or what the front end matched each step against
             (:class:`bayesmap.slam.posegraph.LocalMaps`): every hypothesis's graph then ties each step's scan
             information to its local map's scans (:func:`bayesmap.slam.posegraph.marginal_covariances`).
+        loop_posterior: None, or a function of a graph's loop edges (:class:`bayesmap.slam.posegraph.Edges`) that
+            returns them with the covariances each hypothesis's Laplace approximation gives them instead of their
+            deviations (their matches' posteriors, :func:`bayesmap.slam.posegraph.loop_posteriors`); the graph a
+            hypothesis's path is optimized on keeps the deviations.
 
     Returns:
         ``(mean (S, 3), cov (S, 3, 3), samples (N, S, 3), graph_cov (S, 3, 3))`` float64. With one hypothesis
@@ -426,12 +452,19 @@ def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None, local_ma
     """
     chain_samples = np.asarray(chain_samples, np.float64)
     mean, chain_cov = pose_summary(chain_samples)
-    graph_cov = marginal_covariances(mean, edges, local_maps)
+    sequential = edges.take(slice(0, len(mean) - 1))
+
+    def laplace(graph):  # the graph the Laplace approximation reads
+        if loop_posterior is None:
+            return graph
+        return concat_edges(sequential, loop_posterior(graph.take(slice(len(mean) - 1, None))))
+
+    graph_cov = marginal_covariances(mean, laplace(edges), local_maps)
     n = len(chain_samples)
     counts = np.array([n]) if hypotheses is None else hypothesis_counts(n, hypotheses.weights)
     if counts[0] == n:
-        return mean, chain_cov + graph_cov, chain_samples + _antithetic(seed, mean, edges, n, local_maps), graph_cov
-    sequential = edges.take(slice(0, len(mean) - 1))
+        deviations = _antithetic(seed, mean, laplace(edges), n, local_maps)
+        return mean, chain_cov + graph_cov, chain_samples + deviations, graph_cov
     parts, starts = [], np.concatenate([[0], np.cumsum(counts)])
     for h in np.flatnonzero(counts):
         if h == 0:
@@ -439,10 +472,10 @@ def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None, local_ma
         else:
             graph = concat_edges(sequential, hypotheses.loops.take(hypotheses.sets[h]))
             path = optimize_pose_graph(mean, graph)
-            cov_h = marginal_covariances(path, graph, local_maps)
+            cov_h = marginal_covariances(path, laplace(graph), local_maps)
         local = chain_samples[starts[h]: starts[h + 1]] - mean
         local[:, :, 2] = wrap_angle(local[:, :, 2])
-        samples = path + local + _antithetic(seed + int(h), path, graph, int(counts[h]), local_maps)
+        samples = path + local + _antithetic(seed + int(h), path, laplace(graph), int(counts[h]), local_maps)
         parts.append((counts[h] / n, path, chain_cov + cov_h, samples))
     offsets = [np.concatenate([p[:, :2] - mean[:, :2], wrap_angle(p[:, 2:] - mean[:, 2:])], axis=1)
                for _, p, _, _ in parts]
@@ -655,7 +688,8 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         cells = chain_grid.window(grid)
         walls, probs = walls[cells], probs[:, cells[0], cells[1]]
     local_maps = LocalMaps(local_map_shares(front.path, scans), np.asarray(scans.covs, np.float64))
-    mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, hypotheses, local_maps)
+    mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, hypotheses, local_maps,
+                                                      LoopPosteriors(path, scans, problem.likelihood_power))
     chain_posterior = probs.astype(np.float64).mean(axis=0)
     posterior, final_power, final_noise = chain_posterior, None, None
     if final:

@@ -43,6 +43,7 @@ import scipy.sparse.linalg
 from bayesmap.errors import BayesmapError
 from bayesmap.geometry.grid import Grid
 from bayesmap.io.rosbag import compose_poses, invert_pose
+from bayesmap.model.generative import check_likelihood_power
 from bayesmap.model.motion import wrap_angle
 from bayesmap.progress import ProgressCallback, report
 from bayesmap.slam.scanmatch import (
@@ -53,9 +54,12 @@ from bayesmap.slam.scanmatch import (
     bound_span,
     empty_fields,
     hit_fraction,
+    lattice_covariance,
     lattices,
     log_field,
+    scan_logits,
     search,
+    step_lattice,
 )
 
 LOOP_GAP = 30
@@ -120,7 +124,9 @@ scan."""
 LOOP_STD = (0.1, 0.1, 0.04)
 """Standard deviations of a loop edge (x m, y m, theta rad): twice (0.05 m, 0.05 m, 0.02 rad), chosen among 1, 2 and 4
 times that by leave-one-log-out cross-validation of the start path's ATE after loop closure over Intel, ACES and
-CSAIL (``benchmarks/loop_std_cv.py``; [validation](../validation/defaults.md#loop_std))."""
+CSAIL (``benchmarks/loop_std_cv.py``; [validation](../validation/defaults.md#loop_std)). For the optimization and the
+choice of loop edges; the path's uncertainty gives each loop edge its match's posterior instead
+(:func:`loop_posteriors`)."""
 
 CAUCHY_SCALE = 30.0
 """The Cauchy loss's scale, in standard deviations: residuals beyond it count less and less. Large, because a true
@@ -565,6 +571,55 @@ def _search_local_map(fields, logs, center, angles, readings, returned, steps: L
     fraction."""
     best, _ = search(fields, grid, center, angles, readings, returned, steps, log_fields=logs, bound_span=span)
     return best, hit_fraction(fields, grid, best, angles, readings, returned)
+
+
+def loop_posteriors(path, data: ScanData, loops: Edges, power: float) -> np.ndarray:
+    """Each loop edge's match posterior: the covariance ``(L, 3, 3)`` in the frame of its first pose (the edge's
+    frame; m^2, m rad, rad^2) of scan ``j``'s pose given the local map of scan ``i``'s neighbours at ``path``
+    (:func:`local_map_neighbours`, :func:`local_map_grid`: the loop closure's matcher's), ``exp(power S(x))``
+    integrated on the front end's step lattice (:func:`bayesmap.slam.scanmatch.step_lattice`, its floor added)
+    around the edge's placement ``path[i]`` composed with ``z``; no motion term, as a loop match has none. The
+    covariance of a correlative match's response (Olson 2009, sec. IV-B) with the likelihood tempered as the target
+    tempers it, as the front end's steps' (:func:`bayesmap.slam.scanmatch.step_posterior`); where the scan leaves a
+    direction free (a corridor's axis) the lattice's reach, 0.3 m and 0.05 rad, bounds it.
+
+    Args:
+        path: ``(S, 3)`` poses of the scans of ``data`` (x m, y m, theta rad).
+        data: the scans (:class:`bayesmap.slam.scanmatch.ScanData`).
+        loops: the loop edges (:class:`Edges`; ``z`` each one's measured pose of ``j`` in ``i``'s frame).
+        power: the likelihood power in (0, 1] (the problem's).
+
+    Raises:
+        BayesmapError: if ``path`` is not one pose per scan of ``data``, or ``power`` is not in (0, 1].
+    """
+    path = np.asarray(path, np.float64)
+    count = np.asarray(data.readings).shape[0]
+    if path.shape != (count, 3):
+        raise BayesmapError(f"path must be ({count}, 3), one pose per scan of the data, got shape {path.shape}")
+    power = check_likelihood_power(power)
+    i, j = np.asarray(loops.i, np.int64), np.asarray(loops.j, np.int64)
+    cov = np.zeros((len(i), 3, 3))
+    if not len(i):
+        return cov
+    neighbours = local_map_neighbours(i, data.increments)
+    placed = compose_poses(path[i], np.asarray(loops.z, np.float64))
+    grid, lattice = local_map_grid(), step_lattice()
+    angles, readings, returned = (jnp.asarray(np.asarray(a)) for a in (data.sensor_angles, data.readings,
+                                                                       data.returned))
+    for k in range(len(i)):
+        shift = np.array([path[i[k], 0], path[i[k], 1], 0.0])  # local frame: the first pose's position at the origin
+        fields, _ = _local_map(jnp.asarray(neighbours[k]), jnp.asarray(path[neighbours[k]] - shift), angles,
+                               readings, returned, grid)
+        cov[k] = np.asarray(_match_posterior(fields, jnp.asarray(placed[k] - shift), jnp.asarray(path[i[k]] - shift),
+                                             angles[j[k]], readings[j[k]], returned[j[k]], power, lattice, grid))
+    return cov
+
+
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _match_posterior(fields, center, frame, angles, readings, returned, power, lattice, grid: Grid):
+    """:func:`loop_posteriors`' covariance of one match, in the frame of ``frame``."""
+    cands, logits = scan_logits(fields, grid, center, angles, readings, returned, power, lattice)
+    return lattice_covariance(cands, logits, frame, lattice[-1])
 
 
 def loop_edges(path, data: ScanData, progress: ProgressCallback | None = None, stage: str = "loop closure",

@@ -584,36 +584,59 @@ def step_cell_widths(nodes=STEP_POSTERIOR_NODES) -> jax.Array:
     return jnp.asarray(np.concatenate([np.repeat(wxy, len(wt), axis=0), np.tile(wt, len(wxy))[:, None]], axis=1))
 
 
+def _lattice_candidates(fields: tuple, grid: Grid, center, sensor_angles, readings, returned, lattice, window, shift):
+    """The step ``lattice``'s candidates around ``center``, their field scores and log cell volumes."""
+    xy, theta, log_volume, _ = lattice
+    scores = lattice_scores(fields[0], grid, center, xy, theta, sensor_angles, readings, returned, interpolate=True,
+                            window=window, shift=shift)
+    return lattice_poses(center, xy, theta), scores, log_volume
+
+
+def scan_logits(fields: tuple, grid: Grid, center, sensor_angles, readings, returned, power, lattice, window=None,
+                shift=None):
+    """The candidates ``(A B, 3)`` of the step ``lattice`` (:func:`step_lattice`) around ``center`` ``(3,)`` and the
+    scan's part of their log densities ``(A B,)``: ``power S(x) + log_volume``, ``S`` the scan's field score against
+    the local map (:func:`lattice_scores`, fine field, interpolated), each candidate's cell volume the quadrature
+    weight. :func:`step_logits` adds the motion model; a loop edge's match has none
+    (:func:`bayesmap.slam.posegraph.loop_posteriors`). ``window``, ``shift`` as :func:`search`. Jittable."""
+    cands, scores, log_volume = _lattice_candidates(fields, grid, center, sensor_angles, readings, returned, lattice,
+                                                    window, shift)
+    return cands, power * scores + log_volume
+
+
 def step_logits(fields: tuple, grid: Grid, center, prev, increment, cov, sensor_angles, readings, returned, power,
                 lattice, window=None, shift=None, tail=None):
     """The candidates ``(A B, 3)`` of the step ``lattice`` (:func:`step_lattice`) around ``center`` and their log
-    densities ``(A B,)``: ``power S(x) + log p(x | prev, increment, cov) + log_volume``, ``S`` the scan's field score
-    against the local map (:func:`lattice_scores`, fine field, interpolated) and ``p`` the motion model
-    (:func:`bayesmap.model.motion.motion_logpdf`), each candidate's cell volume the quadrature weight: a softmax gives
+    densities ``(A B,)``: ``power S(x) + log p(x | prev, increment, cov) + log_volume`` (:func:`scan_logits` with
+    ``p`` the motion model, :func:`bayesmap.model.motion.motion_logpdf`): a softmax gives
     the step's posterior on the lattice, a logsumexp the log of its integral (the evidence of the step: the weight
     update of Grisetti et al. 2007's improved proposal). ``prev``, ``center`` ``(3,)`` in the frame of ``shift``
     (:func:`search`); ``tail``: None, or ``(weight, covariance (3, 3))``, the motion model with a broad component
     (:func:`bayesmap.model.motion.tailed_motion_logpdf`, as the front end searches). Jittable."""
-    xy, theta, log_volume, _ = lattice
-    scores = lattice_scores(fields[0], grid, center, xy, theta, sensor_angles, readings, returned, interpolate=True,
-                            window=window, shift=shift)
-    cands = lattice_poses(center, xy, theta)
+    cands, scores, log_volume = _lattice_candidates(fields, grid, center, sensor_angles, readings, returned, lattice,
+                                                    window, shift)
     motion = (motion_logpdf(prev, cands, increment, cov) if tail is None
               else tailed_motion_logpdf(prev, cands, increment, cov, *tail))
     return cands, power * scores + motion + log_volume
 
 
-def step_covariance(cands, logits, prev, cov, floor):
-    """The covariance ``(3, 3)`` in the frame of ``prev`` ``(3,)`` of the lattice density ``softmax(logits)`` over
-    ``cands`` ``(M, 3)`` (:func:`step_logits`), plus ``floor`` ``(3, 3)``; a step whose motion covariance ``cov`` is
-    exactly zero gets ``floor`` alone. Jittable."""
+def lattice_covariance(cands, logits, frame, floor):
+    """The covariance ``(3, 3)`` in the frame of ``frame`` ``(3,)`` (its heading) of the lattice density
+    ``softmax(logits)`` over ``cands`` ``(M, 3)`` (:func:`scan_logits`, :func:`step_logits`), plus ``floor``
+    ``(3, 3)``. Jittable."""
     weights = jax.nn.softmax(logits)
     mean = weights @ cands
     world = jnp.einsum("n,ni,nj->ij", weights, cands - mean, cands - mean)
-    c, s = jnp.cos(prev[2]), jnp.sin(prev[2])
+    c, s = jnp.cos(frame[2]), jnp.sin(frame[2])
     turn = jnp.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], world.dtype)
+    return turn.T @ world @ turn + floor
+
+
+def step_covariance(cands, logits, prev, cov, floor):
+    """:func:`lattice_covariance` of a step's lattice density in the frame of ``prev`` ``(3,)``; a step whose motion
+    covariance ``cov`` is exactly zero gets ``floor`` alone. Jittable."""
     deterministic = jnp.all(jnp.asarray(cov) == 0)  # a step the motion model fixes: the lattice cell alone
-    return jnp.where(deterministic, floor, turn.T @ world @ turn + floor)
+    return jnp.where(deterministic, floor, lattice_covariance(cands, logits, prev, floor))
 
 
 def step_posterior(fields: tuple, grid: Grid, center, prev, increment, cov, sensor_angles, readings, returned,
