@@ -397,16 +397,19 @@ def _antithetic(seed: int, path, edges, num: int, local_maps: LocalMaps | None =
 class LoopPosteriors:
     """Loop edges with their matches' posterior covariances (:func:`bayesmap.slam.posegraph.loop_posteriors` at
     ``path`` ``(S, 3)``, the scans ``data`` and the likelihood ``power``), each edge's computed once however many
-    hypotheses hold it (keyed by its two scans): :func:`graph_uncertainty`'s ``loop_posterior``."""
+    hypotheses hold it (keyed by its two scans), reported to ``progress`` as there: :func:`graph_uncertainty`'s
+    ``loop_posterior``."""
 
-    def __init__(self, path, data: ScanData, power: float):
+    def __init__(self, path, data: ScanData, power: float, progress: ProgressCallback | None = None):
         self.path, self.data, self.power, self.known = np.asarray(path, np.float64), data, power, {}
+        self.progress = progress
 
     def __call__(self, loops: Edges) -> Edges:
         pairs = list(zip(np.asarray(loops.i).tolist(), np.asarray(loops.j).tolist()))
         new = [k for k, pair in enumerate(pairs) if pair not in self.known]
         if new:
-            found = loop_posteriors(self.path, self.data, loops.take(np.asarray(new, np.int64)), self.power)
+            found = loop_posteriors(self.path, self.data, loops.take(np.asarray(new, np.int64)), self.power,
+                                    self.progress)
             self.known.update({pairs[k]: c for k, c in zip(new, found)})
         return with_covariances(loops, np.array([self.known[p] for p in pairs]).reshape(len(pairs), 3, 3))
 
@@ -612,8 +615,9 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
             to its ``total``): ``"front end"`` per block of scans matched, ``"loop closure r/3"`` per loop
             candidate of each round of :func:`bayesmap.slam.posegraph.close_loops` that has any (unit ``"scan"``),
             ``"branches"`` per hypothesis weighed where there are branch points (:func:`branched_start`), then per
-            sweep ``"round r/R: map"`` and ``"round r/R: poses"`` for each round of the joint chain and
-            ``"final map"``.
+            sweep ``"round r/R: map"`` and ``"round r/R: poses"`` for each round of the joint chain, ``"path
+            uncertainty"`` per loop edge whose match's posterior is computed (:class:`LoopPosteriors`; where there
+            are loop edges) and ``"final map"``.
             The chains then run one sweep per compiled call, with the same keys: the result is the same, bit for
             bit. None: no reports.
         map_sweeps: cellwise map sweeps per round, >= 1.
@@ -689,7 +693,7 @@ def run_log_slam(problem, rounds: int = ROUNDS, burn_in: int = BURN_IN_ROUNDS, s
         walls, probs = walls[cells], probs[:, cells[0], cells[1]]
     local_maps = LocalMaps(local_map_shares(front.path, scans), np.asarray(scans.covs, np.float64))
     mean, cov, samples, graph_cov = graph_uncertainty(seed, samples, edges, hypotheses, local_maps,
-                                                      LoopPosteriors(path, scans, problem.likelihood_power))
+                                                      LoopPosteriors(path, scans, problem.likelihood_power, progress))
     chain_posterior = probs.astype(np.float64).mean(axis=0)
     posterior, final_power, final_noise = chain_posterior, None, None
     if final:

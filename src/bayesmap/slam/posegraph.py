@@ -573,7 +573,8 @@ def _search_local_map(fields, logs, center, angles, readings, returned, steps: L
     return best, hit_fraction(fields, grid, best, angles, readings, returned)
 
 
-def loop_posteriors(path, data: ScanData, loops: Edges, power: float) -> np.ndarray:
+def loop_posteriors(path, data: ScanData, loops: Edges, power: float,
+                    progress: ProgressCallback | None = None) -> np.ndarray:
     """Each loop edge's match posterior: the covariance ``(L, 3, 3)`` in the frame of its first pose (the edge's
     frame; m^2, m rad, rad^2) of scan ``j``'s pose given the local map of scan ``i``'s neighbours at ``path``
     (:func:`local_map_neighbours`, :func:`local_map_grid`: the loop closure's matcher's), ``exp(power S(x))``
@@ -588,6 +589,8 @@ def loop_posteriors(path, data: ScanData, loops: Edges, power: float) -> np.ndar
         data: the scans (:class:`bayesmap.slam.scanmatch.ScanData`).
         loops: the loop edges (:class:`Edges`; ``z`` each one's measured pose of ``j`` in ``i``'s frame).
         power: the likelihood power in (0, 1] (the problem's).
+        progress: called with ``Progress("path uncertainty", done, L, "loop edge")`` before the first edge and
+            after each (nothing without loop edges); None: no reports.
 
     Raises:
         BayesmapError: if ``path`` is not one pose per scan of ``data``, or ``power`` is not in (0, 1].
@@ -606,12 +609,14 @@ def loop_posteriors(path, data: ScanData, loops: Edges, power: float) -> np.ndar
     grid, lattice = local_map_grid(), step_lattice()
     angles, readings, returned = (jnp.asarray(np.asarray(a)) for a in (data.sensor_angles, data.readings,
                                                                        data.returned))
+    report(progress, "path uncertainty", 0, len(i), "loop edge")
     for k in range(len(i)):
         shift = np.array([path[i[k], 0], path[i[k], 1], 0.0])  # local frame: the first pose's position at the origin
         fields, _ = _local_map(jnp.asarray(neighbours[k]), jnp.asarray(path[neighbours[k]] - shift), angles,
                                readings, returned, grid)
         cov[k] = np.asarray(_match_posterior(fields, jnp.asarray(placed[k] - shift), jnp.asarray(path[i[k]] - shift),
                                              angles[j[k]], readings[j[k]], returned[j[k]], power, lattice, grid))
+        report(progress, "path uncertainty", k + 1, len(i), "loop edge")
     return cov
 
 
