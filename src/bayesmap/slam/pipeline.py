@@ -462,23 +462,24 @@ def graph_uncertainty(seed: int, chain_samples, edges, hypotheses=None, local_ma
             return graph
         return concat_edges(sequential, loop_posterior(graph.take(slice(len(mean) - 1, None))))
 
-    graph_cov = marginal_covariances(mean, laplace(edges), local_maps)
+    first = laplace(edges)
+    graph_cov = marginal_covariances(mean, first, local_maps)
     n = len(chain_samples)
     counts = np.array([n]) if hypotheses is None else hypothesis_counts(n, hypotheses.weights)
     if counts[0] == n:
-        deviations = _antithetic(seed, mean, laplace(edges), n, local_maps)
-        return mean, chain_cov + graph_cov, chain_samples + deviations, graph_cov
+        return mean, chain_cov + graph_cov, chain_samples + _antithetic(seed, mean, first, n, local_maps), graph_cov
     parts, starts = [], np.concatenate([[0], np.cumsum(counts)])
     for h in np.flatnonzero(counts):
         if h == 0:
-            path, graph, cov_h = mean, edges, graph_cov
+            path, graph, cov_h = mean, first, graph_cov
         else:
             graph = concat_edges(sequential, hypotheses.loops.take(hypotheses.sets[h]))
-            path = optimize_pose_graph(mean, graph)
-            cov_h = marginal_covariances(path, laplace(graph), local_maps)
+            path = optimize_pose_graph(mean, graph)  # (on the loop edges' deviations)
+            graph = laplace(graph)
+            cov_h = marginal_covariances(path, graph, local_maps)
         local = chain_samples[starts[h]: starts[h + 1]] - mean
         local[:, :, 2] = wrap_angle(local[:, :, 2])
-        samples = path + local + _antithetic(seed + int(h), path, laplace(graph), int(counts[h]), local_maps)
+        samples = path + local + _antithetic(seed + int(h), path, graph, int(counts[h]), local_maps)
         parts.append((counts[h] / n, path, chain_cov + cov_h, samples))
     offsets = [np.concatenate([p[:, :2] - mean[:, :2], wrap_angle(p[:, 2:] - mean[:, 2:])], axis=1)
                for _, p, _, _ in parts]

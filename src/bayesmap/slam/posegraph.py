@@ -612,18 +612,23 @@ def loop_posteriors(path, data: ScanData, loops: Edges, power: float,
     report(progress, "path uncertainty", 0, len(i), "loop edge")
     for k in range(len(i)):
         shift = np.array([path[i[k], 0], path[i[k], 1], 0.0])  # local frame: the first pose's position at the origin
-        fields, _ = _local_map(jnp.asarray(neighbours[k]), jnp.asarray(path[neighbours[k]] - shift), angles,
-                               readings, returned, grid)
-        cov[k] = np.asarray(_match_posterior(fields, jnp.asarray(placed[k] - shift), jnp.asarray(path[i[k]] - shift),
-                                             angles[j[k]], readings[j[k]], returned[j[k]], power, lattice, grid))
+        cov[k] = np.asarray(_match_posterior(jnp.asarray(neighbours[k]), jnp.asarray(path[neighbours[k]] - shift),
+                                             int(j[k]), jnp.asarray(placed[k] - shift),
+                                             jnp.asarray(path[i[k]] - shift), angles, readings, returned, power,
+                                             lattice, grid))
         report(progress, "path uncertainty", k + 1, len(i), "loop edge")
     return cov
 
 
 @functools.partial(jax.jit, static_argnames=("grid",))
-def _match_posterior(fields, center, frame, angles, readings, returned, power, lattice, grid: Grid):
-    """:func:`loop_posteriors`' covariance of one match, in the frame of ``frame``."""
-    cands, logits = scan_logits(fields, grid, center, angles, readings, returned, power, lattice)
+def _match_posterior(neighbours, local_poses, t, center, frame, angles, readings, returned, power, lattice,
+                     grid: Grid):
+    """:func:`loop_posteriors`' covariance of scan ``t``'s match against the local map of the scans ``neighbours``
+    at ``local_poses``, in the frame of ``frame``: one compiled call, the local map's fields built as
+    :func:`_local_map` builds them."""
+    fields = add_to_fields(empty_fields(grid), grid, local_poses, angles[neighbours], readings[neighbours],
+                           returned[neighbours])
+    cands, logits = scan_logits(fields, grid, center, angles[t], readings[t], returned[t], power, lattice)
     return lattice_covariance(cands, logits, frame, lattice[-1])
 
 

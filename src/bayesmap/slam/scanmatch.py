@@ -931,8 +931,7 @@ def local_map_shares(path, data: ScanData, window: float | None = LOCAL_MAP_DIST
     for name, value in (("radius", radius), ("window", 1.0 if window is None else window)):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
             raise BayesmapError(f"{name} must be a finite number of meters > 0, got {value!r}")
-    angles = path[:, 2:] + np.asarray(data.sensor_angles, np.float64)
-    ends = np.stack([path[:, :1] + readings * np.cos(angles), path[:, 1:2] + readings * np.sin(angles)], axis=-1)
+    ends = scan_endpoints(path, np.asarray(data.sensor_angles, np.float64), readings, xp=np)
     returned = np.asarray(data.returned, bool)
     travelled = path_length(data.increments)
     first = np.zeros(count, np.int64) if window is None else np.searchsorted(travelled, travelled - window)
