@@ -61,7 +61,7 @@ from seeded_logs import (
 )
 
 from bayesmap.errors import BayesmapError
-from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage
+from bayesmap.evaluation.trajectory import absolute_trajectory_error, coverage_rank
 from bayesmap.io.carmen import beam_offsets, read_carmen
 from bayesmap.io.rosbag import compose_poses, invert_pose
 from bayesmap.progress import StageRecorder
@@ -235,7 +235,9 @@ def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
     """bayesmap's SLAM: the posterior mean pose of every scan, by what ``bayesmap slam --log`` runs
     (``bayesmap.runs.slam.log_slam`` at its defaults, keyframes included, in this process; ``--scans ::N`` for a
     problem of every Nth scan), without the final map (the path is scored). ``extra`` gets the 95 % ellipse coverage
-    of the truth, the posterior's median position standard deviation and the number of keyframes. Runtime: the whole
+    of the truth with the coverages of the posterior's samples and the truth's rank among them
+    (:func:`bayesmap.evaluation.trajectory.coverage_rank`, as ``evaluate --truth-trajectory`` prints them), the
+    posterior's median position standard deviation and the number of keyframes. Runtime: the whole
     run, compilation included."""
     log = read_carmen(problem.log_path)
     stride = 1 if len(problem.scans) < 2 else int(problem.scans[1] - problem.scans[0])
@@ -245,7 +247,7 @@ def run_bayesmap(problem: Problem, extra: dict) -> tuple[np.ndarray, float]:
     result, chosen, settings = run.result, run.chosen, run.settings
     if not np.array_equal(chosen, problem.scans):
         raise BayesmapError(f"bayesmap took scans {chosen[:3]}... where the problem has {problem.scans[:3]}...")
-    extra["coverage"] = ellipse_coverage(result.mean_path, result.pose_cov, problem.truth)
+    extra.update(coverage_rank(result.mean_path, result.pose_cov, problem.truth, result.pose_samples))
     extra["position_sd_median_m"] = float(np.median(np.sqrt(result.pose_cov[:, 0, 0] + result.pose_cov[:, 1, 1])))
     extra["keyframes"] = settings["keyframes"]
     extra["path_hypotheses"] = path_hypotheses_summary(result.path_hypotheses, chosen[run.keyframes])

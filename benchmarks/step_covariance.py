@@ -33,12 +33,21 @@ median position standard deviation (m) of that graph's covariance against the pl
 the loop edges' covariances their matches' posteriors as well (:func:`bayesmap.slam.posegraph.loop_posteriors`; what
 ``slam --log`` reports).
 
+With ``--self-coverage`` (and ``--local-maps``), five more columns: what a calibrated posterior would score.
+:data:`SELF_DRAWS` paths are drawn from a graph's Laplace approximation
+(:func:`bayesmap.slam.posegraph.sample_deviations`), each put in the truth's place and scored against that graph's
+ellipses by the same coverage (:func:`self_coverages`). First the rank of the truth's coverage among them (the
+fraction of draws scoring less, ties counted half; uniform over runs for a calibrated posterior) for three graphs:
+the step posteriors' (the second column's), the steps tied to their local maps, and the loop edges' posteriors as
+well (what ``slam --log`` reports); then, for the last, the median and 5-95 % range of the draws' coverages and the
+fraction of them inside 85-99 %.
+
 With ``--first-pose``, one more column per covariance above (the reported one, and the one at ``--step-power``
 where given): the coverage in the model's own gauge, the truth placed by its first pose on the path's first pose
 (which the model holds fixed; :func:`first_pose_coverage`) instead of by the best rigid alignment.
 
 Usage: PYTHONPATH=src python benchmarks/step_covariance.py [--logs aces] [--seeds 0] [--scans all,every2]
-    [--step-power W|beams] [--aligned] [--first-pose] [--local-maps]
+    [--step-power W|beams] [--aligned] [--first-pose] [--local-maps [--self-coverage]]
 """
 
 from __future__ import annotations
@@ -65,6 +74,10 @@ from bayesmap.slam.scanmatch import local_map_shares  # noqa: E402
 
 RETIRED_SCALE = 0.36
 """The factor on the graph's fixed edge deviations that bayesmap reported before the step posteriors."""
+
+SELF_DRAWS = 400
+"""Paths drawn from the graph's Laplace approximation for ``--self-coverage`` (the Monte Carlo standard error of a
+fraction near 0.8 among them is 0.02)."""
 
 FAR = 10.0
 """Standard deviations: a step whose heading error exceeds this many is listed on its own."""
@@ -100,6 +113,14 @@ def aligned_covariances(path, edges, draws: int = 4000, seed: int = 0) -> np.nda
     return np.einsum("nsi,nsj->sij", d, d) / draws
 
 
+def self_coverages(path, cov, draws) -> np.ndarray:
+    """``(N,)``: the 95 % :func:`ellipse_coverage` of ``cov`` ``(S, 3, 3)`` about ``path`` ``(S, 3)`` of each path
+    ``path + draws[n]`` (``draws`` ``(N, S, 3)``, deviations from the posterior the ellipses describe), scored as the
+    truth is: aligned onto ``path`` by the best rigid motion first. For a calibrated posterior, the truth's coverage
+    is one more draw of this distribution."""
+    return np.array([ellipse_coverage(path, cov, path + d) for d in draws])
+
+
 def first_pose_coverage(path, cov, truth, level: float = 0.95) -> float:
     """The fraction of true positions inside the ``level`` ellipses of ``cov`` ``(S, 3, 3)`` about ``path`` ``(S,
     3)``, the truth ``(S, 3)`` carried rigidly so that its first pose is the path's (``target_at_truth.py``'s
@@ -113,7 +134,7 @@ def first_pose_coverage(path, cov, truth, level: float = 0.95) -> float:
 
 
 def run(name: str, seed: int, scans: str, step_power: float | str | None = None, aligned: bool = False,
-        first_pose: bool = False, local_maps: bool = False) -> str:
+        first_pose: bool = False, local_maps: bool = False, self_coverage: bool = False) -> str:
     """One row of the table (module docstring)."""
     problem, truth = scan_set_problem(name, seed, scans)
     data = pipeline.scan_data(problem)
@@ -156,6 +177,18 @@ def run(name: str, seed: int, scans: str, step_power: float | str | None = None,
                                                                   np.asarray(data.covs, np.float64)))
         other += (f" {ellipse_coverage(path, tied, truth):.3f} | {median_sd[0]:.3f} / {median_sd[1]:.3f} |"
                   f" {ellipse_coverage(path, both, truth):.3f} |")
+        if self_coverage:
+            graph = posegraph.concat_edges(edges.take(slice(0, len(path) - 1)), own)
+            shares = posegraph.LocalMaps(local_map_shares(front.path, data), np.asarray(data.covs, np.float64))
+            for ellipses, drawn_from, tie in ((cov, edges, None), (tied, edges, shares), (both, graph, shares)):
+                deviations = posegraph.sample_deviations(seed, path, drawn_from, SELF_DRAWS, tie)
+                drawn = self_coverages(path, ellipses, deviations)
+                observed = ellipse_coverage(path, ellipses, truth)
+                rank = float(np.mean(drawn < observed) + 0.5 * np.mean(drawn == observed))
+                other += f" {rank:.2f} |"
+            inside = float(np.mean((drawn >= 0.85) & (drawn <= 0.99)))
+            low, mid, high = np.percentile(drawn, [5, 50, 95])
+            other += f" {mid:.3f} ({low:.3f}-{high:.3f}) | {inside:.2f} |"
     if first_pose:
         other += f" {first_pose_coverage(path, cov, truth):.3f} |"
         if step_power is not None:
@@ -180,9 +213,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--local-maps", action="store_true",
                         help="also the coverage with each step tied to its local map's scans, then with the loop "
                              "edges' posteriors too (slam --log's)")
+    parser.add_argument("--self-coverage", action="store_true",
+                        help="with --local-maps: also the coverage that paths drawn from the reported graph's "
+                             "posterior score, and the truth's rank among them")
     parser.add_argument("--first-pose", action="store_true",
                         help="also the coverages with the truth placed by its first pose (the model's gauge)")
     args = parser.parse_args(argv)
+    if args.self_coverage and not args.local_maps:
+        parser.error("--self-coverage needs --local-maps (it draws from that graph)")
     if args.step_power is not None and args.step_power != "beams":
         try:
             power = float(args.step_power)
@@ -200,13 +238,17 @@ def main(argv: list[str] | None = None) -> int:
           + (" coverage, rigid motion aligned out |" if args.aligned else "")
           + (" coverage, steps tied to their local maps | position sd median m, tied / plain |"
              " coverage, and the loop edges' posteriors |" if args.local_maps else "")
+          + (" the truth's rank among draws, step posteriors | the same, tied | the same, and the loop edges'"
+             " posteriors | coverage of those draws, median (5-95 %) | those draws inside 85-99 % |"
+             if args.self_coverage else "")
           + (" coverage, truth placed by its first pose |" if args.first_pose else "")
           + (" the same, steps at that power |" if args.first_pose and args.step_power is not None else ""))
-    extra = ((args.step_power is not None) + args.aligned + 3 * args.local_maps
+    extra = ((args.step_power is not None) + args.aligned + 3 * args.local_maps + 5 * args.self_coverage
              + args.first_pose * (1 + (args.step_power is not None)))
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * extra)
     for name, seed, scans in runs:
-        print(run(name, seed, scans, args.step_power, args.aligned, args.first_pose, args.local_maps), flush=True)
+        print(run(name, seed, scans, args.step_power, args.aligned, args.first_pose, args.local_maps,
+                  args.self_coverage), flush=True)
     return 0
 
 

@@ -302,6 +302,41 @@ def test_evaluate_run_scores_by_hand(tmp_path, monkeypatch, capsys):
     assert odo["rpe1_trans_rmse_m"] == pytest.approx(2.0, abs=1e-9) and odo["coverage"] is None
 
 
+def test_evaluate_ranks_the_truth_among_the_run_samples(tmp_path, monkeypatch, capsys):
+    """A run folder with trajectory_samples.npy: its samples are scored as the truth is. By hand (the square case):
+    one sample on the run's path covers 4 of 4, one the truth carried rigidly covers 2 of 4 as the truth does, so
+    the truth ties one and is below the other: rank (0 + 0.5) / 2. A samples file of the wrong shape is refused by
+    name, exit code 2."""
+    _square_case(tmp_path)
+    _, path = read_tum(tmp_path / "run" / "trajectory.tum")
+    _, truth = read_tum(tmp_path / "truth.tum")
+    buf = io.BytesIO()
+    np.save(buf, np.stack([path, moved_onto(truth, path)]))
+    (tmp_path / "run" / "trajectory_samples.npy").write_bytes(buf.getvalue())
+    code, out, err = run_cli(monkeypatch, capsys, "evaluate", "--log", tmp_path / "square.log", "--truth-trajectory",
+                             tmp_path / "truth.tum", "--run", tmp_path / "run", "--json", tmp_path / "s.json")
+    assert code == 0, err
+    run = json.loads((tmp_path / "s.json").read_text())["bayesmap"]
+    assert run["coverage"] == 0.5 and run["samples"] == 2 and run["coverage_rank"] == 0.25
+    assert run["samples_coverage_min"] == 0.5 and run["samples_coverage_max"] == 1.0
+    assert "the 2 posterior samples" in out and "ranks 0.25" in out
+    buf = io.BytesIO()
+    np.save(buf, np.zeros((2, 3, 3)))
+    (tmp_path / "run" / "trajectory_samples.npy").write_bytes(buf.getvalue())
+    code, out, err = run_cli(monkeypatch, capsys, "evaluate", "--log", tmp_path / "square.log", "--truth-trajectory",
+                             tmp_path / "truth.tum", "--run", tmp_path / "run")
+    assert code == 2 and "trajectory_samples.npy" in err and "(2, 3, 3)" in err and len(err.strip().splitlines()) == 1
+
+
+def moved_onto(poses, onto):
+    """``poses`` ``(S, 3)`` carried by the rigid motion that best aligns them onto ``onto`` (positions; headings
+    turned by its angle)."""
+    from bayesmap.evaluation.trajectory import align_rigid_2d
+
+    rot, t = align_rigid_2d(poses[:, :2], onto[:, :2])
+    return np.column_stack([poses[:, :2] @ rot.T + t, poses[:, 2] + math.atan2(rot[1, 0], rot[0, 0])])
+
+
 def test_evaluate_pairs_a_longer_truth_by_timestamp(tmp_path, monkeypatch, capsys):
     """A truth with poses between the scans (6 poses, 4 scans, a 5-scan log) pairs by stamp: the same scores."""
     stamps, truth = _square_case(tmp_path)

@@ -12,6 +12,7 @@ from bayesmap.errors import BayesmapError
 from bayesmap.evaluation.trajectory import (
     absolute_trajectory_error,
     align_rigid_2d,
+    coverage_rank,
     ellipse_coverage,
     frame_of,
     relative_pose_error,
@@ -284,3 +285,65 @@ def test_frame_of_inverts_the_alignment():
     wrapped = np.angle(np.exp(1j * estimate[::7, 2]))
     assert np.allclose(np.angle(np.exp(1j * (carried[:, 2] - wrapped))), 0.0, atol=1e-9)
     assert np.all((carried[:, 2] >= -np.pi) & (carried[:, 2] < np.pi))
+
+
+def drift_posterior(rng, n, sd):
+    """A path of ``n`` poses and the joint Gaussian of a posterior whose positions drift as a random walk from the
+    fixed first pose (steps of ``sd`` m per axis): ``(mean (n, 3), marginal covariances (n, 3, 3), a sampler)``."""
+    mean = random_walk(rng, n)
+    var = sd**2 * np.arange(n)  # a random walk's variance, zero at the fixed first pose
+    cov = np.zeros((n, 3, 3))
+    cov[:, 0, 0] = cov[:, 1, 1] = var
+    cov[:, 2, 2] = 1e-6
+
+    def draw(k, scale=1.0):
+        walk = np.cumsum(rng.normal(0.0, scale * sd, (k, n - 1, 2)), axis=1)
+        out = np.repeat(mean[None], k, axis=0)
+        out[:, 1:, :2] += walk
+        return out
+
+    return mean, cov, draw
+
+
+def test_coverage_rank_is_uniform_for_a_calibrated_posterior_and_low_for_an_overconfident_one():
+    """Truth and samples from the same drifting posterior: the truth's rank among 19 samples is uniform over runs
+    (mean 0.5; 400 runs, Monte Carlo sd 0.289 / sqrt(400) = 0.014, tolerance 4 sd). A truth drifting twice as fast
+    ranks low (the ellipses are too narrow)."""
+    rng = np.random.default_rng(11)
+    mean, cov, draw = drift_posterior(rng, 40, 0.05)
+    calibrated = [coverage_rank(mean, cov, draw(1)[0], draw(19))["coverage_rank"] for _ in range(400)]
+    assert abs(np.mean(calibrated) - 0.5) < 4 * 0.289 / math.sqrt(400)
+    assert np.mean(np.array(calibrated) < 0.1) < 0.2  # not piled at either end: about 0.1 of them
+    wide = [coverage_rank(mean, cov, draw(1, scale=2.0)[0], draw(19))["coverage_rank"] for _ in range(100)]
+    assert np.mean(wide) < 0.2
+    result = coverage_rank(mean, cov, draw(1)[0], draw(50))
+    assert result["samples"] == 50
+    assert result["samples_coverage_min"] <= result["samples_coverage_median"] <= result["samples_coverage_max"]
+
+
+def test_coverage_rank_by_hand():
+    """Two samples, one on the path (coverage 1) and one the truth itself (the truth's coverage): the truth ties
+    one and scores below the other, rank (0 + 0.5) / 2."""
+    poses = circle(1.0, 8)
+    cov = np.array([np.diag([0.01, 0.01, 0.01])] * 8)
+    truth = poses.copy()
+    truth[::2, :2] *= 1.5  # half the poses 0.5 m off: outside an ellipse of 0.1 m sd
+    result = coverage_rank(poses, cov, truth, np.stack([poses, truth]))
+    assert result["coverage"] == pytest.approx(ellipse_coverage(poses, cov, truth))
+    assert result["samples_coverage_max"] == 1.0 and result["samples_coverage_min"] == result["coverage"]
+    assert result["coverage_rank"] == 0.25
+    scores = score_trajectory(poses, truth, cov, samples=np.stack([poses, truth]))
+    assert {k: scores[k] for k in result} == result
+    assert "coverage_rank" not in score_trajectory(poses, truth, cov)
+
+
+@pytest.mark.parametrize("samples, message", [
+    (np.zeros((2, 7, 3)), r"samples must have shape \(N, 8, 3\)"),
+    (np.zeros((0, 8, 3)), r"with N >= 1"),
+    (np.full((1, 8, 3), np.nan), r"samples\[0, 0, 0\] is nan"),
+])
+def test_coverage_rank_refuses_bad_samples(samples, message):
+    poses = circle(1.0, 8)
+    cov = np.array([np.eye(3) * 0.01] * 8)
+    with pytest.raises(BayesmapError, match=message):
+        coverage_rank(poses, cov, poses, samples)

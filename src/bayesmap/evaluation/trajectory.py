@@ -13,6 +13,9 @@ scan, estimate and truth in the same scan order (``(S, 3)`` float arrays).
   lands on a SLAM map).
 * :func:`ellipse_coverage`: how often the truth lies inside the estimate's confidence ellipse: a calibration check
   of a posterior's pose covariance.
+* :func:`coverage_rank`: the same coverage scored by paths drawn from the posterior, and where the truth's falls
+  among them: what coverage a calibrated posterior would give on this path (the probability integral transform of
+  the coverage; Dawid 1984, "Statistical theory: the prequential approach", J. R. Statist. Soc. A 147(2)).
 
 These are the few lines evo (the standard package) computes, written here for SE(2): evo aligns with 3-D
 Umeyama (SE(3)/Sim(3)), which on planar trajectories may pick a rotation by pi about an axis in the plane, a mirror
@@ -244,11 +247,55 @@ def ellipse_coverage(estimate, pose_cov, truth, level: float = 0.95) -> float:
     return float(np.mean(_mahalanobis_sq(truth_in_estimate_frame - e[:, :2], cov) <= r2))
 
 
+def coverage_rank(estimate, pose_cov, truth, samples, level: float = 0.95) -> dict[str, float | int]:
+    """The truth's :func:`ellipse_coverage` beside the coverage that paths drawn from the posterior score.
+
+    Each sample path is scored exactly as the truth is (aligned onto ``estimate`` by the best rigid motion, then
+    counted inside or outside the same ellipses). For a calibrated posterior the truth is one more draw, so its
+    coverage is one more value of the samples' distribution: its rank among them (the fraction of samples scoring
+    less, ties counted half) is uniform over runs (the probability integral transform; Dawid 1984). The samples'
+    coverages also say what coverage to expect: with the first pose held fixed the ellipses grow along the path, the
+    alignment takes the path's rigid drift out, and a calibrated posterior's coverage is then often above ``level``.
+
+    Args:
+        estimate: ``(S, 3)`` estimated (posterior mean) poses ``(x, y, theta)``: meters, meters, radians.
+        pose_cov: ``(S, 3, 3)`` pose covariances (m^2, m rad, rad^2); only the (x, y) block is used.
+        truth: ``(S, 3)`` true poses, same order.
+        samples: ``(N, S, 3)`` paths drawn from the posterior (``trajectory_samples.npy``), ``N >= 1``.
+        level: the ellipse's probability, in ``(0, 1)``.
+
+    Returns:
+        ``{"coverage", "samples_coverage_min", "samples_coverage_median", "samples_coverage_max", "coverage_rank",
+        "samples"}``: the truth's coverage, the samples' smallest, median and largest (fractions in ``[0, 1]``), the
+        truth's rank in ``[0, 1]`` and ``N``.
+
+    Raises:
+        BayesmapError: as :func:`ellipse_coverage`, or if ``samples`` is not ``(N, S, 3)`` with ``N >= 1`` or holds a
+            value that is not finite.
+    """
+    e, g = _check_poses(estimate, truth, 3)
+    draws = np.asarray(samples, dtype=np.float64)
+    if draws.ndim != 3 or draws.shape[1:] != e.shape or draws.shape[0] == 0:
+        raise BayesmapError(f"samples must have shape (N, {e.shape[0]}, 3) with N >= 1 to match the poses, got "
+                            f"{draws.shape}")
+    bad = np.argwhere(~np.isfinite(draws))
+    if len(bad):
+        raise BayesmapError(f"samples{list(int(v) for v in bad[0])} is {draws[tuple(bad[0])]!r}, not a finite "
+                            "number")
+    observed = ellipse_coverage(e, pose_cov, g, level)
+    drawn = np.array([ellipse_coverage(e, pose_cov, d, level) for d in draws])
+    rank = float(np.mean(drawn < observed) + 0.5 * np.mean(drawn == observed))
+    return {"coverage": observed, "samples_coverage_min": float(drawn.min()),
+            "samples_coverage_median": float(np.median(drawn)), "samples_coverage_max": float(drawn.max()),
+            "coverage_rank": rank, "samples": len(drawn)}
+
+
 RPE_DELTAS = (1, 10)
 """The scan gaps :func:`score_trajectory` reports the relative pose error at."""
 
 
-def score_trajectory(estimate, truth, pose_cov=None, level: float = 0.95) -> dict[str, float | int | None]:
+def score_trajectory(estimate, truth, pose_cov=None, level: float = 0.95,
+                     samples=None) -> dict[str, float | int | None]:
     """All trajectory scores of an estimate, in one flat dict (ready for JSON or a table).
 
     Args:
@@ -256,12 +303,16 @@ def score_trajectory(estimate, truth, pose_cov=None, level: float = 0.95) -> dic
         truth: ``(S, 3)`` true poses, same order.
         pose_cov: optional ``(S, 3, 3)`` pose covariances for :func:`ellipse_coverage`.
         level: the coverage ellipse's probability.
+        samples: optional ``(N, S, 3)`` paths drawn from the posterior, with ``pose_cov``: the keys of
+            :func:`coverage_rank` as well.
 
     Returns:
         ``ate_rmse_m``, ``ate_mean_m``, ``ate_median_m``, ``ate_max_m`` (:func:`absolute_trajectory_error`);
         for each ``delta`` in :data:`RPE_DELTAS` smaller than ``S``: ``rpe{delta}_trans_rmse_m`` and
         ``rpe{delta}_rot_rmse_deg`` (:func:`relative_pose_error`); ``poses`` (``S``); ``coverage`` (the
-        :func:`ellipse_coverage` fraction, None without ``pose_cov``) and ``coverage_level``.
+        :func:`ellipse_coverage` fraction, None without ``pose_cov``) and ``coverage_level``; with ``samples``
+        and ``pose_cov``, ``samples_coverage_min``, ``samples_coverage_median``, ``samples_coverage_max``,
+        ``coverage_rank`` and ``samples`` (:func:`coverage_rank`).
 
     Raises:
         BayesmapError: as the functions it calls.
@@ -277,4 +328,6 @@ def score_trajectory(estimate, truth, pose_cov=None, level: float = 0.95) -> dic
             scores[f"rpe{delta}_rot_rmse_deg"] = rpe["rot_rmse_deg"]
     scores["coverage"] = None if pose_cov is None else ellipse_coverage(e, pose_cov, g, level)
     scores["coverage_level"] = level
+    if pose_cov is not None and samples is not None:
+        scores.update(coverage_rank(e, pose_cov, g, samples, level))
     return scores

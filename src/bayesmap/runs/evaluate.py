@@ -108,12 +108,20 @@ def format_scores(scores: dict) -> str:
 
 
 def format_trajectory_scores(scores: dict) -> str:
-    """The trajectory table: one row per method (bayesmap, odometry), :data:`TRAJECTORY_COLUMNS` as columns."""
+    """The trajectory table: one row per method (bayesmap, odometry), :data:`TRAJECTORY_COLUMNS` as columns; with
+    the samples' coverages (:func:`bayesmap.evaluation.trajectory.coverage_rank`), two lines of them below."""
     lines = [f"{'method':<10}" + "".join(f"{head:>11}" for _, head in TRAJECTORY_COLUMNS)]
     for name in ("bayesmap", "odometry"):
         vals = scores[name]
         lines.append(f"{name:<10}" + "".join(f"{'-':>11}" if vals.get(key) is None else f"{vals[key]:>11.4f}"
                                               for key, _ in TRAJECTORY_COLUMNS))
+    run = scores["bayesmap"]
+    if run.get("coverage_rank") is not None:
+        lines.append(f"the {run['samples']} posterior samples, each scored as the truth is: cover95 "
+                     f"{run['samples_coverage_min']:.4f} to {run['samples_coverage_max']:.4f} (median "
+                     f"{run['samples_coverage_median']:.4f})")
+        lines.append(f"the truth's cover95 ranks {run['coverage_rank']:.2f} among them (over many runs, evenly "
+                     "spread over 0-1 for a calibrated posterior)")
     return "\n".join(lines)
 
 
@@ -191,7 +199,7 @@ def evaluate_trajectory(req: EvaluateRequest, progress: Optional[ProgressCallbac
     start_stage(progress, "read truth")
     truth_stamps, truth_poses = read_tum(req.truth_trajectory)
     if req.run is not None:
-        stamps, mean, cov = read_slam_run(req.run)
+        stamps, mean, cov, samples = read_slam_run(req.run)
     start_stage(progress, "read log")
     carmen = read_source(req.log, req.bag, req.scan_topic, req.odom_topic, req.tf, req.max_range)
     path = req.log if req.log is not None else req.bag
@@ -215,11 +223,11 @@ def evaluate_trajectory(req: EvaluateRequest, progress: Optional[ProgressCallbac
         run = log_slam(carmen, path, req.scans, req.resolution, req.sweeps, None, req.seed, final_map=False,
                        progress=progress, notify=notify)
         result, chosen, settings = run.result, run.chosen, run.settings
-        mean, cov = result.mean_path, result.pose_cov
+        mean, cov, samples = result.mean_path, result.pose_cov, result.pose_samples
         setup.update(settings=settings, runtime_s=result.runtime_s, acceptance_rate=result.acceptance_rate)
     setup.update(scans=len(chosen), paired_by=paired)
     start_stage(progress, "score")
-    scores = {"setup": setup, "bayesmap": score_trajectory(mean, truth, cov),
+    scores = {"setup": setup, "bayesmap": score_trajectory(mean, truth, cov, samples=samples),
               "odometry": score_trajectory(np.asarray(carmen.poses, np.float64)[chosen], truth)}
     source = f"the run in {req.run}" if req.run is not None else f"a new run ({setup['runtime_s']:.1f} s)"
     header = (f"{path.name}: {len(chosen)} scans, {source}, against {req.truth_trajectory.name} (paired by "

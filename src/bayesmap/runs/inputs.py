@@ -286,13 +286,15 @@ def load_npy(path: Path, what: str) -> np.ndarray:
         raise BayesmapError(f"{what} {name!r} is not a .npy array: {' '.join(str(err).split())}") from None
 
 
-def read_slam_run(run: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The trajectory of a ``bayesmap slam`` output folder: ``(stamps (S,), mean path (S, 3), pose_cov (S, 3, 3))``
-    from its trajectory.tum and pose_cov.npy (x, y m, theta rad; covariances m^2, m rad, rad^2), float64.
+def read_slam_run(run: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """The trajectory of a ``bayesmap slam`` output folder: ``(stamps (S,), mean path (S, 3), pose_cov (S, 3, 3),
+    samples (N, S, 3) or None)`` from its trajectory.tum, pose_cov.npy and trajectory_samples.npy (x, y m, theta
+    rad; covariances m^2, m rad, rad^2), float64; None where the folder has no trajectory_samples.npy.
 
     Raises:
-        BayesmapError: naming the folder or file: not a folder, a file missing, unreadable or not a regular file,
-            or a pose_cov.npy whose shape does not match the trajectory's poses.
+        BayesmapError: naming the folder or file: not a folder, a file missing (trajectory.tum or pose_cov.npy),
+            unreadable or not a regular file, or a pose_cov.npy or trajectory_samples.npy whose shape does not match
+            the trajectory's poses.
     """
     run = Path(run)
     if not run.is_dir():
@@ -302,4 +304,11 @@ def read_slam_run(run: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if cov.shape != (len(mean), 3, 3):
         raise BayesmapError(f"{str(run / 'pose_cov.npy')!r} has shape {cov.shape}, but trajectory.tum has "
                             f"{len(mean)} poses: expected ({len(mean)}, 3, 3)")
-    return stamps, mean, cov.astype(np.float64)
+    samples = None
+    if (run / "trajectory_samples.npy").exists():
+        samples = load_npy(run / "trajectory_samples.npy", "trajectory samples")
+        if samples.ndim != 3 or samples.shape[1:] != (len(mean), 3) or samples.shape[0] == 0:
+            raise BayesmapError(f"{str(run / 'trajectory_samples.npy')!r} has shape {samples.shape}, but "
+                                f"trajectory.tum has {len(mean)} poses: expected (N, {len(mean)}, 3), N >= 1")
+        samples = samples.astype(np.float64)
+    return stamps, mean, cov.astype(np.float64), samples

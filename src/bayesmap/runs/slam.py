@@ -162,7 +162,8 @@ def run_simulated_slam(problem: SlamProblem, sweeps: int, burn_in: int, seed: in
         "settings": settings,
         "runtime_s": result.runtime_s,
         "acceptance_rate": result.acceptance_rate,
-        "posterior": score_trajectory(result.mean_path, problem.true_poses, result.pose_cov),
+        "posterior": score_trajectory(result.mean_path, problem.true_poses, result.pose_cov,
+                                      samples=result.pose_samples),
         "odometry": score_trajectory(problem.odometry, problem.true_poses),
         "map_cells_wrong": int(np.sum((result.posterior > 0.5) != (problem.truth > 0))),
     }
