@@ -36,8 +36,9 @@ the loop edges' covariances their matches' posteriors as well (:func:`bayesmap.s
 With ``--self-coverage`` (and ``--local-maps``), five more columns: what a calibrated posterior would score.
 :data:`SELF_DRAWS` paths are drawn from a graph's Laplace approximation
 (:func:`bayesmap.slam.posegraph.sample_deviations`), each put in the truth's place and scored against that graph's
-ellipses by the same coverage (:func:`self_coverages`). First the rank of the truth's coverage among them (the
-fraction of draws scoring less, ties counted half; uniform over runs for a calibrated posterior) for three graphs:
+ellipses by the same coverage (:func:`bayesmap.evaluation.trajectory.coverage_rank`). First the rank of the truth's
+coverage among them (the fraction of draws scoring less, ties counted half; uniform over runs for a calibrated
+posterior) for three graphs:
 the step posteriors' (the second column's), the steps tied to their local maps, and the loop edges' posteriors as
 well (what ``slam --log`` reports); then, for the last, the median and 5-95 % range of the draws' coverages and the
 fraction of them inside 85-99 %.
@@ -67,7 +68,12 @@ from karto_peer import parse_seeds  # noqa: E402
 from seeded_logs import scan_set_problem, scan_set_runs  # noqa: E402
 from target_at_truth import in_model_frame  # noqa: E402
 
-from bayesmap.evaluation.trajectory import absolute_trajectory_error, ellipse_coverage  # noqa: E402
+from bayesmap.evaluation.trajectory import (  # noqa: E402
+    absolute_trajectory_error,
+    coverage_rank,
+    ellipse_coverage,
+    sample_coverages,
+)
 from bayesmap.model.motion import wrap_angle  # noqa: E402
 from bayesmap.slam import pipeline, posegraph  # noqa: E402
 from bayesmap.slam.scanmatch import local_map_shares  # noqa: E402
@@ -111,14 +117,6 @@ def aligned_covariances(path, edges, draws: int = 4000, seed: int = 0) -> np.nda
     d[:, :, :2] -= shift[:, None, :] + turn[:, None, None] * lever[None]
     d[:, :, 2] -= turn[:, None]
     return np.einsum("nsi,nsj->sij", d, d) / draws
-
-
-def self_coverages(path, cov, draws) -> np.ndarray:
-    """``(N,)``: the 95 % :func:`ellipse_coverage` of ``cov`` ``(S, 3, 3)`` about ``path`` ``(S, 3)`` of each path
-    ``path + draws[n]`` (``draws`` ``(N, S, 3)``, deviations from the posterior the ellipses describe), scored as the
-    truth is: aligned onto ``path`` by the best rigid motion first. For a calibrated posterior, the truth's coverage
-    is one more draw of this distribution."""
-    return np.array([ellipse_coverage(path, cov, path + d) for d in draws])
 
 
 def first_pose_coverage(path, cov, truth, level: float = 0.95) -> float:
@@ -181,13 +179,11 @@ def run(name: str, seed: int, scans: str, step_power: float | str | None = None,
             graph = posegraph.concat_edges(edges.take(slice(0, len(path) - 1)), own)
             shares = posegraph.LocalMaps(local_map_shares(front.path, data), np.asarray(data.covs, np.float64))
             for ellipses, drawn_from, tie in ((cov, edges, None), (tied, edges, shares), (both, graph, shares)):
-                deviations = posegraph.sample_deviations(seed, path, drawn_from, SELF_DRAWS, tie)
-                drawn = self_coverages(path, ellipses, deviations)
-                observed = ellipse_coverage(path, ellipses, truth)
-                rank = float(np.mean(drawn < observed) + 0.5 * np.mean(drawn == observed))
-                other += f" {rank:.2f} |"
-            inside = float(np.mean((drawn >= 0.85) & (drawn <= 0.99)))
-            low, mid, high = np.percentile(drawn, [5, 50, 95])
+                drawn = path + posegraph.sample_deviations(seed, path, drawn_from, SELF_DRAWS, tie)
+                other += f" {coverage_rank(path, ellipses, truth, drawn)['coverage_rank']:.2f} |"
+            scores = sample_coverages(path, both, drawn)
+            inside = float(np.mean((scores >= 0.85) & (scores <= 0.99)))
+            low, mid, high = np.percentile(scores, [5, 50, 95])
             other += f" {mid:.3f} ({low:.3f}-{high:.3f}) | {inside:.2f} |"
     if first_pose:
         other += f" {first_pose_coverage(path, cov, truth):.3f} |"

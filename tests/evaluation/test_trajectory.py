@@ -16,6 +16,7 @@ from bayesmap.evaluation.trajectory import (
     ellipse_coverage,
     frame_of,
     relative_pose_error,
+    sample_coverages,
     score_trajectory,
 )
 from bayesmap.io.tum import read_tum
@@ -332,6 +333,7 @@ def test_coverage_rank_by_hand():
     assert result["coverage"] == pytest.approx(ellipse_coverage(poses, cov, truth))
     assert result["samples_coverage_max"] == 1.0 and result["samples_coverage_min"] == result["coverage"]
     assert result["coverage_rank"] == 0.25
+    assert list(sample_coverages(poses, cov, np.stack([poses, truth]))) == [1.0, result["coverage"]]
     scores = score_trajectory(poses, truth, cov, samples=np.stack([poses, truth]))
     assert {k: scores[k] for k in result} == result
     assert "coverage_rank" not in score_trajectory(poses, truth, cov)

@@ -13,9 +13,10 @@ scan, estimate and truth in the same scan order (``(S, 3)`` float arrays).
   lands on a SLAM map).
 * :func:`ellipse_coverage`: how often the truth lies inside the estimate's confidence ellipse: a calibration check
   of a posterior's pose covariance.
-* :func:`coverage_rank`: the same coverage scored by paths drawn from the posterior, and where the truth's falls
-  among them: what coverage a calibrated posterior would give on this path (the probability integral transform of
-  the coverage; Dawid 1984, "Statistical theory: the prequential approach", J. R. Statist. Soc. A 147(2)).
+* :func:`sample_coverages`, :func:`coverage_rank`: the same coverage scored by paths drawn from the posterior, and
+  where the truth's falls among them: what coverage a calibrated posterior would give on this path (the probability
+  integral transform of the coverage; Dawid 1984, "Statistical theory: the prequential approach", J. R. Statist.
+  Soc. A 147(2)).
 
 These are the few lines evo (the standard package) computes, written here for SE(2): evo aligns with 3-D
 Umeyama (SE(3)/Sim(3)), which on planar trajectories may pick a rotation by pi about an axis in the plane, a mirror
@@ -247,15 +248,46 @@ def ellipse_coverage(estimate, pose_cov, truth, level: float = 0.95) -> float:
     return float(np.mean(_mahalanobis_sq(truth_in_estimate_frame - e[:, :2], cov) <= r2))
 
 
+def sample_coverages(estimate, pose_cov, samples, level: float = 0.95) -> np.ndarray:
+    """The :func:`ellipse_coverage` of each path drawn from the posterior, scored in the truth's place.
+
+    Each sample is aligned onto ``estimate`` by the best rigid motion, then its positions are counted inside or
+    outside the ellipses of ``pose_cov``, exactly as the truth is.
+
+    Args:
+        estimate: ``(S, 3)`` estimated (posterior mean) poses ``(x, y, theta)``: meters, meters, radians.
+        pose_cov: ``(S, 3, 3)`` pose covariances (m^2, m rad, rad^2); only the (x, y) block is used.
+        samples: ``(N, S, 3)`` paths drawn from the posterior (``trajectory_samples.npy``), ``N >= 1``.
+        level: the ellipse's probability, in ``(0, 1)``.
+
+    Returns:
+        ``(N,)`` float64 fractions in ``[0, 1]``.
+
+    Raises:
+        BayesmapError: as :func:`ellipse_coverage`, or if ``samples`` is not ``(N, S, 3)`` with ``N >= 1`` or holds a
+            value that is not finite.
+    """
+    e = np.asarray(estimate, dtype=np.float64)
+    draws = np.asarray(samples, dtype=np.float64)
+    if draws.ndim != 3 or draws.shape[1:] != e.shape or draws.shape[0] == 0:
+        raise BayesmapError(f"samples must have shape (N, {e.shape[0]}, 3) with N >= 1 to match the poses, got "
+                            f"{draws.shape}")
+    bad = np.argwhere(~np.isfinite(draws))
+    if len(bad):
+        raise BayesmapError(f"samples{list(int(v) for v in bad[0])} is {draws[tuple(bad[0])]!r}, not a finite "
+                            "number")
+    return np.array([ellipse_coverage(e, pose_cov, d, level) for d in draws])
+
+
 def coverage_rank(estimate, pose_cov, truth, samples, level: float = 0.95) -> dict[str, float | int]:
     """The truth's :func:`ellipse_coverage` beside the coverage that paths drawn from the posterior score.
 
-    Each sample path is scored exactly as the truth is (aligned onto ``estimate`` by the best rigid motion, then
-    counted inside or outside the same ellipses). For a calibrated posterior the truth is one more draw, so its
-    coverage is one more value of the samples' distribution: its rank among them (the fraction of samples scoring
-    less, ties counted half) is uniform over runs (the probability integral transform; Dawid 1984). The samples'
-    coverages also say what coverage to expect: with the first pose held fixed the ellipses grow along the path, the
-    alignment takes the path's rigid drift out, and a calibrated posterior's coverage is then often above ``level``.
+    Each sample path is scored exactly as the truth is (:func:`sample_coverages`). For a calibrated posterior the
+    truth is one more draw, so its coverage is one more value of the samples' distribution: its rank among them (the
+    fraction of samples scoring less, ties counted half) is uniform over runs (the probability integral transform;
+    Dawid 1984). The samples' coverages also say what coverage to expect: with the first pose held fixed the
+    ellipses grow along the path, the alignment takes the path's rigid drift out, and a calibrated posterior's
+    coverage is then often above ``level``.
 
     Args:
         estimate: ``(S, 3)`` estimated (posterior mean) poses ``(x, y, theta)``: meters, meters, radians.
@@ -270,20 +302,10 @@ def coverage_rank(estimate, pose_cov, truth, samples, level: float = 0.95) -> di
         truth's rank in ``[0, 1]`` and ``N``.
 
     Raises:
-        BayesmapError: as :func:`ellipse_coverage`, or if ``samples`` is not ``(N, S, 3)`` with ``N >= 1`` or holds a
-            value that is not finite.
+        BayesmapError: as :func:`ellipse_coverage` and :func:`sample_coverages`.
     """
-    e, g = _check_poses(estimate, truth, 3)
-    draws = np.asarray(samples, dtype=np.float64)
-    if draws.ndim != 3 or draws.shape[1:] != e.shape or draws.shape[0] == 0:
-        raise BayesmapError(f"samples must have shape (N, {e.shape[0]}, 3) with N >= 1 to match the poses, got "
-                            f"{draws.shape}")
-    bad = np.argwhere(~np.isfinite(draws))
-    if len(bad):
-        raise BayesmapError(f"samples{list(int(v) for v in bad[0])} is {draws[tuple(bad[0])]!r}, not a finite "
-                            "number")
-    observed = ellipse_coverage(e, pose_cov, g, level)
-    drawn = np.array([ellipse_coverage(e, pose_cov, d, level) for d in draws])
+    observed = ellipse_coverage(estimate, pose_cov, truth, level)
+    drawn = sample_coverages(estimate, pose_cov, samples, level)
     rank = float(np.mean(drawn < observed) + 0.5 * np.mean(drawn == observed))
     return {"coverage": observed, "samples_coverage_min": float(drawn.min()),
             "samples_coverage_median": float(np.median(drawn)), "samples_coverage_max": float(drawn.max()),
