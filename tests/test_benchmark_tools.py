@@ -1,6 +1,7 @@
 """The benchmarks' own helpers: the trace reader of ``benchmarks/sweep_cost.py --profile``, the selection rules
 of ``benchmarks/map_cv.py``, the watchdog, slopes and table of ``benchmarks/scale.py``, and the truth carried onto
-the model's first pose by ``target_at_truth.py`` and ``step_covariance.py``."""
+the model's first pose by ``target_at_truth.py`` and ``step_covariance.py``, and the coverage-rank figure of
+``coverage_ranks.py``."""
 
 import gzip
 import json
@@ -11,6 +12,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import coverage_ranks  # noqa: E402
 import map_cv  # noqa: E402
 import scale  # noqa: E402
 import sweep_cost  # noqa: E402
@@ -233,3 +235,30 @@ def test_first_pose_coverage_places_the_truth_by_its_first_pose_only():
     shifted[10:, :2] += 0.05  # 5 standard deviations, from the eleventh pose on
     assert step_covariance.first_pose_coverage(path, cov, shifted) == 10 / 50
     assert ellipse_coverage(path, cov, shifted) > 0.5  # a fit to every pose absorbs most of the offset
+
+
+def test_coverage_ranks_figure_and_table(tmp_path, capsys):
+    """Three records (ranks 0, 0.5 and 1) and one without bayesmap's rank (skipped): the figure is written, the
+    table has the three runs, and the five bins count them 1, 0, 1, 0, 1 (a rank of 1 in the last bin). A folder
+    with no such record, or an existing figure without --force, is one line and exit code 2."""
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    for k, rank in enumerate([0.0, 0.5, 1.0]):
+        scores = {"coverage": 0.9 + 0.01 * k, "samples_coverage_min": 0.85, "samples_coverage_median": 0.95,
+                  "samples_coverage_max": 0.99, "coverage_rank": rank}
+        (runs / f"aces-s{k}.json").write_text(json.dumps({"log": "aces", "seed": k, "bayesmap": scores}))
+    (runs / "aces-s9.json").write_text(json.dumps({"log": "aces", "seed": 9, "karto": {"ate_m": 1.0}}))
+    png = tmp_path / "ranks.png"
+    assert coverage_ranks.main([str(runs), "--png", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "| aces s1 | 0.910 | 0.850-0.990 (0.950) | 0.50 |" in out and "aces s9" not in out
+    assert "ranks in 5 bins over [0, 1]: 1, 0, 1, 0, 1 (a calibrated posterior: 0.6 each)" in out
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for args in ([str(empty), "--png", str(tmp_path / "other.png")], [str(runs), "--png", str(png)]):
+        with pytest.raises(SystemExit) as exit_info:
+            coverage_ranks.main(args)
+        assert exit_info.value.code == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and ("holds no" in err or "already exists" in err)
