@@ -1,7 +1,7 @@
 """The benchmarks' own helpers: the trace reader of ``benchmarks/sweep_cost.py --profile``, the selection rules
 of ``benchmarks/map_cv.py``, the watchdog, slopes and table of ``benchmarks/scale.py``, and the truth carried onto
-the model's first pose by ``target_at_truth.py`` and ``step_covariance.py``, and the coverage-rank figure of
-``coverage_ranks.py``."""
+the model's first pose by ``target_at_truth.py`` and ``step_covariance.py``, the coverage-rank figure of
+``coverage_ranks.py`` and the similarity scale of ``path_scale.py``."""
 
 import gzip
 import json
@@ -14,6 +14,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import coverage_ranks  # noqa: E402
 import map_cv  # noqa: E402
+import path_scale  # noqa: E402
 import scale  # noqa: E402
 import sweep_cost  # noqa: E402
 
@@ -262,3 +263,23 @@ def test_coverage_ranks_figure_and_table(tmp_path, capsys):
         assert exit_info.value.code == 2
         err = capsys.readouterr().err
         assert len(err.strip().splitlines()) == 1 and ("holds no" in err or "already exists" in err)
+
+
+def test_path_scale_recovers_a_similarity(tmp_path, capsys):
+    """A path that is the truth shrunk by 0.5 % about a point, turned and moved: the truth is 1 / 0.995 times as
+    large (+0.503 %), and the similarity leaves no error where the rigid alignment leaves some."""
+    import numpy as np
+
+    rng = np.random.default_rng(3)
+    truth = np.column_stack([np.cumsum(rng.normal(0, 1, (60, 2)), axis=0), rng.normal(0, 1, 60)])
+    c, s = np.cos(0.4), np.sin(0.4)
+    path = truth.copy()
+    path[:, :2] = 0.995 * (truth[:, :2] - [3.0, -2.0]) @ np.array([[c, -s], [s, c]]).T + [10.0, 4.0]
+    scale, rmse = path_scale.similarity_scale(path, truth)
+    assert scale == pytest.approx(1 / 0.995, rel=1e-12) and rmse < 1e-9
+    np.savez(tmp_path / "aces-s0.npz", mean=path, truth=truth)
+    assert path_scale.main([str(tmp_path)]) == 0
+    assert "| aces-s0 | +0.503 |" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_info:
+        path_scale.main([str(tmp_path / "none")])
+    assert exit_info.value.code == 2
