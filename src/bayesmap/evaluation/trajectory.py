@@ -348,8 +348,9 @@ def score_trajectory(estimate, truth, pose_cov=None, level: float = 0.95,
             rpe = relative_pose_error(e, g, delta)
             scores[f"rpe{delta}_trans_rmse_m"] = rpe["trans_rmse_m"]
             scores[f"rpe{delta}_rot_rmse_deg"] = rpe["rot_rmse_deg"]
-    scores["coverage"] = None if pose_cov is None else ellipse_coverage(e, pose_cov, g, level)
-    scores["coverage_level"] = level
-    if pose_cov is not None and samples is not None:
+    if pose_cov is not None and samples is not None:  # the truth's coverage with the samples'
         scores.update(coverage_rank(e, pose_cov, g, samples, level))
+    else:
+        scores["coverage"] = None if pose_cov is None else ellipse_coverage(e, pose_cov, g, level)
+    scores["coverage_level"] = level
     return scores
