@@ -13,26 +13,22 @@ Usage: PYTHONPATH=src python benchmarks/path_scale.py DIR [DIR ...]
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from bayesmap.evaluation.trajectory import absolute_trajectory_error
+from bayesmap.evaluation.trajectory import absolute_trajectory_error, align_rigid_2d, similarity_scale
 
 
-def similarity_scale(estimate, truth) -> tuple[float, float]:
+def similarity_fit(estimate, truth) -> tuple[float, float]:
     """``(s, rmse)``: the scale of the least-squares similarity of ``estimate``'s positions ``(S, 2+)`` onto
-    ``truth``'s and the position RMSE after it (meters)."""
+    ``truth``'s (:func:`bayesmap.evaluation.trajectory.similarity_scale`; its rotation is the rigid alignment's) and
+    the position RMSE after it (meters)."""
     e, g = np.asarray(estimate, np.float64)[:, :2], np.asarray(truth, np.float64)[:, :2]
-    ec, gc = e - e.mean(axis=0), g - g.mean(axis=0)
-    cross = float(np.sum(ec[:, 0] * gc[:, 1] - ec[:, 1] * gc[:, 0]))
-    dot = float(np.sum(ec * gc))
-    angle = math.atan2(cross, dot)
-    scale = (math.cos(angle) * dot + math.sin(angle) * cross) / float(np.sum(ec**2))
-    rot = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
-    moved = scale * ec @ rot.T + g.mean(axis=0)
+    scale = similarity_scale(e, g)
+    rot, _ = align_rigid_2d(e, g)
+    moved = scale * (e - e.mean(axis=0)) @ rot.T + g.mean(axis=0)
     return scale, float(np.sqrt(np.mean(np.sum((moved - g) ** 2, axis=1))))
 
 
@@ -48,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     for path in files:
         with np.load(path) as arrays:
             mean, truth = arrays["mean"], arrays["truth"]
-        scale, rmse = similarity_scale(mean, truth)
+        scale, rmse = similarity_fit(mean, truth)
         print(f"| {path.stem} | {100 * (scale - 1):+.3f} | {absolute_trajectory_error(mean, truth)['rmse_m']:.3f} | "
               f"{rmse:.3f} |")
     return 0

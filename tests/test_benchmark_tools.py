@@ -275,7 +275,7 @@ def test_path_scale_recovers_a_similarity(tmp_path, capsys):
     c, s = np.cos(0.4), np.sin(0.4)
     path = truth.copy()
     path[:, :2] = 0.995 * (truth[:, :2] - [3.0, -2.0]) @ np.array([[c, -s], [s, c]]).T + [10.0, 4.0]
-    scale, rmse = path_scale.similarity_scale(path, truth)
+    scale, rmse = path_scale.similarity_fit(path, truth)
     assert scale == pytest.approx(1 / 0.995, rel=1e-12) and rmse < 1e-9
     np.savez(tmp_path / "aces-s0.npz", mean=path, truth=truth)
     assert path_scale.main([str(tmp_path)]) == 0

@@ -298,6 +298,9 @@ def test_evaluate_run_scores_by_hand(tmp_path, monkeypatch, capsys):
     assert run["ate_rmse_m"] == pytest.approx(0.5 * math.sqrt(2), abs=1e-6)
     assert run["rpe1_trans_rmse_m"] == pytest.approx(1.0, abs=1e-6) and run["rpe1_rot_rmse_deg"] < 1e-5
     assert run["coverage"] == 0.5 and run["poses"] == 4 and "rpe10_trans_rmse_m" not in run
+    # the best similarity undoes the scaling: the truth is 1 / 1.5 of the run's size and 1 / 2 of the odometry's
+    assert run["scale_pct"] == pytest.approx(100 * (1 / 1.5 - 1), abs=1e-4)
+    assert odo["scale_pct"] == pytest.approx(-50.0, abs=1e-9)
     assert odo["ate_rmse_m"] == pytest.approx(math.sqrt(2), abs=1e-9)
     assert odo["rpe1_trans_rmse_m"] == pytest.approx(2.0, abs=1e-9) and odo["coverage"] is None
 

@@ -18,6 +18,7 @@ from bayesmap.evaluation.trajectory import (
     relative_pose_error,
     sample_coverages,
     score_trajectory,
+    similarity_scale,
 )
 from bayesmap.io.tum import read_tum
 
@@ -349,3 +350,17 @@ def test_coverage_rank_refuses_bad_samples(samples, message):
     cov = np.array([np.eye(3) * 0.01] * 8)
     with pytest.raises(BayesmapError, match=message):
         coverage_rank(poses, cov, poses, samples)
+
+
+def test_similarity_scale_of_a_shrunk_and_moved_path():
+    """A path that is the truth shrunk by 0.5 % about a point, then turned and moved: the truth is 1 / 0.995 times
+    as large, whatever the motion; the same path unscaled gives 1; all positions equal give 1 (no spread to scale)."""
+    truth = random_walk(np.random.default_rng(8), 80)
+    shrunk = moved(np.column_stack([0.995 * (truth[:, :2] - [2.0, 1.0]), truth[:, 2]]), 1.1, [7.0, -3.0])
+    assert similarity_scale(shrunk[:, :2], truth[:, :2]) == pytest.approx(1 / 0.995, rel=1e-12)
+    assert similarity_scale(moved(truth, -0.3, [1.0, 2.0])[:, :2], truth[:, :2]) == pytest.approx(1.0, rel=1e-12)
+    assert similarity_scale(np.ones((5, 2)), truth[:5, :2]) == 1.0
+    scores = score_trajectory(shrunk, truth)
+    assert scores["scale_pct"] == pytest.approx(100 * (1 / 0.995 - 1), rel=1e-9)
+    with pytest.raises(BayesmapError, match="estimate has 80 poses but truth has 4"):
+        similarity_scale(truth[:, :2], truth[:4, :2])

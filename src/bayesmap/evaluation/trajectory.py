@@ -9,6 +9,7 @@ scan, estimate and truth in the same scan order (``(S, 3)`` float arrays).
 * :func:`relative_pose_error` (RPE): the error of the relative motion between scans ``i`` and ``i + delta``
   (Sturm et al. 2012, Section VI-A; Kümmerle et al. 2009, "On measuring the accuracy of SLAM algorithms",
   Autonomous Robots 27(4)); it needs no alignment.
+* :func:`similarity_scale`: how much larger the truth is than the estimate, by the best similarity alignment.
 * :func:`frame_of`: true poses carried into the estimate's frame by the inverse of that alignment (where the truth
   lands on a SLAM map).
 * :func:`ellipse_coverage`: how often the truth lies inside the estimate's confidence ellipse: a calibration check
@@ -75,13 +76,44 @@ def align_rigid_2d(estimate, truth) -> tuple[np.ndarray, np.ndarray]:
     """
     e, g = _check_poses(estimate, truth, 2)
     me, mg = e.mean(axis=0), g.mean(axis=0)
-    ec, gc = e - me, g - mg
-    cross = float(np.sum(ec[:, 0] * gc[:, 1] - ec[:, 1] * gc[:, 0]))
-    dot = float(np.sum(ec[:, 0] * gc[:, 0] + ec[:, 1] * gc[:, 1]))
+    cross, dot = _centred_products(e - me, g - mg)
     angle = math.atan2(cross, dot)
     c, s = math.cos(angle), math.sin(angle)
     rot = np.array([[c, -s], [s, c]])
     return rot, mg - rot @ me
+
+
+def _centred_products(ec: np.ndarray, gc: np.ndarray) -> tuple[float, float]:
+    """``(sum of e' x g', sum of e' . g')`` of centred ``(S, 2)`` positions: the sine and cosine parts of the best
+    rotation (Umeyama 1991 in the plane)."""
+    cross = float(np.sum(ec[:, 0] * gc[:, 1] - ec[:, 1] * gc[:, 0]))
+    dot = float(np.sum(ec[:, 0] * gc[:, 0] + ec[:, 1] * gc[:, 1]))
+    return cross, dot
+
+
+def similarity_scale(estimate, truth) -> float:
+    """The scale of the least-squares similarity (rotation, translation and scale) that maps the estimated positions
+    onto the true ones: Umeyama 1991 restricted to the plane, ``s = sqrt(C^2 + D^2) / sum_i |e'_i|^2`` with ``C`` and
+    ``D`` the centred points' summed cross and dot products (the rotation is :func:`align_rigid_2d`'s). Above 1: the
+    truth is larger than the estimate (a path shrunk by a range or odometry bias, which no loop closure sees, since a
+    scaled map agrees with itself). The ATE does not fit it.
+
+    Args:
+        estimate: ``(S, 2)`` estimated positions, meters.
+        truth: ``(S, 2)`` true positions, meters, same order.
+
+    Returns:
+        The scale (float, dimensionless); 1.0 if the estimated positions are all the same.
+
+    Raises:
+        BayesmapError: as :func:`align_rigid_2d`.
+    """
+    e, g = _check_poses(estimate, truth, 2)
+    ec, gc = e - e.mean(axis=0), g - g.mean(axis=0)
+    spread = float(np.sum(ec**2))
+    if spread == 0.0:
+        return 1.0
+    return math.hypot(*_centred_products(ec, gc)) / spread
 
 
 def frame_of(estimate, truth, poses) -> np.ndarray:
@@ -330,6 +362,7 @@ def score_trajectory(estimate, truth, pose_cov=None, level: float = 0.95,
 
     Returns:
         ``ate_rmse_m``, ``ate_mean_m``, ``ate_median_m``, ``ate_max_m`` (:func:`absolute_trajectory_error`);
+        ``scale_pct``, :func:`similarity_scale` less 1 in percent (above 0: the estimate is smaller than the truth);
         for each ``delta`` in :data:`RPE_DELTAS` smaller than ``S``: ``rpe{delta}_trans_rmse_m`` and
         ``rpe{delta}_rot_rmse_deg`` (:func:`relative_pose_error`); ``poses`` (``S``); ``coverage`` (the
         :func:`ellipse_coverage` fraction, None without ``pose_cov``) and ``coverage_level``; with ``samples``
@@ -343,6 +376,7 @@ def score_trajectory(estimate, truth, pose_cov=None, level: float = 0.95,
     level = _check_level(level)
     scores: dict[str, float | int | None] = {"poses": len(e)}
     scores.update({f"ate_{k}": v for k, v in absolute_trajectory_error(e, g).items()})
+    scores["scale_pct"] = 100.0 * (similarity_scale(e[:, :2], g[:, :2]) - 1.0)
     for delta in RPE_DELTAS:
         if delta < len(e):
             rpe = relative_pose_error(e, g, delta)

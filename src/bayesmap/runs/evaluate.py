@@ -39,7 +39,7 @@ EVALUATE_SWEEPS = 100
 --truth-trajectory a SLAM run's (``bayesmap slam``'s) default applies instead."""
 TRAJECTORY_COLUMNS = (("ate_rmse_m", "ATE m"), ("rpe1_trans_rmse_m", "RPE1 m"), ("rpe1_rot_rmse_deg", "RPE1 deg"),
                       ("rpe10_trans_rmse_m", "RPE10 m"), ("rpe10_rot_rmse_deg", "RPE10 deg"),
-                      ("coverage", "cover95"))
+                      ("scale_pct", "scale %"), ("coverage", "cover95"))
 """The columns of ``evaluate --truth-trajectory``'s table: the keys of
 :func:`bayesmap.evaluation.trajectory.score_trajectory` and their headings."""
 
