@@ -225,14 +225,15 @@ ZERO_VARIANCE_SLACK = 1e-9
 """Meters: the largest offset along a zero-variance direction that :func:`ellipse_coverage` counts as none."""
 
 
-def _mahalanobis_sq(diff: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """``(S,)`` squared Mahalanobis lengths of ``(S, 2)`` vectors under ``(S, 2, 2)`` PSD covariances.
+def _mahalanobis_sq(diff: np.ndarray, eig: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """``(S,)`` squared Mahalanobis lengths of ``(S, 2)`` vectors under ``(S, 2, 2)`` PSD covariances given by their
+    ``numpy.linalg.eigh`` ``eig`` (computed once for every path scored against them).
 
     A direction of zero variance (eigenvalue at most 1e-12 of the largest, or all zero) admits no offset beyond
     :data:`ZERO_VARIANCE_SLACK` (rounding): a larger component along it gives ``inf``, so a pose with zero
     covariance covers the truth only where they coincide.
     """
-    vals, vecs = np.linalg.eigh(cov)
+    vals, vecs = eig
     comp = np.einsum("sij,si->sj", vecs, diff)  # components along the eigenvectors
     flat = vals <= 1e-12 * np.maximum(vals[:, -1:], 0.0)
     fixed = np.where(np.abs(comp) <= ZERO_VARIANCE_SLACK, 0.0, np.inf)
@@ -275,9 +276,15 @@ def ellipse_coverage(estimate, pose_cov, truth, level: float = 0.95) -> float:
     e, g = _check_poses(estimate, truth, 3)
     level = _check_level(level)
     cov = _check_covariances(pose_cov, len(e))
+    return _inside_fraction(e, np.linalg.eigh(cov), g, level)
+
+
+def _inside_fraction(e: np.ndarray, eig, g: np.ndarray, level: float) -> float:
+    """:func:`ellipse_coverage` of checked poses ``e`` and ``g`` ``(S, 3)``, the ellipses' covariances given by their
+    eigen-decomposition ``eig`` (:func:`_mahalanobis_sq`)."""
     truth_in_estimate_frame = frame_of(e, g, g)[:, :2]
     r2 = -2.0 * math.log1p(-level)
-    return float(np.mean(_mahalanobis_sq(truth_in_estimate_frame - e[:, :2], cov) <= r2))
+    return float(np.mean(_mahalanobis_sq(truth_in_estimate_frame - e[:, :2], eig) <= r2))
 
 
 def sample_coverages(estimate, pose_cov, samples, level: float = 0.95) -> np.ndarray:
@@ -308,7 +315,10 @@ def sample_coverages(estimate, pose_cov, samples, level: float = 0.95) -> np.nda
     if len(bad):
         raise BayesmapError(f"samples{list(int(v) for v in bad[0])} is {draws[tuple(bad[0])]!r}, not a finite "
                             "number")
-    return np.array([ellipse_coverage(e, pose_cov, d, level) for d in draws])
+    e, _ = _check_poses(estimate, draws[0], 3)
+    level = _check_level(level)
+    eig = np.linalg.eigh(_check_covariances(pose_cov, len(e)))  # once for all the samples
+    return np.array([_inside_fraction(e, eig, d, level) for d in draws])
 
 
 def coverage_rank(estimate, pose_cov, truth, samples, level: float = 0.95) -> dict[str, float | int]:
