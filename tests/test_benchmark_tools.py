@@ -1,7 +1,8 @@
 """The benchmarks' own helpers: the trace reader of ``benchmarks/sweep_cost.py --profile``, the selection rules
 of ``benchmarks/map_cv.py``, the watchdog, slopes and table of ``benchmarks/scale.py``, and the truth carried onto
 the model's first pose by ``target_at_truth.py`` and ``step_covariance.py``, the coverage-rank figure of
-``coverage_ranks.py`` and the similarity scale of ``path_scale.py``."""
+``coverage_ranks.py``, the similarity scale of ``path_scale.py`` and the local maps and seen beams of
+``match_bias.py``."""
 
 import gzip
 import json
@@ -14,6 +15,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import coverage_ranks  # noqa: E402
 import map_cv  # noqa: E402
+import match_bias  # noqa: E402
 import path_scale  # noqa: E402
 import scale  # noqa: E402
 import sweep_cost  # noqa: E402
@@ -283,3 +285,61 @@ def test_path_scale_recovers_a_similarity(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         path_scale.main([str(tmp_path / "none")])
     assert exit_info.value.code == 2
+
+
+def test_match_bias_local_maps_and_the_beams_a_map_scan_saw():
+    import jax.numpy as jnp
+    import numpy as np
+
+    travelled = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 5.0])
+    np.testing.assert_array_equal(match_bias.local_map_scans(travelled, 3, 2.0, "past"), [1, 2])
+    np.testing.assert_array_equal(match_bias.local_map_scans(travelled, 3, 2.0, "both"), [1, 2, 4, 5])
+    # a map scan at the origin facing +x whose beams read 2 m (a wall at x = 2), its last beam no return; the scan
+    # matched stands at (1, 0) facing +x: its endpoints on the wall were seen, one 1 m behind the wall was not (the
+    # wall hid it), one behind the map scan's back (outside its field of view) was not, nor one past no return
+    angles = jnp.asarray(np.linspace(-np.pi / 2, np.pi / 2, 181))
+    map_readings = jnp.full((1, 181), 2.0)
+    map_returned = jnp.ones((1, 181), bool).at[0, 180].set(False)
+    pose = jnp.asarray([1.0, 0.0, 0.0])
+    beams = jnp.asarray([0.0, np.pi / 4, 0.0, np.pi, np.pi / 2])
+    readings = jnp.asarray([1.0, np.sqrt(2.0), 2.0, 2.0, 1.0])  # (2, 0), (2, 1), (3, 0), (-1, 0), (1, 1)
+    seen = match_bias.seen_beams(pose, beams, readings, jnp.ones(5, bool), jnp.zeros((1, 3)), angles[None],
+                                 map_readings, map_returned)
+    # (2, 1) is 2.24 m out along a beam that read 2 m: behind the wall's 0.15 m margin; (1, 1) lies at bearing
+    # pi/4 from the map scan, 1.41 m out: in front of its 2 m reading
+    np.testing.assert_array_equal(np.asarray(seen), [True, False, False, False, True])
+    # where the map scan's beam toward an endpoint had no return, the endpoint was not seen
+    edge = match_bias.seen_beams(jnp.asarray([0.0, 0.0, 0.0]), jnp.asarray([np.pi / 2]), jnp.asarray([1.0]),
+                                 jnp.ones(1, bool), jnp.zeros((1, 3)), angles[None], map_readings, map_returned)
+    assert not bool(edge[0])
+
+
+def test_match_bias_surface_beams_join_only_close_returned_neighbours():
+    import jax.numpy as jnp
+    import numpy as np
+
+    from bayesmap.geometry.grid import Grid
+    from bayesmap.geometry.raycast import scan_endpoints
+
+    # a scan at (1, 2) facing +y: its endpoints 0.1 m apart along a wall, then 0.5 m apart, then a beam with no return
+    pose = jnp.asarray([[1.0, 2.0, np.pi / 2]])
+    ends = np.array([[0.0, 3.0], [0.1, 3.0], [0.6, 3.0], [0.7, 3.0]])
+    v = ends - [1.0, 2.0]
+    angles = jnp.asarray(np.arctan2(v[:, 1], v[:, 0]) - np.pi / 2)[None]
+    readings = jnp.asarray(np.hypot(v[:, 0], v[:, 1]))[None]
+    returned = jnp.asarray([[True, True, True, False]])
+    a, r, ok = match_bias.surface_beams(pose, angles, readings, returned, 0.25, 0.05)
+    assert a.shape == r.shape == ok.shape == (1, 4 + 3 * 4)
+    np.testing.assert_array_equal(np.asarray(ok[0, 4:]).reshape(3, 4).all(axis=1), [True, False, False])
+    joined = np.asarray(scan_endpoints(pose, a, r))[0, 4:8]
+    np.testing.assert_allclose(joined, [[0.02, 3.0], [0.04, 3.0], [0.06, 3.0], [0.08, 3.0]], atol=1e-6)
+    # the fine field gains along the joined segment only; the broad one is the endpoints' alone
+    grid = Grid(shape=(60, 60), resolution=0.05, origin=(-1.0, 1.0))
+    plain = match_bias.local_map_fields(grid, pose, angles, readings, returned, 0.0)
+    surface = match_bias.local_map_fields(grid, pose, angles, readings, returned, 0.25)
+    assert np.all(np.asarray(surface[0]) >= np.asarray(plain[0]))
+    np.testing.assert_array_equal(np.asarray(surface[1]), np.asarray(plain[1]))
+    (i, j), (k, m) = (np.floor(np.asarray(grid.to_cell_coords(jnp.asarray(p))) + 0.5).astype(int)
+                      for p in ([0.05, 3.0], [0.35, 3.0]))
+    assert float(surface[0][i, j]) > float(plain[0][i, j]) and float(surface[0][i, j]) > 0.8
+    assert float(surface[0][k, m]) == float(plain[0][k, m])  # the 0.5 m gap stays open
