@@ -35,7 +35,16 @@ from seeded_logs import add_log_seed_options, scan_set_problem, scan_set_runs  #
 
 from bayesmap.geometry.raycast import scan_endpoints  # noqa: E402
 from bayesmap.slam import pipeline, posegraph  # noqa: E402
-from bayesmap.slam.scanmatch import FIELDS, MATCH_LEVELS, add_scan, add_to_fields, empty_fields, lattices, search  # noqa: E402
+from bayesmap.slam.scanmatch import (  # noqa: E402
+    FIELDS,
+    MATCH_LEVELS,
+    add_scan,
+    add_to_fields,
+    empty_fields,
+    lattices,
+    path_length,
+    search,
+)
 
 MAP_SCANS = 128
 """The most scans of a local map (a fixed size, so one compilation; repeats add nothing to a scatter-max)."""
@@ -126,7 +135,7 @@ def match_bias(problem, truth, sides: str, window: float, surface_gap: float, se
                                 ret[members])
         return search(fields, grid, start, angles[t], readings[t], scored, steps)[0]
 
-    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(truth[:, :2], axis=0).T))])
+    travelled = path_length(np.diff(truth, axis=0))  # the true path's length (only x and y are read)
     rng = np.random.default_rng(0)
     offsets = []
     for t in range(EDGE, len(truth) - EDGE):

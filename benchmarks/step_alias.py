@@ -131,7 +131,7 @@ def run(name: str, seed: int, scans: str, position: float, heading: float, unkno
     front = pipeline.front_end(problem, data)
     error = step_errors(posegraph.relative(front.path[:-1], front.path[1:]), truth)
     odometry = step_errors(data.increments, truth)
-    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.asarray(data.increments, np.float64)[:, :2].T))])
+    travelled = scanmatch.path_length(data.increments)
     rows = []
     for t in np.flatnonzero((np.hypot(error[:, 0], error[:, 1]) > position) | (np.abs(error[:, 2]) > heading)):
         s = int(t) + 1
